@@ -1,0 +1,56 @@
+# Set-up on a fresh machine needs only Python >= 3.11 and make:
+#   make demo   # creates .venv, installs reflecto, runs the main job on shipped data
+#   make test   # same bootstrap, then the test suite
+SHELL := /bin/bash
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+OUT ?= out/demo
+SHARED ?= ../shared/data
+
+.PHONY: all demo test test-slow bench sysdeps clean
+
+all: demo
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev,render]'
+	@$(MAKE) --no-print-directory sysdeps
+	@touch $(STAMP)
+
+# Optional system package: LLVM >= 16 lets Mitsuba 3 use its vectorised llvm_ad_rgb
+# variant; without it reflecto falls back to scalar_rgb. Never fatal.
+sysdeps:
+	@if ls /usr/lib/*/libLLVM-1[6-9]*.so* /usr/lib/*/libLLVM-2[0-9]*.so* >/dev/null 2>&1; then \
+	  echo "LLVM >= 16 found"; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "installing libllvm19 (optional, for Mitsuba llvm_ad_rgb)"; \
+	  ( DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null 2>&1 || \
+	    ( apt-get update -qq >/dev/null 2>&1 && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null 2>&1 ) ) \
+	  || echo "warning: libllvm19 not installed; Mitsuba will use scalar_rgb"; \
+	else \
+	  echo "note: no LLVM >= 16 and no root apt-get; Mitsuba will use scalar_rgb"; \
+	fi
+
+demo: $(STAMP)
+	@mkdir -p $(OUT)
+	$(BIN)/reflecto info examples/ggx-plastic.json
+	$(BIN)/reflecto info $(SHARED)/rgl/vch_golden_yellow_rgb.bsdf
+	$(BIN)/reflecto info $(SHARED)/merl-nbrdf/alum-bronze.h5
+	$(BIN)/reflecto tabulate $(SHARED)/merl-nbrdf/alum-bronze.h5 -o $(OUT)/alum-bronze.binary
+	$(BIN)/reflecto info $(OUT)/alum-bronze.binary
+	$(BIN)/python examples/model_demo.py $(OUT)
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q -m "not slow"
+
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -q -m slow
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/bench_model.py
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

@@ -1,0 +1,36 @@
+"""reflecto — condenser-based instant reflectometry (Lan, Dong, Wang, Tong, Guo 2010).
+
+The BRDF model of §3.1 (generalized microfacet BRDF with a tabulated hemicube NDF),
+the BRDF sources it is validated against, and (in later modules) the virtual
+instrument, the §5 reconstruction and the §6 validation.
+
+Units: BRDF values in sr⁻¹; angles in radians unless a name ends in ``_deg``.
+Directions: unit vectors away from the surface, local frame ``x = t, y = b, z = n``.
+"""
+
+from __future__ import annotations
+
+from .errors import FileFormatError, ParameterError, ReflectoError
+from .hemicube import Hemicube, hemicube
+from .model import MicrofacetBRDF, load_model
+from .sources import AnalyticBRDF, BRDFSource, MerlBRDF, NBRDF, RGLBRDF, directional_albedo, load_source
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "AnalyticBRDF",
+    "BRDFSource",
+    "FileFormatError",
+    "Hemicube",
+    "MerlBRDF",
+    "MicrofacetBRDF",
+    "NBRDF",
+    "ParameterError",
+    "RGLBRDF",
+    "ReflectoError",
+    "directional_albedo",
+    "hemicube",
+    "load_model",
+    "load_source",
+    "__version__",
+]

@@ -1,0 +1,87 @@
+"""Fresnel reflectance of an unpolarized wave at a dielectric interface.
+
+Eq. 4 of Lan et al. 2010, after Cook & Torrance 1982 (algorithm-reference §2.1)::
+
+    F(c; η) = (g − c)² / (2 (g + c)²) · [1 + (c(g + c) − 1)² / (c(g − c) + 1)²],
+    g = √(η² + c² − 1),   c = |o·h| = cos θ_d.
+
+``F(1) = ((η − 1)/(η + 1))² = F0``, ``F(0) = 1``. Where ``g²`` would be negative
+(η < 1, total internal reflection) ``F = 1``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
+
+
+def fresnel(c: ArrayLike, eta: ArrayLike) -> Array:
+    """Unpolarized dielectric Fresnel reflectance, eq. 4 (dimensionless, in [0, 1]).
+
+    Parameters
+    ----------
+    c
+        ``cos θ_d = |i·h|``; its absolute value is used. Any shape.
+    eta
+        Relative index of refraction η > 0; broadcast against ``c`` (e.g. shape ``(3,)``
+        against ``c[..., None]`` for per-channel η).
+    """
+    c = np.abs(np.asarray(c, dtype=np.float64))
+    eta = np.asarray(eta, dtype=np.float64)
+    g2 = eta * eta + c * c - 1.0
+    tir = g2 <= 0.0
+    g = np.sqrt(np.maximum(g2, 0.0))
+    gpc = g + c
+    gmc = g - c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = gmc * gmc / (2.0 * gpc * gpc)
+        num = c * gpc - 1.0
+        den = c * gmc + 1.0
+        f = a * (1.0 + num * num / (den * den))
+    f = np.where(tir | ~np.isfinite(f), 1.0, f)
+    return np.clip(f, 0.0, 1.0)
+
+
+def f0_from_eta(eta: ArrayLike) -> Array:
+    """Normal-incidence reflectance ``F0 = ((η − 1)/(η + 1))²``."""
+    eta = np.asarray(eta, dtype=np.float64)
+    return ((eta - 1.0) / (eta + 1.0)) ** 2
+
+
+def eta_from_f0(f0: ArrayLike) -> Array:
+    """Inverse of :func:`f0_from_eta` on η ≥ 1: ``η = (1 + √F0)/(1 − √F0)``."""
+    s = np.sqrt(np.clip(np.asarray(f0, dtype=np.float64), 0.0, 1.0 - 1e-12))
+    return (1.0 + s) / (1.0 - s)
+
+
+def schlick(c: ArrayLike, f0: ArrayLike) -> Array:
+    """Schlick's approximation ``F0 + (1 − F0)(1 − c)⁵`` (used by the Cook–Torrance baseline)."""
+    c = np.abs(np.asarray(c, dtype=np.float64))
+    f0 = np.asarray(f0, dtype=np.float64)
+    return f0 + (1.0 - f0) * (1.0 - c) ** 5
+
+
+class FresnelTable:
+    """Per-channel ``F(c; η)`` tabulated on ``c ∈ [0, 1]`` for fast repeated evaluation.
+
+    Linear interpolation on 4097 nodes spaced uniformly in √c (dense near grazing,
+    where F rises steeply for large η); the error against :func:`fresnel` is below
+    1e-5 for η ∈ [1.01, 100] (tested).
+    """
+
+    def __init__(self, eta: ArrayLike, n: int = 4097) -> None:
+        self.eta = np.atleast_1d(np.asarray(eta, dtype=np.float64))
+        self.n = n
+        c = np.linspace(0.0, 1.0, n) ** 2
+        table = fresnel(c[:, None], self.eta[None, :])
+        self.table = np.concatenate([table, table[-1:]], axis=0)  # guard row for c = 1
+
+    def __call__(self, c: ArrayLike) -> Array:
+        """``F`` at ``|c|``, shape ``c.shape + (channels,)``."""
+        x = np.sqrt(np.minimum(np.abs(np.asarray(c, dtype=np.float64)), 1.0)) * (self.n - 1)
+        k = x.astype(np.intp)
+        w = (x - k)[..., None]
+        lo = self.table[k]
+        return lo + w * (self.table[k + 1] - lo)

@@ -1,0 +1,146 @@
+"""Directions, local frames, and the half/difference (Rusinkiewicz) parameterization.
+
+Conventions (algorithm-reference §0): every direction is a unit vector pointing *away*
+from the surface point; ``i`` toward the light, ``o`` toward the viewer. The local frame
+is ``x = t``, ``y = b``, ``z = n``. Arrays of directions have shape ``(..., 3)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
+
+#: The symmetry of eq. 3 of Lan et al. 2010: 180° rotation about the normal,
+#: ``τ = diag(-1, -1, 1)``. It equals the reflection through the normal line ``R_n``.
+TAU = np.diag([-1.0, -1.0, 1.0])
+#: Mirror across the n–t plane, ``M_t: (x, y, z) → (x, -y, z)`` (algorithm-reference §5.1).
+MIRROR_T = np.diag([1.0, -1.0, 1.0])
+#: Mirror across the n–b plane, ``M_b: (x, y, z) → (-x, y, z)``.
+MIRROR_B = np.diag([-1.0, 1.0, 1.0])
+
+
+def normalize(v: ArrayLike) -> Array:
+    """Unit vectors along ``v`` (shape ``(..., 3)``); zero vectors stay zero."""
+    v = np.asarray(v, dtype=np.float64)
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.divide(v, n, out=np.zeros_like(v), where=n > 0)
+
+
+def spherical_to_cartesian(theta: ArrayLike, phi: ArrayLike) -> Array:
+    """Unit vector ``(sinθ cosφ, sinθ sinφ, cosθ)``; angles in radians, broadcast."""
+    theta = np.asarray(theta, dtype=np.float64)
+    phi = np.asarray(phi, dtype=np.float64)
+    st = np.sin(theta)
+    return np.stack(np.broadcast_arrays(st * np.cos(phi), st * np.sin(phi), np.cos(theta)), axis=-1)
+
+
+def cartesian_to_spherical(v: ArrayLike) -> tuple[Array, Array]:
+    """``(θ, φ)`` of unit vectors ``v``; θ ∈ [0, π], φ ∈ (−π, π] (radians).
+
+    θ is computed as ``2·asin(|v − z|/2)``, which stays accurate near the pole.
+    """
+    v = np.asarray(v, dtype=np.float64)
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    dist = np.sqrt(x * x + y * y + (z - 1.0) ** 2)
+    theta = 2.0 * np.arcsin(np.clip(0.5 * dist, 0.0, 1.0))
+    return theta, np.arctan2(y, x)
+
+
+def reflect(v: ArrayLike, axis: ArrayLike) -> Array:
+    """Reflection of ``v`` about the unit ``axis``: ``R_a(v) = 2(v·a)a − v``."""
+    v = np.asarray(v, dtype=np.float64)
+    a = np.asarray(axis, dtype=np.float64)
+    return 2.0 * np.sum(v * a, axis=-1, keepdims=True) * a - v
+
+
+def half_vector(i: ArrayLike, o: ArrayLike) -> Array:
+    """``h = (i + o)/|i + o|`` (shape ``(..., 3)``)."""
+    return normalize(np.asarray(i, dtype=np.float64) + np.asarray(o, dtype=np.float64))
+
+
+def apply(matrix: ArrayLike, v: ArrayLike) -> Array:
+    """Apply a 3×3 matrix to each direction of ``v`` (shape ``(..., 3)``)."""
+    return np.asarray(v, dtype=np.float64) @ np.asarray(matrix, dtype=np.float64).T
+
+
+def tau(v: ArrayLike) -> Array:
+    """The symmetry τ of eq. 3: ``(x, y, z) → (−x, −y, z)``."""
+    return apply(TAU, v)
+
+
+def frame_from_normal(n: ArrayLike, t: ArrayLike | None = None) -> Array:
+    """Rows ``(t, b, n)`` of an orthonormal frame with normal ``n``.
+
+    If ``t`` is given it is projected onto the plane ⟂ n; otherwise the projection of
+    the world x axis (or y, if x is nearly parallel to n) is used. The matrix maps world
+    vectors to local ones: ``local = world @ F.T``.
+    """
+    n = normalize(n)
+    if t is None:
+        t = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    t = np.asarray(t, dtype=np.float64)
+    t = normalize(t - np.dot(t, n) * n)
+    b = np.cross(n, t)
+    return np.stack([t, b, n])
+
+
+def to_local(v: ArrayLike, frame: ArrayLike) -> Array:
+    """World directions → local coordinates of ``frame`` (rows t, b, n)."""
+    return np.asarray(v, dtype=np.float64) @ np.asarray(frame, dtype=np.float64).T
+
+
+def to_world(v: ArrayLike, frame: ArrayLike) -> Array:
+    """Local coordinates of ``frame`` → world directions."""
+    return np.asarray(v, dtype=np.float64) @ np.asarray(frame, dtype=np.float64)
+
+
+def rotate_z(v: Array, angle: ArrayLike) -> Array:
+    """Rotate directions about +z by ``angle`` (radians, broadcast)."""
+    c, s = np.cos(angle), np.sin(angle)
+    x, y = v[..., 0], v[..., 1]
+    return np.stack(np.broadcast_arrays(c * x - s * y, s * x + c * y, v[..., 2]), axis=-1)
+
+
+def rotate_y(v: Array, angle: ArrayLike) -> Array:
+    """Rotate directions about +y by ``angle`` (radians, broadcast)."""
+    c, s = np.cos(angle), np.sin(angle)
+    x, z = v[..., 0], v[..., 2]
+    return np.stack(np.broadcast_arrays(c * x + s * z, v[..., 1], -s * x + c * z), axis=-1)
+
+
+def io_to_hd(i: ArrayLike, o: ArrayLike) -> tuple[Array, Array, Array, Array]:
+    """Rusinkiewicz half/difference angles of direction pairs.
+
+    ``h = normalize(i + o)``; ``d = Rot_y(−θ_h)·Rot_z(−φ_h)·i`` (algorithm-reference §6.1).
+
+    Returns
+    -------
+    theta_h, phi_h, theta_d, phi_d
+        Radians; θ ∈ [0, π], φ ∈ (−π, π].
+    """
+    i = np.asarray(i, dtype=np.float64)
+    h = half_vector(i, o)
+    theta_h, phi_h = cartesian_to_spherical(h)
+    d = rotate_y(rotate_z(i, -phi_h), -theta_h)
+    d = np.clip(d, -1.0, 1.0)
+    theta_d = np.arccos(d[..., 2])
+    phi_d = np.arctan2(d[..., 1], d[..., 0])
+    return theta_h, phi_h, theta_d, phi_d
+
+
+def hd_to_io(
+    theta_h: ArrayLike, phi_h: ArrayLike, theta_d: ArrayLike, phi_d: ArrayLike
+) -> tuple[Array, Array]:
+    """Inverse of :func:`io_to_hd`: ``i = Rot_z(φ_h)·Rot_y(θ_h)·d``, ``o = R_h(i)``."""
+    h = spherical_to_cartesian(theta_h, phi_h)
+    d = spherical_to_cartesian(theta_d, phi_d)
+    i = rotate_z(rotate_y(d, theta_h), phi_h)
+    o = reflect(i, h)
+    return i, o
+
+
+def cos_theta(v: ArrayLike) -> Array:
+    """``v·n`` with ``n = +z`` in the local frame."""
+    return np.asarray(v, dtype=np.float64)[..., 2]

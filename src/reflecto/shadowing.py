@@ -1,0 +1,218 @@
+"""APS shadowing/masking derived from a tabulated NDF (eq. 8 of Lan et al. 2010).
+
+Ashikhmin, Premože & Shirley 2000; algorithm-reference §1.2–§1.5::
+
+    S(k) = (k·n) / σ(k),   σ(k) = ∫_{Ω+} ⟨k, h⟩ D(h) dω_h            (eq. 8 / 1.3)
+
+σ is the projected area of the front-facing microfacets (Dupuy & Jakob's ``sigma``);
+``S`` equals the exact Smith G1 of the same NDF. We tabulate σ on a (θ, φ) grid and
+interpolate it bilinearly; ``S = cos θ / max(σ, cos θ)`` is then clamped to ≤ 1
+(algorithm-reference §1.2, consequence 2).
+
+σ is integrated on a polar grid whose rings are dense near the normal (θ = u²·π/2);
+for each θ_k the sum over azimuth is a circular convolution, evaluated by FFT with a
+kernel spectrum that depends only on the grid (cached). Unlike a coarse box-filtered
+hemicube, this stays exact where the terminator ``k·h = 0`` cuts a sharp lobe, which
+is the case that matters at grazing ``k``.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .hemicube import Hemicube
+
+Array = NDArray[np.float64]
+
+#: Default σ grid: θ from 0 to 90° in 1° steps (91 nodes), φ in 2.8125° steps (128 nodes).
+N_THETA = 91
+N_PHI = 128
+
+
+@dataclass(frozen=True)
+class SigmaTable:
+    """Projected-area table ``σ(θ, φ)`` with bilinear interpolation.
+
+    Attributes
+    ----------
+    sigma : ndarray, shape (n_theta, n_phi)
+        σ at θ_j = j·(π/2)/(n_theta − 1) and φ_k = 2πk/n_phi (dimensionless).
+    """
+
+    sigma: Array
+
+    @property
+    def n_theta(self) -> int:
+        return self.sigma.shape[0]
+
+    @property
+    def n_phi(self) -> int:
+        return self.sigma.shape[1]
+
+    def grid_directions(self) -> Array:
+        """Grid directions, shape ``(n_theta, n_phi, 3)``."""
+        return grid_directions(self.n_theta, self.n_phi)
+
+    def eval_sigma(self, dirs: ArrayLike) -> Array:
+        """Bilinearly interpolated σ at unit directions ``dirs`` (shape ``(..., 3)``)."""
+        d = np.asarray(dirs, dtype=np.float64)
+        shape = d.shape[:-1]
+        x, y, z = np.ascontiguousarray(d.reshape(-1, 3).T)
+        nt, nphi = self.n_theta, self.n_phi
+        flat = self._flat()
+        np.clip(z, 0.0, 1.0, out=z)
+        t = np.arccos(z, out=z)
+        t *= (nt - 1) / (0.5 * np.pi)
+        p = np.arctan2(y, x)
+        p *= nphi / (2.0 * np.pi)
+        p += nphi  # now in [nphi/2, 3 nphi/2]: positive, so truncation is floor
+        t0 = np.minimum(t.astype(np.intp), nt - 2)
+        p0 = p.astype(np.intp)
+        ft = t - t0
+        fp = p - p0
+        p0 %= nphi
+        w = nphi + 1
+        idx = t0 * w + p0
+        s00 = flat[idx]
+        s01 = flat[idx + 1]
+        s10 = flat[idx + w]
+        s11 = flat[idx + w + 1]
+        s00 += fp * (s01 - s00)
+        s10 += fp * (s11 - s10)
+        s00 += ft * (s10 - s00)
+        return s00.reshape(shape)
+
+    def _flat(self) -> Array:
+        """σ with the φ = 0 column repeated at φ = 2π, flattened (cached)."""
+        flat = self.__dict__.get("_flat_cache")
+        if flat is None:
+            flat = np.concatenate([self.sigma, self.sigma[:, :1]], axis=1).ravel()
+            object.__setattr__(self, "_flat_cache", flat)
+        return flat
+
+    def eval_sigma_clamped(self, dirs: ArrayLike) -> Array:
+        """``max(σ, cos θ)``: the σ that makes ``S ≤ 1`` (dj_brdf's clamp)."""
+        d = np.asarray(dirs, dtype=np.float64)
+        return np.maximum(self.eval_sigma(d), np.maximum(d[..., 2], 0.0))
+
+    def eval(self, dirs: ArrayLike) -> Array:
+        """Shadowing ``S(k) = (k·n)/σ(k)``, clamped to [0, 1] (eq. 8)."""
+        d = np.asarray(dirs, dtype=np.float64)
+        cos = np.maximum(d[..., 2], 0.0)
+        sig = self.eval_sigma_clamped(d)
+        return np.divide(cos, sig, out=np.zeros_like(cos), where=sig > 0)
+
+    def azimuthal_min(self) -> SigmaTable:
+        """``S(θ, φ) ← min_φ' S(θ, φ')`` (Lan et al. §5.2, after Wang et al. 2008).
+
+        Since ``S = cos θ/σ``, the minimum of S over azimuth is the maximum of σ.
+        """
+        return SigmaTable(np.repeat(self.sigma.max(axis=1, keepdims=True), self.n_phi, axis=1))
+
+
+def grid_directions(n_theta: int = N_THETA, n_phi: int = N_PHI) -> Array:
+    """Directions of the σ grid, shape ``(n_theta, n_phi, 3)``."""
+    theta = np.linspace(0.0, 0.5 * np.pi, n_theta)
+    phi = np.arange(n_phi) * (2.0 * np.pi / n_phi)
+    st = np.sin(theta)[:, None]
+    return np.stack(
+        np.broadcast_arrays(st * np.cos(phi)[None], st * np.sin(phi)[None], np.cos(theta)[:, None]),
+        axis=-1,
+    )
+
+
+def sigma_direct(cube: Hemicube, ndf: ArrayLike, dirs: ArrayLike, chunk: int = 256) -> Array:
+    """Brute-force ``σ(k) = Σ_t max(0, k·h_t) D_t Ω_t`` over every texel (reference).
+
+    Cost is ``O(len(dirs) · cube.size)``; use :func:`sigma_table` for whole grids.
+    """
+    k = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
+    m = (np.asarray(ndf, dtype=np.float64) * cube.solid_angles)[:, None] * cube.directions
+    out = np.empty(len(k))
+    for s in range(0, len(k), chunk):
+        out[s : s + chunk] = np.maximum(k[s : s + chunk] @ m.T, 0.0).sum(axis=1)
+    return out.reshape(np.shape(dirs)[:-1])
+
+
+#: Polar quadrature of σ: θ_h rings at u = (j + ½)/N_U with θ = u²·π/2 (dense near
+#: the normal, where sharp lobes live), N_PHI_QUAD azimuths per ring.
+N_U = 128
+N_PHI_QUAD = 256
+
+
+@functools.lru_cache(maxsize=4)
+def _kernel_spectrum(n_theta: int, n_u: int, n_phi: int) -> tuple[Array, Array, Array]:
+    """rFFT over Δφ of ``K(θ_k, θ_h, Δφ) = max(0, sinθ_k sinθ_h cosΔφ + cosθ_k cosθ_h)``.
+
+    Returns the spectrum (shape ``(n_theta, n_u, n_phi//2 + 1)``), the ring polar
+    angles θ_h and the ring weights ``sinθ_h dθ_h dφ`` (sr per quadrature node).
+    """
+    theta_k = np.linspace(0.0, 0.5 * np.pi, n_theta)
+    u = (np.arange(n_u) + 0.5) / n_u
+    theta_h = u * u * (0.5 * np.pi)
+    weight = np.sin(theta_h) * (np.pi * u / n_u) * (2.0 * np.pi / n_phi)
+    dphi = np.arange(n_phi) * (2.0 * np.pi / n_phi)
+    k = (
+        np.sin(theta_k)[:, None, None] * np.sin(theta_h)[None, :, None] * np.cos(dphi)[None, None, :]
+        + np.cos(theta_k)[:, None, None] * np.cos(theta_h)[None, :, None]
+    )
+    spec = np.fft.rfft(np.maximum(k, 0.0), axis=-1)
+    spec.setflags(write=False)
+    return spec, theta_h, weight
+
+
+def polar_directions(n_u: int = N_U, n_phi: int = N_PHI_QUAD) -> Array:
+    """Quadrature nodes of :func:`sigma_table`, shape ``(n_u, n_phi, 3)``."""
+    u = (np.arange(n_u) + 0.5) / n_u
+    theta = u * u * (0.5 * np.pi)
+    phi = np.arange(n_phi) * (2.0 * np.pi / n_phi)
+    st = np.sin(theta)[:, None]
+    return np.stack(
+        np.broadcast_arrays(st * np.cos(phi)[None], st * np.sin(phi)[None], np.cos(theta)[:, None]),
+        axis=-1,
+    )
+
+
+def sigma_table(
+    cube: Hemicube,
+    ndf: ArrayLike,
+    n_theta: int = N_THETA,
+    n_phi: int = N_PHI,
+    n_u: int = N_U,
+) -> SigmaTable:
+    """Tabulate σ of a hemicube NDF (the denominator of eq. 8) on the (θ, φ) grid.
+
+    D is resampled (bilinearly) on a polar grid; for each θ_k the azimuthal sum is a
+    circular convolution, done by FFT against a cached kernel spectrum. The result
+    is divided by the same quadrature's ``∫ D cos θ dω`` so that ``σ(n) = 1`` and
+    ``S(n) = 1`` hold exactly for a normalized D.
+
+    Parameters
+    ----------
+    cube
+        Geometry of ``ndf``.
+    ndf
+        D on the hemicube texels, shape ``(cube.size,)`` (sr⁻¹), normalized by eq. 1.2.
+    n_theta, n_phi
+        Output grid: θ in [0°, 90°] with ``n_theta`` nodes, ``n_phi`` azimuths
+        (``n_phi`` must divide the quadrature's 256 azimuths).
+    n_u
+        Number of polar quadrature rings.
+    """
+    if N_PHI_QUAD % n_phi:
+        raise ValueError(f"n_phi must divide {N_PHI_QUAD}, got {n_phi}")
+    spec, theta_h, weight = _kernel_spectrum(n_theta, n_u, N_PHI_QUAD)
+    d_polar = cube.lookup(ndf, polar_directions(n_u, N_PHI_QUAD))  # (n_u, n_phi_quad)
+    d_polar = np.maximum(d_polar, 0.0) * weight[:, None]
+    norm = float(np.sum(d_polar * np.cos(theta_h)[:, None]))
+    d_spec = np.fft.rfft(d_polar, axis=-1)  # (n_u, F)
+    # circular convolution over φ: σ(θk, φk) = Σ_h D(θh, φh) K(θk, θh, φk − φh)
+    sig_spec = np.einsum("uf,tuf->tf", d_spec, spec)
+    sigma = np.fft.irfft(sig_spec, n=N_PHI_QUAD, axis=-1)[:, :: N_PHI_QUAD // n_phi]
+    if norm > 0:
+        sigma = sigma / norm
+    return SigmaTable(np.maximum(sigma, 0.0))

@@ -1,0 +1,31 @@
+import numpy as np
+import pytest
+
+from reflecto.fresnel import FresnelTable, eta_from_f0, f0_from_eta, fresnel
+
+# algorithm-reference §2.1 table: θ_d = 0, 30, 60, 75, 85, 89.9 degrees
+TABLE = {
+    1.5: [0.0400, 0.0415, 0.0892, 0.2531, 0.6128, 0.9899],
+    2.0: [0.1111, 0.1130, 0.1614, 0.3087, 0.6302, 0.9900],
+    5.0: [0.4444, 0.4436, 0.4272, 0.4143, 0.5395, 0.9818],
+}
+
+
+@pytest.mark.parametrize("eta", sorted(TABLE))
+def test_reference_values(eta):
+    c = np.cos(np.radians([0, 30, 60, 75, 85, 89.9]))
+    assert np.allclose(fresnel(c, eta), TABLE[eta], atol=6e-5)
+
+
+def test_limits_and_inverse():
+    eta = np.array([1.2, 1.5, 3.0, 45.9])
+    assert np.allclose(fresnel(1.0, eta), f0_from_eta(eta))
+    assert np.allclose(fresnel(0.0, eta), 1.0)
+    assert np.allclose(eta_from_f0(f0_from_eta(eta)), eta)
+    assert fresnel(0.1, 0.8) == 1.0  # total internal reflection
+
+
+def test_table_matches_formula():
+    c = np.linspace(0, 1, 50001)
+    for eta in (1.05, 1.5, 4.0, 50.0, 100.0):
+        assert np.abs(FresnelTable([eta])(c)[:, 0] - fresnel(c, eta)).max() < 1e-5

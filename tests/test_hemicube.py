@@ -1,0 +1,98 @@
+import numpy as np
+import pytest
+
+from reflecto import geometry as g
+from reflecto.errors import ParameterError
+from reflecto.hemicube import Hemicube, hemicube
+from conftest import random_directions
+
+
+@pytest.mark.parametrize("n", [4, 16, 64, 512])
+def test_solid_angles_sum_to_2pi(n):
+    c = hemicube(n)
+    assert c.size == 3 * n * n
+    assert abs(c.solid_angles.sum() / (2 * np.pi) - 1) < 1e-12
+    assert np.all(c.solid_angles > 0)
+
+
+def test_solid_angle_values():
+    c = hemicube(512)
+    top = c.face_values(c.solid_angles, 0)
+    # centre texel ≈ (2/512)² sr; corner texel ~5.2x smaller (algorithm-reference §9.2)
+    assert abs(top[256, 256] / (2 / 512) ** 2 - 1) < 1e-4
+    assert 5.0 < top[256, 256] / top[0, 0] < 5.3
+
+
+def test_index_of_texel_centres_is_identity():
+    c = hemicube(64)
+    assert np.array_equal(c.index(c.directions), np.arange(c.size))
+
+
+def test_lookup_exact_at_centres_and_accurate_across_seams(rng):
+    c = hemicube(128)
+    vals = rng.random(c.size)
+    assert np.allclose(c.lookup(vals, c.directions), vals, atol=1e-12)
+
+    def f(d):
+        return np.exp(-3 * (1 - d[..., 2])) + 0.3 * d[..., 0] * d[..., 1] + 0.2 * d[..., 1]
+
+    tab = f(c.directions)
+    d = random_directions(rng, 400_000, 89.0)
+    err = np.abs(c.lookup(tab, d) - f(d))
+    seam = (np.abs(np.abs(d[:, 0]) - d[:, 2]) < 0.01) | (np.abs(np.abs(d[:, 1]) - d[:, 2]) < 0.01) | (
+        np.abs(np.abs(d[:, 0]) - np.abs(d[:, 1])) < 0.01
+    )
+    interior = err[~seam].max()
+    # second-order everywhere: seam error within a small factor of the interior error
+    assert interior < 1e-3
+    assert err[seam].max() < 3 * interior
+    # multi-channel lookup agrees with per-channel lookups
+    two = np.stack([tab, 2 * tab], -1)
+    assert np.allclose(c.lookup(two, d[:100]), np.stack([c.lookup(tab, d[:100]), 2 * c.lookup(tab, d[:100])], -1))
+
+
+def test_splat_averages_samples():
+    c = hemicube(16)
+    t = np.array([5, 5, 5, 700])
+    d = c.directions[t]
+    wsum, wvsum = c.splat(d, np.array([1.0, 2.0, 6.0, 4.0]), np.array([1.0, 1.0, 2.0, 3.0]))
+    assert wsum[5] == 4.0 and wvsum[5] == 1 + 2 + 12
+    assert wsum[700] == 3.0 and wvsum[700] == 12.0
+    assert wsum.sum() == 7.0
+    rgb = c.splat(d, np.ones((4, 3)))[1]
+    assert rgb.shape == (c.size, 3) and rgb[5, 1] == 3
+
+
+def test_downsample_preserves_integral_and_moments():
+    c = hemicube(64)
+    d = np.exp(-((1 - c.cos_theta) / 0.05))
+    coarse, dc = c.downsample(d, 4)
+    assert coarse.n == 16
+    assert np.isclose(np.sum(dc * coarse.solid_angles), np.sum(d * c.solid_angles), rtol=1e-12)
+    mass, first = c.moments(d, 4)
+    assert np.allclose(mass.sum(), np.sum(d * c.solid_angles))
+    assert np.allclose(first.sum(0), (d * c.solid_angles) @ c.directions)
+    with pytest.raises(ParameterError):
+        c.downsample(d, 3)
+
+
+@pytest.mark.parametrize("m", [g.TAU, g.MIRROR_T, g.MIRROR_B])
+def test_symmetries_are_exact_permutations(m):
+    c = hemicube(32)
+    p = c.permutation(m)
+    assert np.array_equal(np.sort(p), np.arange(c.size))
+    assert np.allclose(c.directions[p], g.apply(m, c.directions), atol=1e-12)
+    assert np.array_equal(p[p], np.arange(c.size))  # involution
+
+
+def test_tau_is_composition_of_mirrors():
+    c = hemicube(32)
+    pt, pb, pn = c.permutation(g.MIRROR_T), c.permutation(g.MIRROR_B), c.permutation(g.TAU)
+    assert np.array_equal(pt[pb], pn)
+
+
+def test_bad_resolution():
+    with pytest.raises(ParameterError):
+        Hemicube(7)
+    with pytest.raises(ParameterError):
+        hemicube(8).permutation(np.diag([1.0, 1.0, -1.0]))
