@@ -96,3 +96,15 @@ def test_bad_resolution():
         Hemicube(7)
     with pytest.raises(ParameterError):
         hemicube(8).permutation(np.diag([1.0, 1.0, -1.0]))
+
+
+def test_lookups_do_not_modify_their_input():
+    from reflecto.shadowing import sigma_table
+
+    c = hemicube(16)
+    for d in (np.array([[0.0, 0.0, 1.0]]), np.array([[0.6, 0.0, -0.8]]), np.array([0.0, 0.6, 0.8])):
+        before = d.copy()
+        c.lookup(np.ones(c.size), d)
+        c.index(d)
+        sigma_table(c, np.ones(c.size)).eval(d)
+        assert np.array_equal(d, before)

@@ -69,6 +69,7 @@ class Hemicube:
         self.side_size = self.half * self.n
         self.size = self.top_size + 4 * self.side_size
         self.offsets = np.array([0] + [self.top_size + k * self.side_size for k in range(4)])
+        self._max_row = np.array([self.n - 1] + [self.half - 1] * 4)
         self.directions, self.solid_angles = self._texel_geometry()
         self.cos_theta = self.directions[:, 2]
         self._pad_src, self._pad_w, self._pad_offsets = self._padding()
@@ -120,7 +121,7 @@ class Hemicube:
         """Face id and continuous texel coordinates (col, row); texel centres at integers."""
         d = np.asarray(dirs, dtype=np.float64)
         shape = d.shape[:-1]
-        x, y, z = np.ascontiguousarray(d.reshape(-1, 3).T)  # contiguous components: faster ufuncs
+        x, y, z = d.reshape(-1, 3).T.copy()  # contiguous copies: faster ufuncs, and safe to modify
         face, col, row = self._face_coords_xyz(x, y, z)
         return face.reshape(shape), col.reshape(shape), row.reshape(shape)
 
@@ -150,10 +151,17 @@ class Hemicube:
         Directions below the horizon are clamped to it. Shape ``dirs.shape[:-1]``.
         """
         face, col, row = self._face_coords(dirs)
-        rows = np.where(face == 0, self.n, self.half)
-        c = np.clip(np.floor(col + 0.5).astype(np.intp), 0, self.n - 1)
-        r = np.clip(np.floor(row + 0.5).astype(np.intp), 0, rows - 1)
-        return self.offsets[face] + r * self.n + c
+        # col, row ≥ −0.5, so truncation of (x + 0.5) is the floor
+        col += 0.5
+        row += 0.5
+        c = col.astype(np.intp)
+        np.minimum(c, self.n - 1, out=c)
+        r = row.astype(np.intp)
+        np.minimum(r, self._max_row[face], out=r)
+        r *= self.n
+        r += c
+        r += self.offsets[face]
+        return r
 
     # ------------------------------------------------------------ interpolation
     def _padding(self) -> tuple[NDArray[np.intp], Array, NDArray[np.intp]]:
@@ -222,23 +230,38 @@ class Hemicube:
         values = np.asarray(values)
         padded = self.pad(values) if padded is None else padded
         face, col, row = self._face_coords(dirs)
-        c0 = np.floor(col)
-        r0 = np.floor(row)
-        fc = col - c0
-        fr = row - r0
+        # shift into padded coordinates: col + 1 ∈ [0.5, n + 0.5], row + 1 ∈ [0.5, rows + 0.5],
+        # so truncation is the floor and the 2×2 stencil stays inside the padded face
+        col += 1.0
+        row += 1.0
+        ci = col.astype(np.intp)
+        ri = row.astype(np.intp)
+        fc = col - ci
+        fr = row - ri
+        np.minimum(ci, self.n, out=ci)
         width = self.n + 2
-        rmax = np.where(face == 0, self.n, self.half)
-        ci = np.clip(c0.astype(np.intp) + 1, 0, self.n)
-        ri = np.minimum(np.maximum(r0.astype(np.intp) + 1, 0), rmax)
-        base = self._pad_offsets[face] + ri * width + ci
+        ri *= width
+        ri += ci
+        ri += self._pad_offsets[face]
+        base = ri
         if padded.ndim > 1:
             fc = fc[..., None]
             fr = fr[..., None]
         v00 = padded[base]
         v01 = padded[base + 1]
-        v10 = padded[base + width]
-        v11 = padded[base + width + 1]
-        return (1.0 - fr) * ((1.0 - fc) * v00 + fc * v01) + fr * ((1.0 - fc) * v10 + fc * v11)
+        base += width
+        v10 = padded[base]
+        v11 = padded[base + 1]
+        v01 -= v00
+        v01 *= fc
+        v00 += v01
+        v11 -= v10
+        v11 *= fc
+        v10 += v11
+        v10 -= v00
+        v10 *= fr
+        v00 += v10
+        return v00
 
     # ----------------------------------------------------------------- splatting
     def splat(

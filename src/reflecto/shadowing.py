@@ -61,7 +61,7 @@ class SigmaTable:
         """Bilinearly interpolated σ at unit directions ``dirs`` (shape ``(..., 3)``)."""
         d = np.asarray(dirs, dtype=np.float64)
         shape = d.shape[:-1]
-        x, y, z = np.ascontiguousarray(d.reshape(-1, 3).T)
+        x, y, z = d.reshape(-1, 3).T.copy()  # a copy: z is modified in place below
         nt, nphi = self.n_theta, self.n_phi
         flat = self._flat()
         np.clip(z, 0.0, 1.0, out=z)
