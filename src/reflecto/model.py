@@ -33,6 +33,7 @@ from .hemicube import Hemicube, hemicube
 from .io import atomic_write
 from .shadowing import SigmaTable, sigma_table
 from .sources.base import BRDFSource
+from .sources.base import rgb_triplet as _rgb
 
 Array = NDArray[np.float64]
 
@@ -264,15 +265,6 @@ class MicrofacetBRDF(BRDFSource):
             )
         except (KeyError, ParameterError) as e:
             raise FileFormatError(path, f"invalid model parameters ({e})") from None
-
-
-def _rgb(value: ArrayLike, name: str) -> Array:
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.ndim == 0:
-        arr = np.full(3, float(arr))
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise ParameterError(f"{name} must be 3 finite numbers (RGB), got {value!r}")
-    return arr
 
 
 def load_model(path: str | Path) -> MicrofacetBRDF:

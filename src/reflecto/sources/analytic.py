@@ -39,21 +39,11 @@ from .. import geometry
 from ..errors import FileFormatError, ParameterError
 from ..fresnel import fresnel
 from .base import BRDFSource
+from .base import rgb_triplet as _rgb
 
 Array = NDArray[np.float64]
 
 DISTRIBUTIONS = ("ggx", "beckmann")
-
-
-def _rgb(value: Any, name: str) -> Array:
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.ndim == 0:
-        arr = np.full(3, float(arr))
-    if arr.shape != (3,):
-        raise ParameterError(f"{name} must be a number or 3 numbers (RGB), got {value!r}")
-    if not np.all(np.isfinite(arr)):
-        raise ParameterError(f"{name} must be finite, got {value!r}")
-    return arr
 
 
 @dataclass(frozen=True)

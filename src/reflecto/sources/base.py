@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import geometry
+from ..errors import FileFormatError, ParameterError
 
 Array = NDArray[np.float64]
 
@@ -113,3 +114,23 @@ def directional_albedo(
 def valid_pairs(i: Array, o: Array) -> NDArray[np.bool_]:
     """Mask of pairs with both directions strictly above the horizon."""
     return (i[..., 2] > 0) & (o[..., 2] > 0)
+
+
+def rgb_triplet(value: Any, name: str) -> Array:
+    """One number or three (RGB) → finite array of shape ``(3,)``; ParameterError otherwise."""
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        arr = np.full(3, float(arr))
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ParameterError(f"{name} must be one or three finite numbers (RGB), got {value!r}")
+    return arr
+
+
+def read_file_bytes(path: Path) -> bytes:
+    """Whole file contents; FileFormatError naming the file if it cannot be read."""
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise FileFormatError(path, "no such file") from None
+    except OSError as e:
+        raise FileFormatError(path, f"cannot read: {e.strerror}") from None

@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import geometry
 from ..errors import FileFormatError
 from ..io import atomic_write
-from .base import BRDFSource
+from .base import BRDFSource, read_file_bytes
 
 Array = NDArray[np.float64]
 
@@ -106,12 +106,7 @@ def read_merl_table(path: str | Path) -> Array:
     Unmeasured bins keep their negative value (times the channel scale).
     """
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise FileFormatError(path, "no such file") from None
-    except OSError as e:
-        raise FileFormatError(path, f"cannot read: {e.strerror}") from None
+    raw = read_file_bytes(path)
     if len(raw) < HEADER_BYTES:
         raise FileFormatError(path, f"truncated MERL file: {len(raw)} bytes, no complete header")
     dims = tuple(int(v) for v in np.frombuffer(raw[:HEADER_BYTES], dtype="<i4"))

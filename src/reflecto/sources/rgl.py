@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import FileFormatError
-from .base import BRDFSource
+from .base import BRDFSource, read_file_bytes
 
 Array = NDArray[np.float64]
 
@@ -44,12 +44,7 @@ DTYPES = {
 def read_tensor_file(path: str | Path) -> dict[str, np.ndarray]:
     """Parse a tensor file into ``{name: array}``; clear errors for damaged files."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise FileFormatError(path, "no such file") from None
-    except OSError as e:
-        raise FileFormatError(path, f"cannot read: {e.strerror}") from None
+    raw = read_file_bytes(path)
     if raw[:12] != MAGIC:
         raise FileFormatError(path, "not an RGL tensor file (wrong magic; expected 'tensor_file\\0')")
     if len(raw) < 18:
@@ -145,7 +140,7 @@ class Marginal2D:
                 out.append(((pi_ + dp) * self.n_theta + ti + dt, wp * wt))
         return out
 
-    def eval(self, pos: Array, phi_i: Array, theta_i: Array, channel: int | None = None) -> Array:
+    def eval(self, pos: Array, phi_i: Array, theta_i: Array) -> Array:
         """Bilinear interpolation of the (unnormalized, if ``build_cdf`` is False) data."""
         x = np.clip(pos[..., 0], 0.0, 1.0) * (self.w - 1)
         y = np.clip(pos[..., 1], 0.0, 1.0) * (self.h - 1)
