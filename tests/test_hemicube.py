@@ -108,3 +108,15 @@ def test_lookups_do_not_modify_their_input():
         c.index(d)
         sigma_table(c, np.ones(c.size)).eval(d)
         assert np.array_equal(d, before)
+
+
+def test_compiled_splat_matches_bincount(rng):
+    c = hemicube(32)
+    d = g.normalize(rng.normal(size=(20_000, 3)))
+    d[:, 2] = np.abs(d[:, 2])
+    v, w = rng.random((20_000, 3)), rng.random(20_000)
+    for vals in (v, v[:, 0]):
+        ws, wv = c.splat(d, vals, w)
+        ws0, wv0 = c.splat_numpy(d, vals, w)
+        np.testing.assert_allclose(ws, ws0, rtol=1e-12)
+        np.testing.assert_allclose(wv, wv0, rtol=1e-12)

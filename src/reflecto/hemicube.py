@@ -20,7 +20,7 @@ import functools
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import geometry
+from . import _kernels, geometry
 from .errors import ParameterError
 
 Array = NDArray[np.float64]
@@ -287,6 +287,21 @@ class Hemicube:
         wsum : ndarray, shape (size,)
         wvsum : ndarray, shape (size,) or (size, C)
         """
+        values = np.asarray(values, dtype=np.float64)
+        d = _kernels.as_dirs(dirs)
+        w = np.ones(len(d)) if weights is None else np.ascontiguousarray(weights, dtype=np.float64).ravel()
+        if len(w) != len(d) or values.shape[0] != len(d):
+            raise ValueError(f"splat: {len(d)} directions, {values.shape[0]} values, {len(w)} weights")
+        v2 = np.ascontiguousarray(values.reshape(len(d), -1))
+        wsum = np.zeros(self.size)
+        wvsum = np.zeros((self.size, v2.shape[1]))
+        _kernels.splat(self.n, d, v2, w, wsum, wvsum)
+        return wsum, (wvsum[:, 0] if values.ndim == 1 else wvsum)
+
+    def splat_numpy(
+        self, dirs: ArrayLike, values: ArrayLike, weights: ArrayLike | None = None
+    ) -> tuple[Array, Array]:
+        """Reference NumPy implementation of :meth:`splat` (``np.bincount``)."""
         idx = self.index(dirs).ravel()
         values = np.asarray(values, dtype=np.float64)
         w = np.ones(idx.shape) if weights is None else np.asarray(weights, dtype=np.float64).ravel()
@@ -299,6 +314,7 @@ class Hemicube:
                 axis=1,
             )
         return wsum, wvsum
+
 
     # -------------------------------------------------------------- resampling
     def _block_reduce(self, values: Array, factor: int) -> Array:

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import geometry
+from . import _kernels, geometry
 from .errors import FileFormatError, ParameterError
 from .fresnel import FresnelTable, fresnel
 from .hemicube import Hemicube, hemicube
@@ -158,7 +158,27 @@ class MicrofacetBRDF(BRDFSource):
         return spec, c
 
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
-        """BRDF in sr⁻¹ (eqs. 1–2), shape ``(N, 3)``; 0 below the horizon."""
+        """BRDF in sr⁻¹ (eqs. 1–2), shape ``(N, 3)``; 0 below the horizon.
+
+        A compiled loop (:func:`reflecto._kernels.model_eval`) that computes exactly
+        what :meth:`eval_numpy` computes, without its temporaries.
+        """
+        i = np.asarray(i, dtype=np.float64)
+        o = np.asarray(o, dtype=np.float64)
+        shape = np.broadcast_shapes(i.shape, o.shape)
+        ii = _kernels.as_dirs(np.broadcast_to(i, shape))
+        oo = _kernels.as_dirs(np.broadcast_to(o, shape))
+        table = self.sigma_table
+        out = np.empty((ii.shape[0], 3))
+        _kernels.model_eval(
+            ii, oo, self._padded, self.cube._pad_offsets, self.cube.n,
+            table._flat(), table.n_theta, table.n_phi,
+            self._fresnel_table.table, self.kd, self.ks, self.correlated, out,
+        )  # fmt: skip
+        return out.reshape(shape[:-1] + (3,))
+
+    def eval_numpy(self, i: ArrayLike, o: ArrayLike) -> Array:
+        """Reference NumPy implementation of :meth:`eval` (same values, slower)."""
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)
         spec, c = self._parts(i, o)
