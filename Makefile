@@ -51,6 +51,7 @@ test-slow: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_model.py
+	$(BIN)/python benchmarks/bench_instrument.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

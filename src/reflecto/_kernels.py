@@ -164,3 +164,70 @@ def model_eval(i, o, padded, pad_offsets, n, sig_flat, nt, nphi, ftable, kd, ks,
 def as_dirs(a) -> np.ndarray:
     """C-contiguous float64 view/copy of shape ``(M, 3)``."""
     return np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape(-1, 3))
+
+
+@njit(**_OPTS)
+def merge_linear(raw, rows, cols, t, black, sat, dark, out, valid):
+    """Linear HDR merge at pixels ``(rows, cols)``: :func:`reflecto.instrument.hdr.merge_linear`.
+
+    ``raw`` (L, E, H, W, 3); ``t`` exposure times sorted by slot; writes ``out`` (L, P, 3)
+    in DN/ms and ``valid`` (L, P).
+    """
+    n_l, n_e = raw.shape[0], raw.shape[1]
+    order = np.argsort(t)
+    for l in range(n_l):
+        for p in range(rows.shape[0]):
+            r, c = rows[p], cols[p]
+            wsum = 0.0
+            a0 = a1 = a2 = 0.0
+            longest_done = False
+            for q in range(n_e - 1, -1, -1):
+                e = order[q]
+                z0 = float(raw[l, e, r, c, 0])
+                z1 = float(raw[l, e, r, c, 1])
+                z2 = float(raw[l, e, r, c, 2])
+                if max(z0, z1, z2) >= sat:
+                    continue
+                s0, s1, s2 = z0 - black, z1 - black, z2 - black
+                if max(s0, s1, s2) < dark and longest_done:
+                    continue
+                longest_done = True
+                w = t[e]
+                wsum += w
+                a0 += s0
+                a1 += s1
+                a2 += s2
+            if wsum > 0.0:
+                out[l, p, 0] = a0 / wsum
+                out[l, p, 1] = a1 / wsum
+                out[l, p, 2] = a2 / wsum
+                valid[l, p] = True
+            else:
+                out[l, p, 0] = out[l, p, 1] = out[l, p, 2] = 0.0
+                valid[l, p] = False
+
+
+@njit(**_OPTS)
+def expose(signal, t_ms, z, pois, full_well, read_noise, shot, gauss_above, gamma, gain, black, max_value, out):
+    """Camera exposure of electron rates ``signal`` (flat): :func:`reflecto.instrument.simulate.expose`.
+
+    ``z``: standard normals (or empty for no noise); ``pois``: Poisson draws used where
+    the mean is below ``gauss_above``. ``gamma > 0`` encodes 8-bit
+    ``255 (e/full_well)^(1/gamma)``; otherwise ``black + e/gain`` rounded and clipped.
+    """
+    noisy = z.shape[0] > 0
+    rn2 = read_noise * read_noise
+    for k in range(signal.shape[0]):
+        e = min(max(signal[k], 0.0) * t_ms, 4.0 * full_well)
+        if noisy:
+            if shot and e < gauss_above:
+                e = pois[k] + read_noise * z[k]
+            elif shot:
+                e += math.sqrt(e + rn2) * z[k]
+            else:
+                e += read_noise * z[k]
+        e = min(e, full_well)
+        if gamma > 0.0:
+            out[k] = min(max(round(255.0 * max(e / full_well, 0.0) ** (1.0 / gamma)), 0.0), 255.0)
+        else:
+            out[k] = min(max(round(black + e / gain), 0.0), max_value)

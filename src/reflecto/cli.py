@@ -1,4 +1,4 @@
-"""Command-line interface: ``reflecto info``, ``reflecto tabulate``."""
+"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct``."""
 
 from __future__ import annotations
 
@@ -63,6 +63,78 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_layout(args: argparse.Namespace) -> int:
+    from .instrument import layout
+    from .instrument.device import load_device
+
+    dev = load_device(args.device)
+    leds = dev.leds
+    if args.optimize:
+        leds = layout.optimize_layout(dev.optics, n_leds=dev.n_leds, seed=args.seed)
+    cov = layout.coverage(dev.optics, leds, resolution=args.resolution, theta_max_deg=args.theta_max)
+    info = {"device": dev.name, "leds_elevation_azimuth_deg": np.round(layout.led_angles(leds), 2).tolist(),
+            "coverage": cov.to_dict()}
+    if args.plot:
+        from .instrument.plots import plot_coverage
+
+        plot_coverage(dev.optics, leds, args.plot, resolution=max(args.resolution, 128))
+        info["plot"] = str(args.plot)
+    if args.json:
+        print(json.dumps(info, indent=1))
+        return 0
+    print(f"LED layout of device {dev.name!r} (elevation, azimuth in degrees):")
+    for k, (el, az) in enumerate(info["leds_elevation_azimuth_deg"]):
+        print(f"  l{k}  {el:6.2f}  {az:7.2f}   covers {100 * cov.per_led[k]:5.1f} %")
+    print(f"coverage of the NDF cap θ_h ≤ {args.theta_max:g}° (solid-angle fraction):")
+    print(f"  union of slices          {100 * cov.union:6.2f} %")
+    print(f"  after symmetry (eq. 3)   {100 * cov.after_tau:6.2f} %   (any layout: at most {100 * cov.upper_bound_after_tau:.2f} %)")
+    print(f"  after both mirror planes {100 * cov.after_mirrors:6.2f} %")
+    print(f"  every slice overlaps another: {cov.every_led_overlaps}")
+    if args.plot:
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from .instrument.capture import write_capture
+    from .instrument.device import load_device
+    from .instrument.simulate import simulate_capture
+    from .sources import load_source
+
+    src = load_source(args.source)
+    dev = load_device(args.device)
+    cap = simulate_capture(src, dev, tilt_deg=args.tilt, tilt_azimuth_deg=args.tilt_azimuth,
+                           rotation_deg=args.rotation, shake=args.shake, seed=args.seed,
+                           source_name=str(args.source))
+    write_capture(cap, args.output)
+    if not args.quiet:
+        print(f"wrote {args.output}: {cap.raw.shape[0]} LEDs × {cap.raw.shape[1]} exposures, device {dev.name}")
+    return 0
+
+
+def cmd_simulate_calibration(args: argparse.Namespace) -> int:
+    from .instrument.device import load_device
+    from .instrument.simulate import simulate_calibration
+
+    dev = load_device(args.device)
+    simulate_calibration(dev, args.output, seed=args.seed)
+    if not args.quiet:
+        print(f"wrote calibration captures of device {dev.name} to {args.output}")
+    return 0
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from .instrument.calibrate import calibrate
+
+    cal = calibrate(args.calib_dir)
+    cal.save(args.output)
+    if not args.quiet:
+        r = cal.report
+        print(f"wrote {args.output}: {r['spots_used']} grid spots, reprojection RMS {r['reprojection_rms_px']:.3f} px; "
+              f"LEDs moved by {r['led_offset_from_nominal_deg']}° from nominal")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="reflecto",
@@ -81,6 +153,41 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-o", "--output", required=True, help="output .binary file")
     q.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
     q.set_defaults(func=cmd_tabulate)
+
+    q = sub.add_parser("layout", help="coverage of a device's LED layout (paper §4.1); optionally re-optimise it")
+    q.add_argument("--device", default="ideal", help="ideal | as-built | device file (JSON/TOML)")
+    q.add_argument("--optimize", action="store_true", help="run the layout optimizer instead of using the device's LEDs")
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--resolution", type=int, default=64, help="hemicube resolution of the analysis")
+    q.add_argument("--theta-max", type=float, default=80.0, help="NDF cap θ_h ≤ this (degrees)")
+    q.add_argument("--plot", type=Path, help="write the Fig. 2(c)(d) analogue to this PNG")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_layout)
+
+    q = sub.add_parser("simulate", help="raw frames of a virtual capture of a BRDF source")
+    q.add_argument("source", help="BRDF file")
+    q.add_argument("--device", default="ideal", help="ideal | as-built | device file (JSON/TOML)")
+    q.add_argument("--tilt", type=float, default=0.0, help="hand tilt of the sample normal, degrees (≤ 30)")
+    q.add_argument("--tilt-azimuth", type=float, default=None, help="azimuth of the tilt (default: from the seed)")
+    q.add_argument("--rotation", type=float, default=0.0, help="rotation of the sample about its normal, degrees")
+    q.add_argument("--shake", action="store_true", help="move the sample between two LEDs' frames")
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("-o", "--output", required=True, help="capture folder to write")
+    q.add_argument("-q", "--quiet", action="store_true")
+    q.set_defaults(func=cmd_simulate)
+
+    q = sub.add_parser("simulate-calibration", help="virtual calibration captures (white target, pinhole grid, mirror)")
+    q.add_argument("--device", default="as-built")
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("-o", "--output", required=True, help="calibration folder to write")
+    q.add_argument("-q", "--quiet", action="store_true")
+    q.set_defaults(func=cmd_simulate_calibration)
+
+    q = sub.add_parser("calibrate", help="geometric, LED and radiometric calibration from calibration captures")
+    q.add_argument("calib_dir", help="calibration folder")
+    q.add_argument("-o", "--output", required=True, help="calibration file to write (.npz)")
+    q.add_argument("-q", "--quiet", action="store_true")
+    q.set_defaults(func=cmd_calibrate)
     return p
 
 

@@ -1,0 +1,313 @@
+"""Device descriptions: optics, LEDs and camera, nominal and as built.
+
+A :class:`Device` is what the software *believes* about the instrument (nominal
+values). The built-in ``as-built`` device also carries a :class:`DeviceTruth` — the
+real distortion, principal point, LED directions and intensities and the optical
+transmission field — which only the capture simulator reads. The pipeline gets the
+nominal device from the capture's manifest and corrects it with what calibration
+recovers (:mod:`reflecto.instrument.calibrate`).
+
+Description files are JSON or TOML with the keys of :meth:`Device.to_dict`::
+
+    name = "my-device"
+    leds = [[5.0, 0.0], [6.0, 293.3], ...]     # [elevation, azimuth] in degrees
+    [optics]   axis_tilt_deg = 20.0 ...         # see Optics
+    [camera]   bits = 12 ...                    # see Camera
+    [truth]    ...                              # optional, simulation only
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import FileFormatError, ParameterError
+from .layout import led_direction, layout_violations
+from .optics import Optics, optics_from_dict
+
+Array = NDArray[np.float64]
+
+#: The default LED layout ([elevation, azimuth] in degrees): l0 is fixed by §4.1; the
+#: other five are the result of :func:`reflecto.instrument.layout.optimize_layout`
+#: (seed 0, N=32 coverage grid) for the default optics. Its coverage is in
+#: docs/instrument.md (84.6 % of the θ_h ≤ 80° cap after eq. 3; the constraints allow
+#: at most 87.7 % for any number of LEDs).
+DEFAULT_LED_ANGLES = (
+    (5.0, 0.0),
+    (6.03, 293.32),
+    (6.36, 54.92),
+    (5.51, 251.17),
+    (34.17, 184.92),
+    (6.65, 105.54),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Camera:
+    """A linear (machine-vision) or gamma-encoded camera.
+
+    Parameters
+    ----------
+    bits
+        ADC bit depth of the raw values (stored in 16-bit images); 8 for ``gamma``.
+    black_level
+        Raw value of zero light (DN).
+    full_well
+        Electrons at which a pixel saturates.
+    read_noise
+        Read noise (electrons RMS); 0 and ``shot_noise=False`` make a noiseless camera.
+    shot_noise
+        Poisson photon noise on or off.
+    exposures_ms
+        The exposure times taken per LED (paper §4.3: two, the longest 8 ms).
+    sensitivity
+        Electrons per millisecond produced by a BRDF value of 1 sr⁻¹ under a unit
+        irradiance on the sample plane (transmission 1). With the defaults the short
+        exposure saturates at f = 20 sr⁻¹ and the long one at 2.5 sr⁻¹; a diffuse
+        f = 0.03 sr⁻¹ still collects 240 e⁻ in the long exposure.
+    response
+        ``"linear"`` (raw) or ``"gamma"`` (8-bit, ``Z = 255 (x/x_sat)^(1/gamma)``,
+        merged by Debevec–Malik).
+    """
+
+    bits: int = 12
+    black_level: float = 64.0
+    full_well: float = 20000.0
+    read_noise: float = 3.0
+    shot_noise: bool = True
+    exposures_ms: tuple[float, ...] = (1.0, 8.0)
+    sensitivity: float = 1000.0
+    response: str = "linear"
+    gamma: float = 2.2
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "exposures_ms", tuple(float(t) for t in self.exposures_ms))
+        if self.response not in ("linear", "gamma"):
+            raise ParameterError(f"camera: response must be 'linear' or 'gamma', got {self.response!r}")
+        if not 8 <= self.bits <= 16:
+            raise ParameterError(f"camera: bits must be in [8, 16], got {self.bits}")
+        if self.response == "gamma" and self.bits != 8:
+            raise ParameterError("camera: a gamma-encoded camera has 8 bits")
+        if not 0 <= self.black_level < self.max_value / 2:
+            raise ParameterError("camera: black level out of range")
+        if self.full_well <= 0 or self.sensitivity <= 0 or self.read_noise < 0:
+            raise ParameterError("camera: full_well and sensitivity must be > 0, read_noise >= 0")
+        if not self.exposures_ms or any(not (t > 0 and math.isfinite(t)) for t in self.exposures_ms):
+            raise ParameterError("camera: exposure times must be positive")
+
+    @property
+    def max_value(self) -> int:
+        return (1 << self.bits) - 1
+
+    @property
+    def gain(self) -> float:
+        """Electrons per DN (linear camera)."""
+        return self.full_well / (self.max_value - self.black_level)
+
+    @property
+    def noiseless(self) -> bool:
+        return not self.shot_noise and self.read_noise == 0
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceTruth:
+    """What the as-built device really is (simulation only; never read by the pipeline).
+
+    Parameters
+    ----------
+    optics
+        Real optics (distortion, principal point, roll).
+    led_angles
+        Real LED [elevation, azimuth] in degrees, shape ``(L, 2)``.
+    led_intensity
+        Real LED irradiance relative to nominal, shape ``(L,)``.
+    transmission
+        Smooth transmission/vignetting field: ``T = floor + (1 − floor)·exp(−((u−u0)/su)²
+        − ((v−v0)/sv)²)``, keys ``floor, u0, v0, su, sv``.
+    """
+
+    optics: Optics
+    led_angles: tuple[tuple[float, float], ...]
+    led_intensity: tuple[float, ...]
+    transmission: dict[str, float]
+
+    def transmission_field(self) -> Array:
+        """T per pixel, shape ``(height, width)``, in [floor, 1]."""
+        t = self.transmission
+        v, u = np.mgrid[0 : self.optics.height, 0 : self.optics.width].astype(np.float64)
+        g = np.exp(-(((u - t["u0"]) / t["su"]) ** 2) - ((v - t["v0"]) / t["sv"]) ** 2)
+        return t["floor"] + (1.0 - t["floor"]) * g
+
+    @property
+    def leds(self) -> Array:
+        return led_direction(*np.asarray(self.led_angles, dtype=np.float64).T)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "optics": self.optics.to_dict(),
+            "led_angles": [list(a) for a in self.led_angles],
+            "led_intensity": list(self.led_intensity),
+            "transmission": dict(self.transmission),
+        }
+
+
+@dataclasses.dataclass(frozen=True)
+class Device:
+    """A condenser reflectometer: optics, LEDs, camera (nominal) and optional truth."""
+
+    name: str
+    optics: Optics
+    led_angles: tuple[tuple[float, float], ...]
+    camera: Camera
+    truth: DeviceTruth | None = None
+
+    def __post_init__(self) -> None:
+        angles = tuple(tuple(float(x) for x in a) for a in self.led_angles)
+        object.__setattr__(self, "led_angles", angles)
+        if len(angles) < 2 or any(len(a) != 2 for a in angles):
+            raise ParameterError("device: leds must be a list of at least two [elevation, azimuth] pairs")
+        if not all(math.isfinite(x) for a in angles for x in a):
+            raise ParameterError("device: LED angles must be finite")
+        bad = layout_violations(self.optics, self.leds)
+        if bad:
+            raise ParameterError("device: " + "; ".join(bad))
+        if self.truth is not None and len(self.truth.led_angles) != len(angles):
+            raise ParameterError("device: truth has a different number of LEDs")
+
+    @property
+    def leds(self) -> Array:
+        """Nominal LED directions, shape ``(L, 3)``."""
+        return led_direction(*np.asarray(self.led_angles, dtype=np.float64).T)
+
+    @property
+    def n_leds(self) -> int:
+        return len(self.led_angles)
+
+    @property
+    def led_irradiance(self) -> Array:
+        """Nominal LED irradiance normal to each beam, shape ``(L,)``.
+
+        The LED drive currents are designed so that every LED gives the same unit
+        irradiance on the sample plane (``E_l cos θ_l = 1``): grazing LEDs are driven
+        harder, so all slices use the camera's range alike.
+        """
+        return 1.0 / np.sin(np.radians([a[0] for a in self.led_angles]))
+
+    def nominal(self) -> Device:
+        """This device without its truth: what the pipeline may know."""
+        return dataclasses.replace(self, truth=None)
+
+    def to_dict(self, with_truth: bool = False) -> dict[str, Any]:
+        d: dict[str, Any] = {
+            "name": self.name,
+            "optics": self.optics.to_dict(),
+            "leds": [list(a) for a in self.led_angles],
+            "camera": dataclasses.asdict(self.camera),
+        }
+        d["camera"]["exposures_ms"] = list(self.camera.exposures_ms)
+        if with_truth and self.truth is not None:
+            d["truth"] = self.truth.to_dict()
+        return d
+
+    # ------------------------------------------------------------- factories
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], where: str = "device") -> Device:
+        known = {"name", "optics", "leds", "camera", "truth"}
+        if not isinstance(d, dict):
+            raise ParameterError(f"{where}: expected a table/object")
+        if set(d) - known:
+            raise ParameterError(f"{where}: unknown keys {sorted(set(d) - known)}")
+        optics = optics_from_dict(dict(d.get("optics", {})), f"{where}.optics")
+        cam = dict(d.get("camera", {}))
+        cfields = {f.name for f in dataclasses.fields(Camera)}
+        if set(cam) - cfields:
+            raise ParameterError(f"{where}.camera: unknown keys {sorted(set(cam) - cfields)}")
+        camera = Camera(**cam)
+        truth = None
+        if "truth" in d:
+            t = d["truth"]
+            try:
+                truth = DeviceTruth(
+                    optics=optics_from_dict(dict(t["optics"]), f"{where}.truth.optics"),
+                    led_angles=tuple(tuple(float(x) for x in a) for a in t["led_angles"]),
+                    led_intensity=tuple(float(x) for x in t["led_intensity"]),
+                    transmission={k: float(v) for k, v in t["transmission"].items()},
+                )
+            except (KeyError, TypeError) as e:
+                raise ParameterError(f"{where}.truth: missing or invalid entry ({e})") from None
+        return cls(
+            name=str(d.get("name", "custom")),
+            optics=optics,
+            led_angles=tuple(tuple(a) for a in d.get("leds", DEFAULT_LED_ANGLES)),
+            camera=camera,
+            truth=truth,
+        )
+
+    @classmethod
+    def builtin(cls, name: str) -> Device:
+        """``"ideal"``, ``"as-built"``, or ``"earlier"`` (the DWT*10 baseline layout)."""
+        if name == "ideal":
+            return cls("ideal", Optics(), DEFAULT_LED_ANGLES, Camera(read_noise=0.0, shot_noise=False))
+        if name == "as-built":
+            return cls("as-built", Optics(), DEFAULT_LED_ANGLES, Camera(), truth=_as_built_truth())
+        raise ParameterError(f"unknown built-in device {name!r} (expected 'ideal' or 'as-built', or a file)")
+
+    def with_camera(self, **changes: Any) -> Device:
+        return dataclasses.replace(self, camera=dataclasses.replace(self.camera, **changes))
+
+
+def _as_built_truth() -> DeviceTruth:
+    """Fixed imperfections of the as-built device (seeded, so every run agrees)."""
+    rng = np.random.default_rng(2010)
+    n = len(DEFAULT_LED_ANGLES)
+    # direction errors of up to ±0.5° in elevation and azimuth (azimuth scaled to arc)
+    d_el = rng.uniform(-0.5, 0.5, n)
+    d_az = rng.uniform(-0.5, 0.5, n)
+    angles = []
+    for (el, az), a, b in zip(DEFAULT_LED_ANGLES, d_el, d_az):
+        el2 = max(el + a, 4.6)
+        angles.append((round(el2, 4), round(az + b / math.cos(math.radians(el2)), 4)))
+    intensity = tuple(np.round(rng.uniform(0.85, 1.15, n), 4))
+    optics = Optics(cx=163.2, cy=116.9, k1=-0.06, k2=0.015, roll_deg=0.7, disc_radius_px=112.0)
+    return DeviceTruth(
+        optics=optics,
+        led_angles=tuple(angles),
+        led_intensity=intensity,
+        transmission={"floor": 0.5, "u0": 150.0, "v0": 128.0, "su": 170.0, "sv": 150.0},
+    )
+
+
+def load_device(spec: str | Path) -> Device:
+    """A built-in device by name or a JSON/TOML description file."""
+    if str(spec) in ("ideal", "as-built"):
+        return Device.builtin(str(spec))
+    path = Path(spec)
+    try:
+        text = path.read_bytes()
+    except FileNotFoundError:
+        raise FileFormatError(path, "no such device file (built-ins: ideal, as-built)") from None
+    except OSError as e:
+        raise FileFormatError(path, f"cannot read ({e.strerror})") from None
+    try:
+        if path.suffix.lower() == ".toml":
+            d = tomllib.loads(text.decode("utf-8"))
+        else:
+            d = json.loads(text.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, tomllib.TOMLDecodeError) as e:
+        raise FileFormatError(path, f"not a valid device description ({e})") from None
+    try:
+        return Device.from_dict(d, where=str(path))
+    except (ParameterError, TypeError, ValueError) as e:
+        raise FileFormatError(path, str(e)) from None
+
+
+def device_leds(device: Device, leds: ArrayLike | None = None) -> Array:
+    """LED directions: ``leds`` if given (calibrated), else the device's nominal ones."""
+    return device.leds if leds is None else np.asarray(leds, dtype=np.float64)

@@ -1,0 +1,107 @@
+"""HDR merge of the exposures of each LED (paper §4.3, algorithm-reference §7.1).
+
+* Linear (raw) camera — black-subtracted, exposure-normalised average
+  ``E = Σ_j w_j (Z_j − Z_black)/t_j / Σ_j w_j`` with ``w_j = t_j`` (photon-noise
+  optimal) and zero weight for saturated (``Z ≥ 0.95 Z_max``) or near-black pixels
+  (``Z − Z_black`` below :data:`DARK_DN`), except that the longest unsaturated exposure
+  always keeps its weight, so dark-but-valid pixels measure ≈ 0 instead of a hole.
+* Gamma-encoded 8-bit camera — Debevec–Malik response recovery and merge (OpenCV's
+  ``CalibrateDebevec`` / ``MergeDebevec``), the response kept in the calibration.
+
+Output: radiance in DN/ms (linear) or response units/ms (gamma), shape
+``(L, H, W, 3)``, and the validity mask ``(L, H, W)`` (False where every exposure is
+saturated).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import _kernels
+from .device import Camera
+
+Array = NDArray[np.float64]
+
+#: Raw values this close to the black level (DN) count as near-black.
+DARK_DN = 4.0
+#: Fraction of the ADC range above which a raw value counts as saturated.
+SATURATION = 0.95
+
+
+def merge_linear_pixels(
+    raw: NDArray[np.integer], exposures_ms: Array, camera: Camera, rows: NDArray[np.intp], cols: NDArray[np.intp]
+) -> tuple[Array, NDArray[np.bool_]]:
+    """Linear merge at the pixels ``(rows, cols)`` only: shapes ``(L, P, 3)``, ``(L, P)``.
+
+    A pixel is saturated if any channel is, so colour ratios stay unbiased.
+    (Weights ``w_j = t_j`` make the merge ``Σ_j signal_j / Σ_j t_j`` over the used
+    exposures.)
+    """
+    if raw.ndim != 5 or raw.shape[-1] != 3:
+        raise ValueError(f"raw frames must have shape (L, E, H, W, 3), got {raw.shape}")
+    t = np.ascontiguousarray(exposures_ms, dtype=np.float64)
+    n = len(rows)
+    out = np.empty((raw.shape[0], n, 3))
+    valid = np.empty((raw.shape[0], n), dtype=bool)
+    _kernels.merge_linear(
+        np.ascontiguousarray(raw), np.ascontiguousarray(rows, dtype=np.intp), np.ascontiguousarray(cols, dtype=np.intp),
+        t, float(camera.black_level), SATURATION * camera.max_value, DARK_DN, out, valid,
+    )  # fmt: skip
+    return out, valid
+
+
+def merge_linear(raw: NDArray[np.integer], exposures_ms: Array, camera: Camera) -> tuple[Array, NDArray[np.bool_]]:
+    """Merge raw exposures ``(L, E, H, W, 3)`` of a linear camera, every pixel.
+
+    Returns ``(radiance, valid)``: DN/ms, shape ``(L, H, W, 3)``; mask ``(L, H, W)``.
+    """
+    h, w = raw.shape[2:4]
+    rows, cols = np.divmod(np.arange(h * w), w)
+    out, valid = merge_linear_pixels(raw, exposures_ms, camera, rows, cols)
+    return out.reshape(raw.shape[0], h, w, 3), valid.reshape(raw.shape[0], h, w)
+
+
+def recover_response(
+    raw: NDArray[np.uint8], exposures_ms: Array, samples: int = 150, window: tuple[slice, slice] | None = None
+) -> Array:
+    """Debevec–Malik inverse response (linear units per 8-bit level), shape ``(256, 3)``.
+
+    ``raw`` has shape ``(N, E, H, W, 3)``: N scenes (e.g. the white target under each
+    LED) with E exposures each. OpenCV samples pixels on a regular grid, so ``window``
+    (rows, cols) restricts it to the lit part of the image.
+    """
+    import cv2
+
+    cal = cv2.createCalibrateDebevec(samples=samples, lambda_=10.0, random=False)
+    t = (np.asarray(exposures_ms, dtype=np.float32) / 1000.0).astype(np.float32)
+    # the scenes are tiled side by side into one image per exposure: one system, and
+    # OpenCV's sampling grid spans the levels of every scene
+    imgs = []
+    for e in range(raw.shape[1]):
+        tiles = [(scene[e] if window is None else scene[e][window]) for scene in raw]
+        imgs.append(np.ascontiguousarray(np.concatenate(tiles, axis=1)[..., ::-1]))
+    return cal.process(imgs, t).reshape(256, 3)[:, ::-1].astype(np.float64)
+
+
+def merge_debevec(raw: NDArray[np.uint8], exposures_ms: Array, response: Array) -> tuple[Array, NDArray[np.bool_]]:
+    """Merge 8-bit gamma exposures ``(L, E, H, W, 3)`` with a recovered response.
+
+    Unlike OpenCV's ``MergeDebevec`` (whose hat weight is never zero, so clipped pixels
+    leak in — algorithm-reference §7.1), clipped (255) and black (0) levels get zero
+    weight here; the hat weight is per channel.
+    """
+    z = raw.astype(np.intp)
+    lev = np.arange(256, dtype=np.float64)
+    hat = np.minimum(lev, 255.0 - lev)
+    hat[[0, 255]] = 0.0
+    t = np.asarray(exposures_ms, dtype=np.float64)
+    resp = np.asarray(response, dtype=np.float64)
+    lin = np.stack([resp[z[..., c], c] for c in range(3)], axis=-1)  # (L, E, H, W, 3)
+    sat = z.max(axis=-1) >= 254
+    w = hat[z] * (~sat)[..., None]
+    num = np.sum(w * lin / t[None, :, None, None, None], axis=1)
+    wsum = w.sum(axis=1)
+    valid = np.all(wsum > 0, axis=-1)
+    radiance = np.divide(num, wsum, out=np.zeros_like(num), where=wsum > 0)
+    return radiance, valid

@@ -1,0 +1,251 @@
+"""LED layout design and coverage analysis (paper §4.1, Fig. 2(c)(d)).
+
+A slice lit by LED ``l`` and seen over the view cone covers the half vectors
+``h = normalize(l + o)`` for ``o`` in the cone. Equivalently, a hemicube texel ``h`` is
+covered by ``l`` iff its mirror view ``o_h = R_h(l) = 2(l·h)h − l`` lies inside the
+cone (and above the horizon, with a margin against grazing views). This is exact per
+texel, without sampling pixels.
+
+The symmetry of eq. 3, ``τ = diag(−1, −1, 1)``, maps the half vector of ``(i, o)`` to
+that of ``(τi, τo)``; a texel is *covered after symmetry* if it or ``τh`` is covered.
+The mirror planes of HLHZ08 (``M_t``, ``M_b``) are reported as well, for isotropic
+and orthotropic materials.
+
+The layout constraints (§4.1): ``l0`` at 5° elevation at the condenser's azimuth; no
+LED below 5° elevation; no LED inside the view cone widened by a 5° margin for the
+LED's tube (it would shadow the light path between the condensers).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .. import geometry
+from ..hemicube import Hemicube, hemicube
+from .optics import Optics
+
+Array = NDArray[np.float64]
+
+#: Smallest LED elevation (mechanical limit of the paper's device), degrees.
+MIN_ELEVATION_DEG = 5.0
+#: Margin around the view cone kept free for the LED tubes, degrees.
+TUBE_MARGIN_DEG = 5.0
+#: Views more grazing than this are not used (algorithm-reference §4.2: o·n ≤ 0.05).
+MIN_VIEW_COS = 0.05
+
+
+def led_direction(elevation_deg: ArrayLike, azimuth_deg: ArrayLike) -> Array:
+    """Unit LED direction(s) from elevation above the sample plane and azimuth (degrees)."""
+    el = np.radians(np.asarray(elevation_deg, dtype=np.float64))
+    az = np.radians(np.asarray(azimuth_deg, dtype=np.float64))
+    return np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=-1)
+
+
+def led_angles(dirs: ArrayLike) -> Array:
+    """Inverse of :func:`led_direction`: ``(elevation, azimuth)`` in degrees, shape ``(..., 2)``."""
+    d = geometry.normalize(dirs)
+    el = np.degrees(np.arcsin(np.clip(d[..., 2], -1.0, 1.0)))
+    az = np.degrees(np.arctan2(d[..., 1], d[..., 0])) % 360.0
+    return np.stack([el, az], axis=-1)
+
+
+def layout_violations(optics: Optics, leds: ArrayLike) -> list[str]:
+    """The §4.1 constraints a layout breaks, in words (empty if none)."""
+    leds = geometry.normalize(np.atleast_2d(leds))
+    out = []
+    limit = math.cos(math.radians(optics.cone_half_angle_deg + TUBE_MARGIN_DEG))
+    for k, (el, az) in enumerate(led_angles(leds)):
+        if el < MIN_ELEVATION_DEG - 1e-9:
+            out.append(f"LED {k} at {el:.1f}° elevation is below {MIN_ELEVATION_DEG}°")
+        if leds[k] @ optics.axis > limit + 1e-12:
+            ang = math.degrees(math.acos(min(1.0, float(leds[k] @ optics.axis))))
+            out.append(
+                f"LED {k} is {ang:.1f}° from the optical axis, inside the view cone + "
+                f"{TUBE_MARGIN_DEG}° margin ({optics.cone_half_angle_deg + TUBE_MARGIN_DEG:.1f}°)"
+            )
+    return out
+
+
+def coverage_masks(optics: Optics, leds: ArrayLike, cube: Hemicube) -> NDArray[np.bool_]:
+    """Texels of ``cube`` whose half vector each LED's slice observes, shape ``(L, size)``."""
+    leds = geometry.normalize(np.atleast_2d(leds))
+    h = cube.directions
+    lh = leds @ h.T  # (L, T)
+    o = 2.0 * lh[..., None] * h[None] - leds[:, None, :]  # mirror views (L, T, 3)
+    in_cone = o @ optics.axis >= math.cos(math.radians(optics.cone_half_angle_deg))
+    return in_cone & (o[..., 2] > MIN_VIEW_COS) & (lh > 0)
+
+
+@dataclasses.dataclass
+class Coverage:
+    """Coverage numbers of a layout, as solid-angle fractions of the NDF cap θ_h ≤ θ_max.
+
+    Attributes
+    ----------
+    per_led
+        Fraction each LED's slice covers, shape ``(L,)``.
+    union
+        Fraction covered by at least one slice.
+    after_tau
+        Fraction covered after completion by eq. 3 (h or τh covered).
+    after_mirrors
+        Fraction after the full group {1, M_t, M_b, τ} (orthotropic materials).
+    overlap
+        ``overlap[a, b]``: fraction covered by both slices a and b.
+    theta_d_spread_deg
+        Mean ``|θ_d(a) − θ_d(b)|`` over each overlap (degrees; NaN without overlap);
+        Fresnel estimation (§5.1) needs pairs at different θ_d.
+    upper_bound_after_tau
+        What any number of LEDs obeying the constraints could cover after τ.
+    """
+
+    theta_max_deg: float
+    per_led: Array
+    union: float
+    after_tau: float
+    after_mirrors: float
+    overlap: Array
+    theta_d_spread_deg: Array
+    upper_bound_after_tau: float
+    masks: NDArray[np.bool_] = dataclasses.field(repr=False)
+
+    @property
+    def every_led_overlaps(self) -> bool:
+        off = self.overlap.copy()
+        np.fill_diagonal(off, 0.0)
+        return bool(np.all(off.max(axis=1) > 0))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "theta_max_deg": self.theta_max_deg,
+            "per_led": [round(float(x), 4) for x in self.per_led],
+            "union": round(self.union, 4),
+            "after_tau": round(self.after_tau, 4),
+            "after_mirrors": round(self.after_mirrors, 4),
+            "upper_bound_after_tau": round(self.upper_bound_after_tau, 4),
+            "every_led_overlaps": self.every_led_overlaps,
+            "overlap": np.round(self.overlap, 4).tolist(),
+            "theta_d_spread_deg": np.round(np.nan_to_num(self.theta_d_spread_deg), 2).tolist(),
+        }
+
+
+def reachable_mask(optics: Optics, cube: Hemicube, n_views: int = 4000) -> NDArray[np.bool_]:
+    """Texels that *some* LED obeying the §4.1 constraints could cover.
+
+    ``h`` is reachable iff a view ``o`` in the cone exists whose mirror ``R_h(o)`` is a
+    legal LED direction. Views are a deterministic Fibonacci set over the cone.
+    """
+    k = np.arange(n_views) + 0.5
+    cos_max = math.cos(math.radians(optics.cone_half_angle_deg))
+    ct = 1.0 - (1.0 - cos_max) * k / n_views
+    st = np.sqrt(1.0 - ct * ct)
+    ph = k * math.pi * (3.0 - math.sqrt(5.0))
+    o = np.stack([st * np.cos(ph), st * np.sin(ph), ct], -1) @ optics.axis_frame
+    o = o[o[:, 2] > MIN_VIEW_COS]
+    sin_el = math.sin(math.radians(MIN_ELEVATION_DEG))
+    cos_tube = math.cos(math.radians(optics.cone_half_angle_deg + TUBE_MARGIN_DEG))
+    out = np.zeros(cube.size, dtype=bool)
+    h = cube.directions
+    for s in range(0, cube.size, 256):
+        hh = h[s : s + 256]
+        i = 2.0 * (o @ hh.T)[..., None] * hh[None] - o[:, None]
+        ok = (i[..., 2] >= sin_el) & (i @ optics.axis <= cos_tube)
+        out[s : s + 256] = ok.any(axis=0)
+    return out
+
+
+def coverage(optics: Optics, leds: ArrayLike, resolution: int = 64, theta_max_deg: float = 80.0) -> Coverage:
+    """Coverage analysis of a layout on a ``resolution`` hemicube (see :class:`Coverage`)."""
+    cube = hemicube(resolution)
+    leds = geometry.normalize(np.atleast_2d(leds))
+    masks = coverage_masks(optics, leds, cube)
+    cap = cube.directions[:, 2] >= math.cos(math.radians(theta_max_deg))
+    w = np.where(cap, cube.solid_angles, 0.0)
+    total = w.sum()
+    frac = lambda m: float(w[m].sum() / total)  # noqa: E731
+    union = masks.any(axis=0)
+    tau = cube.permutation(geometry.TAU)
+    after_tau = union | union[tau]
+    mirrors = after_tau | union[cube.permutation(geometry.MIRROR_T)] | union[cube.permutation(geometry.MIRROR_B)]
+    n = len(leds)
+    overlap = np.zeros((n, n))
+    spread = np.full((n, n), np.nan)
+    theta_d = np.degrees(np.arccos(np.clip(leds @ cube.directions.T, -1, 1)))  # (L, T)
+    for a in range(n):
+        for b in range(n):
+            both = masks[a] & masks[b]
+            overlap[a, b] = frac(both)
+            if a != b and both.any():
+                ww = w[both]
+                spread[a, b] = float(np.sum(np.abs(theta_d[a, both] - theta_d[b, both]) * ww) / max(ww.sum(), 1e-300))
+    reach = reachable_mask(optics, cube)
+    return Coverage(
+        theta_max_deg=theta_max_deg,
+        per_led=np.array([frac(m) for m in masks]),
+        union=frac(union),
+        after_tau=frac(after_tau),
+        after_mirrors=frac(mirrors),
+        overlap=overlap,
+        theta_d_spread_deg=spread,
+        upper_bound_after_tau=frac(reach | reach[tau]),
+        masks=masks,
+    )
+
+
+def optimize_layout(
+    optics: Optics,
+    n_leds: int = 6,
+    resolution: int = 32,
+    theta_max_deg: float = 80.0,
+    min_separation_deg: float = 12.0,
+    seed: int = 0,
+    maxiter: int = 60,
+) -> Array:
+    """Place the free LEDs to maximise coverage after τ (paper §4.1).
+
+    ``l0`` is fixed at 5° elevation in the condenser's azimuth. The other ``n_leds − 1``
+    LEDs (elevation, azimuth) are chosen by differential evolution (deterministic for
+    a seed) maximising the covered fraction after eq. 3, plus a small reward for
+    overlaps at different θ_d; layouts that break the §4.1 constraints, put two LEDs
+    closer than ``min_separation_deg`` or leave a slice without overlap are penalised.
+
+    Returns the LED directions, shape ``(n_leds, 3)``.
+    """
+    from scipy.optimize import differential_evolution
+
+    cube = hemicube(resolution)
+    cap = cube.directions[:, 2] >= math.cos(math.radians(theta_max_deg))
+    w = np.where(cap, cube.solid_angles, 0.0)
+    w /= w.sum()
+    tau = cube.permutation(geometry.TAU)
+    l0 = led_direction(MIN_ELEVATION_DEG, optics.axis_azimuth_deg)
+    cos_sep = math.cos(math.radians(min_separation_deg))
+
+    def unpack(x: Array) -> Array:
+        return np.concatenate([l0[None], led_direction(x[0::2], x[1::2])])
+
+    def objective(x: Array) -> float:
+        leds = unpack(x)
+        penalty = 0.1 * len(layout_violations(optics, leds))
+        g = leds @ leds.T
+        np.fill_diagonal(g, -1.0)
+        penalty += 0.1 * float(np.sum(g > cos_sep)) / 2
+        m = coverage_masks(optics, leds, cube)
+        u = m.any(axis=0)
+        score = float(w[u | u[tau]].sum())
+        cnt = m.sum(axis=0)
+        for k in range(len(leds)):
+            if not np.any(m[k] & (cnt >= 2)):
+                penalty += 0.05
+        # reward overlaps at different θ_d (Fresnel, §5.1): overlap area of ≥ 2 slices
+        score += 0.02 * float(w[cnt >= 2].sum())
+        return -(score - penalty)
+
+    bounds = [(MIN_ELEVATION_DEG, 80.0), (0.0, 360.0)] * (n_leds - 1)
+    res = differential_evolution(objective, bounds, seed=seed, maxiter=maxiter, popsize=20, tol=1e-7, polish=False)
+    return unpack(res.x)

@@ -1,0 +1,299 @@
+"""The virtual instrument: raw frames a real device would record (paper §4).
+
+Image formation for LED ``l``, exposure ``t`` and pixel ``p`` (view direction ``o_p``
+through the *true* optics):
+
+``electrons = sensitivity · t · E_l · T(p) · f(i_loc, o_loc) · cos θ_i``  (RGB)
+
+with ``E_l`` the nominal design irradiance (``E_l cos θ_l = 1`` on the device's sample
+plane) times the LED's real intensity factor,
+
+``T`` the optical transmission/vignetting field,
+``f`` the BRDF in sr⁻¹ evaluated in the sample's local frame (``i_loc``, ``o_loc``;
+the sample may be tilted, rotated, or move between frames), then Poisson photon
+noise, clipping at the full well, Gaussian read noise, conversion to DN with the
+black level, rounding and clipping to the ADC range. A gamma camera encodes
+``255 (e/full_well)^(1/γ)`` in 8 bits instead. Pixels outside the condenser's view
+cone receive no light.
+
+Calibration targets (§4.2) are simulated by the same camera: a Lambertian white
+standard under every LED, images of a pinhole-grid occluder in front of a point
+source at the focal point, and a mirror on a tilt stage that reflects each LED into
+the camera.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .. import _kernels, geometry
+from ..errors import ParameterError
+from ..sources.base import BRDFSource
+from .capture import Capture, _write_png, atomic_dir, write_capture
+from .device import Camera, Device
+from .optics import Optics
+
+Array = NDArray[np.float64]
+
+#: Largest hand tilt the simulator accepts (issue: hand-held use up to 15°).
+MAX_TILT_DEG = 30.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Pose:
+    """Orientation of the sample in the device frame: rows ``(t, b, n)``."""
+
+    frame: Array
+
+    @classmethod
+    def from_angles(cls, tilt_deg: float = 0.0, tilt_azimuth_deg: float = 0.0, rotation_deg: float = 0.0) -> Pose:
+        """Normal tilted by ``tilt_deg`` towards ``tilt_azimuth_deg``; tangent turned by ``rotation_deg``."""
+        t, a, r = (math.radians(v) for v in (tilt_deg, tilt_azimuth_deg, rotation_deg))
+        n = np.array([math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), math.cos(t)])
+        t0 = np.array([math.cos(r), math.sin(r), 0.0])
+        return cls(geometry.frame_from_normal(n, t0))
+
+    def rotated(self, axis: ArrayLike, angle_deg: float) -> Pose:
+        """The pose after rotating the sample by ``angle_deg`` about ``axis`` (device frame)."""
+        k = geometry.normalize(axis)
+        a = math.radians(angle_deg)
+        kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        rot = np.eye(3) + math.sin(a) * kx + (1 - math.cos(a)) * kx @ kx
+        return Pose(self.frame @ rot.T)
+
+    @property
+    def normal(self) -> Array:
+        return self.frame[2]
+
+    def to_local(self, v: ArrayLike) -> Array:
+        return geometry.to_local(v, self.frame)
+
+
+#: Above this many electrons, photon noise is drawn from its Gaussian limit N(λ, λ)
+#: (same mean and variance; skewness ≤ 0.18); below it, exactly from Poisson(λ).
+GAUSSIAN_PHOTONS = 30.0
+
+
+def expose(signal: Array, t_ms: float, camera: Camera, rng: np.random.Generator | None) -> NDArray[np.integer]:
+    """Raw image of an electron rate ``signal`` (e⁻/ms, any shape) for ``t_ms`` ms.
+
+    Photon and read noise are drawn from ``rng`` (a seeded generator gives identical
+    frames); ``rng=None`` or a noiseless camera gives the noiseless image.
+    """
+    sig = np.ascontiguousarray(signal, dtype=np.float64).ravel()
+    gamma = camera.gamma if camera.response == "gamma" else 0.0
+    out = np.empty(sig.shape, dtype=np.uint8 if gamma > 0 else np.uint16)
+    z = pois = np.empty(0)
+    if rng is not None and not camera.noiseless:
+        z = rng.standard_normal(sig.shape, dtype=np.float32)
+        pois = np.zeros(sig.shape)
+        if camera.shot_noise:
+            lam = np.minimum(np.maximum(sig, 0.0) * t_ms, GAUSSIAN_PHOTONS)
+            idx = np.flatnonzero((lam > 0) & (lam < GAUSSIAN_PHOTONS))
+            pois[idx] = rng.poisson(lam[idx])
+    _kernels.expose(
+        sig, float(t_ms), z, pois, camera.full_well, camera.read_noise, camera.shot_noise, GAUSSIAN_PHOTONS,
+        gamma, camera.gain, camera.black_level, float(camera.max_value), out,
+    )  # fmt: skip
+    return out.reshape(np.shape(signal))
+
+
+def _truth(device: Device) -> tuple[Optics, Array, Array, Array]:
+    """True optics, LED directions, LED intensities and transmission field."""
+    if device.truth is None:
+        h, w = device.optics.height, device.optics.width
+        return device.optics, device.leds, np.ones(device.n_leds), np.ones((h, w))
+    t = device.truth
+    return t.optics, t.leds, np.asarray(t.led_intensity), t.transmission_field()
+
+
+def simulate_capture(
+    source: BRDFSource,
+    device: Device,
+    *,
+    tilt_deg: float = 0.0,
+    tilt_azimuth_deg: float | None = None,
+    rotation_deg: float = 0.0,
+    shake: bool = False,
+    shake_deg: float | None = None,
+    seed: int = 0,
+    source_name: str | None = None,
+) -> Capture:
+    """Raw frames of one capture of ``source`` (see the module docstring).
+
+    Parameters
+    ----------
+    tilt_deg, tilt_azimuth_deg
+        Hand tilt of the sample normal (≤ 30°); the azimuth is drawn from ``seed`` when
+        not given.
+    rotation_deg
+        Rotation of the sample's tangent about its normal (for anisotropic sources).
+    shake
+        The device moves during the capture: from a random LED on, the sample is turned
+        by ``shake_deg`` (drawn in [3°, 8°] when not given) about a random horizontal
+        axis — the failure §5.1 must detect.
+    seed
+        Seeds noise, tilt azimuth and shake; equal seeds give identical frames.
+    """
+    if not (math.isfinite(tilt_deg) and 0.0 <= tilt_deg <= MAX_TILT_DEG):
+        raise ParameterError(f"tilt must be in [0°, {MAX_TILT_DEG}°], got {tilt_deg}")
+    rng = np.random.default_rng(seed)
+    optics, leds, intensity, trans = _truth(device)
+    cam = device.camera
+    if tilt_azimuth_deg is None:
+        tilt_azimuth_deg = float(rng.uniform(0.0, 360.0))
+    pose = Pose.from_angles(tilt_deg, tilt_azimuth_deg, rotation_deg)
+    poses = [pose] * device.n_leds
+    shake_info: dict[str, Any] | None = None
+    if shake:
+        start = int(rng.integers(1, device.n_leds))
+        ang = float(rng.uniform(3.0, 8.0)) if shake_deg is None else float(shake_deg)
+        az = rng.uniform(0.0, 2.0 * math.pi)
+        axis = np.array([math.cos(az), math.sin(az), 0.0])
+        moved = pose.rotated(axis, ang)
+        poses = [pose if k < start else moved for k in range(device.n_leds)]
+        shake_info = {"from_led": start, "angle_deg": ang, "axis": axis.tolist()}
+
+    dirs, mask = optics.pixel_directions()
+    o = dirs[mask]
+    h, w = mask.shape
+    raw_dtype = np.uint8 if cam.response == "gamma" else np.uint16
+    raw = np.empty((device.n_leds, len(cam.exposures_ms), h, w, 3), dtype=raw_dtype)
+    scale = cam.sensitivity * trans[mask][:, None]
+    power = device.led_irradiance * intensity
+    for k in range(device.n_leds):
+        p = poses[k]
+        i_loc = p.to_local(leds[k])
+        o_loc = p.to_local(o)
+        ok = (o_loc[:, 2] > 0) & (i_loc[2] > 0)
+        f = np.zeros((len(o), 3))
+        if ok.any():
+            f[ok] = source.eval(np.broadcast_to(i_loc, (int(ok.sum()), 3)), o_loc[ok])
+        if not np.all(np.isfinite(f)):
+            raise ParameterError(f"source {source_name or source.name} returned non-finite values")
+        rate = np.zeros((h, w, 3))
+        rate[mask] = f * (max(i_loc[2], 0.0) * power[k]) * scale
+        for e, t in enumerate(cam.exposures_ms):
+            raw[k, e] = expose(rate, t, cam, rng)
+    sim = {
+        "source": source_name or source.name,
+        "seed": seed,
+        "tilt_deg": tilt_deg,
+        "tilt_azimuth_deg": tilt_azimuth_deg,
+        "rotation_deg": rotation_deg,
+        "normal": pose.normal.tolist(),
+        "shake": shake_info,
+        "device_truth": device.name if device.truth is not None else None,
+    }
+    return Capture(device.nominal(), raw, np.array(cam.exposures_ms), "sample", {"simulation": sim})
+
+
+# --------------------------------------------------------------- calibration
+#: Albedo of the simulated Lambertian white standard.
+WHITE_ALBEDO = 0.99
+#: Spacing of the pinhole grid in the sine-law image plane (normalized radius).
+GRID_SPACING = 0.1
+#: Angular radius (degrees) of a spot: pinhole diffraction / LED size blur.
+SPOT_BLUR_PX = 0.8
+
+
+def grid_directions(optics: Optics, offset: tuple[float, float]) -> Array:
+    """Known ray directions through one occluder position's pinholes (device frame).
+
+    The pinholes are laid out so that the rays are evenly spaced in the sine-law image
+    (spacing :data:`GRID_SPACING`), shifted by ``offset``; the occluder is mounted on
+    the optical axis of the nominal design.
+    """
+    rim = math.sin(math.radians(optics.cone_half_angle_deg - 1.0))
+    g = np.arange(-1.0, 1.0 + 1e-9, GRID_SPACING)
+    sx, sy = np.meshgrid(g + offset[0], g + offset[1])
+    s2 = sx * sx + sy * sy
+    keep = s2 <= rim * rim
+    loc = np.stack([sx[keep], sy[keep], np.sqrt(1.0 - s2[keep])], -1)
+    return loc @ optics.axis_frame
+
+
+def _spots(optics: Optics, dirs: Array, amplitude: float) -> Array:
+    """Electron rate image of Gaussian spots at the pixels of ``dirs`` (true optics)."""
+    uv = optics.direction_to_pixel(dirs)
+    v, u = np.mgrid[0 : optics.height, 0 : optics.width].astype(np.float64)
+    img = np.zeros((optics.height, optics.width))
+    r = int(math.ceil(4 * SPOT_BLUR_PX))
+    for cu, cv in uv:
+        if not (np.isfinite(cu) and -r < cu < optics.width + r and -r < cv < optics.height + r):
+            continue
+        u0, v0 = max(int(cu) - r, 0), max(int(cv) - r, 0)
+        u1, v1 = min(int(cu) + r + 2, optics.width), min(int(cv) + r + 2, optics.height)
+        du, dv = u[v0:v1, u0:u1] - cu, v[v0:v1, u0:u1] - cv
+        img[v0:v1, u0:u1] += amplitude * np.exp(-(du * du + dv * dv) / (2 * SPOT_BLUR_PX**2))
+    return np.repeat(img[..., None], 3, axis=-1)
+
+
+#: Exposure sweep (ms) of the white target for gamma cameras' response recovery.
+RESPONSE_SWEEP_MS = tuple(0.25 * 2.0**k for k in range(9))
+
+GRID_OFFSETS = tuple((a, b) for a in (0.0, 0.033, 0.066) for b in (0.0, 0.033, 0.066))
+
+
+def simulate_calibration(device: Device, out_dir: str | Path, seed: int = 0, white_repeats: int = 8) -> Path:
+    """Write the calibration captures of ``device`` into ``out_dir`` (atomically).
+
+    * ``white/``: a capture of a Lambertian standard (albedo :data:`WHITE_ALBEDO`),
+      every LED and exposure; each frame is the mean of ``white_repeats`` exposures,
+      rounded to the ADC range (frame averaging against photon noise);
+    * ``grid_*.png``: pinhole-grid images, one per occluder position, with the known
+      ray directions in ``calibration.json``;
+    * ``mirror_led*.png``: a mirror whose known normal sends each LED into the camera;
+    * ``response_t*.png`` (gamma cameras only): an exposure sweep of the white target.
+    """
+    from ..sources.analytic import AnalyticBRDF
+
+    rng = np.random.default_rng(seed)
+    optics, leds, intensity, trans = _truth(device)
+    cam = device.camera
+    lamb = AnalyticBRDF(distribution="ggx", alpha=0.5, kd=WHITE_ALBEDO, ks=0.0)
+    frames = [simulate_capture(lamb, device, seed=seed * 1000 + r, tilt_azimuth_deg=0.0).raw.astype(np.float64)
+              for r in range(white_repeats)]
+    mean = np.mean(frames, axis=0)
+    white = Capture(device.nominal(), np.rint(mean).astype(np.uint8 if cam.response == "gamma" else np.uint16),
+                    np.array(cam.exposures_ms), "white", {"white": {"albedo": WHITE_ALBEDO, "repeats": white_repeats}})
+    t_spot = cam.exposures_ms[0]
+    amp = 0.6 * cam.full_well / t_spot
+    nominal = device.optics
+    meta: dict[str, Any] = {"format": "reflecto-calibration-capture", "version": 1,
+                            "device": device.nominal().to_dict(), "grid": [], "mirror": []}
+    with atomic_dir(out_dir) as tmp:
+        write_capture(white, tmp / "white")
+        for k, off in enumerate(GRID_OFFSETS):
+            d = grid_directions(nominal, off)
+            img = expose(_spots(optics, d, amp), t_spot, cam, rng)
+            name = f"grid_{k}.png"
+            _write_png(tmp / name, img)
+            meta["grid"].append({"file": name, "exposure_ms": t_spot, "directions": np.round(d, 12).tolist()})
+        for k in range(device.n_leds):
+            # the tilt stage turns the mirror so that the nominal LED reflects onto the axis
+            m = geometry.normalize(device.leds[k] + nominal.axis)
+            r = geometry.reflect(leds[k], m)
+            img = expose(_spots(optics, r[None], amp), t_spot, cam, rng)
+            name = f"mirror_led{k}.png"
+            _write_png(tmp / name, img)
+            meta["mirror"].append({"file": name, "led": k, "exposure_ms": t_spot, "mirror_normal": m.tolist()})
+        if cam.response == "gamma":
+            # exposure sweep of the white target under LED 0 for Debevec–Malik response recovery
+            rate = np.zeros((optics.height, optics.width, 3))
+            dirs, mask = optics.pixel_directions()
+            rate[mask] = cam.sensitivity * (WHITE_ALBEDO / math.pi) * trans[mask][:, None] * intensity[0]
+            meta["response"] = []
+            for t in RESPONSE_SWEEP_MS:
+                name = f"response_t{t:g}ms.png"
+                _write_png(tmp / name, expose(rate, t, cam, rng))
+                meta["response"].append({"file": name, "exposure_ms": t})
+        (tmp / "calibration.json").write_text(json.dumps(meta, indent=1))
+    return Path(out_dir)

@@ -1,0 +1,92 @@
+"""Capture + calibration → BRDF slices, the input of the reconstruction (§4.3, §5).
+
+For LED ``l`` and pixel ``p`` inside the view cone: ``f_l(p) = L_l(p) / s_l(p)`` (RGB,
+sr⁻¹), with ``L`` the HDR radiance and ``s`` the radiometric scale of the calibration.
+The value assumes the sample normal is the device's +z: for a tilted sample it is
+``f(i, o) · cos θ_i(sample) / cos θ_i(device)``, which the reconstruction undoes once
+it has estimated the normal (:func:`Slices.reframe`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import geometry
+from .calibrate import Calibration
+from .capture import Capture, CaptureError
+from .hdr import merge_debevec, merge_linear_pixels
+
+Array = NDArray[np.float64]
+
+
+@dataclasses.dataclass
+class Slices:
+    """Six (L) BRDF slices sharing one set of view directions.
+
+    Attributes
+    ----------
+    light
+        LED directions, shape ``(L, 3)``.
+    view
+        View direction of every pixel used, shape ``(P, 3)``.
+    values
+        BRDF values (sr⁻¹), shape ``(L, P, 3)``.
+    valid
+        False where a pixel is saturated in every exposure or otherwise unusable,
+        shape ``(L, P)``.
+    pixels
+        ``(row, col)`` of each view direction, shape ``(P, 2)``.
+    frame
+        Rows ``(t, b, n)`` of the frame the directions are expressed in (identity: device).
+    """
+
+    light: Array
+    view: Array
+    values: Array
+    valid: NDArray[np.bool_]
+    pixels: NDArray[np.intp]
+    frame: Array = dataclasses.field(default_factory=lambda: np.eye(3))
+
+    @property
+    def n_leds(self) -> int:
+        return self.light.shape[0]
+
+    def reframe(self, frame: Array) -> Slices:
+        """Express the slices in a new sample frame (rows t, b, n in device coordinates).
+
+        Directions are rotated; values are corrected for the changed ``cos θ_i``
+        (see the module docstring). Views at or below the new horizon become invalid.
+        """
+        frame = np.asarray(frame, dtype=np.float64)
+        light = geometry.to_local(self.light, frame)
+        view = geometry.to_local(self.view, frame)
+        old = geometry.to_local(self.light, self.frame)[:, 2]
+        new = light[:, 2]
+        ratio = np.divide(old, new, out=np.zeros_like(new), where=new > 1e-6)
+        values = self.values * ratio[:, None, None]
+        valid = self.valid & (view[None, :, 2] > 0) & (new[:, None] > 1e-6)
+        return Slices(light, view, values, valid, self.pixels, frame)
+
+
+def extract_slices(capture: Capture, calibration: Calibration) -> Slices:
+    """HDR merge, radiometric correction and pixel directions (see the module docstring)."""
+    dev = capture.device
+    if calibration.device.n_leds != dev.n_leds:
+        raise CaptureError(capture.path or "<capture>", "calibration and capture have different LED counts")
+    if capture.raw.shape[2:4] != (calibration.optics.height, calibration.optics.width):
+        raise CaptureError(capture.path or "<capture>", "image size differs from the calibration's sensor")
+    if dev.camera.response == "gamma":
+        if calibration.response is None:
+            raise CaptureError(capture.path or "<capture>", "gamma camera: the calibration has no response curve")
+    dirs, mask, rows, cols, scale = calibration.pixel_geometry()
+    if dev.camera.response == "gamma":
+        rad, valid = merge_debevec(capture.raw, capture.exposures_ms, calibration.response)
+        rad, valid = rad[:, rows, cols], valid[:, rows, cols]
+    else:
+        rad, valid = merge_linear_pixels(capture.raw, capture.exposures_ms, dev.camera, rows, cols)
+    ok = valid & np.all(scale > 0, axis=-1)
+    values = np.divide(rad, scale, out=np.zeros_like(rad), where=ok[..., None])
+    return Slices(calibration.leds.copy(), dirs[rows, cols], values, ok, np.stack([rows, cols], -1))

@@ -1,0 +1,244 @@
+"""The virtual instrument: optics, layout, simulation, calibration, HDR, slices (issue 3)."""
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from reflecto import geometry as g
+from reflecto.cli import main
+from reflecto.errors import FileFormatError, ParameterError
+from reflecto.instrument import layout
+from reflecto.instrument.calibrate import Calibration, calibrate, nominal_calibration
+from reflecto.instrument.capture import CaptureError, read_capture, write_capture
+from reflecto.instrument.device import Device, load_device
+from reflecto.instrument.hdr import merge_linear
+from reflecto.instrument.optics import Optics
+from reflecto.instrument.simulate import simulate_calibration, simulate_capture
+from reflecto.instrument.slices import extract_slices
+from reflecto.sources.analytic import AnalyticBRDF
+
+SRC = AnalyticBRDF(distribution="ggx", alpha=0.2, kd=[0.3, 0.2, 0.1], ks=0.6, eta=1.5)
+
+
+def _angle_deg(a, b):
+    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1, 1)))
+
+
+def _truth_values(src, device, sl):
+    """f(i, o) at the true LED and pixel directions of every slice sample."""
+    truth = device.truth
+    leds = device.leds if truth is None else truth.leds
+    optics = device.optics if truth is None else truth.optics
+    view = optics.pixel_directions()[0][sl.pixels[:, 0], sl.pixels[:, 1]]
+    return np.stack([src.eval(np.broadcast_to(l, view.shape), view) for l in leds])
+
+
+@pytest.mark.parametrize(
+    "optics", [Optics(), Optics(law="tan"), Optics(cx=163.2, cy=116.9, k1=-0.06, k2=0.015, roll_deg=0.7)]
+)
+def test_pixel_direction_round_trip(optics):
+    dirs, mask = optics.pixel_directions()
+    uv = optics.pixel_grid()[mask]
+    back = optics.direction_to_pixel(dirs[mask])
+    assert np.max(np.abs(back - uv)) < 1e-6
+    d2 = optics.pixel_to_direction(optics.direction_to_pixel(dirs[mask]))
+    assert _angle_deg(d2, dirs[mask]).max() < 0.01
+    # the cone is what the design says: axis tilted 20°, half-angle 48.2°
+    assert np.isclose(g.cartesian_to_spherical(optics.axis)[0], np.radians(20.0))
+    assert _angle_deg(dirs[mask], optics.axis).max() <= 48.216
+    assert mask.sum() > 30_000
+
+
+def test_ideal_slices_equal_the_brdf():
+    dev = Device.builtin("ideal")
+    cap = simulate_capture(SRC, dev, seed=3)
+    sl = extract_slices(cap, nominal_calibration(dev))
+    f = _truth_values(SRC, dev, sl)
+    assert np.array_equal(sl.view, dev.optics.pixel_directions()[0][sl.pixels[:, 0], sl.pixels[:, 1]])
+    ok = sl.valid[..., None] & (f > 0.05 * 2.5)  # above 5 % of the long exposure's full scale
+    rel = np.abs(sl.values / f - 1)[ok]
+    # only 12-bit quantisation remains: ≤ half a DN of a ≥ 5 %-of-range signal
+    assert np.median(rel) < 2e-3 and rel.max() < 0.012
+    assert sl.valid.mean() > 0.99
+
+
+def test_simulation_is_deterministic_and_round_trips(tmp_path):
+    dev = Device.builtin("as-built")
+    a = simulate_capture(SRC, dev, seed=11, tilt_deg=7.0)
+    b = simulate_capture(SRC, dev, seed=11, tilt_deg=7.0)
+    c = simulate_capture(SRC, dev, seed=12, tilt_deg=7.0)
+    assert np.array_equal(a.raw, b.raw) and not np.array_equal(a.raw, c.raw)
+    write_capture(a, tmp_path / "cap")
+    r = read_capture(tmp_path / "cap")
+    assert np.array_equal(r.raw, a.raw)
+    m = json.loads((tmp_path / "cap" / "manifest.json").read_text())
+    assert "truth" not in m["device"]  # the pipeline never sees the as-built truth
+    assert m["simulation"]["tilt_deg"] == 7.0
+    assert not list(tmp_path.glob(".*part*"))
+
+
+@pytest.fixture(scope="module")
+def as_built(tmp_path_factory):
+    d = tmp_path_factory.mktemp("calib")
+    dev = Device.builtin("as-built")
+    simulate_calibration(dev, d / "calib", seed=5)
+    cal = calibrate(d / "calib")
+    cal.save(d / "cal.npz")
+    return dev, cal, d
+
+
+def test_calibration_recovers_the_as_built_device(as_built):
+    dev, cal, d = as_built
+    truth = dev.truth
+    dt, mt = truth.optics.pixel_directions()
+    dc, mc = cal.optics.pixel_directions()
+    m = mt & mc
+    rms = np.sqrt(np.mean(_angle_deg(dt[m], dc[m]) ** 2))
+    assert rms < 0.1, rms
+    # the nominal optics would be off by far more than that
+    dn, _ = dev.optics.pixel_directions()
+    assert np.sqrt(np.mean(_angle_deg(dt[m], dn[m]) ** 2)) > 1.0
+    assert _angle_deg(cal.leds, truth.leds).max() < 0.05
+    # radiometric field: LED intensity × design irradiance × cos × transmission × gain
+    cam = dev.camera
+    true_scale = (cam.sensitivity / cam.gain) * (np.asarray(truth.led_intensity) * dev.led_irradiance
+                                                 * truth.leds[:, 2])[:, None, None] * truth.transmission_field()[None]
+    rel = cal.scale[..., 1][:, m] / true_scale[:, m] - 1
+    assert np.sqrt(np.mean(rel**2)) < 0.01
+    loaded = Calibration.load(d / "cal.npz")
+    assert np.array_equal(loaded.scale, cal.scale) and loaded.optics == cal.optics
+
+
+def test_as_built_slices_after_calibration_match_ground_truth(as_built):
+    dev, cal, _ = as_built
+    sl = extract_slices(simulate_capture(SRC, dev, seed=8), cal)
+    f = _truth_values(SRC, dev, sl)
+    ok = sl.valid[..., None] & (f > 0.05 * 2.5)
+    rel = np.abs(sl.values / f - 1)[ok]
+    assert np.median(rel) <= 0.02, np.median(rel)
+    # without calibration the same capture is far off (vignetting alone is up to 50 %)
+    sl0 = extract_slices(simulate_capture(SRC, dev, seed=8), nominal_calibration(dev))
+    f0 = _truth_values(SRC, dev, sl0)
+    rel0 = np.abs(sl0.values / f0 - 1)[sl0.valid[..., None] & (f0 > 0.125)]
+    assert np.median(rel0) > 0.05
+
+
+def test_gamma_camera_via_debevec(tmp_path):
+    dev = Device.builtin("ideal").with_camera(response="gamma", bits=8, black_level=0.0, read_noise=0.0,
+                                              shot_noise=False)
+    simulate_calibration(dev, tmp_path / "calib", white_repeats=1)
+    cal = calibrate(tmp_path / "calib")
+    assert cal.response is not None and cal.response.shape == (256, 3)
+    sl = extract_slices(simulate_capture(SRC, dev, seed=1), cal)
+    f = _truth_values(SRC, dev, sl)
+    ok = sl.valid[..., None] & (f > 0.05)
+    rel = np.abs(sl.values / f - 1)[ok]
+    print("gamma camera: median relative error", np.median(rel), "over", ok.sum())
+    assert ok.sum() > 50_000 and np.median(rel) < 0.02
+
+
+def test_linear_hdr_merge_uses_the_right_exposures():
+    cam = Device.builtin("ideal").camera
+    raw = np.full((1, 2, 2, 2, 3), cam.black_level, dtype=np.uint16)
+    raw[0, 0, 0, 0] = cam.black_level + 100  # 1 ms: 100 DN
+    raw[0, 1, 0, 0] = cam.black_level + 800  # 8 ms: 800 DN → both valid, 100 DN/ms
+    raw[0, 0, 0, 1] = cam.black_level + 400
+    raw[0, 1, 0, 1] = cam.max_value  # long exposure saturated → short only
+    raw[0, 0, 1, 0] = cam.max_value
+    raw[0, 1, 1, 0] = cam.max_value  # saturated everywhere → invalid
+    raw[0, 0, 1, 1] = cam.black_level + 1  # near-black short → the long one decides
+    raw[0, 1, 1, 1] = cam.black_level + 16
+    rad, valid = merge_linear(raw, np.array([1.0, 8.0]), cam)
+    assert np.allclose(rad[0, 0, 0], 100.0) and np.allclose(rad[0, 0, 1], 400.0)
+    assert not valid[0, 1, 0] and valid[0, 1, 1] and np.allclose(rad[0, 1, 1], 2.0)
+
+
+def test_default_layout_coverage_and_constraints():
+    dev = Device.builtin("ideal")
+    assert layout.layout_violations(dev.optics, dev.leds) == []
+    assert np.allclose(layout.led_angles(dev.leds[0]), [5.0, 0.0])
+    cov = layout.coverage(dev.optics, dev.leds)
+    assert cov.every_led_overlaps
+    assert cov.after_tau > 0.84 and cov.after_tau >= 0.95 * cov.upper_bound_after_tau
+    # the geometry's own limit: no layout reaches 97 % with a 48.2° cone tilted 20°
+    assert 0.85 < cov.upper_bound_after_tau < 0.90
+    # every overlap pairs samples at different θ_d (needed for Fresnel, §5.1)
+    spread = cov.theta_d_spread_deg[cov.overlap > 0]
+    assert np.all(np.nan_to_num(spread[~np.isnan(spread)]) > 5.0)
+    # a wider (aplanatic, sine-law) cone makes 97 % reachable
+    assert layout.coverage(Optics(cone_half_angle_deg=60.0), dev.leds[:1]).upper_bound_after_tau > 0.97
+
+
+def test_optimizer_respects_constraints():
+    o = Optics()
+    leds = layout.optimize_layout(o, resolution=16, maxiter=3)
+    assert layout.layout_violations(o, leds) == []
+    assert np.allclose(leds[0], layout.led_direction(5.0, 0.0))
+    with pytest.raises(ParameterError, match="inside the view cone"):
+        Device("bad", o, ((5.0, 0.0), (80.0, 0.0)), Device.builtin("ideal").camera)
+
+
+# ------------------------------------------------------------------ bad input
+@pytest.fixture()
+def capture_dir(tmp_path):
+    write_capture(simulate_capture(SRC, Device.builtin("ideal"), seed=2), tmp_path / "cap")
+    return tmp_path / "cap"
+
+
+def _edit_manifest(d, fn):
+    m = json.loads((d / "manifest.json").read_text())
+    fn(m)
+    (d / "manifest.json").write_text(json.dumps(m))
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda d: (d / "led3_t8ms.png").unlink(), "frame is missing"),
+        (lambda d: cv2.imwrite(str(d / "led2_t1ms.png"), np.zeros((120, 160, 3), np.uint16)), "160×120"),
+        (lambda d: _edit_manifest(d, lambda m: m["frames"].pop()), "missing from the manifest"),
+        (lambda d: _edit_manifest(d, lambda m: m["frames"].append(dict(m["frames"][0]))), "listed twice"),
+        (lambda d: _edit_manifest(d, lambda m: m["image"].update(width=640)), "does not match"),
+        (lambda d: _edit_manifest(d, lambda m: m["device"]["leds"].pop()), "not part of the device"),
+        (lambda d: [cv2.imwrite(str(d / f"led4_t{t}ms.png"), np.full((240, 320, 3), 4095, np.uint16)) for t in (1, 8)],
+         "saturated"),
+        (lambda d: (d / "manifest.json").write_text("{not json"), "not valid JSON"),
+    ],
+)
+def test_bad_captures_are_refused(capture_dir, damage, message, tmp_path, capsys):
+    damage(capture_dir)
+    with pytest.raises((CaptureError, FileFormatError), match=message):
+        read_capture(capture_dir)
+
+
+def test_cli_simulate_calibrate_and_errors(tmp_path, capsys):
+    src = tmp_path / "s.json"
+    src.write_text('{"type": "analytic", "distribution": "beckmann", "alpha": 0.3, "kd": 0.2, "ks": 0.5}')
+    assert main(["simulate", str(src), "--device", "as-built", "--tilt", "5", "-o", str(tmp_path / "c"), "-q"]) == 0
+    assert len(list((tmp_path / "c").glob("*.png"))) == 12
+    assert main(["simulate", str(src), "--tilt", "45", "-o", str(tmp_path / "t")]) == 1
+    assert "tilt" in capsys.readouterr().err and not (tmp_path / "t").exists()
+    assert main(["simulate", str(src), "--device", str(tmp_path / "nodev.toml"), "-o", str(tmp_path / "u")]) == 1
+    assert "no such device file" in capsys.readouterr().err
+    assert main(["layout", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["coverage"]["every_led_overlaps"]
+    assert main(["calibrate", str(tmp_path / "c"), "-o", str(tmp_path / "x.npz")]) == 1
+    assert "calibration.json is missing" in capsys.readouterr().err and not (tmp_path / "x.npz").exists()
+    assert not list(tmp_path.glob(".*part*"))
+
+
+def test_device_files(tmp_path):
+    p = tmp_path / "d.toml"
+    p.write_text('name = "mine"\nleds = [[5.0, 0.0], [10.0, 120.0], [10.0, 240.0]]\n[optics]\naxis_tilt_deg = 15.0\n'
+                 '[camera]\nbits = 14\nexposures_ms = [0.5, 4.0]\n')
+    dev = load_device(p)
+    assert dev.n_leds == 3 and dev.camera.exposures_ms == (0.5, 4.0) and dev.optics.axis_tilt_deg == 15.0
+    p.write_text('name = "mine"\n[optics]\nfocal = 3\n')
+    with pytest.raises(FileFormatError, match="unknown keys"):
+        load_device(p)
+    back = Device.from_dict(Device.builtin("as-built").to_dict(with_truth=True))
+    assert back.truth == Device.builtin("as-built").truth
+    shutil.rmtree(tmp_path)
