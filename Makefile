@@ -42,6 +42,12 @@ demo: $(STAMP)
 	$(BIN)/reflecto tabulate $(SHARED)/merl-nbrdf/alum-bronze.h5 -o $(OUT)/alum-bronze.binary
 	$(BIN)/reflecto info $(OUT)/alum-bronze.binary
 	$(BIN)/python examples/model_demo.py $(OUT)
+	$(BIN)/reflecto layout --plot $(OUT)/layout-coverage.png
+	$(BIN)/reflecto simulate examples/ggx-plastic.json --device as-built --tilt 3 --seed 1 -o $(OUT)/capture -q
+	$(BIN)/reflecto simulate-calibration --device as-built -o $(OUT)/calib -q
+	$(BIN)/reflecto calibrate $(OUT)/calib -o $(OUT)/as-built.npz
+	$(BIN)/reflecto reconstruct $(OUT)/capture --calibration $(OUT)/as-built.npz -o $(OUT)/ggx-plastic.reflecto
+	$(BIN)/reflecto info $(OUT)/ggx-plastic.reflecto
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow"
@@ -52,6 +58,7 @@ test-slow: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_model.py
 	$(BIN)/python benchmarks/bench_instrument.py
+	$(BIN)/python benchmarks/bench_reconstruct.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

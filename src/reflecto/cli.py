@@ -135,6 +135,54 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _reconstruct_one(job: tuple[str, str | None, str, bool, float | None]) -> dict:
+    from .instrument.calibrate import load_calibration
+    from .instrument.capture import read_capture
+    from .instrument.slices import extract_slices
+    from .io import atomic_write
+    from .reconstruct.pipeline import Options, reconstruct
+
+    cap_dir, cal_path, out, normal, eta = job
+    cap = read_capture(cap_dir)
+    cal = load_calibration(cal_path, cap.device)
+    res = reconstruct(extract_slices(cap, cal), Options(estimate_normal=normal, fixed_eta=eta))
+    res.summary["capture"] = str(cap_dir)
+    res.model.metadata.update({"capture": str(cap_dir), "eta_fit_error": res.summary["fresnel_error"]})
+    res.model.save(out)
+    with atomic_write(Path(out).with_suffix(".json"), "w") as fh:
+        fh.write(json.dumps(res.summary, indent=1))
+    return res.summary
+
+
+def cmd_reconstruct(args: argparse.Namespace) -> int:
+    from concurrent.futures import ProcessPoolExecutor
+
+    from tqdm import tqdm
+
+    caps = list(args.captures)
+    if len(caps) > 1 and not Path(args.output).suffix == "":
+        raise ReflectoError(f"{args.output}: with several captures, -o must be a folder")
+    if len(caps) == 1 and Path(args.output).suffix:
+        outs = [args.output]
+    else:
+        Path(args.output).mkdir(parents=True, exist_ok=True)
+        outs = [str(Path(args.output) / (Path(c).name + ".reflecto")) for c in caps]
+    jobs = [(c, args.calibration, o, args.estimate_normal, args.eta) for c, o in zip(caps, outs)]
+    show = args.progress or (len(jobs) > 1 and sys.stderr.isatty())
+    if len(jobs) == 1:
+        results = [_reconstruct_one(jobs[0])]
+    else:
+        import os
+
+        with ProcessPoolExecutor(max_workers=args.jobs or os.cpu_count()) as ex:
+            results = list(tqdm(ex.map(_reconstruct_one, jobs), total=len(jobs), disable=not show, desc="reconstruct"))
+    for out, r in zip(outs, results):
+        flag = "  SHAKE DETECTED: LEDs " + str(r["excluded_leds"]) + " excluded" if r["shake_detected"] else ""
+        print(f"{out}: eta {np.round(r['eta'], 3).tolist()}, kd {np.round(r['kd'], 3).tolist()}, "
+              f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, {r['seconds'] * 1000:.0f} ms{flag}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="reflecto",
@@ -188,6 +236,16 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-o", "--output", required=True, help="calibration file to write (.npz)")
     q.add_argument("-q", "--quiet", action="store_true")
     q.set_defaults(func=cmd_calibrate)
+
+    q = sub.add_parser("reconstruct", help="captures → microfacet BRDF model files (paper §5)")
+    q.add_argument("captures", nargs="+", help="capture folder(s)")
+    q.add_argument("--calibration", help="calibration file from `reflecto calibrate` (default: the nominal device)")
+    q.add_argument("-o", "--output", required=True, help="model file (.reflecto) or, for several captures, a folder")
+    q.add_argument("--estimate-normal", action="store_true", help="estimate the altered normal (§5.4; experimental)")
+    q.add_argument("--eta", type=float, help="use this η instead of fitting it")
+    q.add_argument("--jobs", type=int, default=0, help="worker processes for several captures (default: all cores)")
+    q.add_argument("--progress", action="store_true", help="progress bar")
+    q.set_defaults(func=cmd_reconstruct)
     return p
 
 

@@ -1,0 +1,82 @@
+"""Partial NDFs (eq. 7), their weighted merge and symmetry completion (eqs. 3, 9).
+
+Eq. 7 with the constant 4 and ``∫D cos = 1`` (algorithm-reference §3.3; the paper's
+"4π" only rescales k_s):
+
+``D̂(h) = 4 f_s(i, o_h) (i·n)(o_h·n) / (S(i) S(o_h) F(i·h))``
+
+Samples are splatted into a hemicube at a working resolution (each texel the
+W-weighted mean of the samples that fall in it, eq. 9 with ``W = √(o_h·n)``);
+completion by eq. 3 splats every sample a second time at ``τh``; texels that no
+sample reaches are filled by push–pull (normalized convolution over the texel
+pyramid), then the table is resampled bilinearly to the output resolution.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import geometry
+from ..hemicube import Hemicube, hemicube
+
+Array = NDArray[np.float64]
+
+
+def partial_ndf(f_s: Array, i: Array, o: Array, s_i: Array, s_o: Array, fres: Array) -> Array:
+    """Eq. 7 per sample: ``4 f_s (i·n)(o·n) / (S(i) S(o) F)`` (sr⁻¹ × k_s); broadcasts."""
+    den = s_i * s_o * fres
+    num = 4.0 * f_s * i[..., 2] * o[..., 2]
+    return np.divide(num, den, out=np.zeros(np.broadcast_shapes(num.shape, den.shape)), where=den > 0)
+
+
+def merge_weights(o: Array) -> Array:
+    """Eq. 9: ``W = √⟨o_h·n⟩`` (o_h is the pixel's view direction)."""
+    return np.sqrt(np.maximum(o[..., 2], 0.0))
+
+
+def splat_completed(cube: Hemicube, h: Array, values: Array, weights: Array, symmetric: bool = True) -> tuple[Array, Array]:
+    """``(Σw, Σw·v)`` per texel, with every sample also at ``τh`` if ``symmetric`` (eq. 3)."""
+    wsum, wv = cube.splat(h, values, weights)
+    if symmetric:
+        w2, v2 = cube.splat(geometry.tau(h), values, weights)
+        wsum += w2
+        wv += v2
+    return wsum, wv
+
+
+def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-12) -> Array:
+    """Fill texels without samples from coarser levels of the texel pyramid.
+
+    Each level sums ``Σw`` and ``Σw·v`` over 2×2 blocks; a hole takes the value of the
+    finest level whose block has weight. Measured texels are never changed.
+    """
+    levels = [(cube, wsum, wvsum)]
+    c, w, v = cube, wsum, wvsum
+    while c.n > 4:
+        c2 = c._coarse(2)
+        w = c._block_reduce(w, 2)
+        v = c._block_reduce(v, 2)
+        c = c2
+        levels.append((c, w, v))
+    # coarsest level: fill any remaining hole with the global mean
+    c, w, v = levels[-1]
+    total_w = max(float(w.sum()), min_weight)
+    est = np.where(w > min_weight, v / np.maximum(w, min_weight), float(v.sum()) / total_w)
+    for c_fine, w_fine, v_fine in reversed(levels[:-1]):
+        parent = c.index(c_fine.directions)
+        coarse_est = est[parent]
+        est = np.where(w_fine > min_weight, v_fine / np.maximum(w_fine, min_weight), coarse_est)
+        c = c_fine
+    return est
+
+
+def resample(src: Hemicube, values: Array, dst: Hemicube) -> Array:
+    """Bilinear resampling of a hemicube table to another resolution."""
+    if src.n == dst.n:
+        return values.copy()
+    return src.lookup(values, dst.directions)
+
+
+def working_cube(n: int) -> Hemicube:
+    return hemicube(n)
