@@ -10,18 +10,8 @@ Run: ``make bench`` or ``.venv/bin/python benchmarks/bench_instrument.py``.
 
 from __future__ import annotations
 
-import os
-
-for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[var] = "1"
-try:
-    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-except (AttributeError, OSError):
-    pass
-
-import statistics  # noqa: E402
+import _bench  # pins to one core before NumPy loads
 import tempfile  # noqa: E402
-import time  # noqa: E402
 
 import cv2  # noqa: E402
 
@@ -35,14 +25,6 @@ from reflecto.instrument.slices import extract_slices  # noqa: E402
 from reflecto.sources.analytic import AnalyticBRDF  # noqa: E402
 
 
-def timed(fn, repeat: int = 7) -> float:
-    fn()
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -50,17 +32,17 @@ def main() -> None:
     dev = Device.builtin("as-built")
     cal = nominal_calibration(dev)
     cap = simulate_capture(src, dev, seed=0)
-    t_sim = timed(lambda: simulate_capture(src, dev, seed=1))
-    t_slices = timed(lambda: extract_slices(cap, cal), repeat=15)
+    t_sim = _bench.timed(lambda: simulate_capture(src, dev, seed=1))
+    t_slices = _bench.timed(lambda: extract_slices(cap, cal), repeat=15)
     with tempfile.TemporaryDirectory() as d:
         write_capture(cap, f"{d}/cap")
-        t_read = timed(lambda: extract_slices(read_capture(f"{d}/cap"), cal), repeat=15)
+        t_read = _bench.timed(lambda: extract_slices(read_capture(f"{d}/cap"), cal), repeat=15)
     rows = [
         ("simulate one capture (as-built)", t_sim, 0.3),
         ("raw frames → slices", t_slices, 0.05),
         ("read PNGs + raw → slices", t_read, None),
     ]
-    print(f"reflecto instrument benchmark, one core (cpu affinity {sorted(os.sched_getaffinity(0))})")
+    print(f"reflecto instrument benchmark, one core (cpu affinity {_bench.cpus()})")
     for name, t, target in rows:
         status = "" if target is None else ("ok" if t <= target else "OVER TARGET")
         tgt = "" if target is None else f"target {target * 1000:6.0f} ms"

@@ -10,17 +10,7 @@ Run: ``make bench`` or ``.venv/bin/python benchmarks/bench_model.py``.
 
 from __future__ import annotations
 
-import os
-
-for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[var] = "1"
-try:
-    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-except (AttributeError, OSError):
-    pass
-
-import statistics  # noqa: E402
-import time  # noqa: E402
+import _bench  # pins to one core before NumPy loads
 
 import numpy as np  # noqa: E402
 
@@ -31,14 +21,6 @@ from reflecto.shadowing import sigma_table  # noqa: E402
 from reflecto.sources.analytic import AnalyticBRDF  # noqa: E402
 
 
-def timed(fn, repeat: int = 5) -> float:
-    fn()  # warm-up (caches, page faults)
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -54,17 +36,17 @@ def main() -> None:
         return d
 
     i, o = dirs(1_000_000), dirs(1_000_000)
-    t_eval = timed(lambda: model.eval(i, o))
+    t_eval = _bench.timed(lambda: model.eval(i, o))
     h, vals, w = dirs(460_800), rng.random(460_800), rng.random(460_800)
-    t_splat = timed(lambda: cube.splat(h, vals, w), repeat=9)
-    t_sigma = timed(lambda: sigma_table(cube, model.ndf_values), repeat=9)
+    t_splat = _bench.timed(lambda: cube.splat(h, vals, w), repeat=9)
+    t_sigma = _bench.timed(lambda: sigma_table(cube, model.ndf_values), repeat=9)
 
     rows = [
         ("model eval, 1M direction pairs", t_eval, 0.5),
         ("splat, 460,800 samples", t_splat, 0.05),
         ("S table from NDF (eq. 8)", t_sigma, 0.1),
     ]
-    print(f"reflecto model benchmark, N=512, one core (cpu affinity {sorted(os.sched_getaffinity(0))})")
+    print(f"reflecto model benchmark, N=512, one core (cpu affinity {_bench.cpus()})")
     for name, t, target in rows:
         status = "ok" if t <= target else "OVER TARGET"
         print(f"  {name:<34} {t * 1000:8.1f} ms   target {target * 1000:6.0f} ms   {status}")

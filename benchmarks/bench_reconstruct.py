@@ -9,15 +9,7 @@ Run: ``make bench`` or ``.venv/bin/python benchmarks/bench_reconstruct.py``.
 
 from __future__ import annotations
 
-import os
-
-for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
-    os.environ[var] = "1"
-try:
-    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-except (AttributeError, OSError):
-    pass
-
+import _bench  # noqa: F401  (pins to one core before NumPy loads)
 import statistics  # noqa: E402
 import time  # noqa: E402
 
@@ -41,7 +33,7 @@ def main() -> None:
         reconstruct(sl)
         times.append(time.perf_counter() - t)
     ms = 1000 * statistics.median(times)
-    print(f"reflecto reconstruction benchmark, N=512, one core, {len(times)} BRDFs: "
+    print(f"reflecto reconstruction benchmark, N=512, one core {_bench.cpus()}, {len(times)} BRDFs: "
           f"{', '.join(f'{1000 * t:.0f}' for t in times)} ms")
     print(f"ms_per_brdf: {ms:.1f}")
 

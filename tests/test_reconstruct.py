@@ -3,7 +3,6 @@
 import json
 
 import numpy as np
-import pytest
 
 from reflecto.cli import main
 from reflecto.instrument.calibrate import nominal_calibration

@@ -11,7 +11,9 @@ import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
+
+from .errors import FileFormatError
 
 
 @contextlib.contextmanager
@@ -53,3 +55,30 @@ def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def read_description(path: str | Path, missing: str = "no such file") -> dict[str, Any]:
+    """A JSON or TOML description file (by suffix) as a dict.
+
+    Raises :class:`FileFormatError` naming the file if it is missing (with ``missing``
+    as the message), unreadable, not valid JSON/TOML, or not a table at the top level.
+    """
+    import json
+    import tomllib
+
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise FileFormatError(path, missing) from None
+    except OSError as e:
+        raise FileFormatError(path, f"cannot read: {e.strerror}") from None
+    kind = "TOML" if path.suffix.lower() == ".toml" else "JSON"
+    try:
+        text = raw.decode("utf-8")
+        d = tomllib.loads(text) if kind == "TOML" else json.loads(text)
+    except (UnicodeDecodeError, json.JSONDecodeError, tomllib.TOMLDecodeError) as e:
+        raise FileFormatError(path, f"not valid {kind}: {e}") from None
+    if not isinstance(d, dict):
+        raise FileFormatError(path, "top level must be a table/object")
+    return d

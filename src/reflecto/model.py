@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import _kernels, geometry
+from . import _kernels
 from .errors import FileFormatError, ParameterError
 from .fresnel import FresnelTable, fresnel
 from .hemicube import Hemicube, hemicube

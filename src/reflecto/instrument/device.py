@@ -19,16 +19,15 @@ Description files are JSON or TOML with the keys of :meth:`Device.to_dict`::
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-import tomllib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from ..errors import FileFormatError, ParameterError
+from ..io import read_description
 from .layout import led_direction, layout_violations
 from .optics import Optics, optics_from_dict
 
@@ -289,25 +288,9 @@ def load_device(spec: str | Path) -> Device:
     if str(spec) in ("ideal", "as-built"):
         return Device.builtin(str(spec))
     path = Path(spec)
-    try:
-        text = path.read_bytes()
-    except FileNotFoundError:
-        raise FileFormatError(path, "no such device file (built-ins: ideal, as-built)") from None
-    except OSError as e:
-        raise FileFormatError(path, f"cannot read ({e.strerror})") from None
-    try:
-        if path.suffix.lower() == ".toml":
-            d = tomllib.loads(text.decode("utf-8"))
-        else:
-            d = json.loads(text.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError, tomllib.TOMLDecodeError) as e:
-        raise FileFormatError(path, f"not a valid device description ({e})") from None
+    d = read_description(path, missing="no such device file (built-ins: ideal, as-built)")
     try:
         return Device.from_dict(d, where=str(path))
     except (ParameterError, TypeError, ValueError) as e:
         raise FileFormatError(path, str(e)) from None
 
-
-def device_leds(device: Device, leds: ArrayLike | None = None) -> Array:
-    """LED directions: ``leds`` if given (calibrated), else the device's nominal ones."""
-    return device.leds if leds is None else np.asarray(leds, dtype=np.float64)

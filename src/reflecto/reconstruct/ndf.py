@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import geometry
-from ..hemicube import Hemicube, hemicube
+from ..hemicube import Hemicube
 
 Array = NDArray[np.float64]
 
@@ -76,7 +76,3 @@ def resample(src: Hemicube, values: Array, dst: Hemicube) -> Array:
     if src.n == dst.n:
         return values.copy()
     return src.lookup(values, dst.directions)
-
-
-def working_cube(n: int) -> Hemicube:
-    return hemicube(n)

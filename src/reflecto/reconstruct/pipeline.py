@@ -35,7 +35,7 @@ from .. import geometry
 from ..fresnel import fresnel
 from ..hemicube import hemicube
 from ..model import MicrofacetBRDF
-from ..shadowing import SigmaTable, sigma_table
+from ..shadowing import sigma_table
 from ..instrument.slices import Slices
 from . import ndf as ndf_mod
 from .fresnel_fit import FresnelFit, fit_eta, texel_means
@@ -139,7 +139,6 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     ks = np.ones(3)
     s_i = np.ones(len(f))
     s_o = np.ones(len(f))
-    table: SigmaTable | None = None
     excluded: set[int] = set()
     fit: FresnelFit | None = None
     d_work = None
@@ -165,8 +164,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         if opt.fixed_eta is None and outer > 0 and np.all(np.isfinite(fit.eta)) and fit.n_pairs > 0:
             eta = fit.eta
         use = ~np.isin(led, list(excluded)) if excluded else np.ones(len(f), bool)
+        fres = fresnel(c[:, None], eta[None, :])  # (M, 3); η is fixed within the inner loop
         for inner in range(opt.inner_iterations):
-            fres = fresnel(c[:, None], eta[None, :])  # (M, 3)
             f_s = f - kd / math.pi
             d_ch = ndf_mod.partial_ndf(f_s, i[:, None, :], o[:, None, :], s_i[:, None], s_o[:, None], fres)  # eq. 7
             d_hat = np.maximum(d_ch / np.maximum(ks, 1e-12), 0.0) @ LUM

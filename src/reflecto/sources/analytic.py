@@ -23,9 +23,7 @@ k's azimuth (algorithm-reference §1.2, eq. 1.4).
 
 from __future__ import annotations
 
-import json
 import math
-import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +35,7 @@ from scipy.special import erfc
 
 from .. import geometry
 from ..errors import FileFormatError, ParameterError
+from ..io import read_description
 from ..fresnel import fresnel
 from .base import BRDFSource
 from .base import rgb_triplet as _rgb
@@ -256,17 +255,4 @@ def load_analytic(path: str | Path) -> AnalyticBRDF:
          "asymmetry": {"shift": [0.25, 0.0], "weight": 0.3}}
     """
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as e:
-        raise FileFormatError(path, f"cannot read: {e.strerror}") from None
-    try:
-        if path.suffix.lower() == ".toml":
-            d = tomllib.loads(raw.decode("utf-8"))
-        else:
-            d = json.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError, tomllib.TOMLDecodeError) as e:
-        raise FileFormatError(path, f"not valid {path.suffix.lstrip('.').upper() or 'JSON'}: {e}") from None
-    if not isinstance(d, dict):
-        raise FileFormatError(path, "top level must be a table/object")
-    return analytic_from_dict(d, path)
+    return analytic_from_dict(read_description(path), path)
