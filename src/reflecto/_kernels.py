@@ -90,6 +90,16 @@ def cube_lookup(padded, pad_offsets, n, dirs, out):
 
 
 @njit(**_OPTS)
+def pad(values, src, w, out):
+    """Padded faces: :meth:`Hemicube.pad` for one channel (``out[k] = Σ_j values[src[k, j]] w[k, j]``)."""
+    for k in range(src.shape[0]):
+        acc = 0.0
+        for j in range(src.shape[1]):
+            acc += values[src[k, j]] * w[k, j]
+        out[k] = acc
+
+
+@njit(**_OPTS)
 def cube_index(n, dirs, out):
     """Nearest-texel flat index: :meth:`Hemicube.index`."""
     half = n // 2

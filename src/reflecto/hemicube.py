@@ -206,8 +206,11 @@ class Hemicube:
     def pad(self, values: ArrayLike) -> Array:
         """Padded-face copy of ``values`` for repeated :meth:`lookup` calls."""
         values = np.asarray(values, dtype=np.float64)
-        w = self._pad_w if values.ndim == 1 else self._pad_w[..., None]
-        return np.sum(values[self._pad_src] * w, axis=1)
+        if values.ndim == 1:
+            out = np.empty(len(self._pad_src))
+            _kernels.pad(np.ascontiguousarray(values), self._pad_src, self._pad_w, out)
+            return out
+        return np.sum(values[self._pad_src] * self._pad_w[..., None], axis=1)
 
     def lookup(self, values: ArrayLike, dirs: ArrayLike, padded: Array | None = None) -> Array:
         """Bilinear interpolation of texel ``values`` at directions ``dirs``.
@@ -227,6 +230,17 @@ class Hemicube:
         -------
         ndarray, shape ``dirs.shape[:-1]`` (+ ``(C,)``)
         """
+        values = np.asarray(values)
+        padded = self.pad(values) if padded is None else padded
+        if padded.ndim == 1:  # the common case: one fused compiled loop, same arithmetic
+            d = _kernels.as_dirs(dirs)
+            out = np.empty(len(d))
+            _kernels.cube_lookup(padded, self._pad_offsets, self.n, d, out)
+            return out.reshape(np.shape(dirs)[:-1])
+        return self.lookup_numpy(values, dirs, padded)
+
+    def lookup_numpy(self, values: ArrayLike, dirs: ArrayLike, padded: Array | None = None) -> Array:
+        """NumPy reference of :meth:`lookup` (any number of channels)."""
         values = np.asarray(values)
         padded = self.pad(values) if padded is None else padded
         face, col, row = self._face_coords(dirs)

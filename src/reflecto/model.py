@@ -116,7 +116,7 @@ class MicrofacetBRDF(BRDFSource):
     def sigma_table(self) -> SigmaTable:
         """σ(θ, φ) of the NDF (eq. 8 denominator), computed on first use."""
         if self._sigma is None:
-            self._sigma = sigma_table(self.cube, self.ndf_values)
+            self._sigma = sigma_table(self.cube, self.ndf_values, padded=self._padded)
         return self._sigma
 
     def ndf(self, h: ArrayLike) -> Array:

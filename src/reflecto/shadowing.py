@@ -183,6 +183,7 @@ def sigma_table(
     n_theta: int = N_THETA,
     n_phi: int = N_PHI,
     n_u: int = N_U,
+    padded: Array | None = None,
 ) -> SigmaTable:
     """Tabulate σ of a hemicube NDF (the denominator of eq. 8) on the (θ, φ) grid.
 
@@ -202,11 +203,13 @@ def sigma_table(
         (``n_phi`` must divide the quadrature's 256 azimuths).
     n_u
         Number of polar quadrature rings.
+    padded
+        ``cube.pad(ndf)`` if already at hand.
     """
     if N_PHI_QUAD % n_phi:
         raise ValueError(f"n_phi must divide {N_PHI_QUAD}, got {n_phi}")
     spec, theta_h, weight = _kernel_spectrum(n_theta, n_u, N_PHI_QUAD)
-    d_polar = cube.lookup(ndf, polar_directions(n_u, N_PHI_QUAD))  # (n_u, n_phi_quad)
+    d_polar = cube.lookup(ndf, polar_directions(n_u, N_PHI_QUAD), padded)  # (n_u, n_phi_quad)
     d_polar = np.maximum(d_polar, 0.0) * weight[:, None]
     norm = float(np.sum(d_polar * np.cos(theta_h)[:, None]))
     d_spec = np.fft.rfft(d_polar, axis=-1)  # (n_u, F)

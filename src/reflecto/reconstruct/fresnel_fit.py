@@ -1,16 +1,28 @@
-"""Fresnel index from overlapping slices (paper §5.1, eqs. 4–6).
+"""Fresnel index (and diffuse albedo) from overlapping slices (paper §5.1, eqs. 4–6).
 
-Two samples from LEDs a and b with the same half vector see the same D(h), so the
-ratio of their ``g = f_s (i·n)(o·n) / (S(i) S(o)) = k_s D F / 4`` is the ratio of
-Fresnel terms (eq. 5). Samples are averaged per hemicube texel and per LED; every
-texel seen by two LEDs gives one measured ratio. η is fitted per colour channel by
-Levenberg–Marquardt (``scipy.optimize.least_squares(method="lm")``) on eq. 6 in log
-form, ``log(g_a/g_b) − log(F(c_a; η)/F(c_b; η))`` (symmetric in a, b), with
-``η = 1 + e^x`` so that η > 1 without bounds.
+Two samples ``p, q`` with the same half vector see the same ``D(h)``, so their
+partial NDFs (eq. 7) agree once the right Fresnel term is divided out:
 
-``E(η)`` — the RMS residual — is what §5.1 uses to detect shaken captures: when the
-sample moves between two LEDs' frames, their slices no longer share D(h) at the same
-texel, and the ratios stop following any Fresnel curve.
+``y_p = (f_p − k_d/π)(i_p·n)(o_p·n) / (S(i_p) S(o_p) F(i_p·h; η)) = k_s D(h) / 4``
+
+and ``y_p / y_q = 1`` is eq. 5 rearranged. Pairs come from two sources:
+
+* *direct* overlaps: the same working texel seen by two LEDs (the paper's pairs);
+* *symmetric* overlaps: a texel ``h`` seen by LED ``a`` and ``τh`` seen by LED ``b``
+  (``a = b`` allowed), since the NDF is symmetric under ``τ`` (eq. 3). These put
+  pairs near the lobe centre, where the direct overlaps of a coverage-optimal layout
+  are missing.
+
+Per colour channel, ``η`` and ``k_d`` are fitted together by Levenberg–Marquardt
+(``scipy.optimize.least_squares(method="lm")``) on the relative differences
+``(y_p − y_q) / ȳ`` (eq. 6 in relative form), with ``η = 1 + e^x`` so that η > 1.
+``k_d`` enters because with a free tabulated NDF the diffuse term can only be told
+apart from the NDF's tail by the same consistency: a wrong ``k_d`` makes partial NDFs
+of different ``(i, o)`` disagree at the same ``h``.
+
+``E(η)`` — the RMS relative residual — is what §5.1 uses to detect shaken captures:
+when the sample moves between two LEDs' frames, their slices no longer share ``D(h)``
+at the same texel, and the ratios stop following any Fresnel curve.
 """
 
 from __future__ import annotations
@@ -23,113 +35,195 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from ..fresnel import fresnel
-from ..hemicube import hemicube
+from .samples import Bins
 
 Array = NDArray[np.float64]
+LUM = np.array([0.2126, 0.7152, 0.0722])
 
-#: Working resolution of the per-texel ratios.
-RATIO_N = 64
-#: Only texels whose g is above this fraction of the capture's maximum take part.
-MIN_LEVEL = 0.005
+#: Only bins whose ``f cos cos / S S`` is above this fraction of the maximum take part.
+MIN_LEVEL = 1e-4
 ETA_MAX = 50.0
+#: Minimum pixels per bin for a pair.
+MIN_COUNT = 1
+#: At most this many pairs enter the LM fit (an even, deterministic subsample).
+MAX_PAIRS = 6000
+
+
+@dataclasses.dataclass
+class Pairs:
+    """Overlapping bins: index arrays ``p, q`` (shape ``(K,)``) and the LED pair of each."""
+
+    p: NDArray[np.intp]
+    q: NDArray[np.intp]
+    symmetric: NDArray[np.bool_]
+
+    def __len__(self) -> int:
+        return len(self.p)
+
+    def select(self, mask: NDArray[np.bool_]) -> Pairs:
+        return Pairs(self.p[mask], self.q[mask], self.symmetric[mask])
 
 
 @dataclasses.dataclass
 class FresnelFit:
-    """Result of the η fit.
+    """Result of the η (and k_d) fit.
 
     Attributes
     ----------
     eta
         Per-channel relative index, shape ``(3,)``.
+    kd
+        Per-channel diffuse albedo ρ_d, shape ``(3,)``.
     error
-        E(η): RMS of the log-ratio residuals (dimensionless).
+        E(η): weighted RMS of the relative residuals, luminance (dimensionless).
     pair_error
         RMS residual per LED pair, shape ``(L, L)`` (NaN where no overlap).
     n_pairs
-        Number of texel ratios used.
-    theta_d_max_deg
-        Largest θ_d among the ratios (η is weakly determined below 45°, §2.3).
+        Number of bin pairs used.
+    theta_d_spread_deg
+        Median ``|θ_d(p) − θ_d(q)|`` over the pairs: η is weakly determined when the
+        pairs see nearly the same Fresnel angle (algorithm-reference §2.3).
     """
 
     eta: Array
+    kd: Array
     error: float
     pair_error: Array
     n_pairs: int
-    theta_d_max_deg: float
+    theta_d_spread_deg: float
+    error_median: float = float("nan")
 
 
-def texel_means(h: Array, c: Array, g: Array, led: NDArray[np.intp], n_leds: int, n: int = RATIO_N):
-    """Per LED and texel: sample count, mean ``c`` and mean ``g`` (RGB)."""
-    cube = hemicube(n)
-    counts = np.zeros((n_leds, cube.size))
-    cm = np.zeros((n_leds, cube.size))
-    gm = np.zeros((n_leds, cube.size, 3))
-    for l in range(n_leds):
-        m = led == l
-        if not m.any():
-            continue
-        w, v = cube.splat(h[m], np.column_stack([c[m], g[m]]))
-        counts[l] = w
-        have = w > 0
-        cm[l, have] = v[have, 0] / w[have]
-        gm[l, have] = v[have, 1:] / w[have, None]
-    return counts, cm, gm
-
-
-def _pairs(counts: Array, cm: Array, gm: Array, exclude: set[int]):
-    n_leds = counts.shape[0]
-    out = []
-    lum = gm @ np.array([0.2126, 0.7152, 0.0722])
-    peak = [max(float(lum.max()), 1e-300)] * n_leds
+def overlap_pairs(bins: Bins, n_leds: int, symmetric: bool = True) -> Pairs:
+    """All direct (same texel, two LEDs) and symmetric (``h`` and ``τh``) bin pairs."""
+    size = bins.cube.size
+    slot = np.full((n_leds, size), -1, dtype=np.intp)
+    slot[bins.led, bins.texel] = np.arange(len(bins))
+    tau = bins.cube.permutation(np.diag([-1.0, -1.0, 1.0]))
+    ps, qs, sym = [], [], []
     for a in range(n_leds):
-        for b in range(a + 1, n_leds):
-            if a in exclude or b in exclude:
-                continue
-            both = (counts[a] >= 2) & (counts[b] >= 2)
-            both &= (lum[a] > MIN_LEVEL * peak[a]) & (lum[b] > MIN_LEVEL * peak[b])
-            both &= np.all(gm[a] > 0, axis=1) & np.all(gm[b] > 0, axis=1)
-            t = np.flatnonzero(both)
-            if len(t):
-                out.append((a, b, t))
-    return out
+        for b in range(a, n_leds):
+            if b > a:
+                m = (slot[a] >= 0) & (slot[b] >= 0)
+                ps.append(slot[a][m])
+                qs.append(slot[b][m])
+                sym.append(np.zeros(int(m.sum()), bool))
+            if symmetric:
+                sb = slot[b][tau]
+                m = (slot[a] >= 0) & (sb >= 0)
+                if a == b:
+                    m &= np.arange(size) < tau  # each unordered pair once, never a texel with itself
+                ps.append(slot[a][m])
+                qs.append(sb[m])
+                sym.append(np.ones(int(m.sum()), bool))
+    return Pairs(np.concatenate(ps), np.concatenate(qs), np.concatenate(sym))
 
 
-def fit_eta(counts: Array, cm: Array, gm: Array, exclude: set[int] | None = None, eta0: float = 1.5) -> FresnelFit:
-    """LM fit of per-channel η to all overlapping texel ratios (eq. 6)."""
+def fit_fresnel(
+    bins: Bins,
+    pairs: Pairs,
+    a: Array,
+    n_leds: int,
+    kd0: Array,
+    eta0: Array,
+    kd_max: Array,
+    exclude: set[int] | None = None,
+    fixed_eta: float | None = None,
+    per_channel: bool = True,
+) -> FresnelFit:
+    """Fit η and k_d per channel to the overlapping bins (eq. 6, see the module docstring).
+
+    Parameters
+    ----------
+    bins, pairs
+        Binned samples and their overlaps.
+    a
+        ``(i·n)(o·n) / (S(i) S(o))`` per bin, shape ``(B,)``.
+    kd0, eta0
+        Starting values, shape ``(3,)``.
+    kd_max
+        Upper bound of ρ_d per channel (``π · min f``), shape ``(3,)``.
+    exclude
+        LEDs left out (shake).
+    fixed_eta
+        Fit only k_d, with this η.
+    per_channel
+        Fit each channel; otherwise fit the luminance once and scale k_d per channel
+        by ``kd_max`` (a cheaper start for the first iterations).
+    """
     exclude = exclude or set()
-    pairs = _pairs(counts, cm, gm, exclude)
-    n_leds = counts.shape[0]
-    if not pairs:
-        return FresnelFit(np.full(3, eta0), float("nan"), np.full((n_leds, n_leds), np.nan), 0, float("nan"))
-    ca = np.concatenate([cm[a, t] for a, b, t in pairs])
-    cb = np.concatenate([cm[b, t] for a, b, t in pairs])
-    la = np.concatenate([np.log(gm[a, t]) for a, b, t in pairs])
-    lb = np.concatenate([np.log(gm[b, t]) for a, b, t in pairs])
-    w = np.sqrt(np.concatenate([np.sqrt(np.minimum(counts[a, t], counts[b, t])) for a, b, t in pairs]))
-    meas = la - lb  # (M, 3)
+    n_none = FresnelFit(np.asarray(eta0, float).copy(), np.asarray(kd0, float).copy(), float("nan"),
+                        np.full((n_leds, n_leds), np.nan), 0, float("nan"))
+    if not len(pairs):
+        return n_none
+    g = (bins.f @ LUM) * a
+    level = MIN_LEVEL * float(np.max(g))
+    keep = (g[pairs.p] > level) & (g[pairs.q] > level)
+    keep &= (bins.count[pairs.p] >= MIN_COUNT) & (bins.count[pairs.q] >= MIN_COUNT)
+    if exclude:
+        bad = np.isin(bins.led, list(exclude))
+        keep &= ~bad[pairs.p] & ~bad[pairs.q]
+    pr = pairs.select(keep)
+    if len(pr) > MAX_PAIRS:
+        pr = pr.select(np.arange(len(pr)) % -(-len(pr) // MAX_PAIRS) == 0)
+    if len(pr) < 3:
+        return n_none
+    p, q = pr.p, pr.q
+    cp, cq = bins.cos_d[p], bins.cos_d[q]
+    ap, aq = a[p], a[q]
+    # weights: the relative residual's noise falls with the pixel count and the signal
+    # (shot noise; 12-bit quantisation in the dimmest bins)
+    w = np.sqrt(np.minimum(bins.count[p], bins.count[q]) * np.minimum(g[p], g[q]) / float(np.max(g)))
     eta = np.empty(3)
-    resid = np.empty_like(meas)
-    for ch in range(3):
-        def r(x: Array, ch: int = ch) -> Array:
-            e = min(1.0 + math.exp(float(x[0])), ETA_MAX)
-            return w * (meas[:, ch] - np.log(fresnel(ca, e) / fresnel(cb, e)))
+    kd = np.empty(3)
+    resid = np.empty((len(p), 3))
+    f_ch = bins.f if per_channel else (bins.f @ LUM)[:, None]
+    kd_max_ch = kd_max if per_channel else np.array([kd_max @ LUM])
+    kd0_ch = kd0 if per_channel else np.array([kd0 @ LUM])
+    eta0_ch = eta0 if per_channel else np.array([eta0 @ LUM])
+    for ch in range(f_ch.shape[1]):
+        fp, fq = f_ch[p, ch], f_ch[q, ch]
+        hi = float(kd_max_ch[ch])
 
-        x0 = math.log(eta0 - 1.0)
+        def parts(x: Array, hi: float = hi) -> tuple[float, float]:
+            # η = 1 + e^x₀ > 1; k_d = hi·sigmoid(x₁) ∈ (0, hi): no bounds needed by LM
+            e = float(fixed_eta) if fixed_eta is not None else min(1.0 + math.exp(min(float(x[0]), 10.0)), ETA_MAX)
+            return e, hi / (1.0 + math.exp(-float(np.clip(x[-1], -40.0, 40.0))))
+
+        def r(x: Array, fp: Array = fp, fq: Array = fq) -> Array:
+            e, k = parts(x)
+            fpp, fqq = fresnel(cp, e), fresnel(cq, e)
+            yp = (fp - k / math.pi) * ap / fpp
+            yq = (fq - k / math.pi) * aq / fqq
+            mean = 0.5 * (fp * ap / fpp + fq * aq / fqq)
+            return w * (yp - yq) / np.maximum(mean, 1e-300)
+
+        frac = float(np.clip(kd0_ch[ch] / hi, 1e-6, 1 - 1e-6)) if hi > 0 else 0.5
+        x0 = [math.log(frac / (1.0 - frac))]
+        if fixed_eta is None:
+            x0 = [math.log(max(float(eta0_ch[ch]) - 1.0, 1e-3))] + x0
         try:
-            sol = least_squares(r, [x0], method="lm")
-            x = float(sol.x[0])
+            sol = least_squares(r, x0, method="lm", x_scale="jac")
+            x = sol.x
         except ValueError:
-            x = x0
-        eta[ch] = min(1.0 + math.exp(x), ETA_MAX)
-        resid[:, ch] = meas[:, ch] - np.log(fresnel(ca, eta[ch]) / fresnel(cb, eta[ch]))
-    lum_res = resid @ np.array([0.2126, 0.7152, 0.0722])
+            x = np.asarray(x0)
+        eta[ch], kd[ch] = parts(x)
+        resid[:, ch] = r(x) / w
+    if not per_channel:
+        frac = kd[0] / max(float(kd_max @ LUM), 1e-300)
+        eta[:], kd[:] = eta[0], frac * kd_max
+        resid[:, 1:] = resid[:, :1]
+    lum_res = resid @ LUM
     error = float(np.sqrt(np.sum(w * w * lum_res**2) / np.sum(w * w)))
+    order = np.argsort(np.abs(lum_res))
+    cw = np.cumsum((w * w)[order])
+    error_median = float(np.abs(lum_res[order])[np.searchsorted(cw, 0.5 * cw[-1])])
     pair_error = np.full((n_leds, n_leds), np.nan)
-    k = 0
-    for a, b, t in pairs:
-        seg = lum_res[k : k + len(t)]
-        pair_error[a, b] = pair_error[b, a] = float(np.sqrt(np.mean(seg**2)))
-        k += len(t)
-    theta_d = float(np.degrees(np.arccos(np.clip(min(ca.min(), cb.min()), 0, 1))))
-    return FresnelFit(eta, error, pair_error, int(len(ca)), theta_d)
+    la, lb = bins.led[p], bins.led[q]
+    for x in range(n_leds):
+        for y in range(x, n_leds):
+            m = ((la == x) & (lb == y)) | ((la == y) & (lb == x))
+            if m.any():
+                pair_error[x, y] = pair_error[y, x] = float(np.sqrt(np.mean(lum_res[m] ** 2)))
+    spread = float(np.degrees(np.median(np.abs(np.arccos(cp) - np.arccos(cq)))))
+    return FresnelFit(eta, kd, error, pair_error, int(len(p)), spread, error_median)

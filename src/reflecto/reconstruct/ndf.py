@@ -5,20 +5,21 @@ Eq. 7 with the constant 4 and ``∫D cos = 1`` (algorithm-reference §3.3; the p
 
 ``D̂(h) = 4 f_s(i, o_h) (i·n)(o_h·n) / (S(i) S(o_h) F(i·h))``
 
-Samples are splatted into a hemicube at a working resolution (each texel the
-W-weighted mean of the samples that fall in it, eq. 9 with ``W = √(o_h·n)``);
-completion by eq. 3 splats every sample a second time at ``τh``; texels that no
+Binned samples (:mod:`.samples`) are merged into a hemicube at a working resolution
+(each texel the W-weighted mean of the bins that fall in it, eq. 9 with
+``W = √(o_h·n)`` per pixel); completion by eq. 3 adds every bin a second time at ``τh``; texels that no
 sample reaches are filled by push–pull (normalized convolution over the texel
 pyramid), then the table is resampled bilinearly to the output resolution.
 """
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import geometry
-from ..hemicube import Hemicube
+from ..hemicube import Hemicube, hemicube
 
 Array = NDArray[np.float64]
 
@@ -35,14 +36,32 @@ def merge_weights(o: Array) -> Array:
     return np.sqrt(np.maximum(o[..., 2], 0.0))
 
 
-def splat_completed(cube: Hemicube, h: Array, values: Array, weights: Array, symmetric: bool = True) -> tuple[Array, Array]:
-    """``(Σw, Σw·v)`` per texel, with every sample also at ``τh`` if ``symmetric`` (eq. 3)."""
-    wsum, wv = cube.splat(h, values, weights)
+def merge_completed(
+    cube: Hemicube, texel: NDArray[np.intp], texel_tau: NDArray[np.intp], values: Array, weights: Array,
+    symmetric: bool = True,
+) -> tuple[Array, Array]:
+    """``(Σw, Σw·v)`` per texel (eq. 9), every value also at ``τh`` if ``symmetric`` (eq. 3).
+
+    ``texel``/``texel_tau``: texel of each value's ``h`` and ``τh``, shape ``(B,)``.
+    """
+    wsum = np.bincount(texel, weights=weights, minlength=cube.size)
+    wv = np.bincount(texel, weights=weights * values, minlength=cube.size)
     if symmetric:
-        w2, v2 = cube.splat(geometry.tau(h), values, weights)
-        wsum += w2
-        wv += v2
+        wsum += np.bincount(texel_tau, weights=weights, minlength=cube.size)
+        wv += np.bincount(texel_tau, weights=weights * values, minlength=cube.size)
     return wsum, wv
+
+
+@functools.lru_cache(maxsize=8)
+def _pyramid(n: int) -> tuple[tuple[Hemicube, NDArray[np.intp]], ...]:
+    """Levels ``(cube, parent index of each finer texel)`` from ``n`` down to 4."""
+    out = []
+    c = hemicube(n)
+    while c.n > 4:
+        c2 = c._coarse(2)
+        out.append((c2, c2.index(c.directions)))
+        c = c2
+    return tuple(out)
 
 
 def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-12) -> Array:
@@ -51,23 +70,20 @@ def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-
     Each level sums ``Σw`` and ``Σw·v`` over 2×2 blocks; a hole takes the value of the
     finest level whose block has weight. Measured texels are never changed.
     """
-    levels = [(cube, wsum, wvsum)]
+    pyramid = _pyramid(cube.n)
+    levels = [(wsum, wvsum)]
     c, w, v = cube, wsum, wvsum
-    while c.n > 4:
-        c2 = c._coarse(2)
+    for c2, _ in pyramid:
         w = c._block_reduce(w, 2)
         v = c._block_reduce(v, 2)
         c = c2
-        levels.append((c, w, v))
+        levels.append((w, v))
     # coarsest level: fill any remaining hole with the global mean
-    c, w, v = levels[-1]
+    w, v = levels[-1]
     total_w = max(float(w.sum()), min_weight)
     est = np.where(w > min_weight, v / np.maximum(w, min_weight), float(v.sum()) / total_w)
-    for c_fine, w_fine, v_fine in reversed(levels[:-1]):
-        parent = c.index(c_fine.directions)
-        coarse_est = est[parent]
-        est = np.where(w_fine > min_weight, v_fine / np.maximum(w_fine, min_weight), coarse_est)
-        c = c_fine
+    for (w_fine, v_fine), (_, parent) in zip(reversed(levels[:-1]), reversed(pyramid)):
+        est = np.where(w_fine > min_weight, v_fine / np.maximum(w_fine, min_weight), est[parent])
     return est
 
 

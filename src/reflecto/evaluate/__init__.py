@@ -1,0 +1,1 @@
+"""Validation (paper §6): error metric, baselines, sweeps and figures."""
