@@ -21,6 +21,9 @@ from .hdr import merge_debevec, merge_linear_pixels
 
 Array = NDArray[np.float64]
 
+#: Smallest cos θ_i of an LED in the sample frame after :meth:`Slices.reframe`.
+MIN_LIGHT_COS = 0.05
+
 
 @dataclasses.dataclass
 class Slices:
@@ -67,7 +70,8 @@ class Slices:
         new = light[:, 2]
         ratio = np.divide(old, new, out=np.zeros_like(new), where=new > 1e-6)
         values = self.values * ratio[:, None, None]
-        valid = self.valid & (view[None, :, 2] > 0) & (new[:, None] > 1e-6)
+        # LEDs within ~3° of the new horizon: cos θ_i is too uncertain to correct by
+        valid = self.valid & (view[None, :, 2] > 0) & (new[:, None] > MIN_LIGHT_COS)
         return Slices(light, view, values, valid, self.pixels, frame)
 
 

@@ -192,7 +192,7 @@ def fit_fresnel(
 
         def r(x: Array, fp: Array = fp, fq: Array = fq) -> Array:
             e, k = parts(x)
-            fpp, fqq = fresnel(cp, e), fresnel(cq, e)
+            fpp, fqq = np.maximum(fresnel(cp, e), 1e-12), np.maximum(fresnel(cq, e), 1e-12)
             yp = (fp - k / math.pi) * ap / fpp
             yq = (fq - k / math.pi) * aq / fqq
             mean = 0.5 * (fp * ap / fpp + fq * aq / fqq)

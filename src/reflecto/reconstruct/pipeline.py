@@ -48,7 +48,7 @@ from ..shadowing import sigma_table
 from ..instrument.slices import Slices
 from . import ndf as ndf_mod
 from .fresnel_fit import FresnelFit, fit_fresnel, overlap_pairs
-from .normal import SymmetryDistance, estimate_normal
+from .normal import ConsistencyDistance, estimate_normal_consistency
 from .samples import bin_samples
 
 Array = NDArray[np.float64]
@@ -71,8 +71,8 @@ class Options:
     work_resolution
         Hemicube N on which samples are merged (≈ 5 samples per texel per slice at 256).
     estimate_normal
-        Run §5.4. Off by default: on untilted analytic captures it still finds a
-        3–6° tilt (work in progress, issue 4), so it is opt-in.
+        Run §5.4 (:mod:`.normal`); needed for hand-held (tilted) captures. Off by
+        default because it costs a first reconstruction and ≈ 150 distance evaluations.
     fixed_eta
         Use this η instead of fitting it (for layouts whose overlaps miss the lobe).
     outer_iterations, inner_iterations
@@ -111,22 +111,23 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     valid = slices.valid & np.all(np.isfinite(slices.values), axis=-1)
     if valid.sum() < 100:
         raise ValueError("fewer than 100 valid samples in the capture")
-    # ρ_d/π ≤ min f: an upper bound of k_d, and the starting value (low percentile)
-    kd_max = np.array([np.percentile(slices.values[..., c][valid], 0.2) for c in range(3)]) * math.pi
-    kd_max = np.maximum(kd_max, 0.0)
-
-    # §5.4 altered normal
+    # §5.4 altered normal: a first reconstruction in the device frame gives S; the
+    # normal minimises the consistency distance; then everything runs in its frame
     frame = np.eye(3)
     sym_dist = float("nan")
     if opt.estimate_normal:
-        y = (slices.values @ LUM) - (kd_max @ LUM) / math.pi
-        cos_dev = np.maximum(slices.light[:, 2], 1e-6)
-        val = np.where(valid, np.maximum(y, 0.0) * cos_dev[:, None], np.nan)
-        step = max(1, int(valid.shape[1] // 12000))
-        dist = SymmetryDistance(slices.light, slices.view[::step], val[:, ::step])
-        normal, sym_dist = estimate_normal(dist, opt.max_tilt_deg)
+        first = reconstruct(slices, dataclasses.replace(opt, estimate_normal=False, resolution=opt.work_resolution,
+                                                        outer_iterations=2, detect_shake=False, energy_clamp=False))
+        shadow = first.model.shadowing
+        coarse = ConsistencyDistance(slices, valid, shadow, n=32, stride=3)
+        fine = ConsistencyDistance(slices, valid, shadow, n=64, stride=1)
+        normal, sym_dist = estimate_normal_consistency(coarse, fine, opt.max_tilt_deg)
         frame = geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
     sl = slices.reframe(frame) if opt.estimate_normal else slices
+    # ρ_d/π ≤ min f (in the sample frame): an upper bound of k_d; half of it starts the fit
+    ok_f = sl.valid & valid
+    kd_max = np.array([np.percentile(sl.values[..., c][ok_f], 0.2) for c in range(3)]) * math.pi
+    kd_max = np.maximum(kd_max, 0.0)
     ok = sl.valid & valid
     work = hemicube(opt.work_resolution)
     bins = bin_samples(sl.light, sl.view, sl.values, ok, work)
