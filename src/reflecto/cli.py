@@ -1,4 +1,4 @@
-"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct``."""
+"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|export|render|compare``."""
 
 from __future__ import annotations
 
@@ -183,6 +183,77 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from .sources import load_source
+
+    src = load_source(args.source)
+    out = Path(args.output)
+    if args.format == "rgl":
+        from .export.rgl import export_rgl
+
+        iso = {"auto": None, "yes": True, "no": False}[args.isotropic]
+        export_rgl(src, out, isotropic=iso)
+    else:
+        from .export.merl import export_merl
+
+        with _progress(merl_bins(), f"tabulating {src.name}", not args.quiet and sys.stderr.isatty()) as bar:
+            export_merl(src, out, allow_anisotropic=args.isotropic == "yes", progress=bar.update)
+    if not args.quiet:
+        print(f"wrote {out} ({out.stat().st_size} bytes, {args.format})")
+    return 0
+
+
+def merl_bins() -> int:
+    from .sources import merl
+
+    return merl.N_BINS
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    import time
+
+    from .render.mitsuba import comparison_image, image_difference, render, save_image
+    from .sources import load_source
+
+    src = load_source(args.source)
+    t0 = time.perf_counter()
+    img, variant = render(src, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
+    line = f"rendered {src.name} ({args.scene}, {args.resolution}², {args.spp} spp, {variant}) in {time.perf_counter() - t0:.1f} s"
+    if args.compare:
+        ref_img, _ = render(load_source(args.compare), args.scene, envmap=args.envmap, resolution=args.resolution,
+                            spp=args.spp, seed=args.seed)
+        from .io import atomic_path
+
+        import imageio.v3 as iio
+
+        out = Path(args.output)
+        if out.suffix.lower() != ".png":
+            raise ReflectoError(f"{out}: a comparison image must be .png")
+        with atomic_path(out, suffix=".png") as tmp:
+            iio.imwrite(tmp, comparison_image(ref_img, img))
+        line += f"; mean image difference to {args.compare}: {100 * image_difference(ref_img, img):.2f} %"
+    else:
+        save_image(img, args.output)
+    print(line + f"; wrote {args.output}")
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from .evaluate.metrics import brdf_error
+    from .sources import load_source
+
+    ref, test = load_source(args.reference), load_source(args.test)
+    err = brdf_error(ref, test)
+    if args.json:
+        print(json.dumps({"reference": str(args.reference), "test": str(args.test), **err.to_dict()}, indent=1))
+        return 0
+    print(f"{args.test} against {args.reference} (Ngan et al. eq. 10, MERL bins, θ ≤ 80°):")
+    print(f"  RMSE (R, G, B)      {err.rmse[0]:.5f} {err.rmse[1]:.5f} {err.rmse[2]:.5f} sr⁻¹")
+    print(f"  normalized error    {err.normalized:.5f}  (channel mean / max albedo {err.albedo_ref:.4f})")
+    print(f"  log-RMSE            {err.log_rmse:.5f}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="reflecto",
@@ -246,6 +317,35 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--jobs", type=int, default=0, help="worker processes for several captures (default: all cores)")
     q.add_argument("--progress", action="store_true", help="progress bar")
     q.set_defaults(func=cmd_reconstruct)
+
+    q = sub.add_parser("export", help="write a BRDF as an RGL .bsdf (Mitsuba 3, pbrt-v4) or MERL .binary file")
+    q.add_argument("source", help="model (.reflecto) or any BRDF file")
+    q.add_argument("--format", choices=("rgl", "merl"), default="rgl")
+    q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
+                   help="write an isotropic file (RGL: one φ_i; MERL: the φ_h = 0 slice of an anisotropic "
+                        "source) or an anisotropic RGL file (default: detect from the NDF)")
+    q.add_argument("-o", "--output", required=True, help="output file")
+    q.add_argument("-q", "--quiet", action="store_true")
+    q.set_defaults(func=cmd_export)
+
+    from .render.mitsuba import SCENES
+
+    q = sub.add_parser("render", help="render a BRDF with Mitsuba 3 (sphere or teapot, point light or envmap)")
+    q.add_argument("source", help="model (.reflecto) or any BRDF file")
+    q.add_argument("--scene", choices=SCENES, default="sphere-env")
+    q.add_argument("--envmap", help="environment map (.hdr/.exr; default: the shared studio map)")
+    q.add_argument("--spp", type=int, default=64, help="samples per pixel")
+    q.add_argument("--resolution", type=int, default=256)
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--compare", metavar="REFERENCE", help="also render REFERENCE; write reference | source | difference")
+    q.add_argument("-o", "--output", required=True, help="image: .png (sRGB), .exr or .hdr (linear)")
+    q.set_defaults(func=cmd_render)
+
+    q = sub.add_parser("compare", help="error of TEST against REFERENCE (Ngan et al. metric, eq. 10)")
+    q.add_argument("reference", help="reference BRDF file")
+    q.add_argument("test", help="BRDF file to evaluate")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_compare)
     return p
 
 

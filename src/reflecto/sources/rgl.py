@@ -185,6 +185,43 @@ class Marginal2D:
         return np.stack([ux, uy], axis=-1)
 
 
+    def sample(self, u: Array, slice_index: int) -> Array:
+        """Forward continuous warp of one parameter slice: uniform ``u`` → point in [0,1]².
+
+        The exact inverse of :meth:`invert` (at a grid node of the parameters): the
+        marginal and conditional CDFs are piecewise quadratic, each solved in closed form.
+        """
+        d, c = self.norm_data[slice_index], self.cond[slice_index]
+        marg = self.marg[slice_index]
+        ux = np.clip(u[..., 0], 0.0, 1.0)
+        uy = np.clip(u[..., 1], 0.0, 1.0)
+        rows_tot = c[:, self.w - 1]
+        py = np.clip(np.searchsorted(marg, uy, side="right") - 1, 0, self.h - 2)
+        r0, r1 = rows_tot[py], rows_tot[py + 1]
+        sy = _solve_quadratic(r0, r1, uy - marg[py])
+        # conditional CDF of the row interpolated at sy
+        cond_rows = (1 - sy)[..., None] * c[py] + sy[..., None] * c[py + 1]
+        total = (1 - sy) * r0 + sy * r1
+        target = ux * total
+        px = np.clip(np.sum(cond_rows <= target[..., None], axis=-1) - 1, 0, self.w - 2)
+        take = np.take_along_axis
+        c0 = (1 - sy) * d[py, px] + sy * d[py + 1, px]
+        c1 = (1 - sy) * d[py, px + 1] + sy * d[py + 1, px + 1]
+        base = take(cond_rows, px[..., None], axis=-1)[..., 0]
+        sx = _solve_quadratic(c0, c1, target - base)
+        return np.stack([(px + sx) / (self.w - 1), (py + sy) / (self.h - 1)], axis=-1)
+
+
+def _solve_quadratic(v0: Array, v1: Array, y: Array) -> Array:
+    """``t ∈ [0, 1]`` with ``t v0 + ½ t² (v1 − v0) = y`` (the integral of a linear density)."""
+    a = 0.5 * (v1 - v0)
+    disc = np.sqrt(np.maximum(v0 * v0 + 4.0 * a * np.maximum(y, 0.0), 0.0))
+    lin = np.divide(y, v0, out=np.zeros_like(y), where=v0 > 0)
+    quad = np.divide(2.0 * np.maximum(y, 0.0), v0 + disc, out=np.zeros_like(y), where=(v0 + disc) > 0)
+    t = np.where(np.abs(a) < 1e-9 * np.maximum(np.abs(v0), 1e-300), lin, quad)
+    return np.clip(t, 0.0, 1.0)
+
+
 class RGLBRDF(BRDFSource):
     """An RGL ``.bsdf`` tensor file (RGB version), evaluated like Mitsuba 3's ``measured``."""
 

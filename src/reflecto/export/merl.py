@@ -1,0 +1,39 @@
+"""MERL ``.binary`` export (Matusik et al. 2003; format in algorithm-reference §6.1).
+
+A source is evaluated at every bin centre (``φ_h = 0``, the centre convention of
+:func:`reflecto.sources.merl.bin_centres`) and written with the channel scales, so
+reflecto's (and MERL's) reader returns exactly those values. Bins with a direction
+below the horizon hold 0, never the "unmeasured" marker −1: an exported model is
+defined everywhere. MERL tables are isotropic: anisotropic sources are refused unless
+``allow_anisotropic`` (then the ``φ_h = 0`` slice is what gets written).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..sources import merl
+from ..sources.base import BRDFSource
+
+
+def export_merl(source: BRDFSource, path: str | Path, allow_anisotropic: bool = False,
+                progress: Callable[[int], None] | None = None) -> Path:
+    """Tabulate ``source`` on the MERL grid and write it atomically; returns the path."""
+    if not allow_anisotropic and not _isotropic(source):
+        raise ParameterError(f"{source.name} is anisotropic; MERL files hold isotropic BRDFs only "
+                             "(pass allow_anisotropic to write its φ_h = 0 slice)")
+    table = merl.tabulate(source, progress=progress)
+    np.maximum(table, 0.0, out=table)  # a model never yields −1; clamp round-off below 0
+    return merl.write_merl_table(path, table)
+
+
+def _isotropic(source: BRDFSource) -> bool:
+    if getattr(source, "isotropic", False):
+        return True
+    from .rgl import proxy_ndf
+
+    return proxy_ndf(source)[1]

@@ -1,0 +1,1 @@
+"""Rendering with Mitsuba 3 and comparison images."""

@@ -1,0 +1,125 @@
+"""Exports (issue 6): RGL .bsdf read back by reflecto and by Mitsuba 3, MERL round trip, errors."""
+
+import numpy as np
+import pytest
+
+from conftest import random_directions
+from reflecto.cli import main
+from reflecto.errors import FileFormatError
+from reflecto.export.merl import export_merl
+from reflecto.export.rgl import export_rgl
+from reflecto.model import MicrofacetBRDF
+from reflecto.sources import merl
+from reflecto.sources.analytic import AnalyticBRDF
+from reflecto.sources.rgl import RGLBRDF
+
+MODELS = {
+    "plastic": AnalyticBRDF(distribution="ggx", alpha=0.2, kd=(0.4, 0.2, 0.1), ks=0.5, eta=1.5),
+    "metal": AnalyticBRDF(distribution="beckmann", alpha=0.05, kd=0.0, ks=0.9, eta=(2.5, 2.0, 1.8)),
+    "anisotropic": AnalyticBRDF(distribution="ggx", alpha=(0.1, 0.4), rotation_deg=30, kd=0.1, ks=0.7, eta=1.6),
+}
+
+
+def _model(name: str) -> MicrofacetBRDF:
+    a = MODELS[name]
+    return MicrofacetBRDF.from_ndf_function(a.ndf, kd=a.kd, ks=a.ks, eta=a.eta)
+
+
+def relative_difference(test: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Per pair, max over RGB of |test − ref| / max(|ref|, 1 % of the mean |ref|).
+
+    The floor keeps the measure meaningful where a sharp lobe's reference is ~0.
+    """
+    floor = 1e-2 * np.abs(ref).mean()
+    return np.abs(test - ref).max(axis=1) / np.maximum(np.abs(ref).max(axis=1), floor)
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_rgl_export_reproduces_the_model(name, tmp_path):
+    m = _model(name)
+    path = export_rgl(m, tmp_path / f"{name}.bsdf")
+    r = RGLBRDF(path)
+    assert r.isotropic == (name != "anisotropic")
+    rng = np.random.default_rng(3)
+    i, o = random_directions(rng, 100_000, 80), random_directions(rng, 100_000, 80)
+    rel = relative_difference(r.eval_cosine(i, o), m.eval(i, o) * o[:, 2:3])
+    assert np.median(rel) <= 0.01 and np.percentile(rel, 95) <= 0.05, (np.median(rel), np.percentile(rel, 95))
+
+
+def test_rgl_export_read_by_mitsuba(tmp_path):
+    try:
+        from reflecto.mitsuba_support import import_mitsuba
+
+        mi, variant = import_mitsuba("llvm_ad_rgb")
+    except ImportError as e:
+        pytest.skip(f"Mitsuba 3 unavailable: {e}")
+    m = _model("anisotropic")
+    path = export_rgl(m, tmp_path / "a.bsdf")
+    rng = np.random.default_rng(5)
+    n = 100_000 if variant.startswith("llvm") else 2_000
+    i, o = random_directions(rng, n, 80), random_directions(rng, n, 80)
+    bsdf = mi.load_dict({"type": "measured", "filename": str(path)})
+    if variant.startswith("llvm"):
+        si = mi.SurfaceInteraction3f()
+        si.wi = mi.Vector3f(i[:, 0], i[:, 1], i[:, 2])
+        ref = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(o[:, 0], o[:, 1], o[:, 2]))).reshape(3, -1).T
+    else:
+        ref = np.empty((n, 3))
+        for k in range(n):
+            si = mi.SurfaceInteraction3f()
+            si.wi = mi.Vector3f(*i[k])
+            ref[k] = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(*o[k])))
+    rel = relative_difference(ref, m.eval(i, o) * o[:, 2:3])
+    assert np.median(rel) <= 0.01 and np.percentile(rel, 95) <= 0.05, (np.median(rel), np.percentile(rel, 95))
+
+
+def test_merl_export_gives_model_values_at_bin_centres_exactly(tmp_path):
+    m = _model("plastic")
+    path = export_merl(m, tmp_path / "p.binary")
+    table = merl.read_merl_table(path)
+    i, o = merl.bin_directions()
+    sel = (slice(None, None, 7), slice(None, None, 5), slice(None, None, 11))
+    ii, oo = i[sel].reshape(-1, 3), o[sel].reshape(-1, 3)
+    expect = np.where(((ii[:, 2] > 0) & (oo[:, 2] > 0))[:, None], m.eval(ii, oo), 0.0)
+    # exact where the MERL encoding (value / channel scale, stored as float64) can
+    # represent the value; elsewhere 1 ulp (see merl.write_merl_table)
+    np.testing.assert_array_max_ulp(table[sel].reshape(-1, 3), expect, maxulp=1)
+    assert np.mean(table[sel].reshape(-1, 3) == expect) > 0.8
+    assert table.min() >= 0.0  # never the "unmeasured" marker
+    with pytest.raises(Exception, match="anisotropic"):
+        export_merl(_model("anisotropic"), tmp_path / "a.binary")
+    assert not (tmp_path / "a.binary").exists()
+
+
+def test_bad_inputs_clear_errors_and_no_output(tmp_path, capsys):
+    m = _model("plastic")
+    good = m.save(tmp_path / "m.reflecto")
+    # a model file from a newer format version
+    import json
+    import zipfile
+
+    newer = tmp_path / "newer.reflecto"
+    with zipfile.ZipFile(good) as z, zipfile.ZipFile(newer, "w") as w:
+        for name in z.namelist():
+            data = z.read(name)
+            if name == "meta.json":
+                meta = json.loads(data)
+                meta["version"] = 99
+                data = json.dumps(meta).encode()
+            w.writestr(name, data)
+    with pytest.raises(FileFormatError, match="newer"):
+        MicrofacetBRDF.load(newer)
+    assert main(["export", str(newer), "-o", str(tmp_path / "x.bsdf")]) == 1
+    assert "newer reflecto" in capsys.readouterr().err
+    assert not (tmp_path / "x.bsdf").exists()
+    # unknown scene: argparse refuses
+    with pytest.raises(SystemExit) as e:
+        main(["render", str(good), "--scene", "moon", "-o", str(tmp_path / "r.png")])
+    assert e.value.code == 2
+    # unreadable environment map
+    bad = tmp_path / "bad.hdr"
+    bad.write_bytes(b"#?RADIANCE\nnot really\n")
+    assert main(["render", str(good), "--envmap", str(bad), "-o", str(tmp_path / "r.png")]) == 1
+    assert "environment map" in capsys.readouterr().err
+    assert not (tmp_path / "r.png").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.hdr", "m.reflecto", "newer.reflecto"]
