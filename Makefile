@@ -20,18 +20,30 @@ $(STAMP): pyproject.toml
 	@$(MAKE) --no-print-directory sysdeps
 	@touch $(STAMP)
 
-# Optional system package: LLVM >= 16 lets Mitsuba 3 use its vectorised llvm_ad_rgb
-# variant; without it reflecto falls back to scalar_rgb. Never fatal.
+# Optional system packages, never fatal:
+# - LLVM >= 16 lets Mitsuba 3 use its vectorised llvm_ad_rgb variant (else scalar_rgb);
+# - Chromium runs the HTML report's browser test (skipped without it).
+APT_INSTALL = DEBIAN_FRONTEND=noninteractive apt-get install -y -qq
 sysdeps:
 	@if ls /usr/lib/*/libLLVM-1[6-9]*.so* /usr/lib/*/libLLVM-2[0-9]*.so* >/dev/null 2>&1; then \
 	  echo "LLVM >= 16 found"; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	  echo "installing libllvm19 (optional, for Mitsuba llvm_ad_rgb)"; \
-	  ( DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null 2>&1 || \
-	    ( apt-get update -qq >/dev/null 2>&1 && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null 2>&1 ) ) \
+	  ( $(APT_INSTALL) libllvm19 >/dev/null 2>&1 || \
+	    ( apt-get update -qq >/dev/null 2>&1 && $(APT_INSTALL) libllvm19 >/dev/null 2>&1 ) ) \
 	  || echo "warning: libllvm19 not installed; Mitsuba will use scalar_rgb"; \
 	else \
 	  echo "note: no LLVM >= 16 and no root apt-get; Mitsuba will use scalar_rgb"; \
+	fi
+	@if command -v chromium >/dev/null || command -v chromium-browser >/dev/null; then \
+	  echo "Chromium found"; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "installing chromium (optional, for the HTML report test)"; \
+	  ( $(APT_INSTALL) chromium >/dev/null 2>&1 || \
+	    ( apt-get update -qq >/dev/null 2>&1 && $(APT_INSTALL) chromium >/dev/null 2>&1 ) ) \
+	  || echo "warning: chromium not installed; the report's browser test will be skipped"; \
+	else \
+	  echo "note: no chromium and no root apt-get; the report's browser test will be skipped"; \
 	fi
 
 demo: $(STAMP)
@@ -48,6 +60,10 @@ demo: $(STAMP)
 	$(BIN)/reflecto calibrate $(OUT)/calib -o $(OUT)/as-built.npz
 	$(BIN)/reflecto reconstruct $(OUT)/capture --calibration $(OUT)/as-built.npz --estimate-normal -o $(OUT)/ggx-plastic.reflecto
 	$(BIN)/reflecto info $(OUT)/ggx-plastic.reflecto
+	$(BIN)/reflecto export $(OUT)/ggx-plastic.reflecto --isotropic yes -o $(OUT)/ggx-plastic.bsdf
+	$(BIN)/reflecto render $(OUT)/ggx-plastic.bsdf --scene teapot-env -o $(OUT)/ggx-plastic-teapot.png
+	$(BIN)/reflecto report $(OUT)/ggx-plastic.reflecto --ref examples/ggx-plastic.json -o $(OUT)/report
+	@echo "demo done: open $(OUT)/report/index.html"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow"

@@ -1,4 +1,4 @@
-"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|export|render|compare``."""
+"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|export|render|compare|report``."""
 
 from __future__ import annotations
 
@@ -254,6 +254,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_report(args: argparse.Namespace) -> int:
+    from .evaluate.report import write_report
+
+    page = write_report(args.model, args.output, reference=args.ref, spp=args.spp, render=not args.no_render)
+    print(f"wrote {page}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="reflecto",
@@ -346,6 +354,14 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("test", help="BRDF file to evaluate")
     q.add_argument("--json", action="store_true")
     q.set_defaults(func=cmd_compare)
+
+    q = sub.add_parser("report", help="static HTML report of a model: renders, NDF, coverage, slices, numbers")
+    q.add_argument("model", help="model file (.reflecto)")
+    q.add_argument("--ref", help="reference BRDF file to compare with")
+    q.add_argument("--spp", type=int, default=64)
+    q.add_argument("--no-render", action="store_true", help="skip the Mitsuba renders")
+    q.add_argument("-o", "--output", required=True, help="folder to write index.html and images into")
+    q.set_defaults(func=cmd_report)
     return p
 
 

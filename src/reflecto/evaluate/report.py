@@ -1,0 +1,260 @@
+"""Static HTML report of a model (and of a sweep): renders, NDF, coverage, slices, numbers.
+
+``write_report(model_path, out_dir, reference=None)`` writes ``out_dir/index.html``
+and its PNGs:
+
+* renders: the model on a sphere under an environment map and under a point light
+  (Mitsuba 3), and — with a reference — reference | model | difference;
+* the NDF: the hemicube unfolded (log scale) and a polar plot ``D(θ_h, φ_h)``;
+* the LED coverage of the capture's device (paper Fig. 2(c)(d));
+* the six slices of the capture, when the model's metadata names a capture folder
+  that still exists (calibration: the nominal one of its device);
+* a ``θ_h``–``θ_d`` image at ``φ_d = 90°`` as BRDF Explorer shows it (log scale);
+* the numbers: η, k_d, k_s, normal tilt, E(η), and with a reference the eq. 10 error.
+
+Every image is written before the page (atomic renames); the page checks on load
+that each image decoded and records the count in ``<body data-images>`` — the
+headless-Chromium test reads it (``tests/test_report.py``).
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..io import atomic_path, atomic_write
+from ..model import MicrofacetBRDF
+from ..sources.base import BRDFSource
+
+Array = NDArray[np.float64]
+LUM = np.array([0.2126, 0.7152, 0.0722])
+
+_CHECK_SCRIPT = """<script>
+window.addEventListener('load', function () {
+  var imgs = Array.prototype.slice.call(document.images);
+  var bad = imgs.filter(function (im) { return !(im.complete && im.naturalWidth > 0); });
+  document.body.setAttribute('data-images', (imgs.length - bad.length) + '/' + imgs.length);
+  bad.forEach(function (im) { console.error('image failed to load: ' + im.getAttribute('src')); });
+});
+</script>"""
+
+_STYLE = """<style>
+body { font-family: system-ui, sans-serif; margin: 2em; color: #222; max-width: 1100px; }
+h1 { font-size: 1.5em; } h2 { font-size: 1.15em; margin-top: 1.6em; border-bottom: 1px solid #ddd; }
+table { border-collapse: collapse; } td, th { padding: 0.2em 0.8em; text-align: left; border-bottom: 1px solid #eee; }
+figure { display: inline-block; margin: 0.5em 1em 0.5em 0; vertical-align: top; }
+figcaption { font-size: 0.85em; color: #555; max-width: 520px; }
+img { max-width: 100%; image-rendering: auto; }
+</style>"""
+
+
+def _save_png(fig_or_array: Any, path: Path) -> str:
+    """Save a matplotlib figure or an 8-bit image atomically; returns the file name."""
+    if isinstance(fig_or_array, np.ndarray):
+        import imageio.v3 as iio
+
+        with atomic_path(path, suffix=".png") as tmp:
+            iio.imwrite(tmp, fig_or_array)
+    else:
+        import matplotlib.pyplot as plt
+
+        with atomic_path(path, suffix=".png") as tmp:
+            fig_or_array.savefig(tmp, dpi=90, format="png")
+        plt.close(fig_or_array)
+    return path.name
+
+
+def _mpl():  # type: ignore[no-untyped-def]
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def ndf_figures(model: MicrofacetBRDF, out: Path) -> list[tuple[str, str]]:
+    """Unfolded hemicube and polar plot of the NDF; returns ``[(file, caption)]``."""
+    plt = _mpl()
+    cube = model.cube
+    d = np.maximum(model.ndf_values, 1e-6 * model.ndf_values.max())
+    fig, ax = plt.subplots(figsize=(5.2, 4.6))
+    im = ax.imshow(np.log10(cube.unfold(d)), origin="lower", cmap="magma")
+    fig.colorbar(im, ax=ax, label="log₁₀ D (sr⁻¹)")
+    ax.set_title("NDF, hemicube unfolded (top face in the middle)")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    a = _save_png(fig, out / "ndf_unfolded.png")
+    th = np.radians(np.linspace(0, 89, 90))
+    ph = np.radians(np.linspace(0, 360, 181))
+    T, P = np.meshgrid(th, ph, indexing="ij")
+    h = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1)
+    dv = model.ndf(h.reshape(-1, 3)).reshape(T.shape)
+    fig = plt.figure(figsize=(5, 4.6))
+    ax = fig.add_subplot(projection="polar")
+    pc = ax.pcolormesh(P, np.degrees(T), np.log10(np.maximum(dv, 1e-6 * dv.max())), cmap="magma", shading="auto")
+    fig.colorbar(pc, ax=ax, label="log₁₀ D (sr⁻¹)")
+    ax.set_title("NDF D(θ_h, φ_h); radius θ_h in degrees")
+    b = _save_png(fig, out / "ndf_polar.png")
+    return [(a, "NDF on the hemicube, unfolded (log scale)."), (b, "NDF in polar coordinates (log scale).")]
+
+
+def theta_h_theta_d_image(source: BRDFSource, out: Path, name: str = "thd.png", title: str = "") -> str:
+    """BRDF Explorer's θ_h–θ_d image at φ_d = 90° (luminance, log scale)."""
+    from .. import geometry
+
+    plt = _mpl()
+    th = np.radians(np.linspace(0.25, 89.75, 180))
+    td = np.radians(np.linspace(0.25, 89.75, 180))
+    TH, TD = np.meshgrid(th, td, indexing="ij")
+    i, o = geometry.hd_to_io(TH, np.zeros_like(TH), TD, np.full_like(TH, 0.5 * math.pi))
+    ok = (i[..., 2] > 0) & (o[..., 2] > 0)
+    f = np.zeros(TH.shape)
+    f[ok] = source.eval(i[ok], o[ok]) @ LUM
+    fig, ax = plt.subplots(figsize=(5, 4.4))
+    im = ax.imshow(np.log10(np.maximum(f, 1e-4)).T, origin="lower", extent=(0, 90, 0, 90), cmap="viridis", aspect="equal")
+    fig.colorbar(im, ax=ax, label="log₁₀ f (sr⁻¹), luminance")
+    ax.set_xlabel("θ_h (deg)")
+    ax.set_ylabel("θ_d (deg)")
+    ax.set_title(title or "θ_h–θ_d slice at φ_d = 90°")
+    return _save_png(fig, out / name)
+
+
+def slice_figure(capture_dir: Path, out: Path):  # type: ignore[no-untyped-def]
+    """The six slices of a capture (luminance, log scale) on the sensor, and its device; None if unreadable."""
+    from ..instrument.calibrate import nominal_calibration
+    from ..instrument.capture import read_capture
+    from ..instrument.slices import extract_slices
+
+    try:
+        cap = read_capture(capture_dir)
+    except Exception:  # noqa: BLE001 - the capture may be gone; the report still works
+        return None
+    cal = nominal_calibration(cap.device)
+    sl = extract_slices(cap, cal)
+    plt = _mpl()
+    h, w = cal.optics.height, cal.optics.width
+    fig, axes = plt.subplots(2, (sl.n_leds + 1) // 2, figsize=(3.2 * ((sl.n_leds + 1) // 2), 5.2))
+    vals = np.where(sl.valid, sl.values @ LUM, np.nan)
+    vmax = np.nanpercentile(vals, 99.5)
+    for k, ax in enumerate(np.ravel(axes)):
+        ax.axis("off")
+        if k >= sl.n_leds:
+            continue
+        img = np.full((h, w), np.nan)
+        img[sl.pixels[:, 0], sl.pixels[:, 1]] = vals[k]
+        ax.imshow(np.log10(np.maximum(img, 1e-4 * vmax)), cmap="inferno", vmin=np.log10(1e-3 * vmax),
+                  vmax=np.log10(vmax))
+        ax.set_title(f"slice l{k}", fontsize=9)
+    fig.suptitle("BRDF slices on the sensor (log luminance; one per LED)", fontsize=10)
+    fig.tight_layout()
+    return _save_png(fig, out / "slices.png"), cap.device
+
+
+def write_report(model_path: str | Path, out_dir: str | Path, reference: str | Path | None = None,
+                 spp: int = 64, render: bool = True) -> Path:
+    """Write the HTML report of one model (see the module docstring); returns the page."""
+    from ..instrument.device import load_device
+    from ..instrument.plots import plot_coverage
+    from ..sources import load_source
+
+    model_path = Path(model_path)
+    model = MicrofacetBRDF.load(model_path)
+    ref = load_source(reference) if reference is not None else None
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    figs: list[tuple[str, list[tuple[str, str]]]] = []
+    numbers: dict[str, Any] = {
+        "η (R, G, B)": np.round(model.eta, 4).tolist(),
+        "k_d (R, G, B)": np.round(model.kd, 4).tolist(),
+        "k_s (R, G, B)": np.round(model.ks, 4).tolist(),
+        "NDF resolution": f"{model.cube.n}×{model.cube.n} top, {model.cube.n}×{model.cube.half} sides",
+        "max directional albedo": round(float(model.albedo(np.array([0.0, 30.0, 60.0, 80.0])).max()), 4),
+    }
+    summary_path = model_path.with_suffix(".json")
+    summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+    for key, label in (("normal_tilt_deg", "normal tilt (deg)"), ("fresnel_error", "E(η) of the fit"),
+                       ("shake_detected", "shake detected"), ("residual_median_rel", "median residual on the samples")):
+        if key in summary and summary[key] is not None:
+            v = summary[key]
+            numbers[label] = round(v, 4) if isinstance(v, float) else v
+    if render:
+        from ..render.mitsuba import comparison_image, image_difference, render as mi_render, to_srgb8
+
+        img, variant = mi_render(model, "sphere-env", spp=spp)
+        pts, _ = mi_render(model, "sphere-point", spp=spp)
+        items = [(_save_png(to_srgb8(img), out / "render_env.png"), f"Sphere under the studio map (Mitsuba 3, {variant})."),
+                 (_save_png(to_srgb8(pts), out / "render_point.png"), "Sphere under a point light.")]
+        if ref is not None:
+            rimg, _ = mi_render(ref, "sphere-env", spp=spp)
+            items.append((_save_png(comparison_image(rimg, img), out / "render_compare.png"),
+                          f"Reference | model | relative difference (0–20 %); mean image difference "
+                          f"{100 * image_difference(rimg, img):.2f} %."))
+        figs.append(("Renders", items))
+    figs.append(("Normal distribution", ndf_figures(model, out)))
+    items = [(theta_h_theta_d_image(model, out, "thd_model.png", "model: θ_h–θ_d at φ_d = 90°"), "Model, BRDF Explorer's θ_h–θ_d view.")]
+    if ref is not None:
+        from .metrics import brdf_error
+
+        items.append((theta_h_theta_d_image(ref, out, "thd_reference.png", "reference: θ_h–θ_d at φ_d = 90°"), "Reference."))
+        err = brdf_error(ref, model)
+        numbers["eq. 10 error vs reference (normalized)"] = round(err.normalized, 5)
+        numbers["log-RMSE vs reference"] = round(err.log_rmse, 5)
+    figs.append(("θ_h–θ_d slice", items))
+    cap_dir = model.metadata.get("capture")
+    dev = load_device("ideal")
+    items = []
+    got = slice_figure(Path(cap_dir), out) if cap_dir and Path(cap_dir).is_dir() else None
+    if got:
+        items.append((got[0], f"The six slices of {html.escape(str(cap_dir))} (nominal calibration)."))
+        dev = got[1]
+    cov = plot_coverage(dev.optics, dev.leds, out / "coverage.png")
+    items.insert(0, (cov.name, f"Half-vector coverage per LED of device {html.escape(dev.name)} (paper Fig. 2(c)(d))."))
+    figs.append(("Capture", items))
+
+    rows = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>" for k, v in numbers.items())
+    sections = []
+    for title, its in figs:
+        body = "\n".join(f'<figure><img src="{html.escape(f)}" alt="{html.escape(c)}"><figcaption>{c}</figcaption></figure>'
+                         for f, c in its)
+        sections.append(f"<h2>{html.escape(title)}</h2>\n{body}")
+    title = f"reflecto report: {html.escape(model_path.name)}"
+    page = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{title}</title>{_STYLE}</head>\n"
+            f"<body data-images=\"pending\">\n<h1>{title}</h1>\n<p>Model file <code>{html.escape(str(model_path))}</code>"
+            + (f", reference <code>{html.escape(str(reference))}</code>" if reference else "") + "</p>\n"
+            f"<h2>Numbers</h2>\n<table>\n{rows}\n</table>\n" + "\n".join(sections) + f"\n{_CHECK_SCRIPT}\n</body></html>\n")
+    index = out / "index.html"
+    with atomic_write(index, "w") as fh:
+        fh.write(page)
+    return index
+
+
+def write_index(entries: list[dict[str, Any]], out_dir: str | Path, title: str = "reflecto sweep") -> Path:
+    """An index page linking per-material reports: ``entries`` of ``{name, href, numbers...}``."""
+    out = Path(out_dir)
+    keys = [k for k in entries[0] if k not in ("name", "href")] if entries else []
+    head = "".join(f"<th>{html.escape(k)}</th>" for k in ["material", *keys])
+    rows = []
+    for e in entries:
+        link = f'<a href="{html.escape(e["href"])}">{html.escape(e["name"])}</a>' if e.get("href") else html.escape(e["name"])
+        cells = "".join(f"<td>{html.escape(_fmt(e.get(k)))}</td>" for k in keys)
+        rows.append(f"<tr><td>{link}</td>{cells}</tr>")
+    page = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>{_STYLE}"
+            f"</head>\n<body data-images=\"pending\">\n<h1>{html.escape(title)}</h1>\n<table>\n<tr>{head}</tr>\n"
+            + "\n".join(rows) + f"\n</table>\n{_CHECK_SCRIPT}\n</body></html>\n")
+    index = out / "index.html"
+    with atomic_write(index, "w") as fh:
+        fh.write(page)
+    return index
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return "" if v is None else str(v)
