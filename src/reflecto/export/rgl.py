@@ -10,7 +10,8 @@ The format stores, per incident direction ``(φ_i, θ_i)`` on a grid, a 2-D tabl
 Only this product has to equal the BRDF; the ``ndf``/``sigma``/``vndf`` tables are a
 parameterization. We build them from a *proxy* NDF ``D' = D + c``: the source's own
 NDF (a reflecto model) or, for any other source, the NDF estimated from its
-back-scattering ``f(m, m) cos²θ_m`` (Dupuy & Jakob's estimate), plus a floor ``c``
+back-scattering ``f(m, m) cos²θ_m`` (Dupuy & Jakob's estimate), *tempered*
+(raised to the power :data:`TEMPER`, so its tails are heavier), plus a floor ``c``
 that matches the diffuse level so that the tails get table resolution and
 ``rgb = f cos θ_o · 4σ'/D'`` varies slowly across the lobe's edge. ``vndf`` is the
 visible-normal density of ``D'`` in unit coordinates (``∝ D' ⟨ω_i·m⟩ u₀ sin θ_m``),
@@ -32,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from ..io import atomic_write
 from ..sources.base import BRDFSource
@@ -39,6 +41,10 @@ from ..sources.rgl import MAGIC, Marginal2D
 
 Array = NDArray[np.float64]
 LUM = np.array([0.2126, 0.7152, 0.0722])
+#: The proxy NDF is the source's NDF raised to this power (then normalized): heavier
+#: tails than D itself, so that the warped domain keeps resolution where f is small but
+#: not zero, while ``rgb ∝ D^(1−TEMPER)`` still decays smoothly (see the module docstring).
+TEMPER = 0.65
 _CODES = {np.dtype("u1"): 1, np.dtype("<u4"): 5, np.dtype("<f4"): 10}
 
 
@@ -47,13 +53,15 @@ class RGLGrid:
     """Table resolutions of an exported file.
 
     ``n_theta_i``/``n_phi_i``: incident grid (``n_phi_i`` only for anisotropic files);
-    ``ndf``: (φ rows, θ columns) of the ndf and sigma tables; ``vndf``: (rows, cols)
+    ``ndf``, ``sigma``: (φ rows, θ columns) of those tables (the ndf table is fine, so
+    that reconstructed NDFs with texel-scale detail stay representable); ``vndf``: (rows, cols)
     of each vndf slice; ``rgb``: side of the square rgb/luminance slices.
     """
 
     n_theta_i: int = 24
     n_phi_i: int = 49
-    ndf: tuple[int, int] = (64, 128)
+    ndf: tuple[int, int] = (256, 512)
+    sigma: tuple[int, int] = (64, 128)
     vndf: tuple[int, int] = (128, 128)
     vndf_anisotropic: tuple[int, int] = (64, 64)
     rgb: int = 48
@@ -101,7 +109,7 @@ def proxy_ndf(source: BRDFSource) -> tuple[callable, bool]:
 
     if isinstance(source, MicrofacetBRDF):
         def d_fn(m: Array) -> Array:
-            return source.ndf(m)
+            return source.ndf(m) ** TEMPER
     else:
         def d_fn(m: Array) -> Array:
             flat = m.reshape(-1, 3)
@@ -109,7 +117,7 @@ def proxy_ndf(source: BRDFSource) -> tuple[callable, bool]:
             k[:, 2] = np.maximum(k[:, 2], 1e-3)
             k /= np.linalg.norm(k, axis=1, keepdims=True)
             v = np.maximum(source.eval(k, k) @ LUM, 0.0) * k[:, 2] ** 2
-            return v.reshape(m.shape[:-1])
+            return v.reshape(m.shape[:-1]) ** TEMPER
     return d_fn, bool(getattr(source, "isotropic", False)) or _looks_isotropic(d_fn)
 
 
@@ -156,8 +164,9 @@ def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | 
     # σ'(k) = ∫ D'(m) ⟨k·m⟩ dω_m on the quadrature, at the sigma table's nodes
     mq = _unit_dirs(qu[None, :], qphi[:, None]).reshape(-1, 3)
     wq = (dq * w_q).ravel()
-    ks = _unit_dirs(u0[None, :], u1[:, None])
-    sig_tab = np.maximum(ks.reshape(-1, 3) @ mq.T, 0.0) @ wq
+    n_phi_sig, n_th_sig = (2, grid.sigma[1]) if iso else grid.sigma
+    ks = _unit_dirs(np.linspace(0.0, 1.0, n_th_sig)[None, :], np.linspace(0.0, 1.0, n_phi_sig)[:, None])
+    sig_tab = np.concatenate([np.maximum(blk @ mq.T, 0.0) @ wq for blk in np.array_split(ks.reshape(-1, 3), 16)])
     sig_tab = sig_tab.reshape(ks.shape[:-1])
     ndf_m = Marginal2D(ndf_tab[None, None], np.zeros(1), np.zeros(1), build_cdf=False)
     sig_m = Marginal2D(sig_tab[None, None], np.zeros(1), np.zeros(1), build_cdf=False)
@@ -186,7 +195,8 @@ def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | 
             um = warp.sample(s, 0)  # (n, n, 2) unit coordinates of the half vector
             mm = _unit_dirs(um[..., 0], um[..., 1], offset).reshape(-1, 3)
             wo = 2.0 * (mm @ wi)[:, None] * mm - wi
-            wo[:, 2] = np.maximum(wo[:, 2], 1e-4)  # continuity at the horizon (Mitsuba masks it)
+            below = (wo[:, 2] <= 1e-4).reshape(n, n)
+            wo[:, 2] = np.maximum(wo[:, 2], 1e-4)
             wo /= np.linalg.norm(wo, axis=1, keepdims=True)
             wi_rep = np.broadcast_to(np.array([wi[0], wi[1], max(wi[2], 1e-4)]), wo.shape).copy()
             f = source.eval(wi_rep, wo)
@@ -195,6 +205,11 @@ def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | 
             dm = ndf_m.eval(um.reshape(-1, 2), np.zeros(len(mm)), np.zeros(len(mm)))
             val = f * (wo[:, 2] * 4.0 * sig / np.maximum(dm, 1e-30))[:, None]
             val = np.maximum(val, 0.0).reshape(n, n, 3)
+            # nodes whose ω_o is below the horizon are never evaluated (Mitsuba masks
+            # them) but enter the interpolation: extend the nearest valid node's value
+            if below.any() and not below.all():
+                _, (ri, ci) = ndimage.distance_transform_edt(below, return_indices=True)
+                val = val[ri, ci]
             rgb[a, b] = np.moveaxis(val, -1, 0)
             lv = val @ LUM
             lum[a, b] = np.maximum(lv, 1e-4 * max(float(lv.max()), 1e-30))

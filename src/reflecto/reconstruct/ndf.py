@@ -67,8 +67,9 @@ def _pyramid(n: int) -> tuple[tuple[Hemicube, NDArray[np.intp]], ...]:
 def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-12) -> Array:
     """Fill texels without samples from coarser levels of the texel pyramid.
 
-    Each level sums ``Σw`` and ``Σw·v`` over 2×2 blocks; a hole takes the value of the
-    finest level whose block has weight. Measured texels are never changed.
+    Each level sums ``Σw`` and ``Σw·v`` over 2×2 blocks; going back up, a hole takes
+    the coarser level's estimate interpolated bilinearly at its direction (so the fill
+    is continuous, not blocky). Measured texels are never changed.
     """
     pyramid = _pyramid(cube.n)
     levels = [(wsum, wvsum)]
@@ -82,8 +83,12 @@ def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-
     w, v = levels[-1]
     total_w = max(float(w.sum()), min_weight)
     est = np.where(w > min_weight, v / np.maximum(w, min_weight), float(v.sum()) / total_w)
-    for (w_fine, v_fine), (_, parent) in zip(reversed(levels[:-1]), reversed(pyramid)):
-        est = np.where(w_fine > min_weight, v_fine / np.maximum(w_fine, min_weight), est[parent])
+    coarse = [cube] + [c2 for c2, _ in pyramid]
+    for k in range(len(levels) - 2, -1, -1):
+        w_fine, v_fine = levels[k]
+        # holes take the coarser estimate interpolated bilinearly (continuous fill)
+        up = coarse[k + 1].lookup(est, coarse[k].directions)
+        est = np.where(w_fine > min_weight, v_fine / np.maximum(w_fine, min_weight), up)
     return est
 
 
