@@ -162,7 +162,13 @@ def test_default_layout_coverage_and_constraints():
     assert np.allclose(layout.led_angles(dev.leds[0]), [5.0, 0.0])
     cov = layout.coverage(dev.optics, dev.leds)
     assert cov.every_led_overlaps
-    assert cov.after_tau > 0.84 and cov.after_tau >= 0.95 * cov.upper_bound_after_tau
+    assert cov.after_tau > 0.80 and cov.after_tau >= 0.9 * cov.upper_bound_after_tau
+    # the design's other goals: overlaps at different θ_d all over the central cap
+    # (η of sharp lobes) and a share of near-normal incidence (layout.layout_terms)
+    from reflecto.hemicube import hemicube
+
+    _, central, small_td = layout.layout_terms(dev.optics, dev.leds, hemicube(64))
+    assert central == 1.0 and small_td > 0.2
     # the geometry's own limit: no layout reaches 97 % with a 48.2° cone tilted 20°
     assert 0.85 < cov.upper_bound_after_tau < 0.90
     # every overlap pairs samples at different θ_d (needed for Fresnel, §5.1)

@@ -1,4 +1,4 @@
-"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|export|render|compare|report``."""
+"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|export|render|compare|report|fit-ct|sweep``."""
 
 from __future__ import annotations
 
@@ -262,6 +262,36 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fit_ct(args: argparse.Namespace) -> int:
+    from .evaluate.cooktorrance import fit_cook_torrance
+    from .evaluate.metrics import brdf_error
+    from .sources import load_source
+
+    src = load_source(args.source)
+    ct = fit_cook_torrance(src)
+    err = brdf_error(src, ct)
+    info = {"source": str(args.source), **ct.parameters(), "error_normalized": err.normalized, "log_rmse": err.log_rmse}
+    if args.json:
+        print(json.dumps(info, indent=1))
+        return 0
+    print(f"Cook–Torrance fit of {args.source} (Beckmann D, V-groove G, Schlick F; eq. 10 weights):")
+    print(f"  rho_d  {np.round(ct.rho_d, 5).tolist()}")
+    print(f"  rho_s  {np.round(ct.rho_s, 5).tolist()}")
+    print(f"  F0     {ct.f0:.4f}    m  {ct.m:.5f}")
+    print(f"  error  {err.normalized:.5f} (normalized), log-RMSE {err.log_rmse:.5f}")
+    return 0
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from .evaluate.sweep import summarize, sweep
+
+    recs = sweep(args.folders, args.output, device=args.device, jobs=args.jobs, progress=not args.quiet and sys.stderr.isatty())
+    s = summarize(recs)
+    print(json.dumps(s, indent=1))
+    print(f"wrote {Path(args.output) / 'results.csv'}, fig5_errors.png, fig4_spheres.png")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="reflecto",
@@ -362,6 +392,19 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--no-render", action="store_true", help="skip the Mitsuba renders")
     q.add_argument("-o", "--output", required=True, help="folder to write index.html and images into")
     q.set_defaults(func=cmd_report)
+
+    q = sub.add_parser("fit-ct", help="fit the Cook–Torrance baseline to a dense BRDF (as Ngan et al. 2005)")
+    q.add_argument("source", help="BRDF file")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_fit_ct)
+
+    q = sub.add_parser("sweep", help="validation (paper §6): simulate → reconstruct → evaluate, ours vs baselines")
+    q.add_argument("folders", nargs="+", help="folders (or files) of materials: .binary .bsdf .h5 .json .toml")
+    q.add_argument("-o", "--output", required=True, help="results folder (resumable: finished materials are skipped)")
+    q.add_argument("--device", default="ideal", help="our device: ideal | as-built | device file")
+    q.add_argument("--jobs", type=int, default=0, help="worker processes (default: all cores)")
+    q.add_argument("-q", "--quiet", action="store_true")
+    q.set_defaults(func=cmd_sweep)
     return p
 
 

@@ -146,7 +146,9 @@ def nominal_calibration(device: Device) -> Calibration:
         raise CaptureError(Path("<device>"), "a gamma-encoded camera needs a measured calibration (--calibration)")
     h, w = device.optics.height, device.optics.width
     cos_l = np.maximum(device.leds[:, 2], 0.0) * device.led_irradiance
-    scale = np.broadcast_to((cam.sensitivity / cam.gain * cos_l)[:, None, None, None], (device.n_leds, h, w, 3))
+    scale = np.broadcast_to((cam.sensitivity / cam.gain * cos_l)[:, None, None, None], (device.n_leds, h, w, 3)).copy()
+    dirs, mask = device.optics.pixel_directions()
+    scale[:, mask & device.occluded(dirs)] = 0.0  # blocked views carry no data
     return Calibration(device, device.optics, device.leds, scale.astype(np.float32), None, {"kind": "nominal"})
 
 

@@ -181,6 +181,15 @@ def read_capture(cap_dir: str | Path) -> Capture:
         raise CaptureError(mpath, f"image size {width}×{height} does not match the device's sensor "
                            f"{device.optics.width}×{device.optics.height}")
     times = np.array(device.camera.exposures_ms)
+    if device.camera.auto_exposure:
+        # the capture's own times (auto-exposure), as many as the camera takes
+        try:
+            own = sorted({float(f["exposure_ms"]) for f in frames})
+        except (KeyError, TypeError, ValueError):
+            raise FileFormatError(mpath, "invalid frame entry (exposure_ms)") from None
+        if len(own) != len(times) or any(not (t > 0 and np.isfinite(t)) for t in own):
+            raise CaptureError(mpath, f"expected {len(times)} positive exposure times per LED, found {own}")
+        times = np.array(own)
     expected = {(led, float(t)) for led in range(device.n_leds) for t in times}
     got: dict[tuple[int, float], str] = {}
     for f in frames:

@@ -35,16 +35,17 @@ Array = NDArray[np.float64]
 
 #: The default LED layout ([elevation, azimuth] in degrees): l0 is fixed by §4.1; the
 #: other five are the result of :func:`reflecto.instrument.layout.optimize_layout`
-#: (seed 0, N=32 coverage grid) for the default optics. Its coverage is in
-#: docs/instrument.md (84.6 % of the θ_h ≤ 80° cap after eq. 3; the constraints allow
-#: at most 87.7 % for any number of LEDs).
+#: (seed 0, N=32 grid) for the default optics: coverage after eq. 3, overlaps at
+#: different θ_d in the central cap (η of sharp lobes) and near-normal incidence. Its
+#: numbers are in docs/instrument.md (81.2 % of the θ_h ≤ 80° cap after eq. 3; the
+#: constraints allow at most 87.7 % for any number of LEDs).
 DEFAULT_LED_ANGLES = (
     (5.0, 0.0),
-    (6.03, 293.32),
-    (6.36, 54.92),
-    (5.51, 251.17),
-    (34.17, 184.92),
-    (6.65, 105.54),
+    (7.34, 305.77),
+    (22.9, 167.71),
+    (6.99, 75.82),
+    (52.2, 155.42),
+    (12.71, 272.66),
 )
 
 
@@ -74,6 +75,11 @@ class Camera:
     response
         ``"linear"`` (raw) or ``"gamma"`` (8-bit, ``Z = 255 (x/x_sat)^(1/gamma)``,
         merged by Debevec–Malik).
+    auto_exposure
+        Shorten the exposures of a capture (keeping their ratios) when its brightest
+        pixel would saturate the shortest one, as a camera's auto-exposure from the
+        preview stream does: sharp metallic peaks reach f ≈ 10³–10⁴ sr⁻¹. The
+        times used are recorded in the capture's manifest.
     """
 
     bits: int = 12
@@ -85,6 +91,7 @@ class Camera:
     sensitivity: float = 1000.0
     response: str = "linear"
     gamma: float = 2.2
+    auto_exposure: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "exposures_ms", tuple(float(t) for t in self.exposures_ms))
@@ -166,6 +173,9 @@ class Device:
     led_angles: tuple[tuple[float, float], ...]
     camera: Camera
     truth: DeviceTruth | None = None
+    #: Views within this angle of the optical axis are blocked (an LED in the light
+    #: path, as in the earlier device of Dong et al. 2010); LEDs there are allowed.
+    occluder_deg: float = 0.0
 
     def __post_init__(self) -> None:
         angles = tuple(tuple(float(x) for x in a) for a in self.led_angles)
@@ -174,7 +184,9 @@ class Device:
             raise ParameterError("device: leds must be a list of at least two [elevation, azimuth] pairs")
         if not all(math.isfinite(x) for a in angles for x in a):
             raise ParameterError("device: LED angles must be finite")
-        bad = layout_violations(self.optics, self.leds)
+        if not (math.isfinite(self.occluder_deg) and 0.0 <= self.occluder_deg < self.optics.cone_half_angle_deg):
+            raise ParameterError(f"device: occluder_deg must be in [0, cone half-angle), got {self.occluder_deg}")
+        bad = layout_violations(self.optics, self.leds, self.occluder_deg)
         if bad:
             raise ParameterError("device: " + "; ".join(bad))
         if self.truth is not None and len(self.truth.led_angles) != len(angles):
@@ -199,6 +211,12 @@ class Device:
         """
         return 1.0 / np.sin(np.radians([a[0] for a in self.led_angles]))
 
+    def occluded(self, view_dirs: Array) -> NDArray[np.bool_]:
+        """Views blocked by the occluder (within :attr:`occluder_deg` of the axis)."""
+        if self.occluder_deg <= 0:
+            return np.zeros(np.shape(view_dirs)[:-1], bool)
+        return view_dirs @ self.optics.axis > math.cos(math.radians(self.occluder_deg))
+
     def nominal(self) -> Device:
         """This device without its truth: what the pipeline may know."""
         return dataclasses.replace(self, truth=None)
@@ -211,6 +229,8 @@ class Device:
             "camera": dataclasses.asdict(self.camera),
         }
         d["camera"]["exposures_ms"] = list(self.camera.exposures_ms)
+        if self.occluder_deg > 0:
+            d["occluder_deg"] = self.occluder_deg
         if with_truth and self.truth is not None:
             d["truth"] = self.truth.to_dict()
         return d
@@ -218,7 +238,7 @@ class Device:
     # ------------------------------------------------------------- factories
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "device") -> Device:
-        known = {"name", "optics", "leds", "camera", "truth"}
+        known = {"name", "optics", "leds", "camera", "truth", "occluder_deg"}
         if not isinstance(d, dict):
             raise ParameterError(f"{where}: expected a table/object")
         if set(d) - known:
@@ -247,6 +267,7 @@ class Device:
             led_angles=tuple(tuple(a) for a in d.get("leds", DEFAULT_LED_ANGLES)),
             camera=camera,
             truth=truth,
+            occluder_deg=float(d.get("occluder_deg", 0.0)),
         )
 
     @classmethod
@@ -256,7 +277,10 @@ class Device:
             return cls("ideal", Optics(), DEFAULT_LED_ANGLES, Camera(read_noise=0.0, shot_noise=False))
         if name == "as-built":
             return cls("as-built", Optics(), DEFAULT_LED_ANGLES, Camera(), truth=_as_built_truth())
-        raise ParameterError(f"unknown built-in device {name!r} (expected 'ideal' or 'as-built', or a file)")
+        if name == "earlier":
+            return cls("earlier", Optics(axis_tilt_deg=0.0), EARLIER_LED_ANGLES,
+                       Camera(read_noise=0.0, shot_noise=False), occluder_deg=EARLIER_OCCLUDER_DEG)
+        raise ParameterError(f"unknown built-in device {name!r} (expected 'ideal', 'as-built' or 'earlier', or a file)")
 
     def with_camera(self, **changes: Any) -> Device:
         return dataclasses.replace(self, camera=dataclasses.replace(self.camera, **changes))
@@ -283,12 +307,21 @@ def _as_built_truth() -> DeviceTruth:
     )
 
 
+#: The earlier device (Dong et al. 2010, "[DWT*10]"), reconstructed from Lan et al.'s
+#: description (§1, §6.2): the condenser on the normal; one LED in the light path on the
+#: axis, which blocks the central views; sparse LEDs just outside the view cone, so
+#: that the slices see only the central NDF region (θ_h ≲ 50°). See docs/validation.md.
+EARLIER_LED_ANGLES = ((90.0, 0.0), (35.0, 0.0), (35.0, 72.0), (35.0, 144.0), (35.0, 216.0), (35.0, 288.0))
+EARLIER_OCCLUDER_DEG = 8.0
+BUILTINS = ("ideal", "as-built", "earlier")
+
+
 def load_device(spec: str | Path) -> Device:
     """A built-in device by name or a JSON/TOML description file."""
-    if str(spec) in ("ideal", "as-built"):
+    if str(spec) in BUILTINS:
         return Device.builtin(str(spec))
     path = Path(spec)
-    d = read_description(path, missing="no such device file (built-ins: ideal, as-built)")
+    d = read_description(path, missing="no such device file (built-ins: ideal, as-built, earlier)")
     try:
         return Device.from_dict(d, where=str(path))
     except (ParameterError, TypeError, ValueError) as e:

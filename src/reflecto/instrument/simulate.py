@@ -105,6 +105,23 @@ def expose(signal: Array, t_ms: float, camera: Camera, rng: np.random.Generator 
     return out.reshape(np.shape(signal))
 
 
+def exposure_times(camera: Camera, peak_rate: float, headroom: float = 0.8) -> tuple[float, ...]:
+    """The camera's exposures, shortened (ratios kept) so the peak fills ``headroom`` of the well.
+
+    ``peak_rate``: the brightest pixel's electron rate (e⁻/ms). Without auto-exposure,
+    or when nothing saturates, the nominal times.
+    """
+    times = camera.exposures_ms
+    if not camera.auto_exposure or peak_rate <= 0:
+        return times
+    t_max = headroom * camera.full_well / peak_rate
+    shortest = min(times)
+    if shortest <= t_max:
+        return times
+    k = max(t_max, 1e-4) / shortest
+    return tuple(float(np.float32(t * k)) for t in times)
+
+
 def _truth(device: Device) -> tuple[Optics, Array, Array, Array]:
     """True optics, LED directions, LED intensities and transmission field."""
     if device.truth is None:
@@ -165,9 +182,10 @@ def simulate_capture(
     o = dirs[mask]
     h, w = mask.shape
     raw_dtype = np.uint8 if cam.response == "gamma" else np.uint16
-    raw = np.empty((device.n_leds, len(cam.exposures_ms), h, w, 3), dtype=raw_dtype)
-    scale = cam.sensitivity * trans[mask][:, None]
+    # an occluder in the light path (earlier device) blocks the central views
+    scale = cam.sensitivity * trans[mask][:, None] * ~device.occluded(o)[:, None]
     power = device.led_irradiance * intensity
+    rates = np.zeros((device.n_leds, h, w, 3))
     for k in range(device.n_leds):
         p = poses[k]
         i_loc = p.to_local(leds[k])
@@ -178,10 +196,12 @@ def simulate_capture(
             f[ok] = source.eval(np.broadcast_to(i_loc, (int(ok.sum()), 3)), o_loc[ok])
         if not np.all(np.isfinite(f)):
             raise ParameterError(f"source {source_name or source.name} returned non-finite values")
-        rate = np.zeros((h, w, 3))
-        rate[mask] = f * (max(i_loc[2], 0.0) * power[k]) * scale
-        for e, t in enumerate(cam.exposures_ms):
-            raw[k, e] = expose(rate, t, cam, rng)
+        rates[k][mask] = f * (max(i_loc[2], 0.0) * power[k]) * scale
+    times = exposure_times(cam, float(rates.max()))
+    raw = np.empty((device.n_leds, len(times), h, w, 3), dtype=raw_dtype)
+    for k in range(device.n_leds):
+        for e, t in enumerate(times):
+            raw[k, e] = expose(rates[k], t, cam, rng)
     sim = {
         "source": source_name or source.name,
         "seed": seed,
@@ -192,7 +212,7 @@ def simulate_capture(
         "shake": shake_info,
         "device_truth": device.name if device.truth is not None else None,
     }
-    return Capture(device.nominal(), raw, np.array(cam.exposures_ms), "sample", {"simulation": sim})
+    return Capture(device.nominal(), raw, np.array(times), "sample", {"simulation": sim})
 
 
 # --------------------------------------------------------------- calibration

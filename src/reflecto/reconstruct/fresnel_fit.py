@@ -187,7 +187,7 @@ def fit_fresnel(
 
         def parts(x: Array, hi: float = hi) -> tuple[float, float]:
             # η = 1 + e^x₀ > 1; k_d = hi·sigmoid(x₁) ∈ (0, hi): no bounds needed by LM
-            e = float(fixed_eta) if fixed_eta is not None else min(1.0 + math.exp(min(float(x[0]), 10.0)), ETA_MAX)
+            e = float(fixed_eta) if fixed_eta is not None else min(1.0 + max(math.exp(min(float(x[0]), 10.0)), 1e-3), ETA_MAX)
             return e, hi / (1.0 + math.exp(-float(np.clip(x[-1], -40.0, 40.0))))
 
         def r(x: Array, fp: Array = fp, fq: Array = fq) -> Array:
