@@ -4,7 +4,6 @@ import json
 import math
 
 import numpy as np
-import pytest
 
 from reflecto.evaluate.cooktorrance import CookTorrance, fit_cook_torrance
 from reflecto.evaluate.metrics import brdf_error, metric_grid

@@ -7,16 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from ..io import atomic_path
-
-
-def _plt():  # type: ignore[no-untyped-def]
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+from ..plotting import pyplot as _plt
+from ..plotting import save_figure
 
 
 def plot_errors(records: list[dict[str, Any]], path: str | Path) -> Path:
@@ -36,11 +28,7 @@ def plot_errors(records: list[dict[str, Any]], path: str | Path) -> Path:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    path = Path(path)
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=80, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=80)
 
 
 def plot_spheres(records: list[dict[str, Any]], path: str | Path, n: int = 4) -> Path:
@@ -68,8 +56,4 @@ def plot_spheres(records: list[dict[str, Any]], path: str | Path, n: int = 4) ->
         row[0].set_ylabel(r["name"], fontsize=8)
     fig.suptitle("Point-light spheres (direct evaluation of each BRDF)", fontsize=9)
     fig.tight_layout()
-    path = Path(path)
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=80, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=80)

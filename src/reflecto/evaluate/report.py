@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from ..io import atomic_path, atomic_write
 from ..model import MicrofacetBRDF
+from ..plotting import pyplot, save_figure
 from ..sources.base import BRDFSource
 
 Array = NDArray[np.float64]
@@ -62,21 +63,11 @@ def _save_png(fig_or_array: Any, path: Path) -> str:
         with atomic_path(path, suffix=".png") as tmp:
             iio.imwrite(tmp, fig_or_array)
     else:
-        import matplotlib.pyplot as plt
-
-        with atomic_path(path, suffix=".png") as tmp:
-            fig_or_array.savefig(tmp, dpi=90, format="png")
-        plt.close(fig_or_array)
+        save_figure(fig_or_array, path, dpi=90)
     return path.name
 
 
-def _mpl():  # type: ignore[no-untyped-def]
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+_mpl = pyplot
 
 
 def ndf_figures(model: MicrofacetBRDF, out: Path) -> list[tuple[str, str]]:

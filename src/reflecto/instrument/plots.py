@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike
 
 from .. import geometry
 from ..hemicube import hemicube
-from ..io import atomic_path
+from ..plotting import pyplot, save_figure
 from .layout import coverage_masks, led_angles
 from .optics import Optics
 
@@ -21,11 +21,7 @@ def plot_coverage(optics: Optics, leds: ArrayLike, path: str | Path, resolution:
     Half vectors are drawn in the orthographic projection ``(h_x, h_y)`` of the NDF
     hemisphere (the view down the normal); rings every 20° of θ_h.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     cube = hemicube(resolution)
     leds = geometry.normalize(np.atleast_2d(leds))
     masks = coverage_masks(optics, leds, cube)
@@ -68,8 +64,4 @@ def plot_coverage(optics: Optics, leds: ArrayLike, path: str | Path, resolution:
     fig.suptitle(f"Half-vector coverage, θ_h ≤ {theta_max_deg:g}° (★ LED directions, + optical axis; dark: uncovered)",
                  fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=90, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=90)

@@ -1,0 +1,27 @@
+"""Matplotlib helpers shared by the figure writers (headless backend, atomic PNG output)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from .io import atomic_path
+
+
+def pyplot() -> Any:
+    """``matplotlib.pyplot`` with the non-interactive Agg backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(fig: Any, path: str | Path, dpi: int = 90) -> Path:
+    """Write ``fig`` as PNG atomically (temporary name, then rename) and close it."""
+    path = Path(path)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
+    pyplot().close(fig)
+    return path
