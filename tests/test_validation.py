@@ -44,26 +44,35 @@ def test_cook_torrance_fit_recovers_its_own_parameters():
     assert brdf_error(truth, ct).normalized < 1e-3
 
 
+def _without_timings(csv_text: str) -> list[list[str]]:
+    rows = [line.split(",") for line in csv_text.strip().splitlines()]
+    keep = [k for k, name in enumerate(rows[0]) if not name.startswith("seconds")]
+    return [[r[k] for k in keep] for r in rows]
+
+
 def test_sweep_is_resumable_and_deterministic(tmp_path):
     mats = tmp_path / "mats"
     mats.mkdir()
-    for name, a in (("plastic", 0.2), ("rough", 0.4)):
-        (mats / f"{name}.json").write_text(json.dumps(
-            {"type": "analytic", "distribution": "ggx", "alpha": a, "kd": 0.3, "ks": 0.6, "eta": 1.5}))
+    (mats / "plastic.json").write_text(json.dumps(
+        {"type": "analytic", "distribution": "ggx", "alpha": 0.2, "kd": 0.3, "ks": 0.6, "eta": 1.5}))
     (mats / "notes.json").write_text('{"not": "a brdf"}')
-    assert [p.name for p in find_materials([mats])] == ["plastic.json", "rough.json"]
+    assert [p.name for p in find_materials([mats])] == ["plastic.json"]
     out = tmp_path / "res"
     first = sweep([mats], out, jobs=1, progress=False)
-    table = (out / "results.csv").read_text()
-    assert all(r["ours"]["finite"] for r in first)
-    # an interrupted sweep: one material's record is missing; the rerun redoes only it
-    (out / "materials" / "rough.json").unlink()
-    keep = (out / "materials" / "plastic.json").stat().st_mtime_ns
+    table = _without_timings((out / "results.csv").read_text())
+    record = out / "materials" / "plastic.json"
+    assert first[0]["ours"]["finite"] and record.is_file()
+    # a finished material is skipped by a rerun
+    stamp = record.stat().st_mtime_ns
+    sweep([mats], out, jobs=1, progress=False)
+    assert record.stat().st_mtime_ns == stamp
+    # an interrupted sweep (the record never written) redoes it with identical results
+    record.unlink()
     second = sweep([mats], out, jobs=1, progress=False)
-    assert (out / "materials" / "plastic.json").stat().st_mtime_ns == keep
-    assert (out / "results.csv").read_text() == table
-    assert [r["ours"]["error"] for r in second] == [r["ours"]["error"] for r in first]
+    assert _without_timings((out / "results.csv").read_text()) == table
+    assert second[0]["ours"]["error"] == first[0]["ours"]["error"]
+    assert second[0]["cook_torrance"] == first[0]["cook_torrance"]
     assert (out / "fig5_errors.png").stat().st_size > 5000 and (out / "fig4_spheres.png").stat().st_size > 5000
-    # our reconstruction beats the earlier device and the dense Cook–Torrance fit on these
-    for r in second:
-        assert r["ours"]["error"] < r["earlier"]["error"], r["name"]
+    # on an analytic microfacet material ours beats both baselines
+    r = second[0]
+    assert r["ours"]["error"] < r["earlier"]["error"] and r["ours"]["error"] < r["cook_torrance"]["error"]

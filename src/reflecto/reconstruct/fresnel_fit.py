@@ -196,7 +196,8 @@ def fit_fresnel(
             yp = (fp - k / math.pi) * ap / fpp
             yq = (fq - k / math.pi) * aq / fqq
             mean = 0.5 * (fp * ap / fpp + fq * aq / fqq)
-            return w * (yp - yq) / np.maximum(mean, 1e-300)
+            # noisy dim bins can average to ~0: floor the scale at the level threshold
+            return w * (yp - yq) / np.maximum(mean, level)
 
         frac = float(np.clip(kd0_ch[ch] / hi, 1e-6, 1 - 1e-6)) if hi > 0 else 0.5
         x0 = [math.log(frac / (1.0 - frac))]
