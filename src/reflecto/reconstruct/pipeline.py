@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import geometry
+from ..errors import ReflectoError
 from ..fresnel import fresnel
 from ..hemicube import hemicube
 from ..model import MicrofacetBRDF
@@ -76,8 +77,17 @@ class Options:
         default because it costs a first reconstruction and ≈ 150 distance evaluations.
     fixed_eta
         Use this η instead of fitting it (for layouts whose overlaps miss the lobe).
+    max_tilt_deg
+        Largest tilt searched by the normal estimate (degrees).
     outer_iterations, inner_iterations
-        Fresnel and NDF/shadowing loops (paper: ≤ 5 and ≤ 6).
+        Fresnel and NDF/shadowing loops (paper: ≤ 5 and ≤ 6; 3 and 2 converge here).
+    detect_shake
+        Flag captures whose E(η) exceeds :data:`SHAKE_THRESHOLD` (§5.1).
+    azimuthal_min
+        Apply the azimuthal-minimum constraint of Wang et al. 2008 to S (§5.2). Off by
+        default: it is exact for isotropic NDFs and biases S for anisotropic ones.
+    energy_clamp
+        Scale k_d, k_s down when the directional albedo exceeds 1.
     """
 
     resolution: int = 512
@@ -125,7 +135,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     n_leds = slices.n_leds
     valid = slices.valid & np.all(np.isfinite(slices.values), axis=-1)
     if valid.sum() < 100:
-        raise ValueError("fewer than 100 valid samples in the capture")
+        raise ReflectoError("capture: fewer than 100 valid samples (saturated, dark or outside the view cone)")
     # §5.4 altered normal: a first reconstruction in the device frame gives S; the
     # normal minimises the consistency distance; then everything runs in its frame
     frame = np.eye(3)
