@@ -25,7 +25,7 @@ $(STAMP): pyproject.toml
 # - Chromium runs the HTML report's browser test (skipped without it).
 APT_INSTALL = DEBIAN_FRONTEND=noninteractive apt-get install -y -qq
 sysdeps:
-	@if ls /usr/lib/*/libLLVM-1[6-9]*.so* /usr/lib/*/libLLVM-2[0-9]*.so* >/dev/null 2>&1; then \
+	@if ls /usr/lib/*/libLLVM-1[6-9]*.so* >/dev/null 2>&1 || ls /usr/lib/*/libLLVM-2[0-9]*.so* >/dev/null 2>&1; then \
 	  echo "LLVM >= 16 found"; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	  echo "installing libllvm19 (optional, for Mitsuba llvm_ad_rgb)"; \
