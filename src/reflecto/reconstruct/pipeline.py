@@ -119,7 +119,7 @@ def auto_work_resolution(bins: Any) -> int:
     top = int(bins.led[int(np.argmax(g))])
     mine = g[bins.led == top]
     n_half = int(np.count_nonzero(mine > 0.5 * mine.max()))
-    return 512 if n_half < 12 else 256 if n_half < 48 else 128
+    return 512 if n_half < 12 else 256 if n_half < 24 else 128
 
 
 def _sigma_work(cube: Any, d: Array, azimuthal_min: bool):
