@@ -20,6 +20,12 @@ def _progress(total: int, desc: str, enabled: bool):  # type: ignore[no-untyped-
     return tqdm(total=total, desc=desc, unit="bin", unit_scale=True, disable=not enabled, leave=False)
 
 
+def _emit(args: argparse.Namespace, info: dict, lines: list[str]) -> int:
+    """Print ``info`` as JSON with ``--json``, else the human-readable ``lines``."""
+    print(json.dumps(info, indent=1) if args.json else "\n".join(lines))
+    return 0
+
+
 def cmd_info(args: argparse.Namespace) -> int:
     from .sources import load_source
 
@@ -35,18 +41,13 @@ def cmd_info(args: argparse.Namespace) -> int:
         "albedo": {f"{t:g}deg": [round(float(v), 5) for v in a] for t, a in zip(theta, alb)},
         "albedo_range": [round(float(alb.min()), 5), round(float(alb.max()), 5)],
     }
-    if args.json:
-        print(json.dumps(info, indent=2))
-        return 0
-    print(f"{info['file']}")
-    print(f"  kind        {info['kind']}  (isotropic: {info['isotropic']}, reciprocal: {info['reciprocal']})")
-    for k, v in info["parameters"].items():
-        print(f"  {k:<11} {v}")
-    print("  directional albedo (RGB) at θ_i:")
-    for k, v in info["albedo"].items():
-        print(f"    {k:>6}  {v[0]:.4f} {v[1]:.4f} {v[2]:.4f}")
-    print(f"  albedo range [{info['albedo_range'][0]:.4f}, {info['albedo_range'][1]:.4f}]")
-    return 0
+    lines = [str(info["file"]),
+             f"  kind        {info['kind']}  (isotropic: {info['isotropic']}, reciprocal: {info['reciprocal']})"]
+    lines += [f"  {k:<11} {v}" for k, v in info["parameters"].items()]
+    lines.append("  directional albedo (RGB) at θ_i:")
+    lines += [f"    {k:>6}  {v[0]:.4f} {v[1]:.4f} {v[2]:.4f}" for k, v in info["albedo"].items()]
+    lines.append(f"  albedo range [{info['albedo_range'][0]:.4f}, {info['albedo_range'][1]:.4f}]")
+    return _emit(args, info, lines)
 
 
 def cmd_tabulate(args: argparse.Namespace) -> int:
@@ -244,14 +245,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     ref, test = load_source(args.reference), load_source(args.test)
     err = brdf_error(ref, test)
-    if args.json:
-        print(json.dumps({"reference": str(args.reference), "test": str(args.test), **err.to_dict()}, indent=1))
-        return 0
-    print(f"{args.test} against {args.reference} (Ngan et al. eq. 10, MERL bins, θ ≤ 80°):")
-    print(f"  RMSE (R, G, B)      {err.rmse[0]:.5f} {err.rmse[1]:.5f} {err.rmse[2]:.5f} sr⁻¹")
-    print(f"  normalized error    {err.normalized:.5f}  (channel mean / max albedo {err.albedo_ref:.4f})")
-    print(f"  log-RMSE            {err.log_rmse:.5f}")
-    return 0
+    return _emit(args, {"reference": str(args.reference), "test": str(args.test), **err.to_dict()}, [
+        f"{args.test} against {args.reference} (Ngan et al. eq. 10, MERL bins, θ ≤ 80°):",
+        f"  RMSE (R, G, B)      {err.rmse[0]:.5f} {err.rmse[1]:.5f} {err.rmse[2]:.5f} sr⁻¹",
+        f"  normalized error    {err.normalized:.5f}  (channel mean / max albedo {err.albedo_ref:.4f})",
+        f"  log-RMSE            {err.log_rmse:.5f}"])
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -271,15 +269,12 @@ def cmd_fit_ct(args: argparse.Namespace) -> int:
     ct = fit_cook_torrance(src)
     err = brdf_error(src, ct)
     info = {"source": str(args.source), **ct.parameters(), "error_normalized": err.normalized, "log_rmse": err.log_rmse}
-    if args.json:
-        print(json.dumps(info, indent=1))
-        return 0
-    print(f"Cook–Torrance fit of {args.source} (Beckmann D, V-groove G, Schlick F; eq. 10 weights):")
-    print(f"  rho_d  {np.round(ct.rho_d, 5).tolist()}")
-    print(f"  rho_s  {np.round(ct.rho_s, 5).tolist()}")
-    print(f"  F0     {ct.f0:.4f}    m  {ct.m:.5f}")
-    print(f"  error  {err.normalized:.5f} (normalized), log-RMSE {err.log_rmse:.5f}")
-    return 0
+    return _emit(args, info, [
+        f"Cook–Torrance fit of {args.source} (Beckmann D, V-groove G, Schlick F; eq. 10 weights):",
+        f"  rho_d  {np.round(ct.rho_d, 5).tolist()}",
+        f"  rho_s  {np.round(ct.rho_s, 5).tolist()}",
+        f"  F0     {ct.f0:.4f}    m  {ct.m:.5f}",
+        f"  error  {err.normalized:.5f} (normalized), log-RMSE {err.log_rmse:.5f}"])
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:

@@ -37,7 +37,7 @@ def plot_spheres(records: list[dict[str, Any]], path: str | Path, n: int = 4) ->
     Shows the ``n`` materials where ours gains most over the earlier device (the
     paper's choice of illustrating the difference), with each error in the title.
     """
-    from ..render.mitsuba import _exposure_for, to_srgb8
+    from ..render.mitsuba import exposure_for, to_srgb8
 
     plt = _plt()
     recs = sorted(records, key=lambda r: r["ours"]["error"] / max(r["earlier"]["error"], 1e-300))[:n]
@@ -46,7 +46,7 @@ def plot_spheres(records: list[dict[str, Any]], path: str | Path, n: int = 4) ->
     fig, axes = plt.subplots(len(recs), len(cols), figsize=(2.2 * len(cols), 2.3 * len(recs)), squeeze=False)
     for row, r in zip(axes, recs):
         ref = np.asarray(r["renders"]["reference"])
-        exp = _exposure_for(ref)
+        exp = exposure_for(ref)
         for ax, (key, label, err_key) in zip(row, cols):
             ax.imshow(to_srgb8(np.asarray(r["renders"][key]), exp))
             ax.set_xticks([])

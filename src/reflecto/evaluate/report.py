@@ -67,12 +67,10 @@ def _save_png(fig_or_array: Any, path: Path) -> str:
     return path.name
 
 
-_mpl = pyplot
-
 
 def ndf_figures(model: MicrofacetBRDF, out: Path) -> list[tuple[str, str]]:
     """Unfolded hemicube and polar plot of the NDF; returns ``[(file, caption)]``."""
-    plt = _mpl()
+    plt = pyplot()
     cube = model.cube
     d = np.maximum(model.ndf_values, 1e-6 * model.ndf_values.max())
     fig, ax = plt.subplots(figsize=(5.2, 4.6))
@@ -100,7 +98,7 @@ def theta_h_theta_d_image(source: BRDFSource, out: Path, name: str = "thd.png", 
     """BRDF Explorer's θ_h–θ_d image at φ_d = 90° (luminance, log scale)."""
     from .. import geometry
 
-    plt = _mpl()
+    plt = pyplot()
     th = np.radians(np.linspace(0.25, 89.75, 180))
     td = np.radians(np.linspace(0.25, 89.75, 180))
     TH, TD = np.meshgrid(th, td, indexing="ij")
@@ -129,7 +127,7 @@ def slice_figure(capture_dir: Path, out: Path):  # type: ignore[no-untyped-def]
         return None
     cal = nominal_calibration(cap.device)
     sl = extract_slices(cap, cal)
-    plt = _mpl()
+    plt = pyplot()
     h, w = cal.optics.height, cal.optics.width
     fig, axes = plt.subplots(2, (sl.n_leds + 1) // 2, figsize=(3.2 * ((sl.n_leds + 1) // 2), 5.2))
     vals = np.where(sl.valid, sl.values @ LUM, np.nan)

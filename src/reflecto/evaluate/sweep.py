@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FileFormatError, ReflectoError
-from ..io import atomic_write
+from ..io import atomic_write, read_description
 
 MATERIAL_SUFFIXES = (".binary", ".bsdf", ".h5", ".json", ".toml")
 #: Resolution of the sphere renders kept per material (Fig. 4).
@@ -59,8 +59,6 @@ def find_materials(folders: Sequence[str | Path]) -> list[Path]:
                 if p.with_suffix(".h5").exists():
                     continue  # the Keras architecture of an NBRDF
                 try:
-                    from ..io import read_description
-
                     if read_description(p).get("type") != "analytic":
                         continue
                 except ReflectoError:

@@ -40,6 +40,8 @@ class Bins:
         Light, mean view and mean half vector (unit), shape ``(B, 3)``.
     f
         Mean BRDF value (sr⁻¹), shape ``(B, 3)``.
+    cos_d
+        ``c = i·h`` (cos θ_d), shape ``(B,)``.
     """
 
     cube: Hemicube
@@ -51,19 +53,15 @@ class Bins:
     o: Array
     h: Array
     f: Array
+    cos_d: Array
 
     def __len__(self) -> int:
         return len(self.led)
 
-    @property
-    def cos_d(self) -> Array:
-        """``c = i·h`` (cos θ_d), shape ``(B,)``."""
-        return np.clip(np.einsum("ij,ij->i", self.i, self.h), 0.0, 1.0)
-
     def select(self, mask: NDArray[np.bool_]) -> Bins:
         """The bins where ``mask`` holds."""
         return Bins(self.cube, self.led[mask], self.texel[mask], self.texel_tau[mask], self.count[mask],
-                    self.i[mask], self.o[mask], self.h[mask], self.f[mask])
+                    self.i[mask], self.o[mask], self.h[mask], self.f[mask], self.cos_d[mask])
 
 
 def bin_samples(light: Array, view: Array, values: Array, valid: NDArray[np.bool_], cube: Hemicube) -> Bins:
@@ -105,4 +103,5 @@ def bin_samples(light: Array, view: Array, values: Array, valid: NDArray[np.bool
     h_mean = geometry.normalize(i + o_mean)
     texel = (used % cube.size).astype(np.intp)
     tau = cube.permutation(geometry.TAU)
-    return Bins(cube, led, texel, tau[texel], cnt, i, o_mean, h_mean, f)
+    cos_d = np.clip(np.einsum("ij,ij->i", i, h_mean), 0.0, 1.0)
+    return Bins(cube, led, texel, tau[texel], cnt, i, o_mean, h_mean, f, cos_d)

@@ -177,7 +177,7 @@ def comparison_image(reference: Array, test: Array, labels: tuple[str, str] = ("
     return np.concatenate([to_srgb8(reference), gap, to_srgb8(test), gap, heat], axis=1)
 
 
-def _exposure_for(img: Array) -> float:
+def exposure_for(img: Array) -> float:
     """Exposure mapping the 99th luminance percentile to 0.9 (for previews)."""
     p = float(np.percentile(img @ np.array([0.2126, 0.7152, 0.0722]), 99))
     return 0.9 / p if p > 0 and math.isfinite(p) else 1.0
