@@ -123,3 +123,26 @@ def test_bad_inputs_clear_errors_and_no_output(tmp_path, capsys):
     assert "environment map" in capsys.readouterr().err
     assert not (tmp_path / "r.png").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.hdr", "m.reflecto", "newer.reflecto"]
+
+
+def test_rgl_export_of_a_reconstructed_metal(shared, tmp_path):
+    """A reconstructed NDF (noisy, near-zero tails) survives the export (issue 6, item 1).
+
+    Before the ndf table held the NDF itself and the tails were smoothed, the
+    95th percentile here was ≈ 37 %.
+    """
+    from reflecto.instrument.calibrate import nominal_calibration
+    from reflecto.instrument.device import Device
+    from reflecto.instrument.simulate import simulate_capture
+    from reflecto.instrument.slices import extract_slices
+    from reflecto.reconstruct.pipeline import reconstruct
+    from reflecto.sources import load_source
+
+    dev = Device.builtin("ideal")
+    src = load_source(shared / "rgl" / "ilm_l3_37_metallic_rgb.bsdf")
+    m = reconstruct(extract_slices(simulate_capture(src, dev, seed=1), nominal_calibration(dev))).model
+    r = RGLBRDF(export_rgl(m, tmp_path / "metal.bsdf"))
+    rng = np.random.default_rng(2026)
+    i, o = random_directions(rng, 50_000, 80), random_directions(rng, 50_000, 80)
+    rel = relative_difference(r.eval_cosine(i, o), m.eval(i, o) * o[:, 2:3])
+    assert np.median(rel) <= 0.01 and np.percentile(rel, 95) <= 0.05, (np.median(rel), np.percentile(rel, 95))

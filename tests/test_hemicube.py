@@ -120,3 +120,23 @@ def test_compiled_splat_matches_bincount(rng):
         ws0, wv0 = c.splat_numpy(d, vals, w)
         np.testing.assert_allclose(ws, ws0, rtol=1e-12)
         np.testing.assert_allclose(wv, wv0, rtol=1e-12)
+
+
+def test_smooth_keeps_constants_and_smooth_functions_and_is_continuous_across_seams():
+    c = hemicube(64)
+    assert np.allclose(c.smooth(np.ones(c.size), 4), 1.0, atol=1e-12)
+    # a smooth function moves by about σ²/2·∇² (tiny); a texel-scale checkerboard vanishes
+    d = c.directions
+    f = np.exp(-((d[:, 0] - 0.3) ** 2 + (d[:, 1] + 0.2) ** 2) / 0.5)
+    assert np.abs(c.smooth(f, 2) - f).max() < 5e-3
+    top = c.face_values(np.arange(c.size), 0)
+    checker = np.zeros(c.size)
+    checker[top[::2, ::2].ravel()] = 1.0
+    checker[top[1::2, 1::2].ravel()] = 1.0
+    inner = c.face_values(c.smooth(checker, 1), 0)[2:-2, 2:-2]
+    assert np.allclose(inner, 0.5)
+    # a spike on the top face's +X edge spreads onto the +X side face
+    spike = np.zeros(c.size)
+    spike[c.index(np.array([1.0, 0.0, 1.0]) / np.sqrt(2))] = 1.0
+    side = c.smooth(spike, 1)[c.offsets[1]:c.offsets[2]]
+    assert side.max() > 0.05

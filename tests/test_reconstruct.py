@@ -69,3 +69,20 @@ def test_tilted_capture_normal_recovered_within_half_a_degree():
     err = np.degrees(np.arccos(min(1.0, float(np.dot(res.summary["normal"], true_n)))))
     assert err < 0.5, err
     assert abs(res.summary["normal_tilt_deg"] - 8.0) < 0.5
+
+
+def test_smooth_tails_keeps_the_peak_and_removes_tail_noise():
+    from reflecto.hemicube import hemicube
+    from reflecto.reconstruct.ndf import TAIL_KEEP, smooth_tails
+    from reflecto.sources.analytic import AnalyticBRDF
+
+    cube = hemicube(512)
+    d = AnalyticBRDF(distribution="ggx", alpha=0.1, kd=0.0, ks=1.0, eta=1.5).ndf(cube.directions)
+    noisy = d * np.random.default_rng(0).uniform(0.5, 1.5, cube.size)
+    out = smooth_tails(cube, noisy)
+    peak = noisy >= TAIL_KEEP * noisy.max()
+    assert np.array_equal(out[peak], noisy[peak])
+    tail = (d < 1e-3 * d.max()) & (d > 1e-5 * d.max()) & (cube.cos_theta > 0.3)
+    before = np.std(noisy[tail] / d[tail])
+    after = np.std(out[tail] / d[tail])
+    assert after < 0.4 * before, (before, after)

@@ -330,6 +330,26 @@ class Hemicube:
         return wsum, wvsum
 
 
+    def smooth(self, values: ArrayLike, passes: int = 1) -> Array:
+        """Binomial ``[1 2 1]ᵀ[1 2 1]/16`` filter applied ``passes`` times, face by face.
+
+        The faces are padded from their neighbours (:meth:`pad`), so the filter runs
+        across seams; ``passes`` filters have a standard deviation of ``√(passes/2)``
+        texels. ``values``: shape ``(size,)``.
+        """
+        v = np.asarray(values, dtype=np.float64)
+        for _ in range(passes):
+            padded = self.pad(v)
+            out = np.empty_like(v)
+            for face in range(5):
+                rows, cols = self.face_shape(face)
+                start = self._pad_offsets[face]
+                a = padded[start : start + (rows + 2) * (cols + 2)].reshape(rows + 2, cols + 2)
+                h = a[:, :-2] + 2.0 * a[:, 1:-1] + a[:, 2:]
+                out[self.offsets[face] : self.offsets[face] + rows * cols] = ((h[:-2] + 2.0 * h[1:-1] + h[2:]) / 16.0).ravel()
+            v = out
+        return v
+
     # -------------------------------------------------------------- resampling
     def _block_reduce(self, values: Array, factor: int) -> Array:
         """Sum over ``factor × factor`` texel blocks, face by face."""

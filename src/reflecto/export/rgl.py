@@ -7,18 +7,18 @@ The format stores, per incident direction ``(φ_i, θ_i)`` on a grid, a 2-D tabl
     s   = VNDF⁻¹(u_m; φ_i, θ_i)                  inverse of the vndf warp
     f·cos θ_o = rgb(s; φ_i, θ_i) · ndf(u_m) / (4 σ(u_wi))
 
-Only this product has to equal the BRDF; the ``ndf``/``sigma``/``vndf`` tables are a
-parameterization. We build them from a *proxy* NDF ``D' = D + c``: the source's own
-NDF (a reflecto model) or, for any other source, the NDF estimated from its
-back-scattering ``f(m, m) cos²θ_m`` (Dupuy & Jakob's estimate), *tempered*
-(raised to the power :data:`TEMPER`, so its tails are heavier), plus a floor ``c``
-that matches the diffuse level so that the tails get table resolution and
-``rgb = f cos θ_o · 4σ'/D'`` varies slowly across the lobe's edge. ``vndf`` is the
-visible-normal density of ``D'`` in unit coordinates (``∝ D' ⟨ω_i·m⟩ u₀ sin θ_m``),
-``sigma`` its projected area; ``rgb`` is evaluated at the forward-warped nodes of a
-regular ``s`` grid with the exact ``ndf``/``sigma`` values Mitsuba will interpolate,
-so the file reproduces the source exactly at every node; ``luminance`` (Mitsuba's
-first sampling stage) is the luminance of ``rgb``.
+Only this product has to equal the BRDF; the tables are a parameterization. ``ndf``
+holds the source's NDF itself, ``D + c`` (a reflecto model's NDF or, for any other
+source, the estimate from its back-scattering ``f(m, m) cos²θ_m``, Dupuy & Jakob's),
+with a floor ``c`` where the diffuse level meets the specular one; so the NDF's detail
+sits in a table Mitsuba looks up directly and ``rgb = f cos θ_o · 4σ/D`` varies slowly.
+``sigma`` is that NDF's projected area. The ``vndf`` warp, which only places the rgb
+nodes (and drives sampling), is built from a *tempered* NDF (raised to the power
+:data:`TEMPER`, heavier tails, floored) so that the tails of a sharp lobe keep nodes;
+``vndf ∝ D' ⟨ω_i·m⟩ u₀ sin θ_m`` in unit coordinates. ``rgb`` is evaluated at the
+forward-warped nodes of a regular ``s`` grid with the exact ``ndf``/``sigma`` values
+Mitsuba will interpolate, so the file reproduces the source exactly at every node;
+``luminance`` (Mitsuba's first sampling stage) is the luminance of ``rgb``.
 
 Isotropic sources are written with one ``φ_i`` (relative ``φ_m``), anisotropic
 ones with ``φ_i`` over ``[−π, π]`` and absolute ``φ_m``.
@@ -41,9 +41,9 @@ from ..sources.rgl import MAGIC, Marginal2D
 
 Array = NDArray[np.float64]
 LUM = np.array([0.2126, 0.7152, 0.0722])
-#: The proxy NDF is the source's NDF raised to this power (then normalized): heavier
+#: The vndf warp uses the source's NDF raised to this power (then normalized): heavier
 #: tails than D itself, so that the warped domain keeps resolution where f is small but
-#: not zero, while ``rgb ∝ D^(1−TEMPER)`` still decays smoothly (see the module docstring).
+#: not zero (see the module docstring).
 TEMPER = 0.65
 _CODES = {np.dtype("u1"): 1, np.dtype("<u4"): 5, np.dtype("<f4"): 10}
 
@@ -109,7 +109,7 @@ def proxy_ndf(source: BRDFSource) -> tuple[callable, bool]:
 
     if isinstance(source, MicrofacetBRDF):
         def d_fn(m: Array) -> Array:
-            return source.ndf(m) ** TEMPER
+            return source.ndf(m)
     else:
         def d_fn(m: Array) -> Array:
             flat = m.reshape(-1, 3)
@@ -117,7 +117,7 @@ def proxy_ndf(source: BRDFSource) -> tuple[callable, bool]:
             k[:, 2] = np.maximum(k[:, 2], 1e-3)
             k /= np.linalg.norm(k, axis=1, keepdims=True)
             v = np.maximum(source.eval(k, k) @ LUM, 0.0) * k[:, 2] ** 2
-            return v.reshape(m.shape[:-1]) ** TEMPER
+            return v.reshape(m.shape[:-1])
     return d_fn, bool(getattr(source, "isotropic", False)) or _looks_isotropic(d_fn)
 
 
@@ -133,41 +133,31 @@ def _looks_isotropic(d_fn, tol: float = 0.02) -> bool:
 def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | None = None,
                description: str | None = None) -> dict[str, np.ndarray]:
     """The fields of an RGL ``.bsdf`` file reproducing ``source`` (see the module docstring)."""
-    d_fn, iso_guess = proxy_ndf(source)
+    d_raw, iso_guess = proxy_ndf(source)
     iso = iso_guess if isotropic is None else bool(isotropic)
     n_phi_ndf, n_th_ndf = (2, grid.ndf[1]) if iso else grid.ndf
     u0 = np.linspace(0.0, 1.0, n_th_ndf)
     u1 = np.linspace(0.0, 1.0, n_phi_ndf)
-    # proxy NDF on a fine quadrature, ring-averaged for isotropic files
     qu = (np.arange(256) + 0.5) / 256
     qphi = (np.arange(128) + 0.5) / 128
-    dq = d_fn(_unit_dirs(qu[None, :], qphi[:, None]))  # (φ, θ)
-    if iso:
-        dq = np.repeat(dq.mean(axis=0, keepdims=True), len(qphi), axis=0)
+    mq = _unit_dirs(qu[None, :], qphi[:, None])
     th_q = 0.5 * math.pi * qu * qu
     w_q = (np.sin(th_q) * math.pi * qu / 256)[None, :] * (2 * math.pi / 128)  # dω per node
     cos_q = np.cos(th_q)[None, :]
-    norm = float(np.sum(dq * cos_q * w_q))
-    if not (norm > 0 and np.isfinite(norm)):
-        raise ValueError(f"{source.name}: no positive NDF or back-scattering to build the tables from")
-    floor = _floor(source, dq / norm, norm)
-    dq = dq / norm + floor
-    dq /= float(np.sum(dq * cos_q * w_q))
-    scale = 1.0 / norm
-    scale2 = 1.0 / (1.0 + floor * float(np.sum(cos_q * w_q)))
-
-    def d_prime(m: Array) -> Array:
-        d = d_fn(m) * scale if not iso else _ring(d_fn, m) * scale
-        return (np.maximum(d, 0.0) + floor) * scale2
-
-    ndf_tab = d_prime(_unit_dirs(u0[None, :], u1[:, None]))  # (φ rows, θ cols)
-    # σ'(k) = ∫ D'(m) ⟨k·m⟩ dω_m on the quadrature, at the sigma table's nodes
-    mq = _unit_dirs(qu[None, :], qphi[:, None]).reshape(-1, 3)
-    wq = (dq * w_q).ravel()
+    # the ndf table is the NDF itself (so that rgb = f cos·4σ/D carries no NDF detail);
+    # the warp that places the rgb nodes uses the tempered NDF (heavier tails)
+    d_exact = _floored(source, d_raw, 1.0, iso, mq, w_q, cos_q, min_floor=1e-9)
+    d_warp = _floored(source, d_raw, TEMPER, iso, mq, w_q, cos_q, min_floor=1e-6)
+    ndf_tab = d_exact(_unit_dirs(u0[None, :], u1[:, None]))  # (φ rows, θ cols)
+    warp_tab = d_warp(_unit_dirs(u0[None, :], u1[:, None]))
+    # σ(k) = ∫ D(m) ⟨k·m⟩ dω_m on the quadrature, at the sigma table's nodes
+    wq = (d_exact(mq) * w_q).ravel()
+    mq = mq.reshape(-1, 3)
     n_phi_sig, n_th_sig = (2, grid.sigma[1]) if iso else grid.sigma
     ks = _unit_dirs(np.linspace(0.0, 1.0, n_th_sig)[None, :], np.linspace(0.0, 1.0, n_phi_sig)[:, None])
     sig_tab = np.concatenate([np.maximum(blk @ mq.T, 0.0) @ wq for blk in np.array_split(ks.reshape(-1, 3), 16)])
     sig_tab = sig_tab.reshape(ks.shape[:-1])
+    warp_m = Marginal2D(warp_tab[None, None], np.zeros(1), np.zeros(1), build_cdf=False)
     ndf_m = Marginal2D(ndf_tab[None, None], np.zeros(1), np.zeros(1), build_cdf=False)
     sig_m = Marginal2D(sig_tab[None, None], np.zeros(1), np.zeros(1), build_cdf=False)
 
@@ -186,7 +176,7 @@ def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | 
             wi = np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])
             offset = ph if iso else 0.0
             m = _unit_dirs(vu0[None, :], vu1[:, None], offset)
-            v = ndf_m.eval(np.stack(np.broadcast_arrays(vu0[None, :], vu1[:, None]), -1), np.zeros(1), np.zeros(1))
+            v = warp_m.eval(np.stack(np.broadcast_arrays(vu0[None, :], vu1[:, None]), -1), np.zeros(1), np.zeros(1))
             v = v * np.maximum(m @ wi, 0.0) * vu0[None, :] * np.sin(0.5 * math.pi * vu0 * vu0)[None, :]
             v = np.maximum(v, 1e-7 * max(float(v.max()), 1e-300))
             v /= v.sum()
@@ -238,7 +228,27 @@ def _ring(d_fn, m: Array) -> Array:
     return np.interp(u, np.linspace(0, 1, 257), ring)
 
 
-def _floor(source: BRDFSource, d_norm: Array, norm: float) -> float:
+def _floored(source: BRDFSource, d_raw, power: float, iso: bool, mq: Array, w_q: Array, cos_q: Array,
+             min_floor: float):
+    """``m ↦ (D^power/norm + c)/norm'``: normalized (``∫ D cos = 1``), floored by :func:`_floor`, ring-averaged if ``iso``."""
+    def d_fn(m: Array) -> Array:
+        d = np.maximum(d_raw(m), 0.0)
+        return d if power == 1.0 else d ** power
+
+    dq = _ring(d_fn, mq) if iso else d_fn(mq)
+    norm = float(np.sum(dq * cos_q * w_q))
+    if not (norm > 0 and np.isfinite(norm)):
+        raise ValueError(f"{source.name}: no positive NDF or back-scattering to build the tables from")
+    floor = _floor(source, dq / norm, min_floor)
+    scale2 = 1.0 / (1.0 + floor * float(np.sum(cos_q * w_q)))
+
+    def out(m: Array) -> Array:
+        d = _ring(d_fn, m) if iso else d_fn(m)
+        return (d / norm + floor) * scale2
+    return out
+
+
+def _floor(source: BRDFSource, d_norm: Array, min_floor: float) -> float:
     """NDF floor ``c`` at which the diffuse level meets the specular one (see module docstring)."""
     peak = float(d_norm.max())
     kd = getattr(source, "kd", None)
@@ -250,7 +260,7 @@ def _floor(source: BRDFSource, d_norm: Array, norm: float) -> float:
         c = 4.0 * kdl * 0.5 / (math.pi * max(ksl * f0, 1e-6))
     else:
         c = 0.0
-    return float(np.clip(c, 1e-6 * peak, 10.0 * peak)) if peak > 0 else 1.0
+    return float(np.clip(c, min_floor * peak, 10.0 * peak)) if peak > 0 else 1.0
 
 
 def export_rgl(source: BRDFSource, path: str | Path, grid: RGLGrid = RGLGrid(), isotropic: bool | None = None) -> Path:

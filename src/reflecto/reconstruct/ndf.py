@@ -9,12 +9,14 @@ Binned samples (:mod:`.samples`) are merged into a hemicube at a working resolut
 (each texel the W-weighted mean of the bins that fall in it, eq. 9 with
 ``W = √(o_h·n)`` per pixel); completion by eq. 3 adds every bin a second time at ``τh``; texels that no
 sample reaches are filled by push–pull (normalized convolution over the texel
-pyramid), then the table is resampled bilinearly to the output resolution.
+pyramid); below the peak the table is smoothed (:func:`smooth_tails`), then
+resampled bilinearly to the output resolution.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 from numpy.typing import NDArray
@@ -90,6 +92,37 @@ def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-
         up = coarse[k + 1].lookup(est, coarse[k].directions)
         est = np.where(w_fine > min_weight, v_fine / np.maximum(w_fine, min_weight), up)
     return est
+
+
+#: :func:`smooth_tails` keeps texels at or above this fraction of the peak unchanged …
+TAIL_KEEP = 10.0 ** -0.5
+#: … and replaces those at or below this fraction by the smoothed table (log-linear blend between).
+TAIL_FULL = 1e-3
+#: Angular width of the tail smoothing: binomial passes at N = 512 (σ = 2 texels ≈ 0.45°).
+TAIL_PASSES_512 = 8
+
+
+def smooth_tails(cube: Hemicube, d: Array, passes: int | None = None) -> Array:
+    """Smooth the NDF where it is weak, keep the peak.
+
+    Away from the peak a texel's value rests on few, dim pixels from one or two LEDs,
+    and neighbouring texels disagree by more than the NDF varies: texel-scale noise
+    that no renderer's table can follow (issue 6) and that no real surface has. So
+    ``D' = w D + (1 − w) (B * D)`` with ``B`` a binomial filter of σ ≈ 0.45°
+    (:data:`TAIL_PASSES_512` passes at N = 512, scaled by ``(N/512)²``, none at
+    N = 128, where the texels are wider than that) and ``w`` going from 0 at
+    :data:`TAIL_FULL` of the peak to 1 at :data:`TAIL_KEEP` of it, linearly in
+    ``log D``. On the shared materials this leaves the eq. 10 error unchanged
+    (±1 %) and makes exports to RGL ``.bsdf`` follow the model.
+    """
+    if passes is None:
+        passes = int(TAIL_PASSES_512 * (cube.n / 512) ** 2)
+    peak = float(d.max()) if d.size else 0.0
+    if passes <= 0 or not peak > 0:
+        return d
+    lo, hi = math.log10(TAIL_FULL), math.log10(TAIL_KEEP)
+    w = np.clip((np.log10(np.maximum(d, 1e-300) / peak) - lo) / (hi - lo), 0.0, 1.0)
+    return w * d + (1.0 - w) * cube.smooth(d, passes)
 
 
 def resample(src: Hemicube, values: Array, dst: Hemicube) -> Array:

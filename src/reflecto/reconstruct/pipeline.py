@@ -11,6 +11,7 @@
             completed by symmetry (eq. 3)                     ndf.py
             S from the NDF (eq. 8)                            shadowing.py
             k_s per channel (linear least squares)
+    smooth the NDF's weak tails (ndf.smooth_tails)
     resample the NDF to the output hemicube (512² top, 512×256 sides)
 
 Colour: one NDF shared by R, G, B (built from the luminance-weighted per-channel
@@ -218,6 +219,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             ks = np.maximum(np.array([np.sum(wb * d_b * dh[use, ch]) for ch in range(3)]) / max(den, 1e-300), 0.0)
         history.append({"eta": eta.tolist(), "E": fit.error, "kd": kd.tolist(), "ks": ks.tolist()})
     out_cube = hemicube(opt.resolution)
+    d_work = ndf_mod.smooth_tails(work, d_work)
     d_out = np.maximum(ndf_mod.resample(work, d_work, out_cube), 0.0)
     model = MicrofacetBRDF(d_out, kd, ks, eta)
     # residual of the final model on the used bins (relative, luminance)
