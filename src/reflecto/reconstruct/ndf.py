@@ -108,12 +108,15 @@ def smooth_tails(cube: Hemicube, d: Array, passes: int | None = None) -> Array:
     Away from the peak a texel's value rests on few, dim pixels from one or two LEDs,
     and neighbouring texels disagree by more than the NDF varies: texel-scale noise
     that no renderer's table can follow (issue 6) and that no real surface has. So
-    ``D' = w D + (1 − w) (B * D)`` with ``B`` a binomial filter of σ ≈ 0.45°
-    (:data:`TAIL_PASSES_512` passes at N = 512, scaled by ``(N/512)²``, none at
-    N = 128, where the texels are wider than that) and ``w`` going from 0 at
+    ``log D' = w log D + (1 − w) B * log D`` with ``B`` a binomial filter of
+    σ ≈ 0.45° (:data:`TAIL_PASSES_512` passes at N = 512, scaled by ``(N/512)²``,
+    none at N = 128, where the texels are wider than that) and ``w`` going from 0 at
     :data:`TAIL_FULL` of the peak to 1 at :data:`TAIL_KEEP` of it, linearly in
-    ``log D``. On the shared materials this leaves the eq. 10 error unchanged
-    (±1 %) and makes exports to RGL ``.bsdf`` follow the model.
+    ``log D``. Filtering ``log D`` (a geometric mean) leaves fast-falling tails
+    nearly unbiased: a linear filter raised a Beckmann α = 0.05 tail by 6 % at 5°,
+    this one by 1 %. On the analytic grid the NDF error does not grow (Beckmann
+    α = 0.05: 2.5 → 1.9 %); on the shared materials the eq. 10 error moves by
+    −3 % to +2 %, and exports to RGL ``.bsdf`` follow the model.
     """
     if passes is None:
         passes = int(TAIL_PASSES_512 * (cube.n / 512) ** 2)
@@ -121,8 +124,9 @@ def smooth_tails(cube: Hemicube, d: Array, passes: int | None = None) -> Array:
     if passes <= 0 or not peak > 0:
         return d
     lo, hi = math.log10(TAIL_FULL), math.log10(TAIL_KEEP)
-    w = np.clip((np.log10(np.maximum(d, 1e-300) / peak) - lo) / (hi - lo), 0.0, 1.0)
-    return w * d + (1.0 - w) * cube.smooth(d, passes)
+    log_d = np.log(np.maximum(d, 1e-12 * peak))
+    w = np.clip((log_d / math.log(10.0) - math.log10(peak) - lo) / (hi - lo), 0.0, 1.0)
+    return np.where(w >= 1.0, d, np.exp(w * log_d + (1.0 - w) * cube.smooth(log_d, passes)))
 
 
 def resample(src: Hemicube, values: Array, dst: Hemicube) -> Array:
