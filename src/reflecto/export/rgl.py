@@ -53,14 +53,15 @@ class RGLGrid:
     """Table resolutions of an exported file.
 
     ``n_theta_i``/``n_phi_i``: incident grid (``n_phi_i`` only for anisotropic files);
-    ``ndf``, ``sigma``: (φ rows, θ columns) of those tables (the ndf table is fine, so
-    that reconstructed NDFs with texel-scale detail stay representable); ``vndf``: (rows, cols)
+    ``ndf``, ``sigma``: (φ rows, θ columns) of those tables (the ndf table is fine,
+    0.35° in φ and ≤ 0.35° in θ, so that reconstructed NDFs stay representable: with
+    256 φ rows the deep tails of reconstructed metals missed p95 ≤ 5 %); ``vndf``: (rows, cols)
     of each vndf slice; ``rgb``: side of the square rgb/luminance slices.
     """
 
     n_theta_i: int = 24
     n_phi_i: int = 49
-    ndf: tuple[int, int] = (256, 512)
+    ndf: tuple[int, int] = (1024, 512)
     sigma: tuple[int, int] = (64, 128)
     vndf: tuple[int, int] = (128, 128)
     vndf_anisotropic: tuple[int, int] = (64, 64)

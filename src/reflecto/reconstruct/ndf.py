@@ -98,6 +98,8 @@ def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-
 TAIL_KEEP = 10.0 ** -0.5
 #: … and replaces those at or below this fraction by the smoothed table (log-linear blend between).
 TAIL_FULL = 1e-3
+#: Below this fraction of the peak the tail takes the wide (128-texel scale, σ ≈ 1.3°) filter.
+DEEP_FULL = 1e-5
 #: Angular width of the tail smoothing: binomial passes at N = 512 (σ = 2 texels ≈ 0.45°).
 TAIL_PASSES_512 = 8
 
@@ -123,10 +125,21 @@ def smooth_tails(cube: Hemicube, d: Array, passes: int | None = None) -> Array:
     peak = float(d.max()) if d.size else 0.0
     if passes <= 0 or not peak > 0:
         return d
-    lo, hi = math.log10(TAIL_FULL), math.log10(TAIL_KEEP)
     log_d = np.log(np.maximum(d, 1e-12 * peak))
-    w = np.clip((log_d / math.log(10.0) - math.log10(peak) - lo) / (hi - lo), 0.0, 1.0)
-    return np.where(w >= 1.0, d, np.exp(w * log_d + (1.0 - w) * cube.smooth(log_d, passes)))
+    level = log_d / math.log(10.0) - math.log10(peak)  # log10(D / peak)
+    narrow = cube.smooth(log_d, passes)
+    # deep tails (≲ 10⁻⁴ of the peak, a few photons per pixel): the 128-texel scale
+    coarse, low = cube.downsample(log_d, cube.n // 128)
+    wide = coarse.lookup(coarse.smooth(low, 2), cube.directions)
+    w2 = _ramp(level, math.log10(DEEP_FULL), math.log10(TAIL_FULL))
+    smoothed = w2 * narrow + (1.0 - w2) * wide
+    w = _ramp(level, math.log10(TAIL_FULL), math.log10(TAIL_KEEP))
+    return np.where(w >= 1.0, d, np.exp(w * log_d + (1.0 - w) * smoothed))
+
+
+def _ramp(x: Array, lo: float, hi: float) -> Array:
+    """0 below ``lo``, 1 above ``hi``, linear between."""
+    return np.clip((x - lo) / (hi - lo), 0.0, 1.0)
 
 
 def resample(src: Hemicube, values: Array, dst: Hemicube) -> Array:
