@@ -29,3 +29,18 @@ def test_table_matches_formula():
     c = np.linspace(0, 1, 50001)
     for eta in (1.05, 1.5, 4.0, 50.0, 100.0):
         assert np.abs(FresnelTable([eta])(c)[:, 0] - fresnel(c, eta)).max() < 1e-5
+
+
+def test_compiled_pair_residuals_match_numpy():
+    from reflecto import _kernels
+    from reflecto.reconstruct.fresnel_fit import pair_residuals_numpy
+
+    rng = np.random.default_rng(4)
+    n = 5000
+    cp, cq = rng.uniform(0, 1, n), rng.uniform(0, 1, n)
+    fp, fq = rng.uniform(0, 3, n), rng.uniform(0, 3, n)
+    ap, aq, w = rng.uniform(0, 1, n), rng.uniform(0, 1, n), rng.uniform(0, 1, n)
+    for eta, kd in [(1.5, 0.2), (0.8, 0.0), (20.0, 0.5)]:
+        out = np.empty(n)
+        _kernels.pair_residuals(cp, cq, fp, fq, ap, aq, w, eta, kd / np.pi, 1e-3, out)
+        assert np.allclose(out, pair_residuals_numpy(cp, cq, fp, fq, ap, aq, w, eta, kd, 1e-3), rtol=1e-12, atol=1e-15)

@@ -140,3 +140,11 @@ def test_smooth_keeps_constants_and_smooth_functions_and_is_continuous_across_se
     spike[c.index(np.array([1.0, 0.0, 1.0]) / np.sqrt(2))] = 1.0
     side = c.smooth(spike, 1)[c.offsets[1]:c.offsets[2]]
     assert side.max() > 0.05
+
+
+def test_compiled_index_matches_numpy(rng):
+    c = hemicube(64)
+    d = random_directions(rng, 20_000)
+    d = np.concatenate([d, c.directions, [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.3, -0.3, -0.1]]])
+    assert np.array_equal(c.index(d), c.index_numpy(d))
+    assert np.array_equal(c.index(3.0 * d), c.index(d))  # scale-free: only ratios enter

@@ -171,6 +171,37 @@ def model_eval(i, o, padded, pad_offsets, n, sig_flat, nt, nphi, ftable, kd, ks,
             out[k, ch] = f * ks[ch] * spec + kd[ch] * inv_pi
 
 
+@njit(inline="always", **_OPTS)
+def _fresnel(c: float, eta: float) -> float:
+    """One value of :func:`reflecto.fresnel.fresnel` (same arithmetic)."""
+    c = abs(c)
+    g2 = eta * eta + c * c - 1.0
+    if g2 <= 0.0:
+        return 1.0
+    g = math.sqrt(g2)
+    gpc = g + c
+    gmc = g - c
+    a = gmc * gmc / (2.0 * gpc * gpc)
+    num = c * gpc - 1.0
+    den = c * gmc + 1.0
+    f = a * (1.0 + num * num / (den * den))
+    if not math.isfinite(f):
+        return 1.0
+    return min(max(f, 0.0), 1.0)
+
+
+@njit(**_OPTS)
+def pair_residuals(cp, cq, fp, fq, ap, aq, w, eta, kd_over_pi, level, out):
+    """Weighted relative residuals of eq. 6 per bin pair: ``fresnel_fit.fit_fresnel``'s ``r``."""
+    for k in range(cp.shape[0]):
+        fpp = max(_fresnel(cp[k], eta), 1e-12)
+        fqq = max(_fresnel(cq[k], eta), 1e-12)
+        yp = (fp[k] - kd_over_pi) * ap[k] / fpp
+        yq = (fq[k] - kd_over_pi) * aq[k] / fqq
+        mean = 0.5 * (fp[k] * ap[k] / fpp + fq[k] * aq[k] / fqq)
+        out[k] = w[k] * (yp - yq) / max(mean, level)
+
+
 def as_dirs(a) -> np.ndarray:
     """C-contiguous float64 view/copy of shape ``(M, 3)``."""
     return np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape(-1, 3))

@@ -148,8 +148,16 @@ class Hemicube:
     def index(self, dirs: ArrayLike) -> NDArray[np.intp]:
         """Flat index of the texel containing each direction (nearest texel).
 
-        Directions below the horizon are clamped to it. Shape ``dirs.shape[:-1]``.
+        Directions below the horizon are clamped to it. ``dirs`` need not be unit
+        length (only ratios of components enter). Shape ``dirs.shape[:-1]``.
         """
+        d = _kernels.as_dirs(dirs)
+        out = np.empty(len(d), dtype=np.intp)
+        _kernels.cube_index(self.n, d, out)
+        return out.reshape(np.shape(dirs)[:-1])
+
+    def index_numpy(self, dirs: ArrayLike) -> NDArray[np.intp]:
+        """NumPy reference of :meth:`index`."""
         face, col, row = self._face_coords(dirs)
         # col, row ≥ −0.5, so truncation of (x + 0.5) is the floor
         col += 0.5

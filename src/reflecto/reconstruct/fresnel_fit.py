@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from .. import _kernels
 from ..fresnel import fresnel
 from .samples import Bins
 
@@ -92,6 +93,20 @@ class FresnelFit:
     n_pairs: int
     theta_d_spread_deg: float
     error_median: float = float("nan")
+
+
+def pair_residuals_numpy(cp: Array, cq: Array, fp: Array, fq: Array, ap: Array, aq: Array, w: Array,
+                         eta: float, kd: float, level: float) -> Array:
+    """Eq. 6 residual per pair, ``w (y_p − y_q) / ȳ`` (NumPy reference of the compiled kernel).
+
+    ``y = (f − k_d/π) a / F(c; η)``; ``ȳ`` is the pair's mean of ``f a / F``, floored
+    at ``level`` because noisy dim bins can average to ≈ 0.
+    """
+    fpp, fqq = np.maximum(fresnel(cp, eta), 1e-12), np.maximum(fresnel(cq, eta), 1e-12)
+    yp = (fp - kd / math.pi) * ap / fpp
+    yq = (fq - kd / math.pi) * aq / fqq
+    mean = 0.5 * (fp * ap / fpp + fq * aq / fqq)
+    return w * (yp - yq) / np.maximum(mean, level)
 
 
 def overlap_pairs(bins: Bins, n_leds: int, symmetric: bool = True) -> Pairs:
@@ -182,7 +197,7 @@ def fit_fresnel(
     kd0_ch = kd0 if per_channel else np.array([kd0 @ LUM])
     eta0_ch = eta0 if per_channel else np.array([eta0 @ LUM])
     for ch in range(f_ch.shape[1]):
-        fp, fq = f_ch[p, ch], f_ch[q, ch]
+        fp, fq = np.ascontiguousarray(f_ch[p, ch]), np.ascontiguousarray(f_ch[q, ch])
         hi = float(kd_max_ch[ch])
 
         def parts(x: Array, hi: float = hi) -> tuple[float, float]:
@@ -192,12 +207,9 @@ def fit_fresnel(
 
         def r(x: Array, fp: Array = fp, fq: Array = fq) -> Array:
             e, k = parts(x)
-            fpp, fqq = np.maximum(fresnel(cp, e), 1e-12), np.maximum(fresnel(cq, e), 1e-12)
-            yp = (fp - k / math.pi) * ap / fpp
-            yq = (fq - k / math.pi) * aq / fqq
-            mean = 0.5 * (fp * ap / fpp + fq * aq / fqq)
-            # noisy dim bins can average to ~0: floor the scale at the level threshold
-            return w * (yp - yq) / np.maximum(mean, level)
+            out = np.empty(len(fp))
+            _kernels.pair_residuals(cp, cq, fp, fq, ap, aq, w, e, k / math.pi, level, out)
+            return out
 
         frac = float(np.clip(kd0_ch[ch] / hi, 1e-6, 1 - 1e-6)) if hi > 0 else 0.5
         x0 = [math.log(frac / (1.0 - frac))]

@@ -153,7 +153,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     sl = slices.reframe(frame) if opt.estimate_normal else slices
     # ρ_d/π ≤ min f (in the sample frame): an upper bound of k_d; half of it starts the fit
     ok_f = sl.valid & valid
-    kd_max = np.array([np.percentile(sl.values[..., c][ok_f], 0.2) for c in range(3)]) * math.pi
+    kd_max = np.percentile(sl.values[ok_f], 0.2, axis=0) * math.pi
     kd_max = np.maximum(kd_max, 0.0)
     ok = sl.valid & valid
     work = hemicube(opt.work_resolution or 128)
@@ -216,7 +216,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             d_b = d_work[bins.texel[use]]
             wb = w_merge[use]
             den = float(np.sum(wb * d_b * d_b))
-            ks = np.maximum(np.array([np.sum(wb * d_b * dh[use, ch]) for ch in range(3)]) / max(den, 1e-300), 0.0)
+            ks = np.maximum((wb * d_b) @ dh[use] / max(den, 1e-300), 0.0)
         history.append({"eta": eta.tolist(), "E": fit.error, "kd": kd.tolist(), "ks": ks.tolist()})
     out_cube = hemicube(opt.resolution)
     d_work = ndf_mod.smooth_tails(work, d_work)

@@ -82,8 +82,7 @@ def bin_samples(light: Array, view: Array, values: Array, valid: NDArray[np.bool
     """
     li, pi = np.nonzero(valid)
     o = view[pi]
-    h = geometry.normalize(light[li] + o)
-    key = li * cube.size + cube.index(h)
+    key = li * cube.size + cube.index(light[li] + o)  # the texel of h = (i + o)/|i + o|
     n_keys = light.shape[0] * cube.size
     count = np.bincount(key, minlength=n_keys)
     used = np.flatnonzero(count)
