@@ -337,7 +337,6 @@ class Hemicube:
             )
         return wsum, wvsum
 
-
     def smooth(self, values: ArrayLike, passes: int = 1) -> Array:
         """Binomial ``[1 2 1]ᵀ[1 2 1]/16`` filter applied ``passes`` times, face by face.
 

@@ -146,13 +146,13 @@ def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | 
     w_q = (np.sin(th_q) * math.pi * qu / 256)[None, :] * (2 * math.pi / 128)  # dω per node
     cos_q = np.cos(th_q)[None, :]
     # the ndf table is the NDF itself (so that rgb = f cos·4σ/D carries no NDF detail);
-    # the warp that places the rgb nodes uses the tempered NDF (heavier tails)
-    d_exact = _floored(source, d_raw, 1.0, iso, mq, w_q, cos_q, min_floor=1e-9)
-    d_warp = _floored(source, d_raw, TEMPER, iso, mq, w_q, cos_q, min_floor=1e-6)
-    ndf_tab = d_exact(_unit_dirs(u0[None, :], u1[:, None]))  # (φ rows, θ cols)
-    warp_tab = d_warp(_unit_dirs(u0[None, :], u1[:, None]))
+    # the warp that places the rgb nodes uses the tempered NDF (heavier tails).
+    # D is evaluated once per point set; both tables are derived from those values.
+    raw = _RawNDF(d_raw, iso, mq, _unit_dirs(u0[None, :], u1[:, None]))
+    ndf_tab, dq_exact = _floored(source, raw, 1.0, w_q, cos_q, min_floor=1e-9)
+    warp_tab, _ = _floored(source, raw, TEMPER, w_q, cos_q, min_floor=1e-6)
     # σ(k) = ∫ D(m) ⟨k·m⟩ dω_m on the quadrature, at the sigma table's nodes
-    wq = (d_exact(mq) * w_q).ravel()
+    wq = (dq_exact * w_q).ravel()
     mq = mq.reshape(-1, 3)
     n_phi_sig, n_th_sig = (2, grid.sigma[1]) if iso else grid.sigma
     ks = _unit_dirs(np.linspace(0.0, 1.0, n_th_sig)[None, :], np.linspace(0.0, 1.0, n_phi_sig)[:, None])
@@ -220,33 +220,44 @@ def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | 
     }
 
 
-def _ring(d_fn, m: Array) -> Array:
-    """Azimuthal average of ``d_fn`` at the polar angles of ``m``."""
-    th = np.arccos(np.clip(m[..., 2], -1.0, 1.0))
-    u = np.sqrt(th * 2 / math.pi)
-    k = (np.arange(64) + 0.5) / 64
-    ring = d_fn(_unit_dirs(np.linspace(0, 1, 257)[None, :], k[:, None])).mean(axis=0)
-    return np.interp(u, np.linspace(0, 1, 257), ring)
+class _RawNDF:
+    """``max(D, 0)`` at the quadrature (``q``) and table nodes (``nodes``), each evaluated once.
+
+    For isotropic files D is replaced by its azimuthal average (64 azimuths on 257
+    polar rings, interpolated in ``u₀``), taken after raising D to the table's power.
+    """
+
+    def __init__(self, d_raw, iso: bool, q: Array, nodes: Array) -> None:
+        self.iso = iso
+        if iso:
+            k = (np.arange(64) + 0.5) / 64
+            self._rings = np.maximum(d_raw(_unit_dirs(np.linspace(0, 1, 257)[None, :], k[:, None])), 0.0)
+            self._u = [np.sqrt(np.arccos(np.clip(m[..., 2], -1.0, 1.0)) * 2 / math.pi) for m in (q, nodes)]
+        else:
+            self._values = [np.maximum(d_raw(m), 0.0) for m in (q, nodes)]
+
+    def powered(self, power: float) -> tuple[Array, Array]:
+        """``(D^power at q, D^power at nodes)``."""
+        if self.iso:
+            ring = (self._rings if power == 1.0 else self._rings**power).mean(axis=0)
+            return tuple(np.interp(u, np.linspace(0, 1, 257), ring) for u in self._u)
+        return tuple(v if power == 1.0 else v**power for v in self._values)
 
 
-def _floored(source: BRDFSource, d_raw, power: float, iso: bool, mq: Array, w_q: Array, cos_q: Array,
-             min_floor: float):
-    """``m ↦ (D^power/norm + c)/norm'``: normalized (``∫ D cos = 1``), floored by :func:`_floor`, ring-averaged if ``iso``."""
-    def d_fn(m: Array) -> Array:
-        d = np.maximum(d_raw(m), 0.0)
-        return d if power == 1.0 else d ** power
+def _floored(source: BRDFSource, raw: _RawNDF, power: float, w_q: Array, cos_q: Array,
+             min_floor: float) -> tuple[Array, Array]:
+    """``(D^power/norm + c)·norm'`` at the table nodes and at the quadrature.
 
-    dq = _ring(d_fn, mq) if iso else d_fn(mq)
+    Normalized so that ``∫ D cos = 1`` on the quadrature, with the floor ``c`` of
+    :func:`_floor`.
+    """
+    dq, dn = raw.powered(power)
     norm = float(np.sum(dq * cos_q * w_q))
     if not (norm > 0 and np.isfinite(norm)):
         raise ValueError(f"{source.name}: no positive NDF or back-scattering to build the tables from")
     floor = _floor(source, dq / norm, min_floor)
     scale2 = 1.0 / (1.0 + floor * float(np.sum(cos_q * w_q)))
-
-    def out(m: Array) -> Array:
-        d = _ring(d_fn, m) if iso else d_fn(m)
-        return (d / norm + floor) * scale2
-    return out
+    return (dn / norm + floor) * scale2, (dq / norm + floor) * scale2
 
 
 def _floor(source: BRDFSource, d_norm: Array, min_floor: float) -> float:
