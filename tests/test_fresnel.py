@@ -44,3 +44,17 @@ def test_compiled_pair_residuals_match_numpy():
         out = np.empty(n)
         _kernels.pair_residuals(cp, cq, fp, fq, ap, aq, w, eta, kd / np.pi, 1e-3, out)
         assert np.allclose(out, pair_residuals_numpy(cp, cq, fp, fq, ap, aq, w, eta, kd, 1e-3), rtol=1e-12, atol=1e-15)
+
+
+def test_compiled_fresnel_matches_numpy():
+    from reflecto.fresnel import fresnel_numpy
+
+    rng = np.random.default_rng(5)
+    c = np.concatenate([rng.uniform(-1.2, 1.2, 20000), [0.0, 1.0, -1.0, np.nan]])
+    eta = np.concatenate([rng.uniform(0.3, 40.0, 20000), [1.0, 1.0, 0.5, 1.5]])
+    assert np.array_equal(fresnel(c, eta), fresnel_numpy(c, eta))
+    # broadcasting and scalars behave as NumPy's
+    per_channel = fresnel(c[:100, None], np.array([1.3, 1.5, 2.0])[None])
+    assert per_channel.shape == (100, 3)
+    assert np.array_equal(per_channel, fresnel_numpy(c[:100, None], np.array([1.3, 1.5, 2.0])[None]))
+    assert isinstance(fresnel(0.5, 1.5), np.floating) and fresnel(1.0, 1.5) == pytest.approx(0.04)

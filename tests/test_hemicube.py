@@ -148,3 +148,30 @@ def test_compiled_index_matches_numpy(rng):
     d = np.concatenate([d, c.directions, [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.3, -0.3, -0.1]]])
     assert np.array_equal(c.index(d), c.index_numpy(d))
     assert np.array_equal(c.index(3.0 * d), c.index(d))  # scale-free: only ratios enter
+
+
+@pytest.mark.parametrize("n, factor", [(64, 2), (128, 8), (16, 4)])
+def test_block_reduce_matches_numpy_and_conserves_sums(rng, n, factor):
+    c = hemicube(n)
+    v = rng.random(c.size)
+    v3 = rng.random((c.size, 3))
+    coarse = c.block_reduce(v, factor)
+    assert coarse.shape == (3 * (n // factor) ** 2,)
+    assert np.allclose(coarse, c.block_reduce_numpy(v, factor), rtol=1e-13, atol=0)
+    assert np.allclose(c.block_reduce(v3, factor), c.block_reduce_numpy(v3, factor), rtol=1e-13, atol=0)
+    assert np.isclose(coarse.sum(), v.sum(), rtol=1e-12)
+    with pytest.raises(ParameterError):
+        c.block_reduce(v, 3)
+
+
+def test_pad_copies_faces_and_interpolates_the_border(rng):
+    c = hemicube(32)
+    v = rng.random(c.size)
+    padded = c.pad(v)
+    assert np.allclose(padded, c.pad_numpy(v), rtol=1e-12, atol=1e-14)
+    # the interior of every padded face is the face itself, bit for bit
+    for face in range(5):
+        rows, cols = c.face_shape(face)
+        o = c._pad_offsets[face]
+        inner = padded[o : o + (rows + 2) * (cols + 2)].reshape(rows + 2, cols + 2)[1:-1, 1:-1]
+        assert np.array_equal(inner, c.face_values(v, face))

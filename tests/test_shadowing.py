@@ -76,3 +76,18 @@ def test_closed_form_lambda_of_anisotropic_and_asymmetric_models(kw, rng):
     random_k[:, 2] = np.abs(random_k[:, 2])
     k = random_k[random_k[:, 2] > np.cos(np.radians(85))]
     assert np.abs(table.eval(k) - src.g1(k)).max() < 2e-3
+
+
+def test_eval_at_a_stencil_equals_eval(rng):
+    from reflecto.shadowing import grid_stencil
+
+    c = hemicube(64)
+    t = sigma_table(c, AnalyticBRDF(distribution="ggx", alpha=0.3).ndf(c.directions), n_theta=46, n_phi=64, n_u=64)
+    d = g.normalize(rng.normal(size=(5000, 3)))
+    d = np.concatenate([d, [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]])
+    st = grid_stencil(d, 46, 64)
+    s = t.eval_at(st)
+    assert np.array_equal(s, t.eval(d))
+    assert s[-2] == pytest.approx(1.0, abs=1e-12) and s[-1] == 0.0 and np.all(s[d[:, 2] <= 0] == 0.0)
+    with pytest.raises(ValueError):
+        sigma_table(c, np.ones(c.size), n_theta=91, n_phi=128).eval_at(st)

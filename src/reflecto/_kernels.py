@@ -90,45 +90,142 @@ def cube_lookup(padded, pad_offsets, n, dirs, out):
 
 
 @njit(**_OPTS)
-def pad(values, src, w, out):
-    """Padded faces: :meth:`Hemicube.pad` for one channel (``out[k] = Σ_j values[src[k, j]] w[k, j]``)."""
-    for k in range(src.shape[0]):
+def pad_border(values, border, src, w, out):
+    """The border texels of :meth:`Hemicube.pad`: ``out[b] = Σ_j values[src[b, j]] w[b, j]``."""
+    for k in range(border.shape[0]):
+        b = border[k]
         acc = 0.0
         for j in range(src.shape[1]):
-            acc += values[src[k, j]] * w[k, j]
-        out[k] = acc
+            acc += values[src[b, j]] * w[b, j]
+        out[b] = acc
+
+
+@njit(**_OPTS)
+def scatter_add(values, index, out):
+    """``out[index[k], c] += values[k, c]``: :meth:`Hemicube.block_reduce`'s block sums."""
+    for k in range(values.shape[0]):
+        t = index[k]
+        for c in range(values.shape[1]):
+            out[t, c] += values[k, c]
+
+
+@njit(inline="always", **_OPTS)
+def _texel(n: int, x: float, y: float, z: float) -> int:
+    """Nearest-texel flat index of one direction (need not be unit): :meth:`Hemicube.index`."""
+    face, col, row = _face_coords(x, y, z, n)
+    c = min(int(col + 0.5), n - 1)
+    if face == 0:
+        return min(int(row + 0.5), n - 1) * n + c
+    half = n // 2
+    return n * n + (face - 1) * n * half + min(int(row + 0.5), half - 1) * n + c
 
 
 @njit(**_OPTS)
 def cube_index(n, dirs, out):
     """Nearest-texel flat index: :meth:`Hemicube.index`."""
-    half = n // 2
     for k in range(dirs.shape[0]):
-        face, col, row = _face_coords(dirs[k, 0], dirs[k, 1], dirs[k, 2], n)
-        c = min(int(col + 0.5), n - 1)
-        if face == 0:
-            r = min(int(row + 0.5), n - 1)
-            out[k] = r * n + c
+        out[k] = _texel(n, dirs[k, 0], dirs[k, 1], dirs[k, 2])
+
+
+@njit(**_OPTS)
+def bin_accumulate(light, view, values, valid, n):
+    """Per (LED, texel of i + o) sums of the valid samples: :func:`reconstruct.samples.bin_samples`.
+
+    Samples are visited LED by LED, pixel by pixel (the order of ``np.nonzero``), so
+    the sums equal ``np.bincount``'s bit for bit. Returns the used keys
+    ``led·size + texel`` (ascending), their counts, ``Σf`` (K, 3) and ``Σo`` (K, 3).
+    """
+    size = 3 * n * n
+    n_l, n_p = valid.shape
+    n_keys = n_l * size
+    key = np.empty(n_l * n_p, dtype=np.int64)
+    count = np.zeros(n_keys, dtype=np.int32)
+    m = 0
+    for l in range(n_l):
+        lx, ly, lz = light[l, 0], light[l, 1], light[l, 2]
+        for p in range(n_p):
+            if valid[l, p]:
+                k = l * size + _texel(n, lx + view[p, 0], ly + view[p, 1], lz + view[p, 2])
+                key[m] = k
+                count[k] += 1
+                m += 1
+    # one ascending scan numbers the used keys; count[k] becomes the slot of key k
+    used = np.empty(m, dtype=np.int64)
+    cnt = np.empty(m, dtype=np.float64)
+    nb = 0
+    for k in range(n_keys):
+        c = count[k]
+        if c > 0:
+            used[nb] = k
+            cnt[nb] = c
+            count[k] = nb
+            nb += 1
+    used = used[:nb]
+    cnt = cnt[:nb]
+    slot = count
+    fsum = np.zeros((nb, 3))
+    osum = np.zeros((nb, 3))
+    m = 0
+    for l in range(n_l):
+        for p in range(n_p):
+            if valid[l, p]:
+                b = slot[key[m]]
+                m += 1
+                for ch in range(3):
+                    fsum[b, ch] += values[l, p, ch]
+                    osum[b, ch] += view[p, ch]
+    return used, cnt, fsum, osum
+
+
+@njit(**_OPTS)
+def bin_finish(light, used, cnt, fsum, osum, size):
+    """Means of :func:`bin_accumulate`'s sums: :func:`reconstruct.samples._finish` per bin.
+
+    Returns LED, texel, i, mean o (unit), h = (i + o)/|i + o|, mean f and cos θ_d.
+    """
+    nb = used.shape[0]
+    led = np.empty(nb, dtype=np.intp)
+    texel = np.empty(nb, dtype=np.intp)
+    i = np.empty((nb, 3))
+    o = np.empty((nb, 3))
+    h = np.empty((nb, 3))
+    f = np.empty((nb, 3))
+    cos_d = np.empty(nb)
+    for b in range(nb):
+        l = used[b] // size
+        led[b] = l
+        texel[b] = used[b] % size
+        ox, oy, oz = osum[b, 0], osum[b, 1], osum[b, 2]
+        n = math.sqrt(ox * ox + oy * oy + oz * oz)
+        if n > 0.0:
+            ox, oy, oz = ox / n, oy / n, oz / n
         else:
-            r = min(int(row + 0.5), half - 1)
-            out[k] = n * n + (face - 1) * n * half + r * n + c
+            ox = oy = oz = 0.0
+        ix, iy, iz = light[l, 0], light[l, 1], light[l, 2]
+        hx, hy, hz = ix + ox, iy + oy, iz + oz
+        n = math.sqrt(hx * hx + hy * hy + hz * hz)
+        if n > 0.0:
+            hx, hy, hz = hx / n, hy / n, hz / n
+        else:
+            hx = hy = hz = 0.0
+        i[b, 0], i[b, 1], i[b, 2] = ix, iy, iz
+        o[b, 0], o[b, 1], o[b, 2] = ox, oy, oz
+        h[b, 0], h[b, 1], h[b, 2] = hx, hy, hz
+        for ch in range(3):
+            f[b, ch] = fsum[b, ch] / cnt[b]
+        cos_d[b] = min(max(ix * hx + iy * hy + iz * hz, 0.0), 1.0)
+    return led, texel, i, o, h, f, cos_d
 
 
 @njit(**_OPTS)
 def splat(n, dirs, values, weights, wsum, wvsum):
     """Accumulate ``Σw`` and ``Σw·v`` (values shape ``(M, C)``) per nearest texel."""
-    half = n // 2
     nc = values.shape[1]
     for k in range(dirs.shape[0]):
         w = weights[k]
         if w == 0.0:
             continue
-        face, col, row = _face_coords(dirs[k, 0], dirs[k, 1], dirs[k, 2], n)
-        c = min(int(col + 0.5), n - 1)
-        if face == 0:
-            t = min(int(row + 0.5), n - 1) * n + c
-        else:
-            t = n * n + (face - 1) * n * half + min(int(row + 0.5), half - 1) * n + c
+        t = _texel(n, dirs[k, 0], dirs[k, 1], dirs[k, 2])
         wsum[t] += w
         for ch in range(nc):
             wvsum[t, ch] += w * values[k, ch]
@@ -188,6 +285,13 @@ def _fresnel(c: float, eta: float) -> float:
     if not math.isfinite(f):
         return 1.0
     return min(max(f, 0.0), 1.0)
+
+
+@njit(**_OPTS)
+def fresnel_flat(c, eta, out):
+    """``out[k] = F(c[k]; η[k])``: :func:`reflecto.fresnel.fresnel` on flat arrays."""
+    for k in range(c.shape[0]):
+        out[k] = _fresnel(c[k], eta[k])
 
 
 @njit(**_OPTS)

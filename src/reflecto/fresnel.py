@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from . import _kernels
+
 Array = NDArray[np.float64]
 
 
@@ -28,6 +30,18 @@ def fresnel(c: ArrayLike, eta: ArrayLike) -> Array:
         Relative index of refraction η > 0; broadcast against ``c`` (e.g. shape ``(3,)``
         against ``c[..., None]`` for per-channel η).
     """
+    c = np.asarray(c, dtype=np.float64)
+    eta = np.asarray(eta, dtype=np.float64)
+    shape = np.broadcast_shapes(c.shape, eta.shape)
+    cb = np.ascontiguousarray(np.broadcast_to(c, shape)).ravel()
+    eb = np.ascontiguousarray(np.broadcast_to(eta, shape)).ravel()
+    out = np.empty(cb.size)
+    _kernels.fresnel_flat(cb, eb, out)
+    return out.reshape(shape)[()]  # a NumPy scalar for scalar input, as NumPy's ufuncs give
+
+
+def fresnel_numpy(c: ArrayLike, eta: ArrayLike) -> Array:
+    """NumPy reference of :func:`fresnel` (the compiled loop does the same arithmetic)."""
     c = np.abs(np.asarray(c, dtype=np.float64))
     eta = np.asarray(eta, dtype=np.float64)
     g2 = eta * eta + c * c - 1.0

@@ -71,8 +71,11 @@ class Hemicube:
         self.offsets = np.array([0] + [self.top_size + k * self.side_size for k in range(4)])
         self._max_row = np.array([self.n - 1] + [self.half - 1] * 4)
         self.directions, self.solid_angles = self._texel_geometry()
-        self.cos_theta = self.directions[:, 2]
+        self.cos_theta = np.ascontiguousarray(self.directions[:, 2])
+        #: ``cos θ · Ω`` per texel: the weights of the NDF normalization ∫ D cos θ dω = 1
+        self.projected_solid_angles = self.cos_theta * self.solid_angles
         self._pad_src, self._pad_w, self._pad_offsets = self._padding()
+        self._pad_border = self._padding_border()
 
     # ------------------------------------------------------------------ geometry
     def face_shape(self, face: int) -> tuple[int, int]:
@@ -211,14 +214,37 @@ class Hemicube:
         w = np.stack([(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc], axis=1)
         return src, w, np.array(offs)
 
+    def _padding_border(self) -> NDArray[np.intp]:
+        """Padded indices of the 1-texel border of every face (the rest copies the face)."""
+        out = []
+        for face in range(5):
+            rows, cols = self.face_shape(face)
+            m = np.ones((rows + 2, cols + 2), bool)
+            m[1:-1, 1:-1] = False
+            out.append(self._pad_offsets[face] + np.flatnonzero(m))
+        return np.concatenate(out)
+
     def pad(self, values: ArrayLike) -> Array:
         """Padded-face copy of ``values`` for repeated :meth:`lookup` calls."""
         values = np.asarray(values, dtype=np.float64)
         if values.ndim == 1:
+            # inside each face the padded copy is the face itself (interpolation weight 1
+            # at the texel): copy it; only the 1-texel border is interpolated
             out = np.empty(len(self._pad_src))
-            _kernels.pad(np.ascontiguousarray(values), self._pad_src, self._pad_w, out)
+            for face in range(5):
+                rows, cols = self.face_shape(face)
+                o = self._pad_offsets[face]
+                inner = out[o : o + (rows + 2) * (cols + 2)].reshape(rows + 2, cols + 2)[1:-1, 1:-1]
+                inner[...] = self.face_values(values, face)
+            _kernels.pad_border(np.ascontiguousarray(values), self._pad_border, self._pad_src, self._pad_w, out)
             return out
-        return np.sum(values[self._pad_src] * self._pad_w[..., None], axis=1)
+        return self.pad_numpy(values)
+
+    def pad_numpy(self, values: ArrayLike) -> Array:
+        """NumPy reference of :meth:`pad` (every padded texel by its interpolation weights)."""
+        values = np.asarray(values, dtype=np.float64)
+        w = self._pad_w if values.ndim == 1 else self._pad_w[..., None]
+        return np.sum(values[self._pad_src] * w, axis=1)
 
     def lookup(self, values: ArrayLike, dirs: ArrayLike, padded: Array | None = None) -> Array:
         """Bilinear interpolation of texel ``values`` at directions ``dirs``.
@@ -358,8 +384,23 @@ class Hemicube:
         return v
 
     # -------------------------------------------------------------- resampling
-    def _block_reduce(self, values: Array, factor: int) -> Array:
-        """Sum over ``factor × factor`` texel blocks, face by face."""
+    def block_reduce(self, values: ArrayLike, factor: int) -> Array:
+        """Sum over ``factor × factor`` texel blocks, face by face.
+
+        ``values`` of shape ``(size,)`` or ``(size, C)``; the result has the coarse
+        hemicube's ``size`` (resolution ``N/factor``) as first axis.
+        """
+        self._check_factor(factor)
+        values = np.ascontiguousarray(values, dtype=np.float64)
+        parent = _block_parents(self.n, factor)
+        m = 3 * (self.n // factor) ** 2
+        flat = values.reshape(len(values), -1)
+        out = np.zeros((m, flat.shape[1]))
+        _kernels.scatter_add(flat, parent, out)
+        return out.reshape((m,) + values.shape[1:])
+
+    def block_reduce_numpy(self, values: ArrayLike, factor: int) -> Array:
+        """NumPy reference of :meth:`block_reduce`."""
         out = []
         for face in range(5):
             rows, cols = self.face_shape(face)
@@ -378,8 +419,8 @@ class Hemicube:
         coarse = self._coarse(factor)
         values = np.asarray(values, dtype=np.float64)
         om = self.solid_angles if values.ndim == 1 else self.solid_angles[:, None]
-        num = self._block_reduce(values * om, factor)
-        den = self._block_reduce(self.solid_angles, factor)
+        num = self.block_reduce(values * om, factor)
+        den = self.block_reduce(self.solid_angles, factor)
         return coarse, num / (den if values.ndim == 1 else den[:, None])
 
     def moments(self, values: ArrayLike, factor: int) -> tuple[Array, Array]:
@@ -391,8 +432,8 @@ class Hemicube:
         """
         self._check_factor(factor)
         w = np.asarray(values, dtype=np.float64) * self.solid_angles
-        mass = self._block_reduce(w, factor)
-        first = self._block_reduce(w[:, None] * self.directions, factor)
+        mass = self.block_reduce(w, factor)
+        first = self.block_reduce(w[:, None] * self.directions, factor)
         return mass, first
 
     def _check_factor(self, factor: int) -> None:
@@ -451,6 +492,21 @@ class Hemicube:
 def hemicube(n: int = 512) -> Hemicube:
     """Cached :class:`Hemicube` of resolution ``n`` (geometry is immutable)."""
     return Hemicube(n)
+
+
+@functools.lru_cache(maxsize=16)
+def _block_parents(n: int, factor: int) -> NDArray[np.intp]:
+    """Coarse texel (resolution ``n/factor``) of every texel of an ``n``-hemicube."""
+    fine, nc = hemicube(n), n // factor
+    coarse_offsets = [0] + [nc * nc + k * nc * (nc // 2) for k in range(4)]
+    parent = np.empty(fine.size, dtype=np.intp)
+    for face in range(5):
+        rows, cols = fine.face_shape(face)
+        r, c = np.meshgrid(np.arange(rows) // factor, np.arange(cols) // factor, indexing="ij")
+        start = fine.offsets[face]
+        parent[start : start + rows * cols] = (coarse_offsets[face] + r * (cols // factor) + c).ravel()
+    parent.setflags(write=False)
+    return parent
 
 
 @functools.lru_cache(maxsize=32)

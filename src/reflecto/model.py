@@ -85,7 +85,7 @@ class MicrofacetBRDF(BRDFSource):
         # stored as float32 in model files: round now so save/load is exact
         d = d.astype(np.float32).astype(np.float64)
         if normalize:
-            total = float(np.sum(d * self.cube.cos_theta * self.cube.solid_angles))
+            total = float(d @ self.cube.projected_solid_angles)
             if total <= 0:
                 raise ParameterError("ndf is zero everywhere")
             d = (d / total).astype(np.float32).astype(np.float64)

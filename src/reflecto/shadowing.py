@@ -100,11 +100,31 @@ class SigmaTable:
         return np.maximum(self.eval_sigma(d), np.maximum(d[..., 2], 0.0))
 
     def eval(self, dirs: ArrayLike) -> Array:
-        """Shadowing ``S(k) = (k·n)/σ(k)``, clamped to [0, 1] (eq. 8)."""
+        """Shadowing ``S(k) = (k·n)/σ(k)``, clamped to [0, 1] (eq. 8); shape ``dirs.shape[:-1]``."""
         d = np.asarray(dirs, dtype=np.float64)
         cos = np.maximum(d[..., 2], 0.0)
         sig = self.eval_sigma_clamped(d)
         return np.divide(cos, sig, out=np.zeros_like(cos), where=sig > 0)
+
+    def eval_at(self, stencil: GridStencil) -> Array:
+        """:meth:`eval` at the directions of a precomputed :func:`grid_stencil`.
+
+        For directions evaluated against many tables (the reconstruction's inner loop),
+        where finding the cell (``acos``, ``atan2``) costs more than the interpolation.
+        """
+        if (stencil.n_theta, stencil.n_phi) != (self.n_theta, self.n_phi):
+            raise ValueError("stencil was made for a different σ grid")
+        flat = self._flat()
+        w = self.n_phi + 1
+        s00 = flat[stencil.idx]
+        s01 = flat[stencil.idx + 1]
+        s10 = flat[stencil.idx + w]
+        s11 = flat[stencil.idx + w + 1]
+        s00 += stencil.fp * (s01 - s00)
+        s10 += stencil.fp * (s11 - s10)
+        s00 += stencil.ft * (s10 - s00)
+        sig = np.maximum(s00, stencil.cos)
+        return np.divide(stencil.cos, sig, out=np.zeros_like(sig), where=sig > 0).reshape(stencil.shape)
 
     def azimuthal_min(self) -> SigmaTable:
         """``S(θ, φ) ← min_φ' S(θ, φ')`` (Lan et al. §5.2, after Wang et al. 2008).
@@ -112,6 +132,41 @@ class SigmaTable:
         Since ``S = cos θ/σ``, the minimum of S over azimuth is the maximum of σ.
         """
         return SigmaTable(np.repeat(self.sigma.max(axis=1, keepdims=True), self.n_phi, axis=1))
+
+
+@dataclass(frozen=True)
+class GridStencil:
+    """Bilinear cells of fixed directions in a (θ, φ) σ grid (see :meth:`SigmaTable.eval_at`)."""
+
+    idx: NDArray[np.intp]
+    ft: Array
+    fp: Array
+    cos: Array
+    shape: tuple[int, ...]
+    n_theta: int
+    n_phi: int
+
+
+def grid_stencil(dirs: ArrayLike, n_theta: int = N_THETA, n_phi: int = N_PHI) -> GridStencil:
+    """Cells and weights of unit ``dirs`` (shape ``(..., 3)``) in an ``n_theta × n_phi`` σ grid.
+
+    The same arithmetic as :meth:`SigmaTable.eval_sigma`.
+    """
+    d = np.asarray(dirs, dtype=np.float64)
+    x, y, z = d.reshape(-1, 3).T.copy()
+    cos = np.maximum(z, 0.0)
+    np.clip(z, 0.0, 1.0, out=z)
+    t = np.arccos(z, out=z)
+    t *= (n_theta - 1) / (0.5 * np.pi)
+    p = np.arctan2(y, x)
+    p *= n_phi / (2.0 * np.pi)
+    p += n_phi
+    t0 = np.minimum(t.astype(np.intp), n_theta - 2)
+    p0 = p.astype(np.intp)
+    ft = t - t0
+    fp = p - p0
+    p0 %= n_phi
+    return GridStencil(t0 * (n_phi + 1) + p0, ft, fp, cos, d.shape[:-1], n_theta, n_phi)
 
 
 def grid_directions(n_theta: int = N_THETA, n_phi: int = N_PHI) -> Array:
@@ -148,7 +203,7 @@ N_PHI_QUAD = 256
 def _kernel_spectrum(n_theta: int, n_u: int, n_phi: int) -> tuple[Array, Array, Array]:
     """rFFT over Δφ of ``K(θ_k, θ_h, Δφ) = max(0, sinθ_k sinθ_h cosΔφ + cosθ_k cosθ_h)``.
 
-    Returns the spectrum (shape ``(n_theta, n_u, n_phi//2 + 1)``), the ring polar
+    Returns the spectrum (shape ``(n_phi//2 + 1, n_theta, n_u)``), the ring polar
     angles θ_h and the ring weights ``sinθ_h dθ_h dφ`` (sr per quadrature node).
     """
     theta_k = np.linspace(0.0, 0.5 * np.pi, n_theta)
@@ -160,7 +215,8 @@ def _kernel_spectrum(n_theta: int, n_u: int, n_phi: int) -> tuple[Array, Array, 
         np.sin(theta_k)[:, None, None] * np.sin(theta_h)[None, :, None] * np.cos(dphi)[None, None, :]
         + np.cos(theta_k)[:, None, None] * np.cos(theta_h)[None, :, None]
     )
-    spec = np.fft.rfft(np.maximum(k, 0.0), axis=-1)
+    # stored (F, n_theta, n_u): sigma_table contracts u per frequency as one batched matmul
+    spec = np.ascontiguousarray(np.fft.rfft(np.maximum(k, 0.0), axis=-1).transpose(2, 0, 1))
     spec.setflags(write=False)
     return spec, theta_h, weight
 
@@ -214,7 +270,7 @@ def sigma_table(
     norm = float(np.sum(d_polar * np.cos(theta_h)[:, None]))
     d_spec = np.fft.rfft(d_polar, axis=-1)  # (n_u, F)
     # circular convolution over φ: σ(θk, φk) = Σ_h D(θh, φh) K(θk, θh, φk − φh)
-    sig_spec = np.einsum("uf,tuf->tf", d_spec, spec)
+    sig_spec = np.matmul(spec, d_spec.T[:, :, None])[..., 0].T  # Σ_u spec[f, t, u] d[u, f] → (t, f)
     sigma = np.fft.irfft(sig_spec, n=N_PHI_QUAD, axis=-1)[:, :: N_PHI_QUAD // n_phi]
     if norm > 0:
         sigma = sigma / norm

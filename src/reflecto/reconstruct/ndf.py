@@ -77,8 +77,8 @@ def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-
     levels = [(wsum, wvsum)]
     c, w, v = cube, wsum, wvsum
     for c2, _ in pyramid:
-        w = c._block_reduce(w, 2)
-        v = c._block_reduce(v, 2)
+        w = c.block_reduce(w, 2)
+        v = c.block_reduce(v, 2)
         c = c2
         levels.append((w, v))
     # coarsest level: fill any remaining hole with the global mean
@@ -146,8 +146,8 @@ def smooth_tails(cube: Hemicube, d: Array, passes: int | None = None) -> Array:
     # that no mass moves between regions and normalization does not lift the peak
     wc = (1.0 - w) * cube.cos_theta * cube.solid_angles
     f = cube.n // 128
-    num = coarse.lookup(coarse.smooth(cube._block_reduce(wc * d, f), 2), cube.directions)
-    den = coarse.lookup(coarse.smooth(cube._block_reduce(wc * smoothed, f), 2), cube.directions)
+    num = coarse.lookup(coarse.smooth(cube.block_reduce(wc * d, f), 2), cube.directions)
+    den = coarse.lookup(coarse.smooth(cube.block_reduce(wc * smoothed, f), 2), cube.directions)
     k = np.where(den > 0, num / np.maximum(den, 1e-300), 1.0)
     return np.where(w >= 1.0, d, np.exp(w * log_d) * (k * smoothed) ** (1.0 - w))
 

@@ -46,12 +46,12 @@ from ..errors import ReflectoError
 from ..fresnel import fresnel
 from ..hemicube import hemicube
 from ..model import MicrofacetBRDF
-from ..shadowing import sigma_table
+from ..shadowing import grid_stencil, sigma_table
 from ..instrument.slices import Slices
 from . import ndf as ndf_mod
 from .fresnel_fit import FresnelFit, fit_fresnel, overlap_pairs
 from .normal import ConsistencyDistance, estimate_normal_consistency
-from .samples import bin_samples
+from .samples import bin_samples, low_percentile
 
 Array = NDArray[np.float64]
 LUM = np.array([0.2126, 0.7152, 0.0722])
@@ -123,9 +123,13 @@ def auto_work_resolution(bins: Any) -> int:
     return 512 if n_half < 12 else 256 if n_half < 24 else 128
 
 
+#: (n_theta, n_phi) of the loop's σ tables (eq. 8); the final model uses the full grid.
+WORK_SIGMA = (46, 64)
+
+
 def _sigma_work(cube: Any, d: Array, azimuthal_min: bool):
     """σ table of the working NDF on a coarser grid (the loop's S; eq. 8)."""
-    table = sigma_table(cube, d, n_theta=46, n_phi=64, n_u=64)
+    table = sigma_table(cube, d, n_theta=WORK_SIGMA[0], n_phi=WORK_SIGMA[1], n_u=64)
     return table.azimuthal_min() if azimuthal_min else table
 
 
@@ -134,7 +138,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     opt = options or Options()
     t0 = time.perf_counter()
     n_leds = slices.n_leds
-    valid = slices.valid & np.all(np.isfinite(slices.values), axis=-1)
+    v = slices.values
+    valid = slices.valid & np.isfinite(v[..., 0] + v[..., 1] + v[..., 2])  # a NaN or ±inf channel poisons the sum
     if valid.sum() < 100:
         raise ReflectoError("capture: fewer than 100 valid samples (saturated, dark or outside the view cone)")
     # §5.4 altered normal: a first reconstruction in the device frame gives S; the
@@ -152,10 +157,9 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         frame = geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
     sl = slices.reframe(frame) if opt.estimate_normal else slices
     # ρ_d/π ≤ min f (in the sample frame): an upper bound of k_d; half of it starts the fit
-    ok_f = sl.valid & valid
-    kd_max = np.percentile(sl.values[ok_f], 0.2, axis=0) * math.pi
-    kd_max = np.maximum(kd_max, 0.0)
     ok = sl.valid & valid
+    kd_max = np.array([low_percentile(sl.values[..., ch][ok], 0.2) for ch in range(3)]) * math.pi
+    kd_max = np.maximum(kd_max, 0.0)
     work = hemicube(opt.work_resolution or 128)
     bins = bin_samples(sl.light, sl.view, sl.values, ok, work)
     if opt.work_resolution is None:
@@ -167,6 +171,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     c = bins.cos_d
     cos_io = bins.i[:, 2] * bins.o[:, 2]
     w_merge = bins.count * ndf_mod.merge_weights(bins.o)  # eq. 9 per pixel, summed over the bin
+    o_cells = grid_stencil(bins.o, *WORK_SIGMA)  # S(o) of every bin, against each iteration's table
 
     eta = np.full(3, 1.5 if opt.fixed_eta is None else float(opt.fixed_eta))
     kd = 0.5 * kd_max
@@ -207,11 +212,11 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             d_lum = dh @ LUM
             wsum, wv = ndf_mod.merge_completed(work, bins.texel[use], bins.texel_tau[use], d_lum[use], w_merge[use])
             d_work = np.maximum(ndf_mod.push_pull(work, wsum, wv), 0.0)
-            norm = float(np.sum(d_work * work.cos_theta * work.solid_angles))
+            norm = float(d_work @ work.projected_solid_angles)
             d_work /= max(norm, 1e-300)
             table = _sigma_work(work, d_work, opt.azimuthal_min)
             s_led = table.eval(sl.light)
-            s_o = table.eval(bins.o)
+            s_o = table.eval_at(o_cells)
             # k_s per channel: least squares of k_s,c·D against the partial NDFs (eq. 7)
             d_b = d_work[bins.texel[use]]
             wb = w_merge[use]

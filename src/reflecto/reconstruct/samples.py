@@ -12,11 +12,12 @@ texel (≈ 4 at the default working resolution). Every bin also knows the texel 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import geometry
+from .. import _kernels, geometry
 from ..hemicube import Hemicube
 
 Array = NDArray[np.float64]
@@ -80,6 +81,17 @@ def bin_samples(light: Array, view: Array, values: Array, valid: NDArray[np.bool
     cube
         Working hemicube.
     """
+    light = _kernels.as_dirs(light)
+    view = _kernels.as_dirs(view)
+    vals = np.ascontiguousarray(values, dtype=np.float64)
+    used, cnt, fsum, osum = _kernels.bin_accumulate(light, view, vals, np.ascontiguousarray(valid, dtype=np.bool_), cube.n)
+    led, texel, i, o, h, f, cos_d = _kernels.bin_finish(light, used, cnt, fsum, osum, cube.size)
+    tau = cube.permutation(geometry.TAU)
+    return Bins(cube, led, texel, tau[texel], cnt, i, o, h, f, cos_d)
+
+
+def bin_samples_numpy(light: Array, view: Array, values: Array, valid: NDArray[np.bool_], cube: Hemicube) -> Bins:
+    """NumPy reference of :func:`bin_samples` (same sums in the same order)."""
     li, pi = np.nonzero(valid)
     o = view[pi]
     key = li * cube.size + cube.index(light[li] + o)  # the texel of h = (i + o)/|i + o|
@@ -91,12 +103,16 @@ def bin_samples(light: Array, view: Array, values: Array, valid: NDArray[np.bool
     b = slot[key]
     nb = len(used)
 
-    def mean(x: Array) -> Array:
+    def total(x: Array) -> Array:
         return np.column_stack([np.bincount(b, weights=x[:, k], minlength=nb) for k in range(x.shape[1])])
 
-    cnt = count[used].astype(np.float64)
-    f = mean(values[li, pi]) / cnt[:, None]
-    o_mean = geometry.normalize(mean(o))
+    return _finish(cube, light, used, count[used].astype(np.float64), total(values[li, pi]), total(o))
+
+
+def _finish(cube: Hemicube, light: Array, used: NDArray[np.intp], cnt: Array, fsum: Array, osum: Array) -> Bins:
+    """Bins from the per-key sums (keys ``led·size + texel``, ascending)."""
+    f = fsum / cnt[:, None]
+    o_mean = geometry.normalize(osum)
     led = (used // cube.size).astype(np.intp)
     i = light[led]
     h_mean = geometry.normalize(i + o_mean)
@@ -104,3 +120,19 @@ def bin_samples(light: Array, view: Array, values: Array, valid: NDArray[np.bool
     tau = cube.permutation(geometry.TAU)
     cos_d = np.clip(np.einsum("ij,ij->i", i, h_mean), 0.0, 1.0)
     return Bins(cube, led, texel, tau[texel], cnt, i, o_mean, h_mean, f, cos_d)
+
+
+def low_percentile(x: Array, q: float) -> float:
+    """``np.percentile(x, q)`` of a 1-D array (linear method, same arithmetic), by partition.
+
+    ``np.percentile`` partitions the same way, but its generic axis handling cost
+    three times as much here (≈ 15 ms of a 200 ms reconstruction).
+    """
+    n = x.size
+    virt = (q / 100.0) * (n - 1)
+    lo = int(math.floor(virt))
+    hi = min(lo + 1, n - 1)
+    part = np.partition(x, [lo, hi]) if hi > lo else np.partition(x, lo)
+    a, b = float(part[lo]), float(part[hi])
+    t = virt - lo
+    return b - (b - a) * (1.0 - t) if t >= 0.5 else a + (b - a) * t
