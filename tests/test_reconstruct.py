@@ -107,3 +107,18 @@ def test_compiled_binning_matches_numpy():
     x = sl.values[..., 1][valid]
     for q in (0.0, 0.2, 50.0, 100.0):
         assert low_percentile(x, q) == np.percentile(x, q)
+
+
+def test_compiled_overlap_pairs_match_numpy():
+    from reflecto.hemicube import hemicube
+    from reflecto.reconstruct.fresnel_fit import overlap_pairs, overlap_pairs_numpy
+    from reflecto.reconstruct.samples import bin_samples
+
+    dev = Device.builtin("ideal")
+    sl = extract_slices(simulate_capture(AnalyticBRDF(distribution="ggx", alpha=0.3, kd=0.1, ks=0.7), dev, seed=3),
+                        nominal_calibration(dev))
+    bins = bin_samples(sl.light, sl.view, sl.values, sl.valid, hemicube(64))
+    for symmetric in (True, False):
+        a, b = overlap_pairs(bins, 6, symmetric), overlap_pairs_numpy(bins, 6, symmetric)
+        assert len(a) > 1000
+        assert np.array_equal(a.p, b.p) and np.array_equal(a.q, b.q) and np.array_equal(a.symmetric, b.symmetric)

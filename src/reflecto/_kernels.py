@@ -83,10 +83,76 @@ def _sigma_lookup(flat, nt: int, nphi: int, x: float, y: float, z: float) -> flo
 
 
 @njit(**_OPTS)
+def shadowing_at(flat, w, idx, ft, fp, cos, out):
+    """``S = cos/max(σ, cos)`` from precomputed σ-grid cells: :meth:`SigmaTable.eval_at`."""
+    for k in range(idx.shape[0]):
+        j = idx[k]
+        s00 = flat[j]
+        s10 = flat[j + w]
+        s00 += fp[k] * (flat[j + 1] - s00)
+        s10 += fp[k] * (flat[j + w + 1] - s10)
+        s00 += ft[k] * (s10 - s00)
+        s = max(s00, cos[k])
+        out[k] = cos[k] / s if s > 0.0 else 0.0
+
+
+@njit(**_OPTS)
 def cube_lookup(padded, pad_offsets, n, dirs, out):
     """``out[k] = lookup(dirs[k])`` for directions of shape ``(M, 3)``."""
     for k in range(dirs.shape[0]):
         out[k] = _cube_lookup(padded, pad_offsets, n, dirs[k, 0], dirs[k, 1], dirs[k, 2])
+
+
+@njit(**_OPTS)
+def upsample(padded, pad_offsets, n, m, out):
+    """Bilinear lookup of an ``n``-hemicube at every texel centre of the ``m·n`` one.
+
+    On each face the fine texel centres sit at coarse texel coordinates
+    ``(k + ½)/m − ½``, so this is :meth:`Hemicube.lookup` at ``hemicube(m·n).directions``
+    without the per-direction projection.
+    """
+    _upsample(padded, pad_offsets, n, m, out, out, out, -1.0)
+
+
+@njit(**_OPTS)
+def pull(padded, pad_offsets, n, w_fine, v_fine, min_weight, out):
+    """One push–pull step up: ``v/w`` where ``w > min_weight``, else the 2× upsampled coarse estimate."""
+    _upsample(padded, pad_offsets, n, 2, w_fine, v_fine, out, min_weight)
+
+
+@njit(inline="always", **_OPTS)
+def _upsample(padded, pad_offsets, n, m, w_fine, v_fine, out, min_weight):
+    """:func:`upsample`; with ``min_weight ≥ 0``, texels with ``w_fine > min_weight`` take ``v/w``."""
+    nf = m * n
+    width = n + 2
+    cell = np.empty(nf, dtype=np.int64)  # padded coarse index and weight of fine index k
+    frac = np.empty(nf)
+    for k in range(nf):
+        x = (k + 0.5) / m - 0.5 + 1.0
+        cell[k] = min(int(x), n)
+        frac[k] = x - int(x)
+    t = 0
+    for face in range(5):
+        rows = nf if face == 0 else nf // 2
+        base_face = pad_offsets[face]
+        for r in range(rows):
+            row_base = base_face + cell[r] * width
+            fr = frac[r]
+            for c in range(nf):
+                if min_weight >= 0.0 and w_fine[t] > min_weight:
+                    out[t] = v_fine[t] / w_fine[t]
+                    t += 1
+                    continue
+                fc = frac[c]
+                base = row_base + cell[c]
+                v00 = padded[base]
+                v01 = padded[base + 1]
+                v10 = padded[base + width]
+                v11 = padded[base + width + 1]
+                a = v00 + (v01 - v00) * fc
+                b = v10 + (v11 - v10) * fc
+                out[t] = a + (b - a) * fr
+                t += 1
 
 
 @njit(**_OPTS)
@@ -215,6 +281,49 @@ def bin_finish(light, used, cnt, fsum, osum, size):
             f[b, ch] = fsum[b, ch] / cnt[b]
         cos_d[b] = min(max(ix * hx + iy * hy + iz * hz, 0.0), 1.0)
     return led, texel, i, o, h, f, cos_d
+
+
+@njit(**_OPTS)
+def overlap_pairs(led, texel, n_leds, size, tau, symmetric):
+    """Direct and τ-symmetric bin pairs: :func:`reconstruct.fresnel_fit.overlap_pairs`.
+
+    ``led``, ``texel`` of the bins, sorted by ``(led, texel)``. Pairs come out in the
+    reference's order: LED pairs ``a ≤ b`` in turn, texels ascending within each.
+    """
+    slot = np.full((n_leds, size), -1, dtype=np.int64)
+    start = np.zeros(n_leds + 1, dtype=np.int64)
+    for k in range(led.shape[0]):
+        slot[led[k], texel[k]] = k
+        start[led[k] + 1] = k + 1
+    for a in range(1, n_leds + 1):
+        start[a] = max(start[a], start[a - 1])
+    cap = 0
+    for a in range(n_leds):
+        cap += (start[a + 1] - start[a]) * (n_leds - a) * (2 if symmetric else 1)
+    p = np.empty(cap, dtype=np.int64)
+    q = np.empty(cap, dtype=np.int64)
+    sym = np.empty(cap, dtype=np.bool_)
+    m = 0
+    for a in range(n_leds):
+        for b in range(a, n_leds):
+            if b > a:
+                for k in range(start[a], start[a + 1]):
+                    j = slot[b, texel[k]]
+                    if j >= 0:
+                        p[m] = k
+                        q[m] = j
+                        sym[m] = False
+                        m += 1
+            if symmetric:
+                for k in range(start[a], start[a + 1]):
+                    t = texel[k]
+                    j = slot[b, tau[t]]
+                    if j >= 0 and (a != b or t < tau[t]):
+                        p[m] = k
+                        q[m] = j
+                        sym[m] = True
+                        m += 1
+    return p[:m], q[:m], sym[:m]
 
 
 @njit(**_OPTS)

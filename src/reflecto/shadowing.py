@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from . import _kernels
 from .hemicube import Hemicube
 
 Array = NDArray[np.float64]
@@ -114,17 +115,9 @@ class SigmaTable:
         """
         if (stencil.n_theta, stencil.n_phi) != (self.n_theta, self.n_phi):
             raise ValueError("stencil was made for a different σ grid")
-        flat = self._flat()
-        w = self.n_phi + 1
-        s00 = flat[stencil.idx]
-        s01 = flat[stencil.idx + 1]
-        s10 = flat[stencil.idx + w]
-        s11 = flat[stencil.idx + w + 1]
-        s00 += stencil.fp * (s01 - s00)
-        s10 += stencil.fp * (s11 - s10)
-        s00 += stencil.ft * (s10 - s00)
-        sig = np.maximum(s00, stencil.cos)
-        return np.divide(stencil.cos, sig, out=np.zeros_like(sig), where=sig > 0).reshape(stencil.shape)
+        out = np.empty(len(stencil.idx))
+        _kernels.shadowing_at(self._flat(), self.n_phi + 1, stencil.idx, stencil.ft, stencil.fp, stencil.cos, out)
+        return out.reshape(stencil.shape)
 
     def azimuthal_min(self) -> SigmaTable:
         """``S(θ, φ) ← min_φ' S(θ, φ')`` (Lan et al. §5.2, after Wang et al. 2008).
@@ -203,7 +196,7 @@ N_PHI_QUAD = 256
 def _kernel_spectrum(n_theta: int, n_u: int, n_phi: int) -> tuple[Array, Array, Array]:
     """rFFT over Δφ of ``K(θ_k, θ_h, Δφ) = max(0, sinθ_k sinθ_h cosΔφ + cosθ_k cosθ_h)``.
 
-    Returns the spectrum (shape ``(n_phi//2 + 1, n_theta, n_u)``), the ring polar
+    Returns the (real) spectrum (shape ``(n_phi//2 + 1, n_theta, n_u)``), the ring polar
     angles θ_h and the ring weights ``sinθ_h dθ_h dφ`` (sr per quadrature node).
     """
     theta_k = np.linspace(0.0, 0.5 * np.pi, n_theta)
@@ -215,22 +208,27 @@ def _kernel_spectrum(n_theta: int, n_u: int, n_phi: int) -> tuple[Array, Array, 
         np.sin(theta_k)[:, None, None] * np.sin(theta_h)[None, :, None] * np.cos(dphi)[None, None, :]
         + np.cos(theta_k)[:, None, None] * np.cos(theta_h)[None, :, None]
     )
-    # stored (F, n_theta, n_u): sigma_table contracts u per frequency as one batched matmul
-    spec = np.ascontiguousarray(np.fft.rfft(np.maximum(k, 0.0), axis=-1).transpose(2, 0, 1))
+    # K is even in Δφ, so its spectrum is real (the imaginary part is rounding noise,
+    # ~1e-16 of the real one): keep it real. Stored (F, n_theta, n_u): sigma_table
+    # contracts u per frequency as one batched real matmul.
+    spec = np.ascontiguousarray(np.fft.rfft(np.maximum(k, 0.0), axis=-1).real.transpose(2, 0, 1))
     spec.setflags(write=False)
     return spec, theta_h, weight
 
 
+@functools.lru_cache(maxsize=8)
 def polar_directions(n_u: int = N_U, n_phi: int = N_PHI_QUAD) -> Array:
-    """Quadrature nodes of :func:`sigma_table`, shape ``(n_u, n_phi, 3)``."""
+    """Quadrature nodes of :func:`sigma_table`, shape ``(n_u, n_phi, 3)`` (cached, read-only)."""
     u = (np.arange(n_u) + 0.5) / n_u
     theta = u * u * (0.5 * np.pi)
     phi = np.arange(n_phi) * (2.0 * np.pi / n_phi)
     st = np.sin(theta)[:, None]
-    return np.stack(
+    out = np.stack(
         np.broadcast_arrays(st * np.cos(phi)[None], st * np.sin(phi)[None], np.cos(theta)[:, None]),
         axis=-1,
     )
+    out.setflags(write=False)
+    return out
 
 
 def sigma_table(
@@ -270,7 +268,9 @@ def sigma_table(
     norm = float(np.sum(d_polar * np.cos(theta_h)[:, None]))
     d_spec = np.fft.rfft(d_polar, axis=-1)  # (n_u, F)
     # circular convolution over φ: σ(θk, φk) = Σ_h D(θh, φh) K(θk, θh, φk − φh)
-    sig_spec = np.matmul(spec, d_spec.T[:, :, None])[..., 0].T  # Σ_u spec[f, t, u] d[u, f] → (t, f)
+    # Σ_u spec[f, t, u] d[u, f] for the real and imaginary parts at once → (t, f)
+    parts = np.matmul(spec, np.stack([d_spec.real.T, d_spec.imag.T], axis=-1))  # (F, t, 2)
+    sig_spec = (parts[..., 0] + 1j * parts[..., 1]).T
     sigma = np.fft.irfft(sig_spec, n=N_PHI_QUAD, axis=-1)[:, :: N_PHI_QUAD // n_phi]
     if norm > 0:
         sigma = sigma / norm

@@ -110,7 +110,21 @@ def pair_residuals_numpy(cp: Array, cq: Array, fp: Array, fq: Array, ap: Array, 
 
 
 def overlap_pairs(bins: Bins, n_leds: int, symmetric: bool = True) -> Pairs:
-    """All direct (same texel, two LEDs) and symmetric (``h`` and ``τh``) bin pairs."""
+    """All direct (same texel, two LEDs) and symmetric (``h`` and ``τh``) bin pairs.
+
+    Bins must be sorted by ``(led, texel)``, as :func:`bin_samples` makes them.
+    """
+    key = bins.led.astype(np.int64) * bins.cube.size + bins.texel
+    if np.any(np.diff(key) <= 0):
+        raise ValueError("overlap_pairs: bins must be sorted by (led, texel), one bin per key")
+    tau = bins.cube.permutation(np.diag([-1.0, -1.0, 1.0]))
+    p, q, sym = _kernels.overlap_pairs(bins.led.astype(np.int64), bins.texel.astype(np.int64), n_leds,
+                                       bins.cube.size, tau.astype(np.int64), symmetric)
+    return Pairs(p.astype(np.intp), q.astype(np.intp), sym)
+
+
+def overlap_pairs_numpy(bins: Bins, n_leds: int, symmetric: bool = True) -> Pairs:
+    """NumPy reference of :func:`overlap_pairs` (same pairs, same order)."""
     size = bins.cube.size
     slot = np.full((n_leds, size), -1, dtype=np.intp)
     slot[bins.led, bins.texel] = np.arange(len(bins))
@@ -233,12 +247,13 @@ def fit_fresnel(
     order = np.argsort(np.abs(lum_res))
     cw = np.cumsum((w * w)[order])
     error_median = float(np.abs(lum_res[order])[np.searchsorted(cw, 0.5 * cw[-1])])
-    pair_error = np.full((n_leds, n_leds), np.nan)
+    # RMS residual per unordered LED pair
     la, lb = bins.led[p], bins.led[q]
-    for x in range(n_leds):
-        for y in range(x, n_leds):
-            m = ((la == x) & (lb == y)) | ((la == y) & (lb == x))
-            if m.any():
-                pair_error[x, y] = pair_error[y, x] = float(np.sqrt(np.mean(lum_res[m] ** 2)))
+    cell = np.minimum(la, lb) * n_leds + np.maximum(la, lb)
+    n_cell = np.bincount(cell, minlength=n_leds * n_leds).reshape(n_leds, n_leds)
+    ss = np.bincount(cell, weights=lum_res**2, minlength=n_leds * n_leds).reshape(n_leds, n_leds)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pair_error = np.where(n_cell > 0, np.sqrt(ss / n_cell), np.nan)
+    pair_error = np.where(np.isnan(pair_error), pair_error.T, pair_error)
     spread = float(np.degrees(np.median(np.abs(np.arccos(cp) - np.arccos(cq)))))
     return FresnelFit(eta, kd, error, pair_error, int(len(p)), spread, error_median)

@@ -15,13 +15,13 @@ resampled bilinearly to the output resolution.
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..hemicube import Hemicube, hemicube
+from .. import _kernels
+from ..hemicube import Hemicube
 
 Array = NDArray[np.float64]
 
@@ -46,24 +46,16 @@ def merge_completed(
 
     ``texel``/``texel_tau``: texel of each value's ``h`` and ``τh``, shape ``(B,)``.
     """
-    wsum = np.bincount(texel, weights=weights, minlength=cube.size)
-    wv = np.bincount(texel, weights=weights * values, minlength=cube.size)
+    return merge_sums(cube, texel, texel_tau, weights, symmetric), merge_sums(cube, texel, texel_tau, weights * values, symmetric)
+
+
+def merge_sums(cube: Hemicube, texel: NDArray[np.intp], texel_tau: NDArray[np.intp], x: Array,
+               symmetric: bool = True) -> Array:
+    """``Σ x`` per texel over the values at ``h`` and, if ``symmetric``, at ``τh`` (eqs. 3, 9)."""
+    out = np.bincount(texel, weights=x, minlength=cube.size)
     if symmetric:
-        wsum += np.bincount(texel_tau, weights=weights, minlength=cube.size)
-        wv += np.bincount(texel_tau, weights=weights * values, minlength=cube.size)
-    return wsum, wv
-
-
-@functools.lru_cache(maxsize=8)
-def _pyramid(n: int) -> tuple[tuple[Hemicube, NDArray[np.intp]], ...]:
-    """Levels ``(cube, parent index of each finer texel)`` from ``n`` down to 4."""
-    out = []
-    c = hemicube(n)
-    while c.n > 4:
-        c2 = c._coarse(2)
-        out.append((c2, c2.index(c.directions)))
-        c = c2
-    return tuple(out)
+        out += np.bincount(texel_tau, weights=x, minlength=cube.size)
+    return out
 
 
 def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-12) -> Array:
@@ -73,24 +65,21 @@ def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-
     the coarser level's estimate interpolated bilinearly at its direction (so the fill
     is continuous, not blocky). Measured texels are never changed.
     """
-    pyramid = _pyramid(cube.n)
-    levels = [(wsum, wvsum)]
-    c, w, v = cube, wsum, wvsum
-    for c2, _ in pyramid:
-        w = c.block_reduce(w, 2)
-        v = c.block_reduce(v, 2)
-        c = c2
-        levels.append((w, v))
+    cubes = [cube]
+    ws, vs = [np.ascontiguousarray(wsum, dtype=np.float64)], [np.ascontiguousarray(wvsum, dtype=np.float64)]
+    while cubes[-1].n > 4:
+        ws.append(cubes[-1].block_reduce(ws[-1], 2))
+        vs.append(cubes[-1].block_reduce(vs[-1], 2))
+        cubes.append(cubes[-1]._coarse(2))
     # coarsest level: fill any remaining hole with the global mean
-    w, v = levels[-1]
+    w, v = ws[-1], vs[-1]
     total_w = max(float(w.sum()), min_weight)
     est = np.where(w > min_weight, v / np.maximum(w, min_weight), float(v.sum()) / total_w)
-    coarse = [cube] + [c2 for c2, _ in pyramid]
-    for k in range(len(levels) - 2, -1, -1):
-        w_fine, v_fine = levels[k]
+    for k in range(len(ws) - 2, -1, -1):
         # holes take the coarser estimate interpolated bilinearly (continuous fill)
-        up = coarse[k + 1].lookup(est, coarse[k].directions)
-        est = np.where(w_fine > min_weight, v_fine / np.maximum(w_fine, min_weight), up)
+        fine = np.empty(cubes[k].size)
+        _kernels.pull(cubes[k + 1].pad(est), cubes[k + 1]._pad_offsets, cubes[k + 1].n, ws[k], vs[k], min_weight, fine)
+        est = fine
     return est
 
 
@@ -161,4 +150,8 @@ def resample(src: Hemicube, values: Array, dst: Hemicube) -> Array:
     """Bilinear resampling of a hemicube table to another resolution."""
     if src.n == dst.n:
         return values.copy()
+    if dst.n % src.n == 0 and np.ndim(values) == 1:  # refinement: texel centres on a fixed grid
+        out = np.empty(dst.size)
+        _kernels.upsample(src.pad(values), src._pad_offsets, src.n, dst.n // src.n, out)
+        return out
     return src.lookup(values, dst.directions)

@@ -204,13 +204,17 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
                 fit = fit_fresnel(bins, pairs, a, n_leds, kd, eta, kd_max, excluded, opt.fixed_eta, per_channel=last)
         if fit.n_pairs > 0 and np.all(np.isfinite(fit.eta)):
             eta, kd = fit.eta, fit.kd
-        use = ~np.isin(bins.led, list(excluded)) if excluded else np.ones(len(bins), bool)
+        use = ~np.isin(bins.led, list(excluded)) if excluded else slice(None)  # a slice: views, no copies
+        tex, tex_tau, wb = bins.texel[use], bins.texel_tau[use], w_merge[use]
+        wsum = ndf_mod.merge_sums(work, tex, tex_tau, wb)  # eq. 9's Σw: fixed while the bins used are
         fres = np.maximum(fresnel(c[:, None], eta[None, :]), 1e-6)  # (B, 3); η is fixed within the inner loop
         for inner in range(opt.inner_iterations):
             a = cos_io / np.maximum(s_led[bins.led] * s_o, 1e-12)
-            dh = 4.0 * (bins.f - kd / math.pi) * a[:, None] / fres  # eq. 7: k_s D per channel
+            dh = bins.f - kd / math.pi  # eq. 7: k_s D per channel, 4 (f − k_d/π) a / F
+            dh *= (4.0 * a)[:, None]
+            dh /= fres
             d_lum = dh @ LUM
-            wsum, wv = ndf_mod.merge_completed(work, bins.texel[use], bins.texel_tau[use], d_lum[use], w_merge[use])
+            wv = ndf_mod.merge_sums(work, tex, tex_tau, wb * d_lum[use])
             d_work = np.maximum(ndf_mod.push_pull(work, wsum, wv), 0.0)
             norm = float(d_work @ work.projected_solid_angles)
             d_work /= max(norm, 1e-300)
@@ -218,8 +222,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             s_led = table.eval(sl.light)
             s_o = table.eval_at(o_cells)
             # k_s per channel: least squares of k_s,c·D against the partial NDFs (eq. 7)
-            d_b = d_work[bins.texel[use]]
-            wb = w_merge[use]
+            d_b = d_work[tex]
             den = float(np.sum(wb * d_b * d_b))
             ks = np.maximum((wb * d_b) @ dh[use] / max(den, 1e-300), 0.0)
         history.append({"eta": eta.tolist(), "E": fit.error, "kd": kd.tolist(), "ks": ks.tolist()})
@@ -254,7 +257,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         "pair_error": None if fit is None else np.where(np.isfinite(fit.pair_error), fit.pair_error, -1).tolist(),
         "iterations": history,
         "samples": int(bins.count[use].sum()),
-        "bins": int(use.sum()),
+        "bins": int(len(tex)),
         "residual_median_rel": float(np.median(rel)),
         "albedo_max": min(albedo_max, 1.0) if energy_scale < 1 else albedo_max,
         "energy_scale": energy_scale,
