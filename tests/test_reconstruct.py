@@ -122,3 +122,40 @@ def test_compiled_overlap_pairs_match_numpy():
         a, b = overlap_pairs(bins, 6, symmetric), overlap_pairs_numpy(bins, 6, symmetric)
         assert len(a) > 1000
         assert np.array_equal(a.p, b.p) and np.array_equal(a.q, b.q) and np.array_equal(a.symmetric, b.symmetric)
+
+
+def test_lobe_guided_fill_extrapolates_an_anisotropic_ggx_tail():
+    from reflecto.hemicube import hemicube
+    from reflecto.reconstruct.ndf import fill_holes, fit_lobe, push_pull
+
+    cube = hemicube(64)
+    h = cube.directions
+    src = AnalyticBRDF(distribution="ggx", alpha=(0.15, 0.4), rotation_deg=30)
+    d = src.ndf(h)
+    # "measured": θ_h < 35°, with a third of the texels missing; the rest is a hole
+    rng = np.random.default_rng(7)
+    w = np.where((h[:, 2] > np.cos(np.radians(35))) & (rng.random(cube.size) > 0.33), 1.0 + rng.random(cube.size), 0.0)
+    log_lobe = fit_lobe(cube, w, w * 3.0 * d)  # any scale
+    inside = w > 0
+    ratio = np.exp(log_lobe) / (3.0 * d)  # a GGX is recovered (fitted on 2×2 blocks: ~1 %)
+    assert np.mean(np.abs(ratio[inside] - 1)) < 0.015 and np.max(np.abs(ratio - 1)) < 0.03
+    filled = fill_holes(cube, w, w * d)
+    assert np.allclose(filled[inside], d[inside], rtol=1e-14, atol=0)  # measured texels are kept
+    rim = (h[:, 2] < np.cos(np.radians(50))) & (d > 1e-3 * d.max())
+    assert np.mean(np.abs(filled[rim] / d[rim] - 1)) < 0.02
+    # plain push–pull stays flat at the last measured level: far too much mass out there
+    assert np.mean(push_pull(cube, w, w * d)[rim] / d[rim]) > 10.0
+    # measured deep-tail noise far above the lobe (a diffuse residue) must not blow the
+    # holes up: they stay finite and never exceed the plain push–pull fill
+    noisy_w = w.copy()
+    far = (h[:, 2] < np.cos(np.radians(60))) & (rng.random(cube.size) < 0.2)
+    noisy_w[far] = 1.0
+    noisy_v = np.where(far, 1e-4 * d.max(), d)
+    f2, plain = fill_holes(cube, noisy_w, noisy_w * noisy_v), push_pull(cube, noisy_w, noisy_w * noisy_v)
+    holes = noisy_w == 0
+    assert np.all(np.isfinite(f2)) and np.all(f2[holes] <= plain[holes])
+    # no lobe fits a table that grows away from the normal (B is not positive definite;
+    # a constant would fit: GGX with α = 1): falls back to plain push–pull
+    rising = h[:, 2] ** -6.0
+    assert fit_lobe(cube, w, w * rising) is None
+    assert np.array_equal(fill_holes(cube, w, w * rising), push_pull(cube, w, w * rising))

@@ -8,20 +8,23 @@ Eq. 7 with the constant 4 and ``∫D cos = 1`` (algorithm-reference §3.3; the p
 Binned samples (:mod:`.samples`) are merged into a hemicube at a working resolution
 (each texel the W-weighted mean of the bins that fall in it, eq. 9 with
 ``W = √(o_h·n)`` per pixel); completion by eq. 3 adds every bin a second time at ``τh``; texels that no
-sample reaches are filled by push–pull (normalized convolution over the texel
-pyramid); below the peak the table is smoothed (:func:`smooth_tails`), then
-resampled bilinearly to the output resolution.
+sample reaches are filled (:func:`fill_holes`): an anisotropic GGX or Beckmann lobe
+fitted to the measured texels gives the shape, and push–pull (normalized convolution
+over the texel pyramid) carries the measured-to-lobe ratio into the holes; below the
+peak the table is smoothed (:func:`smooth_tails`), then resampled bilinearly to the
+output resolution.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .. import _kernels
-from ..hemicube import Hemicube
+from ..hemicube import Hemicube, hemicube
 
 Array = NDArray[np.float64]
 
@@ -81,6 +84,107 @@ def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-
         _kernels.pull(cubes[k + 1].pad(est), cubes[k + 1]._pad_offsets, cubes[k + 1].n, ws[k], vs[k], min_weight, fine)
         est = fine
     return est
+
+
+#: Texels below this fraction of the measured peak do not enter the lobe fit of :func:`fit_lobe`.
+LOBE_FLOOR = 1e-3
+
+
+@functools.lru_cache(maxsize=8)
+def _slope_terms(n: int) -> tuple[Array, Array]:
+    """Per texel of ``hemicube(n)``: ``[1, s_x², 2 s_x s_y, s_y²]`` (s = slope) and ``log cos⁴θ``."""
+    h = hemicube(n).directions
+    sx, sy = h[:, 0] / h[:, 2], h[:, 1] / h[:, 2]
+    x = np.stack([np.ones_like(sx), sx * sx, 2.0 * sx * sy, sy * sy], axis=1)
+    log_c4 = 4.0 * np.log(h[:, 2])
+    x.setflags(write=False)
+    log_c4.setflags(write=False)
+    return x, log_c4
+
+
+def fit_lobe(cube: Hemicube, wsum: Array, wvsum: Array) -> Array | None:
+    """Log of an anisotropic GGX or Beckmann lobe fitted to the measured NDF texels, or ``None``.
+
+    Both families are linear in the slopes' quadratic form ``sᵀBs`` after a transform
+    (``s = (h_x, h_y)/h_z``; Walter et al. 2007)::
+
+        GGX:       (D cos⁴θ)^(−½) = a + sᵀBs        (D ∝ 1 / (cos⁴θ (1 + sᵀAs)²))
+        Beckmann:  log(D cos⁴θ)   = a − sᵀBs        (D ∝ exp(−sᵀAs) / cos⁴θ)
+
+    so each is one weighted linear least-squares fit, done on 2×2 texel blocks (the
+    lobe only guides :func:`fill_holes`; weights: the merge weights, scaled so that the
+    residual is a relative error of D; texels below :data:`LOBE_FLOOR` of the peak are
+    left out). Returns ``log D`` of the family with the smaller weighted log-RMS
+    misfit at every texel of ``cube`` (same scale as the data; in log because grazing
+    tails underflow); ``None`` if neither gives a positive-definite ``B``.
+
+    Parameters
+    ----------
+    wsum, wvsum
+        ``Σw`` and ``Σw·D`` per texel (0 where unmeasured), shape ``(cube.size,)``.
+    """
+    n_fit = cube.n // 2 if cube.n >= 32 else cube.n
+    w = cube.block_reduce(wsum, 2) if n_fit != cube.n else wsum
+    wv = cube.block_reduce(wvsum, 2) if n_fit != cube.n else wvsum
+    v = np.where(w > 0, wv / np.where(w > 0, w, 1.0), 0.0)
+    obs = (w > 0) & (v > LOBE_FLOOR * max(float(v.max()), 1e-300))
+    if np.count_nonzero(obs) < 20:
+        return None
+    x_fit, log_c4_fit = _slope_terms(n_fit)
+    x, wo = x_fit[obs], w[obs]
+    log_vc4 = np.log(v[obs]) + log_c4_fit[obs]
+    best: tuple[float, str, Array] | None = None
+    for family in ("ggx", "beckmann"):
+        if family == "ggx":
+            y, ww = np.exp(-0.5 * log_vc4), wo * np.exp(log_vc4)  # δD/D = −2 δy/y
+        else:
+            y, ww = log_vc4, wo
+        sw = np.sqrt(ww)
+        coef = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=None)[0]
+        b = np.array([[coef[1], coef[2]], [coef[2], coef[3]]])
+        if np.any(np.linalg.eigvalsh(b if family == "ggx" else -b) <= 0) or (family == "ggx" and coef[0] <= 0):
+            continue
+        q = x @ coef
+        log_fit = -2.0 * np.log(q) if family == "ggx" else q  # log(lobe · cos⁴θ) at the fitted blocks
+        misfit = float(np.sqrt(np.sum(wo * (log_vc4 - log_fit) ** 2) / np.sum(wo)))
+        if np.isfinite(misfit) and (best is None or misfit < best[0]):
+            best = (misfit, family, coef)
+    if best is None:
+        return None
+    _, family, coef = best
+    x_all, log_c4 = _slope_terms(cube.n)
+    q = x_all @ coef
+    return (-2.0 * np.log(q) if family == "ggx" else q) - log_c4
+
+
+def fill_holes(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-12) -> Array:
+    """Merged NDF with the texels that no sample reaches filled (measured texels unchanged).
+
+    Plain push–pull fills a hole with a smooth average of its measured neighbours, so
+    beyond the measured region (grazing θ_h, where the layout sees nothing) the NDF
+    would stay flat at its last measured level. Here the hole takes the shape of a lobe
+    fitted to the measured texels (:func:`fit_lobe`) times the push–pulled ratio
+    ``D/lobe`` (in log), so it decays as a microfacet NDF does and joins the measured
+    texels continuously; it is capped by the plain push–pull value. Falls back to
+    plain push–pull when no lobe fits.
+    """
+    obs = wsum > min_weight
+    log_lobe = fit_lobe(cube, np.where(obs, wsum, 0.0), np.where(obs, wvsum, 0.0))
+    if log_lobe is None:
+        return push_pull(cube, wsum, wvsum, min_weight)
+    plain = push_pull(cube, wsum, wvsum, min_weight)
+    v = np.where(obs, wvsum / np.maximum(wsum, min_weight), 0.0)
+    # the ratio is taken where the lobe was fitted: in the deep tail the measured
+    # values are noise and diffuse residue, orders of magnitude off any lobe
+    pos = obs & (v > LOBE_FLOOR * max(float(v.max()), 1e-300))
+    if not np.any(pos):
+        return plain
+    w = np.where(pos, wsum, 0.0)
+    ratio = np.zeros(cube.size)
+    ratio[pos] = np.log(v[pos]) - log_lobe[pos]
+    guided = np.exp(np.minimum(log_lobe + push_pull(cube, w, w * ratio, min_weight), 700.0))
+    # a hole never exceeds the flat fill: the lobe only makes tails decay
+    return np.where(obs, v, np.minimum(guided, plain))
 
 
 #: :func:`smooth_tails` keeps texels at or above this fraction of the peak unchanged …

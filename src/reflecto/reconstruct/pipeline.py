@@ -215,7 +215,10 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             dh /= fres
             d_lum = dh @ LUM
             wv = ndf_mod.merge_sums(work, tex, tex_tau, wb * d_lum[use])
-            d_work = np.maximum(ndf_mod.push_pull(work, wsum, wv), 0.0)
+            # holes: plain push–pull while η and S settle; the lobe-guided fill (which
+            # costs a fit) for the final NDF, whose tails set its normalization and S
+            fill = ndf_mod.fill_holes if last else ndf_mod.push_pull
+            d_work = np.maximum(fill(work, wsum, wv), 0.0)
             norm = float(d_work @ work.projected_solid_angles)
             d_work /= max(norm, 1e-300)
             table = _sigma_work(work, d_work, opt.azimuthal_min)
