@@ -233,7 +233,9 @@ def fit_fresnel(
         if np.all(np.isfinite(r(x))):
             # MINPACK's lmdif directly: least_squares(method="lm") runs the same
             # algorithm but spends ≈ 4 ms per fit in Python around the Jacobian
-            sol = leastsq(r, x, ftol=1e-8, xtol=1e-8, gtol=1e-8)[0]
+            # full_output: a fit that runs out of evaluations (maxfev = 600, as
+            # least_squares) keeps its last iterate without a warning
+            sol = leastsq(r, x, ftol=1e-8, xtol=1e-8, gtol=1e-8, full_output=True)[0]
             if np.all(np.isfinite(sol)) and np.all(np.isfinite(r(sol))):
                 x = np.atleast_1d(sol)
         eta[ch], kd[ch] = parts(x)
