@@ -159,3 +159,22 @@ def test_lobe_guided_fill_extrapolates_an_anisotropic_ggx_tail():
     rising = h[:, 2] ** -6.0
     assert fit_lobe(cube, w, w * rising) is None
     assert np.array_equal(fill_holes(cube, w, w * rising), push_pull(cube, w, w * rising))
+
+
+def test_shaken_capture_is_flagged_by_the_symmetry_planes_and_a_clean_one_is_not():
+    from reflecto.reconstruct.symmetry import PLANE_THRESHOLD_DEG
+
+    dev = Device.builtin("ideal")
+    cal = nominal_calibration(dev)
+    src = AnalyticBRDF(distribution="ggx", alpha=0.15, kd=0.1, ks=0.7)
+    clean = reconstruct(extract_slices(simulate_capture(src, dev, seed=1), cal)).summary
+    planes = [x for x in clean["symmetry_plane_offsets_deg"] if x is not None]
+    assert len(planes) >= 2 and max(abs(x) for x in planes) < 0.3  # the steep LEDs locate their planes
+    assert not clean["shake_detected"]
+    for seed in (0, 7):  # the sample turns 4° from LED 3 (seed 0) or LED 4 (seed 7) on
+        cap = simulate_capture(src, dev, seed=seed, shake=True, shake_deg=4.0)
+        s = reconstruct(extract_slices(cap, cal)).summary
+        off = s["symmetry_plane_offsets_deg"]
+        assert off[4] is not None and abs(off[4]) > PLANE_THRESHOLD_DEG  # LED 4 moved: its plane misses n
+        assert off[2] is not None and abs(off[2]) < 0.3  # LED 2 did not
+        assert s["shake_detected"]

@@ -156,6 +156,46 @@ def _upsample(padded, pad_offsets, n, m, w_fine, v_fine, out, min_weight):
 
 
 @njit(**_OPTS)
+def mirror_distances(t, vt, e1, e2, psis, pad_v, pad_has, pad_offsets, n, out):
+    """Symmetry distance of a slice per plane angle: :func:`reconstruct.symmetry.plane_offset`.
+
+    Texel directions ``t`` (M, 3) with values ``vt`` are mirrored across the plane with
+    normal ``cos ψ e2 + sin ψ e1`` for every ψ; only texels whose mirror image lands on
+    data (``pad_has`` ≥ 0.999) for every ψ count. ``out[j]`` = mean squared difference
+    over them divided by the mean of ``vt²`` over them; all ``inf`` if fewer than 50.
+    """
+    m, n_psi = t.shape[0], psis.shape[0]
+    keep = np.ones(m, dtype=np.bool_)
+    mirrored = np.empty((n_psi, m, 3))
+    for j in range(n_psi):
+        c, s = math.cos(psis[j]), math.sin(psis[j])
+        ux, uy, uz = c * e2[0] + s * e1[0], c * e2[1] + s * e1[1], c * e2[2] + s * e1[2]
+        for k in range(m):
+            d = 2.0 * (t[k, 0] * ux + t[k, 1] * uy + t[k, 2] * uz)
+            x, y, z = t[k, 0] - d * ux, t[k, 1] - d * uy, max(t[k, 2] - d * uz, 1e-9)
+            mirrored[j, k, 0], mirrored[j, k, 1], mirrored[j, k, 2] = x, y, z
+            if keep[k] and _cube_lookup(pad_has, pad_offsets, n, x, y, z) <= 0.999:
+                keep[k] = False
+    count = 0
+    scale = 0.0
+    for k in range(m):
+        if keep[k]:
+            count += 1
+            scale += vt[k] * vt[k]
+    if count < 50 or scale <= 0.0:
+        for j in range(n_psi):
+            out[j] = np.inf
+        return
+    for j in range(n_psi):
+        acc = 0.0
+        for k in range(m):
+            if keep[k]:
+                r = vt[k] - _cube_lookup(pad_v, pad_offsets, n, mirrored[j, k, 0], mirrored[j, k, 1], mirrored[j, k, 2])
+                acc += r * r
+        out[j] = acc / scale
+
+
+@njit(**_OPTS)
 def pad_border(values, border, src, w, out):
     """The border texels of :meth:`Hemicube.pad`: ``out[b] = Σ_j values[src[b, j]] w[b, j]``."""
     for k in range(border.shape[0]):
