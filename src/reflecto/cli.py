@@ -160,6 +160,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
+    from .reconstruct.symmetry import PLANE_THRESHOLD_DEG
+
     caps = list(args.captures)
     if len(caps) > 1 and not Path(args.output).suffix == "":
         raise ReflectoError(f"{args.output}: with several captures, -o must be a folder")
@@ -178,7 +180,12 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         with ProcessPoolExecutor(max_workers=args.jobs or os.cpu_count()) as ex:
             results = list(tqdm(ex.map(_reconstruct_one, jobs), total=len(jobs), disable=not show, desc="reconstruct"))
     for out, r in zip(outs, results):
-        flag = "  SHAKE DETECTED: LEDs " + str(r["excluded_leds"]) + " excluded" if r["shake_detected"] else ""
+        flag = ""
+        if r["shake_detected"]:
+            planes = [k for k, x in enumerate(r["symmetry_plane_offsets_deg"]) if x is not None and abs(x) > PLANE_THRESHOLD_DEG]
+            flag = (f"  SHAKE DETECTED (E(η) {r['fresnel_error_at_check']:.2f}"
+                    + (f"; LEDs {planes} not symmetric about the normal" if planes else "")
+                    + (f"; LEDs {r['excluded_leds']} excluded" if r["excluded_leds"] else "") + ")")
         print(f"{out}: eta {np.round(r['eta'], 3).tolist()}, kd {np.round(r['kd'], 3).tolist()}, "
               f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, {r['seconds'] * 1000:.0f} ms{flag}")
     return 0

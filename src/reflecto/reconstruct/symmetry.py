@@ -13,6 +13,10 @@ shared materials, the grazing slices of metals and coated paints put their plane
 1.5–10° off the normal even without a shake (clean brass, aluminium, metallic
 paints); and the slices of rough materials are too flat to place a plane at all
 (:data:`MIN_CURVATURE`). So a shake that moves only grazing LEDs goes unseen here.
+
+A tilted capture reconstructed without the §5.4 normal estimate shows the same way
+(every steep plane misses the assumed normal) and is flagged too; with the estimate,
+the planes are measured against the estimated normal.
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ PLANE_THRESHOLD_DEG = 1.5
 CUBE_N = 64
 
 
-def plane_offset(light: Array, view: Array, values: Array) -> tuple[float, float] | None:
+def plane_offset(light: Array, view: Array, values: Array, weights: Array | None = None) -> tuple[float, float] | None:
     """Angle (degrees) between an LED's symmetry plane and the plane through ``n = z``.
 
     Parameters
@@ -51,15 +55,17 @@ def plane_offset(light: Array, view: Array, values: Array) -> tuple[float, float
     light
         LED direction in the sample frame, shape ``(3,)``.
     view
-        View directions of the valid pixels, shape ``(P, 3)``.
+        View directions of the pixels, shape ``(P, 3)``.
     values
         Luminance of the slice at those pixels (sr⁻¹), shape ``(P,)``.
+    weights
+        1 for valid pixels, 0 for the others (default: all valid), shape ``(P,)``.
 
     Returns ``(ψ, curvature)``, or ``None`` when the minimum lies on the search bound
     or too few mirrored texels land on data.
     """
     cube = hemicube(CUBE_N)
-    wsum, wv = cube.splat(view, values[:, None])
+    wsum, wv = cube.splat(view, values[:, None], weights)
     has = (wsum > 0).astype(np.float64)
     v = np.where(wsum > 0, wv[:, 0] / np.where(wsum > 0, wsum, 1.0), 0.0)
     pad_v, pad_has = cube.pad(v), cube.pad(has)
@@ -100,6 +106,6 @@ def plane_offsets(light: Array, view: Array, values: Array, valid: NDArray[np.bo
         if light[k, 2] < min_z or np.count_nonzero(ok) < 1000:
             out.append(None)
             continue
-        r = plane_offset(light[k], view[ok], values[k][ok] @ LUM)
+        r = plane_offset(light[k], view, values[k] @ LUM, ok.astype(np.float64))
         out.append(None if r is None or r[1] < MIN_CURVATURE else r[0])
     return out
