@@ -50,7 +50,12 @@ def _cube_lookup(padded, pad_offsets, n: int, x: float, y: float, z: float) -> f
     if ci > n:
         ci = n
     width = n + 2
-    base = ri * width + ci + pad_offsets[face]
+    return _bilinear(padded, ri * width + ci + pad_offsets[face], width, fc, fr)
+
+
+@njit(inline="always", **_OPTS)
+def _bilinear(padded, base: int, width: int, fc: float, fr: float) -> float:
+    """Bilinear blend of the 2×2 padded texels from ``base`` (row stride ``width``)."""
     v00 = padded[base]
     v01 = padded[base + 1]
     v10 = padded[base + width]
@@ -143,15 +148,7 @@ def _upsample(padded, pad_offsets, n, m, w_fine, v_fine, out, min_weight):
                     out[t] = v_fine[t] / w_fine[t]
                     t += 1
                     continue
-                fc = frac[c]
-                base = row_base + cell[c]
-                v00 = padded[base]
-                v01 = padded[base + 1]
-                v10 = padded[base + width]
-                v11 = padded[base + width + 1]
-                a = v00 + (v01 - v00) * fc
-                b = v10 + (v11 - v10) * fc
-                out[t] = a + (b - a) * fr
+                out[t] = _bilinear(padded, row_base + cell[c], width, frac[c], fr)
                 t += 1
 
 

@@ -60,32 +60,17 @@ class SigmaTable:
 
     def eval_sigma(self, dirs: ArrayLike) -> Array:
         """Bilinearly interpolated σ at unit directions ``dirs`` (shape ``(..., 3)``)."""
-        d = np.asarray(dirs, dtype=np.float64)
-        shape = d.shape[:-1]
-        x, y, z = d.reshape(-1, 3).T.copy()  # a copy: z is modified in place below
-        nt, nphi = self.n_theta, self.n_phi
+        st = grid_stencil(dirs, self.n_theta, self.n_phi)
         flat = self._flat()
-        np.clip(z, 0.0, 1.0, out=z)
-        t = np.arccos(z, out=z)
-        t *= (nt - 1) / (0.5 * np.pi)
-        p = np.arctan2(y, x)
-        p *= nphi / (2.0 * np.pi)
-        p += nphi  # now in [nphi/2, 3 nphi/2]: positive, so truncation is floor
-        t0 = np.minimum(t.astype(np.intp), nt - 2)
-        p0 = p.astype(np.intp)
-        ft = t - t0
-        fp = p - p0
-        p0 %= nphi
-        w = nphi + 1
-        idx = t0 * w + p0
-        s00 = flat[idx]
-        s01 = flat[idx + 1]
-        s10 = flat[idx + w]
-        s11 = flat[idx + w + 1]
-        s00 += fp * (s01 - s00)
-        s10 += fp * (s11 - s10)
-        s00 += ft * (s10 - s00)
-        return s00.reshape(shape)
+        w = self.n_phi + 1
+        s00 = flat[st.idx]
+        s01 = flat[st.idx + 1]
+        s10 = flat[st.idx + w]
+        s11 = flat[st.idx + w + 1]
+        s00 += st.fp * (s01 - s00)
+        s10 += st.fp * (s11 - s10)
+        s00 += st.ft * (s10 - s00)
+        return s00.reshape(st.shape)
 
     def _flat(self) -> Array:
         """σ with the φ = 0 column repeated at φ = 2π, flattened (cached)."""
@@ -143,7 +128,8 @@ class GridStencil:
 def grid_stencil(dirs: ArrayLike, n_theta: int = N_THETA, n_phi: int = N_PHI) -> GridStencil:
     """Cells and weights of unit ``dirs`` (shape ``(..., 3)``) in an ``n_theta × n_phi`` σ grid.
 
-    The same arithmetic as :meth:`SigmaTable.eval_sigma`.
+    θ and φ map linearly to grid coordinates; truncation gives the cell (φ is shifted
+    by a full turn so that it is positive), the remainders are the bilinear weights.
     """
     d = np.asarray(dirs, dtype=np.float64)
     x, y, z = d.reshape(-1, 3).T.copy()
