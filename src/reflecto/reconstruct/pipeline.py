@@ -61,7 +61,7 @@ LUM = np.array([0.2126, 0.7152, 0.0722])
 
 #: E(η) (at the shake test, outer iteration 1) above this marks a shaken capture.
 #: Clean captures of the 50 shared materials reach 0.57 (model mismatch; ideal and
-#: as-built device alike), shaken ones 0.04–1.0, so no threshold separates them all
+#: as-built device alike), shaken ones 0.10–1.03, so no threshold separates them all
 #: (issue 4, open): 0.7 keeps clean captures unflagged with a margin, and the
 #: symmetry cue (:mod:`.symmetry`) finds most of the shakes E(η) misses.
 SHAKE_THRESHOLD = 0.7
