@@ -28,13 +28,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..colour import LUM
 from ..io import atomic_path, atomic_write
 from ..model import MicrofacetBRDF
 from ..plotting import pyplot, save_figure
 from ..sources.base import BRDFSource
 
 Array = NDArray[np.float64]
-LUM = np.array([0.2126, 0.7152, 0.0722])
 
 _CHECK_SCRIPT = """<script>
 window.addEventListener('load', function () {

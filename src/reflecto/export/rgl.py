@@ -35,12 +35,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
+from ..colour import LUM
 from ..io import atomic_write
 from ..sources.base import BRDFSource
 from ..sources.rgl import MAGIC, Marginal2D
 
 Array = NDArray[np.float64]
-LUM = np.array([0.2126, 0.7152, 0.0722])
 #: The vndf warp uses the source's NDF raised to this power (then normalized): heavier
 #: tails than D itself, so that the warped domain keeps resolution where f is small but
 #: not zero (see the module docstring).

@@ -35,11 +35,11 @@ from numpy.typing import NDArray
 from scipy.optimize import leastsq
 
 from .. import _kernels
+from ..colour import LUM
 from ..fresnel import fresnel_numpy
 from .samples import Bins
 
 Array = NDArray[np.float64]
-LUM = np.array([0.2126, 0.7152, 0.0722])
 
 #: Only bins whose ``f cos cos / S S`` is above this fraction of the maximum take part.
 MIN_LEVEL = 1e-4

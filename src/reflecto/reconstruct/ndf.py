@@ -41,17 +41,6 @@ def merge_weights(o: Array) -> Array:
     return np.sqrt(np.maximum(o[..., 2], 0.0))
 
 
-def merge_completed(
-    cube: Hemicube, texel: NDArray[np.intp], texel_tau: NDArray[np.intp], values: Array, weights: Array,
-    symmetric: bool = True,
-) -> tuple[Array, Array]:
-    """``(Σw, Σw·v)`` per texel (eq. 9), every value also at ``τh`` if ``symmetric`` (eq. 3).
-
-    ``texel``/``texel_tau``: texel of each value's ``h`` and ``τh``, shape ``(B,)``.
-    """
-    return merge_sums(cube, texel, texel_tau, weights, symmetric), merge_sums(cube, texel, texel_tau, weights * values, symmetric)
-
-
 def merge_sums(cube: Hemicube, texel: NDArray[np.intp], texel_tau: NDArray[np.intp], x: Array,
                symmetric: bool = True) -> Array:
     """``Σ x`` per texel over the values at ``h`` and, if ``symmetric``, at ``τh`` (eqs. 3, 9)."""
@@ -237,7 +226,7 @@ def smooth_tails(cube: Hemicube, d: Array, passes: int | None = None) -> Array:
     # a geometric mean sits below the arithmetic one where texels scatter: rescale the
     # smoothed part to the mass it replaces, locally (at the wide filter's scale), so
     # that no mass moves between regions and normalization does not lift the peak
-    wc = (1.0 - w) * cube.cos_theta * cube.solid_angles
+    wc = (1.0 - w) * cube.projected_solid_angles
     f = cube.n // 128
     num = coarse.lookup(coarse.smooth(cube.block_reduce(wc * d, f), 2), cube.directions)
     den = coarse.lookup(coarse.smooth(cube.block_reduce(wc * smoothed, f), 2), cube.directions)

@@ -44,6 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import geometry
+from ..colour import LUM
 from ..errors import ReflectoError
 from ..fresnel import fresnel
 from ..hemicube import hemicube
@@ -57,7 +58,6 @@ from .samples import bin_samples, low_percentile
 from .symmetry import PLANE_THRESHOLD_DEG, plane_offsets
 
 Array = NDArray[np.float64]
-LUM = np.array([0.2126, 0.7152, 0.0722])
 
 #: E(η) (at the shake test, outer iteration 1) above this marks a shaken capture.
 #: Clean captures of the 50 shared materials reach 0.57 (model mismatch; ideal and
@@ -198,8 +198,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         # E(η) most is dropped and the fit repeated
         if outer == min(1, opt.outer_iterations - 1):
             e_check = float(fit.error)
-        if (opt.detect_shake and outer == min(1, opt.outer_iterations - 1) and np.isfinite(fit.error)
-                and fit.error > SHAKE_THRESHOLD):
+        if opt.detect_shake and outer == min(1, opt.outer_iterations - 1) and e_check > SHAKE_THRESHOLD:
             shake = True
             best = (fit.error, None)
             for k in range(n_leds):

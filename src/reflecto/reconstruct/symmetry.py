@@ -27,11 +27,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import _kernels
+from ..colour import LUM
 from ..hemicube import hemicube
 
 Array = NDArray[np.float64]
 
-LUM = np.array([0.2126, 0.7152, 0.0722])
 #: LEDs at least this far above the sample plane (degrees) enter the test.
 MIN_ELEVATION_DEG = 20.0
 #: Plane angles searched: ±SEARCH_DEG in steps of STEP_DEG, then a parabola.
