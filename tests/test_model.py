@@ -97,6 +97,27 @@ def test_invalid_model_parameters():
         MicrofacetBRDF(np.full(3 * 16 * 16, np.nan))
     with pytest.raises(ParameterError):
         MicrofacetBRDF(np.ones(3 * 16 * 16), kd=[0.1, 0.2])
+    for bad in (np.nan, np.inf, -1e-9):
+        d = np.ones(3 * 16 * 16)
+        d[100] = bad
+        with pytest.raises(ParameterError, match="finite and non-negative"):
+            MicrofacetBRDF(d)
+    with pytest.raises(ParameterError, match="zero everywhere"):
+        MicrofacetBRDF(np.zeros(3 * 16 * 16))
+
+
+def test_ndf_is_float32_rounded_and_normalized(rng):
+    # the compiled pass against the NumPy formula it replaces: round, integrate (eq. 1.2), scale, round
+    d = rng.random(3 * 64 * 64) ** 4 * 7.0
+    m = MicrofacetBRDF(d)
+    q = d.astype(np.float32).astype(np.float64)
+    total = q @ m.cube.projected_solid_angles
+    ref = (q / total).astype(np.float32).astype(np.float64)
+    np.testing.assert_allclose(m.ndf_values, ref, rtol=1.2e-7, atol=0)  # within one float32 ulp
+    assert np.array_equal(m.ndf_values, m.ndf_values.astype(np.float32))
+    assert abs(m.ndf_values @ m.cube.projected_solid_angles - 1.0) < 1e-6
+    raw = MicrofacetBRDF(d, normalize=False)
+    assert np.array_equal(raw.ndf_values, q)
 
 
 @pytest.mark.parametrize("correlated", [False, True])

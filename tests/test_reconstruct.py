@@ -90,7 +90,7 @@ def test_smooth_tails_keeps_the_peak_and_removes_tail_noise():
 
 def test_compiled_binning_matches_numpy():
     from reflecto.hemicube import hemicube
-    from reflecto.reconstruct.samples import bin_samples, bin_samples_numpy, low_percentile
+    from reflecto.reconstruct.samples import bin_samples, bin_samples_numpy, kd_upper_bound, low_percentile
 
     dev = Device.builtin("ideal")
     sl = extract_slices(simulate_capture(AnalyticBRDF(distribution="ggx", alpha=0.2, kd=0.1, ks=0.7), dev, seed=2),
@@ -107,6 +107,16 @@ def test_compiled_binning_matches_numpy():
     x = sl.values[..., 1][valid]
     for q in (0.0, 0.2, 50.0, 100.0):
         assert low_percentile(x, q) == np.percentile(x, q)
+    # the k_d bound's thresholded path, also where the subsample's threshold keeps too few values
+    rng = np.random.default_rng(3)
+    strided = np.ones(200_000)
+    strided[::16] = rng.random(12_500)  # the subsample holds every small value
+    cols = (rng.random(200_000), np.sort(rng.random(200_000))[::-1].copy(), np.r_[np.ones(199_000), rng.random(1000)], strided)
+    for y in cols:
+        v = np.stack([y, y[::-1], np.roll(y, 7)], axis=-1).reshape(4, 50_000, 3)
+        ok = rng.random((4, 50_000)) > 0.05
+        assert np.array_equal(kd_upper_bound(v, ok), np.percentile(v[ok], 0.2, axis=0) * np.pi)
+    assert np.array_equal(kd_upper_bound(sl.values, valid), np.percentile(sl.values[valid], 0.2, axis=0) * np.pi)
 
 
 def test_compiled_overlap_pairs_match_numpy():
@@ -178,3 +188,30 @@ def test_shaken_capture_is_flagged_by_the_symmetry_planes_and_a_clean_one_is_not
         assert off[4] is not None and abs(off[4]) > PLANE_THRESHOLD_DEG  # LED 4 moved: its plane misses n
         assert off[2] is not None and abs(off[2]) < 0.3  # LED 2 did not
         assert s["shake_detected"]
+
+
+def test_analytic_fresnel_jacobian_matches_finite_differences():
+    # the LM's Jacobian (eq. 6 residuals in η and k_d/π) against central differences of the residuals
+    from reflecto import _kernels
+
+    rng = np.random.default_rng(5)
+    n = 400
+    cp, cq = rng.uniform(0.02, 1.0, n), rng.uniform(0.02, 1.0, n)
+    fp, fq = rng.uniform(0.0, 3.0, n), rng.uniform(0.0, 3.0, n)
+    ap, aq, w = rng.uniform(0.1, 1.0, n), rng.uniform(0.1, 1.0, n), rng.uniform(0.1, 1.0, n)
+    fp[:40] = fq[:40] = 1e-4  # pairs whose mean falls below the level: M is constant there
+
+    def r(eta, k):
+        out = np.empty(n)
+        _kernels.pair_residuals(cp, cq, fp, fq, ap, aq, w, eta, k, 0.01, out)
+        return out
+
+    for eta in (1.2, 1.5, 2.4, 8.0):
+        jac = np.empty((2, n))
+        _kernels.pair_residuals_jac(cp, cq, fp, fq, ap, aq, w, eta, 0.02, 0.01, jac)
+        h = 1e-6
+        num_eta = (r(eta + h, 0.02) - r(eta - h, 0.02)) / (2 * h)
+        num_kd = (r(eta, 0.02 + h) - r(eta, 0.02 - h)) / (2 * h)
+        np.testing.assert_allclose(jac[0], num_eta, rtol=1e-5, atol=1e-7 * np.abs(num_eta).max())
+        np.testing.assert_allclose(jac[1], num_kd, rtol=1e-5, atol=1e-7 * np.abs(num_kd).max())
+        assert np.abs(jac[0]).max() > 0 and np.abs(jac[1]).max() > 0

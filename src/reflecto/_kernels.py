@@ -452,6 +452,61 @@ def pair_residuals(cp, cq, fp, fq, ap, aq, w, eta, kd_over_pi, level, out):
         out[k] = w[k] * (yp - yq) / max(mean, level)
 
 
+@njit(inline="always", **_OPTS)
+def _fresnel_dlog(c: float, eta: float) -> tuple[float, float]:
+    """``F(c; η)`` (as :func:`_fresnel`, up to rounding) and ``∂ log F/∂η``; F floored at 1e-12.
+
+    With ``g = √(η² + c² − 1)``, ``F = a (1 + B²)``, ``a = (g−c)²/(2(g+c)²)``,
+    ``B = (c(g+c) − 1)/(c(g−c) + 1)``: ``∂a/∂g = 2c(g−c)/(g+c)³``,
+    ``∂B/∂g = 2c(1 − c²)/(c(g−c) + 1)²``, ``∂g/∂η = η/g``. The derivative is 0 under
+    total internal reflection and where F is clamped.
+    """
+    c = abs(c)
+    g2 = eta * eta + c * c - 1.0
+    if g2 <= 0.0:
+        return 1.0, 0.0
+    g = math.sqrt(g2)
+    gpc = g + c
+    gmc = g - c
+    ig = 1.0 / gpc
+    a = 0.5 * gmc * gmc * ig * ig
+    iden = 1.0 / (c * gmc + 1.0)
+    b = (c * gpc - 1.0) * iden
+    f = a * (1.0 + b * b)
+    if not math.isfinite(f):
+        return 1.0, 0.0
+    if f <= 1e-12 or f >= 1.0:
+        return min(max(f, 1e-12), 1.0), 0.0
+    da = 2.0 * c * gmc * ig * ig * ig
+    db = 2.0 * c * (1.0 - c * c) * iden * iden
+    return f, (da * (1.0 + b * b) + 2.0 * a * b * db) * eta / (g * f)
+
+
+@njit(**_OPTS)
+def pair_residuals_jac(cp, cq, fp, fq, ap, aq, w, eta, kd_over_pi, level, jac):
+    """Derivatives of :func:`pair_residuals`: ``jac[0] = ∂r/∂η``, ``jac[1] = ∂r/∂(k_d/π)``.
+
+    ``r = w (y_p − y_q)/M`` with ``y = (f − k_d/π) a/F``, ``M = max(½(m_p + m_q), level)``,
+    ``m = f a/F``; ``∂y/∂η = −y ∂log F/∂η``, ``∂m/∂η = −m ∂log F/∂η``,
+    ``∂y/∂(k_d/π) = −a/F``.
+    """
+    for k in range(cp.shape[0]):
+        fpp, lp = _fresnel_dlog(cp[k], eta)
+        fqq, lq = _fresnel_dlog(cq[k], eta)
+        up = ap[k] / fpp
+        uq = aq[k] / fqq
+        yp = (fp[k] - kd_over_pi) * up
+        yq = (fq[k] - kd_over_pi) * uq
+        mp = fp[k] * up
+        mq = fq[k] * uq
+        mean = 0.5 * (mp + mq)
+        im = 1.0 / max(mean, level)
+        wm = w[k] * im
+        dm = -0.5 * (mp * lp + mq * lq) if mean > level else 0.0
+        jac[0, k] = wm * ((yq * lq - yp * lp) - (yp - yq) * dm * im)
+        jac[1, k] = wm * (uq - up)
+
+
 def as_dirs(a) -> np.ndarray:
     """C-contiguous float64 view/copy of shape ``(M, 3)``."""
     return np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape(-1, 3))
@@ -522,3 +577,65 @@ def expose(signal, t_ms, z, pois, full_well, read_noise, shot, gauss_above, gamm
             out[k] = min(max(round(255.0 * max(e / full_well, 0.0) ** (1.0 / gamma)), 0.0), 255.0)
         else:
             out[k] = min(max(round(black + e / gain), 0.0), max_value)
+
+
+@njit(**_OPTS)
+def quantize_ndf(d, psa, normalize, out):
+    """:class:`reflecto.model.MicrofacetBRDF`'s NDF: float32-rounded, normalized by eq. 1.2.
+
+    ``out[k] = f32(d[k])`` and ``total = Σ out[k] psa[k]``; with ``normalize`` (and
+    ``total > 0``) then ``out[k] = f32(out[k] / total)``. Returns ``total``, or −1 if
+    some ``d[k]`` is negative, NaN or infinite (``out`` is then unspecified). A NaN or
+    ±inf shows in ``total`` (NaN·0 and inf·0 are NaN), so the loop needs no branch.
+    """
+    total = 0.0
+    lo = 0.0
+    for k in range(d.shape[0]):
+        v = d[k]
+        lo = min(lo, v)
+        q = np.float64(np.float32(v))
+        out[k] = q
+        total += q * psa[k]
+    if not (lo >= 0.0) or not math.isfinite(total):
+        return -1.0
+    if normalize and total > 0.0:
+        for k in range(d.shape[0]):
+            out[k] = np.float64(np.float32(out[k] / total))
+    return total
+
+
+@njit(**_OPTS)
+def gather_below(values, valid, thresholds, out):
+    """Per channel ``c``, the valid ``values[k, c] ≤ thresholds[c]`` into ``out[c, :count[c]]``.
+
+    :func:`reflecto.reconstruct.samples.kd_upper_bound`; ``values`` (M, 3), ``valid``
+    (M,), ``out`` (3, ≥ count). Returns the counts, shape ``(3,)``.
+    """
+    counts = np.zeros(3, dtype=np.int64)
+    for k in range(values.shape[0]):
+        if valid[k]:
+            for c in range(3):
+                v = values[k, c]
+                if v <= thresholds[c]:
+                    out[c, counts[c]] = v
+                    counts[c] += 1
+    return counts
+
+
+@njit(**_OPTS)
+def partial_ndf(f, kd_over_pi, cos_io, s_led, led, s_o, fres, lum, dh, d_lum):
+    """Eq. 7 per bin and channel: :func:`reflecto.reconstruct.pipeline.reconstruct`'s inner loop.
+
+    ``a = cos_io / max(S(i) S(o), 1e-12)``, ``dh[k, c] = (f[k, c] − k_d,c/π) · 4a / F[k, c]``
+    (``fres`` has 3 columns, or 1 shared by the channels) and ``d_lum = dh @ lum``.
+    The same arithmetic as the NumPy expressions, without their (B, 3) temporaries.
+    """
+    shared = fres.shape[1] == 1
+    for k in range(f.shape[0]):
+        a4 = 4.0 * (cos_io[k] / max(s_led[led[k]] * s_o[k], 1e-12))
+        acc = 0.0
+        for c in range(3):
+            v = (f[k, c] - kd_over_pi[c]) * a4 / fres[k, 0 if shared else c]
+            dh[k, c] = v
+            acc += v * lum[c]
+        d_lum[k] = acc

@@ -79,17 +79,16 @@ class MicrofacetBRDF(BRDFSource):
         n = int(round(math.sqrt(d.size / 3)))
         if 3 * n * n != d.size or n < 4 or n % 2:
             raise ParameterError(f"ndf must have 3·N² texels for an even N >= 4, got {d.size}")
-        if not np.all(np.isfinite(d)) or np.any(d < 0):
-            raise ParameterError("ndf must be finite and non-negative")
         self.cube: Hemicube = hemicube(n)
-        # stored as float32 in model files: round now so save/load is exact
-        d = d.astype(np.float32).astype(np.float64)
-        if normalize:
-            total = float(d @ self.cube.projected_solid_angles)
-            if total <= 0:
-                raise ParameterError("ndf is zero everywhere")
-            d = (d / total).astype(np.float32).astype(np.float64)
-        self.ndf_values = d
+        # stored as float32 in model files: round now so save/load is exact (one
+        # compiled pass checks, rounds and integrates; a second normalizes and rounds)
+        q = np.empty_like(d)
+        total = _kernels.quantize_ndf(d, self.cube.projected_solid_angles, normalize, q)
+        if total < 0:
+            raise ParameterError("ndf must be finite and non-negative")
+        if normalize and total <= 0:
+            raise ParameterError("ndf is zero everywhere")
+        self.ndf_values = q
         self.kd = _rgb(kd, "kd")
         self.ks = _rgb(ks, "ks")
         self.eta = _rgb(eta, "eta")

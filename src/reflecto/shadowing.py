@@ -224,6 +224,7 @@ def sigma_table(
     n_phi: int = N_PHI,
     n_u: int = N_U,
     padded: Array | None = None,
+    n_phi_quad: int = N_PHI_QUAD,
 ) -> SigmaTable:
     """Tabulate σ of a hemicube NDF (the denominator of eq. 8) on the (θ, φ) grid.
 
@@ -245,11 +246,13 @@ def sigma_table(
         Number of polar quadrature rings.
     padded
         ``cube.pad(ndf)`` if already at hand.
+    n_phi_quad
+        Quadrature azimuths per ring.
     """
-    if N_PHI_QUAD % n_phi:
-        raise ValueError(f"n_phi must divide {N_PHI_QUAD}, got {n_phi}")
-    spec, theta_h, weight = _kernel_spectrum(n_theta, n_u, N_PHI_QUAD)
-    d_polar = cube.lookup(ndf, polar_directions(n_u, N_PHI_QUAD), padded)  # (n_u, n_phi_quad)
+    if n_phi_quad % n_phi:
+        raise ValueError(f"n_phi must divide the quadrature's {n_phi_quad} azimuths, got {n_phi}")
+    spec, theta_h, weight = _kernel_spectrum(n_theta, n_u, n_phi_quad)
+    d_polar = cube.lookup(ndf, polar_directions(n_u, n_phi_quad), padded)  # (n_u, n_phi_quad)
     d_polar = np.maximum(d_polar, 0.0) * weight[:, None]
     norm = float(np.sum(d_polar * np.cos(theta_h)[:, None]))
     d_spec = np.fft.rfft(d_polar, axis=-1)  # (n_u, F)
@@ -257,7 +260,7 @@ def sigma_table(
     # Σ_u spec[f, t, u] d[u, f] for the real and imaginary parts at once → (t, f)
     parts = np.matmul(spec, np.stack([d_spec.real.T, d_spec.imag.T], axis=-1))  # (F, t, 2)
     sig_spec = (parts[..., 0] + 1j * parts[..., 1]).T
-    sigma = np.fft.irfft(sig_spec, n=N_PHI_QUAD, axis=-1)[:, :: N_PHI_QUAD // n_phi]
+    sigma = np.fft.irfft(sig_spec, n=n_phi_quad, axis=-1)[:, :: n_phi_quad // n_phi]
     if norm > 0:
         sigma = sigma / norm
     return SigmaTable(np.maximum(sigma, 0.0))

@@ -28,7 +28,7 @@ from scipy.optimize import minimize
 from .. import geometry
 from ..hemicube import hemicube
 from .fresnel_fit import fit_fresnel, overlap_pairs
-from .samples import bin_samples, low_percentile
+from .samples import bin_samples, kd_upper_bound
 
 Array = NDArray[np.float64]
 
@@ -71,7 +71,7 @@ class ConsistencyDistance:
         ok = sl.valid
         if ok.sum() < 1000:
             return float("inf")
-        kd_max = np.array([low_percentile(sl.values[..., ch][ok], 0.2) for ch in range(3)]) * math.pi
+        kd_max = kd_upper_bound(sl.values, ok)
         bins = bin_samples(sl.light, sl.view, sl.values, ok, self.cube)
         pairs = overlap_pairs(bins, self.n_leds)
         a = bins.i[:, 2] * bins.o[:, 2] / np.maximum(self.shadowing(bins.i) * self.shadowing(bins.o), 1e-6)
