@@ -58,11 +58,11 @@ def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-
     is continuous, not blocky). Measured texels are never changed.
     """
     cubes = [cube]
-    wv = [np.stack([wsum, wvsum], axis=-1)]  # (size, 2): one block sum for Σw and Σw·v
+    ws, vs = [np.ascontiguousarray(wsum, dtype=np.float64)], [np.ascontiguousarray(wvsum, dtype=np.float64)]
     while cubes[-1].n > 4:
-        wv.append(cubes[-1].block_reduce(wv[-1], 2))
+        ws.append(cubes[-1].block_reduce(ws[-1], 2))
+        vs.append(cubes[-1].block_reduce(vs[-1], 2))
         cubes.append(cubes[-1]._coarse(2))
-    ws, vs = [np.ascontiguousarray(x[:, 0]) for x in wv], [np.ascontiguousarray(x[:, 1]) for x in wv]
     # coarsest level: fill any remaining hole with the global mean
     w, v = ws[-1], vs[-1]
     total_w = max(float(w.sum()), min_weight)
