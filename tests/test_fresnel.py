@@ -31,15 +31,21 @@ def test_table_matches_formula():
         assert np.abs(FresnelTable([eta])(c)[:, 0] - fresnel(c, eta)).max() < 1e-5
 
 
+def _random_pairs(rng, n, c_min=0.0, a_min=0.0):
+    """Cosines, values, a-factors and weights of n random bin pairs (eq. 6 inputs)."""
+    cp, cq = rng.uniform(c_min, 1, n), rng.uniform(c_min, 1, n)
+    fp, fq = rng.uniform(0, 3, n), rng.uniform(0, 3, n)
+    ap, aq, w = rng.uniform(a_min, 1, n), rng.uniform(a_min, 1, n), rng.uniform(a_min, 1, n)
+    return cp, cq, fp, fq, ap, aq, w
+
+
 def test_compiled_pair_residuals_match_numpy():
     from reflecto import _kernels
     from reflecto.reconstruct.fresnel_fit import pair_residuals_numpy
 
     rng = np.random.default_rng(4)
     n = 5000
-    cp, cq = rng.uniform(0, 1, n), rng.uniform(0, 1, n)
-    fp, fq = rng.uniform(0, 3, n), rng.uniform(0, 3, n)
-    ap, aq, w = rng.uniform(0, 1, n), rng.uniform(0, 1, n), rng.uniform(0, 1, n)
+    cp, cq, fp, fq, ap, aq, w = _random_pairs(rng, n)
     for eta, kd in [(1.5, 0.2), (0.8, 0.0), (20.0, 0.5)]:
         out = np.empty(n)
         _kernels.pair_residuals(cp, cq, fp, fq, ap, aq, w, eta, kd / np.pi, 1e-3, out)
@@ -58,3 +64,28 @@ def test_compiled_fresnel_matches_numpy():
     assert per_channel.shape == (100, 3)
     assert np.array_equal(per_channel, fresnel_numpy(c[:100, None], np.array([1.3, 1.5, 2.0])[None]))
     assert isinstance(fresnel(0.5, 1.5), np.floating) and fresnel(1.0, 1.5) == pytest.approx(0.04)
+
+
+def test_analytic_fresnel_jacobian_matches_finite_differences():
+    # the LM's Jacobian (eq. 6 residuals in η and k_d/π) against central differences of the residuals
+    from reflecto import _kernels
+
+    rng = np.random.default_rng(5)
+    n = 400
+    cp, cq, fp, fq, ap, aq, w = _random_pairs(rng, n, c_min=0.02, a_min=0.1)
+    fp[:40] = fq[:40] = 1e-4  # pairs whose mean falls below the level: M is constant there
+
+    def r(eta, k):
+        out = np.empty(n)
+        _kernels.pair_residuals(cp, cq, fp, fq, ap, aq, w, eta, k, 0.01, out)
+        return out
+
+    for eta in (1.2, 1.5, 2.4, 8.0):
+        jac = np.empty((2, n))
+        _kernels.pair_residuals_jac(cp, cq, fp, fq, ap, aq, w, eta, 0.02, 0.01, jac)
+        h = 1e-6
+        num_eta = (r(eta + h, 0.02) - r(eta - h, 0.02)) / (2 * h)
+        num_kd = (r(eta, 0.02 + h) - r(eta, 0.02 - h)) / (2 * h)
+        np.testing.assert_allclose(jac[0], num_eta, rtol=1e-5, atol=1e-7 * np.abs(num_eta).max())
+        np.testing.assert_allclose(jac[1], num_kd, rtol=1e-5, atol=1e-7 * np.abs(num_kd).max())
+        assert np.abs(jac[0]).max() > 0 and np.abs(jac[1]).max() > 0

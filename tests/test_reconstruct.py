@@ -189,29 +189,3 @@ def test_shaken_capture_is_flagged_by_the_symmetry_planes_and_a_clean_one_is_not
         assert off[2] is not None and abs(off[2]) < 0.3  # LED 2 did not
         assert s["shake_detected"]
 
-
-def test_analytic_fresnel_jacobian_matches_finite_differences():
-    # the LM's Jacobian (eq. 6 residuals in η and k_d/π) against central differences of the residuals
-    from reflecto import _kernels
-
-    rng = np.random.default_rng(5)
-    n = 400
-    cp, cq = rng.uniform(0.02, 1.0, n), rng.uniform(0.02, 1.0, n)
-    fp, fq = rng.uniform(0.0, 3.0, n), rng.uniform(0.0, 3.0, n)
-    ap, aq, w = rng.uniform(0.1, 1.0, n), rng.uniform(0.1, 1.0, n), rng.uniform(0.1, 1.0, n)
-    fp[:40] = fq[:40] = 1e-4  # pairs whose mean falls below the level: M is constant there
-
-    def r(eta, k):
-        out = np.empty(n)
-        _kernels.pair_residuals(cp, cq, fp, fq, ap, aq, w, eta, k, 0.01, out)
-        return out
-
-    for eta in (1.2, 1.5, 2.4, 8.0):
-        jac = np.empty((2, n))
-        _kernels.pair_residuals_jac(cp, cq, fp, fq, ap, aq, w, eta, 0.02, 0.01, jac)
-        h = 1e-6
-        num_eta = (r(eta + h, 0.02) - r(eta - h, 0.02)) / (2 * h)
-        num_kd = (r(eta, 0.02 + h) - r(eta, 0.02 - h)) / (2 * h)
-        np.testing.assert_allclose(jac[0], num_eta, rtol=1e-5, atol=1e-7 * np.abs(num_eta).max())
-        np.testing.assert_allclose(jac[1], num_kd, rtol=1e-5, atol=1e-7 * np.abs(num_kd).max())
-        assert np.abs(jac[0]).max() > 0 and np.abs(jac[1]).max() > 0
