@@ -1,5 +1,6 @@
 """The virtual instrument: optics, layout, simulation, calibration, HDR, slices (issue 3)."""
 
+import dataclasses
 import json
 import shutil
 
@@ -208,7 +209,8 @@ def _edit_manifest(d, fn):
         (lambda d: _edit_manifest(d, lambda m: m["frames"].pop()), "missing from the manifest"),
         (lambda d: _edit_manifest(d, lambda m: m["frames"].append(dict(m["frames"][0]))), "listed twice"),
         (lambda d: _edit_manifest(d, lambda m: m["image"].update(width=640)), "does not match"),
-        (lambda d: _edit_manifest(d, lambda m: m["device"]["leds"].pop()), "not part of the device"),
+        (lambda d: _edit_manifest(d, lambda m: (m["device"]["leds"].pop(), m["device"].pop("firing_order", None))),
+         "not part of the device"),
         (lambda d: [cv2.imwrite(str(d / f"led4_t{t}ms.png"), np.full((240, 320, 3), 4095, np.uint16)) for t in (1, 8)],
          "saturated"),
         (lambda d: (d / "manifest.json").write_text("{not json"), "not valid JSON"),
@@ -247,4 +249,26 @@ def test_device_files(tmp_path):
         load_device(p)
     back = Device.from_dict(Device.builtin("as-built").to_dict(with_truth=True))
     assert back.truth == Device.builtin("as-built").truth
+    assert back.firing_order == Device.builtin("as-built").firing_order == (0, 1, 3, 5, 4, 2)
+    p.write_text('leds = [[5.0, 0.0], [10.0, 120.0], [10.0, 240.0]]\nfiring_order = [2, 0, 1]\n')
+    assert load_device(p).order == (2, 0, 1)
+    for bad in ("[0, 1]", "[0, 1, 1]", "[0, 1, 3]", '"abc"'):
+        p.write_text(f'leds = [[5.0, 0.0], [10.0, 120.0], [10.0, 240.0]]\nfiring_order = {bad}\n')
+        with pytest.raises((FileFormatError, ParameterError), match="firing_order"):
+            load_device(p)
     shutil.rmtree(tmp_path)
+
+
+def test_shake_moves_the_leds_fired_after_it():
+    # the slices of the LEDs fired before the shake equal a clean capture's; the later ones do not
+    for order in ((0, 1, 2, 3, 4, 5), (0, 1, 3, 5, 4, 2)):
+        dev = dataclasses.replace(Device.builtin("ideal"), firing_order=order)
+        for seed in (0, 1, 2):
+            clean = extract_slices(simulate_capture(SRC, dev, seed=seed), nominal_calibration(dev))
+            cap = simulate_capture(SRC, dev, seed=seed, shake=True)
+            info = cap.extra["simulation"]["shake"]
+            assert info["moved_leds"] == sorted(order[info["from_position"]:]) and info["from_led"] == order[info["from_position"]]
+            shaken = extract_slices(cap, nominal_calibration(dev))
+            for k in range(dev.n_leds):
+                same = np.array_equal(shaken.values[k], clean.values[k])
+                assert same == (k not in info["moved_leds"]), (order, seed, k)

@@ -48,6 +48,22 @@ DEFAULT_LED_ANGLES = (
     (12.71, 272.66),
 )
 
+#: Firing order of the default layout: the two steep LEDs (22.9° and 52.2° elevation)
+#: fire last. Their slices are the ones whose mirror-symmetry plane can be located
+#: (:mod:`reflecto.reconstruct.symmetry`), so a hand shake at any point of the capture
+#: turns at least one of them and shows as a plane off the normal. In index order a
+#: shake after the 52.2° LED went unseen (0/11 in benchmarks/validate_shake.py).
+DEFAULT_FIRING_ORDER = (0, 1, 3, 5, 4, 2)
+
+
+def _firing_order(value: Any, where: str) -> tuple[int, ...] | None:
+    if value is None:
+        return None
+    try:
+        return tuple(int(k) for k in value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{where}: firing_order must be a list of LED indices") from None
+
 
 @dataclasses.dataclass(frozen=True)
 class Camera:
@@ -176,6 +192,10 @@ class Device:
     #: Views within this angle of the optical axis are blocked (an LED in the light
     #: path, as in the earlier device of Dong et al. 2010); LEDs there are allowed.
     occluder_deg: float = 0.0
+    #: The order in which the LEDs fire (LED indices); ``None``: index order. Only a
+    #: capture's timing depends on it: a hand shake moves the sample for the LEDs
+    #: fired after it (see :data:`DEFAULT_FIRING_ORDER`).
+    firing_order: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
         angles = tuple(tuple(float(x) for x in a) for a in self.led_angles)
@@ -191,6 +211,16 @@ class Device:
             raise ParameterError("device: " + "; ".join(bad))
         if self.truth is not None and len(self.truth.led_angles) != len(angles):
             raise ParameterError("device: truth has a different number of LEDs")
+        if self.firing_order is not None:
+            order = tuple(int(k) for k in self.firing_order)
+            if sorted(order) != list(range(len(angles))):
+                raise ParameterError(f"device: firing_order must list each of the {len(angles)} LED indices once, got {list(order)}")
+            object.__setattr__(self, "firing_order", order)
+
+    @property
+    def order(self) -> tuple[int, ...]:
+        """LED indices in firing order."""
+        return self.firing_order if self.firing_order is not None else tuple(range(self.n_leds))
 
     @property
     def leds(self) -> Array:
@@ -231,6 +261,8 @@ class Device:
         d["camera"]["exposures_ms"] = list(self.camera.exposures_ms)
         if self.occluder_deg > 0:
             d["occluder_deg"] = self.occluder_deg
+        if self.firing_order is not None:
+            d["firing_order"] = list(self.firing_order)
         if with_truth and self.truth is not None:
             d["truth"] = self.truth.to_dict()
         return d
@@ -238,7 +270,7 @@ class Device:
     # ------------------------------------------------------------- factories
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "device") -> Device:
-        known = {"name", "optics", "leds", "camera", "truth", "occluder_deg"}
+        known = {"name", "optics", "leds", "camera", "truth", "occluder_deg", "firing_order"}
         if not isinstance(d, dict):
             raise ParameterError(f"{where}: expected a table/object")
         if set(d) - known:
@@ -268,15 +300,18 @@ class Device:
             camera=camera,
             truth=truth,
             occluder_deg=float(d.get("occluder_deg", 0.0)),
+            firing_order=_firing_order(d.get("firing_order"), where),
         )
 
     @classmethod
     def builtin(cls, name: str) -> Device:
         """``"ideal"``, ``"as-built"``, or ``"earlier"`` (the DWT*10 baseline layout)."""
         if name == "ideal":
-            return cls("ideal", Optics(), DEFAULT_LED_ANGLES, Camera(read_noise=0.0, shot_noise=False))
+            return cls("ideal", Optics(), DEFAULT_LED_ANGLES, Camera(read_noise=0.0, shot_noise=False),
+                       firing_order=DEFAULT_FIRING_ORDER)
         if name == "as-built":
-            return cls("as-built", Optics(), DEFAULT_LED_ANGLES, Camera(), truth=_as_built_truth())
+            return cls("as-built", Optics(), DEFAULT_LED_ANGLES, Camera(), truth=_as_built_truth(),
+                       firing_order=DEFAULT_FIRING_ORDER)
         if name == "earlier":
             return cls("earlier", Optics(axis_tilt_deg=0.0), EARLIER_LED_ANGLES,
                        Camera(read_noise=0.0, shot_noise=False), occluder_deg=EARLIER_OCCLUDER_DEG)

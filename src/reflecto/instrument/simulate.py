@@ -153,9 +153,11 @@ def simulate_capture(
     rotation_deg
         Rotation of the sample's tangent about its normal (for anisotropic sources).
     shake
-        The device moves during the capture: from a random LED on, the sample is turned
-        by ``shake_deg`` (drawn in [3°, 8°] when not given) about a random horizontal
-        axis — the failure §5.1 must detect.
+        The device moves during the capture: from a random LED on (in the device's
+        firing order, never the first), the sample is turned by ``shake_deg`` (drawn in
+        [3°, 8°] when not given) about a random horizontal axis — the failure §5.1 must
+        detect. The manifest records the first moved LED, its firing position and all
+        moved LEDs.
     seed
         Seeds noise, tilt azimuth and shake; equal seeds give identical frames.
     """
@@ -170,13 +172,15 @@ def simulate_capture(
     poses = [pose] * device.n_leds
     shake_info: dict[str, Any] | None = None
     if shake:
-        start = int(rng.integers(1, device.n_leds))
+        start = int(rng.integers(1, device.n_leds))  # position in the firing order
         ang = float(rng.uniform(3.0, 8.0)) if shake_deg is None else float(shake_deg)
         az = rng.uniform(0.0, 2.0 * math.pi)
         axis = np.array([math.cos(az), math.sin(az), 0.0])
         moved = pose.rotated(axis, ang)
-        poses = [pose if k < start else moved for k in range(device.n_leds)]
-        shake_info = {"from_led": start, "angle_deg": ang, "axis": axis.tolist()}
+        later = set(device.order[start:])
+        poses = [moved if k in later else pose for k in range(device.n_leds)]
+        shake_info = {"from_led": device.order[start], "from_position": start, "moved_leds": sorted(later),
+                      "angle_deg": ang, "axis": axis.tolist()}
 
     dirs, mask = optics.pixel_directions()
     o = dirs[mask]
