@@ -185,7 +185,6 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     cos_io = bins.i[:, 2] * bins.o[:, 2]
     w_merge = bins.count * ndf_mod.merge_weights(bins.o)  # eq. 9 per pixel, summed over the bin
     o_cells = grid_stencil(bins.o, *WORK_SIGMA)  # S(o) of every bin, against each iteration's table
-    led = bins.led.astype(np.int64)
     dh, d_lum = np.empty((len(bins), 3)), np.empty(len(bins))
 
     eta = np.full(3, 1.5 if opt.fixed_eta is None else float(opt.fixed_eta))
@@ -228,7 +227,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         fres = np.maximum(fresnel(c[:, None], eta[None, :1] if np.all(eta == eta[0]) else eta[None, :]), 1e-6)
         for inner in range(opt.inner_iterations):
             # eq. 7: k_s D per channel, 4 (f − k_d/π) a / F with a = cos θi cos θo / (S(i) S(o))
-            _kernels.partial_ndf(bins.f, kd / math.pi, cos_io, s_led, led, s_o, fres, LUM, dh, d_lum)
+            _kernels.partial_ndf(bins.f, kd / math.pi, cos_io, s_led, bins.led, s_o, fres, LUM, dh, d_lum)
             wv = ndf_mod.merge_sums(work, tex, tex_tau, wb * d_lum[use])
             # holes: plain push–pull while η and S settle; the lobe-guided fill (which
             # costs a fit) for the final NDF, whose tails set its normalization and S
@@ -257,7 +256,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     model = MicrofacetBRDF(d_out, kd, ks, eta)
     # residual of the final model on the used bins (relative, luminance), on an even
     # subsample of at most RESIDUAL_BINS of them: a summary statistic, not a fit
-    check = np.flatnonzero(~np.isin(bins.led, list(excluded)))
+    check = np.arange(len(bins))[use]
     check = check[:: -(-len(check) // RESIDUAL_BINS)]
     pred = model.eval(bins.i[check], bins.o[check]) @ LUM
     meas = bins.f[check] @ LUM

@@ -134,17 +134,6 @@ def _interpolate(a: float, b: float, t: float) -> float:
     return b - (b - a) * (1.0 - t) if t >= 0.5 else a + (b - a) * t
 
 
-def low_percentile(x: Array, q: float) -> float:
-    """``np.percentile(x, q)`` of a 1-D array (linear method, same arithmetic), by partition.
-
-    ``np.percentile`` partitions the same way, but its generic axis handling cost
-    three times as much here.
-    """
-    lo, hi, t = _percentile_ranks(x.shape[0], q)
-    part = np.partition(x, [lo, hi] if hi > lo else lo)
-    return _interpolate(float(part[lo]), float(part[hi]), t)
-
-
 #: Percentile of f per channel whose π-multiple bounds ρ_d from above (a low
 #: percentile rather than the minimum: single noisy pixels must not set it).
 KD_BOUND_PERCENTILE = 0.2
