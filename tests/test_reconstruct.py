@@ -72,6 +72,39 @@ def test_tilted_capture_normal_recovered_within_half_a_degree():
     assert abs(res.summary["normal_tilt_deg"] - 8.0) < 0.5
 
 
+def test_tilt_that_sinks_leds_below_the_horizon():
+    """10° tilt: LEDs 0 and 1 (85°, 83° off the normal) drop below the sample's horizon.
+
+    Before the multi-start search the normal was found at 33° (a wide shallow basin of
+    the coarse grid); before the lobe-guided fill in every iteration the plain fill's
+    flat holes biased S and η came out 1.34. Both fail these bounds.
+    """
+    from reflecto.evaluate.metrics import brdf_error
+
+    src = AnalyticBRDF(distribution="beckmann", alpha=0.2, kd=0.0, ks=0.8, eta=1.5)
+    dev = Device.builtin("ideal")
+    cap = simulate_capture(src, dev, tilt_deg=10.0, seed=1)
+    res = reconstruct(extract_slices(cap, nominal_calibration(dev)), Options(estimate_normal=True))
+    true_n = np.array(cap.extra["simulation"]["normal"])
+    assert np.degrees(np.arccos(min(1.0, float(np.dot(res.summary["normal"], true_n))))) < 0.5
+    assert res.summary["lost_leds"] == [0, 1]
+    assert np.allclose(res.model.eta, 1.5, rtol=0.01), res.model.eta
+    assert brdf_error(src, res.model, stride=3).normalized < 0.005
+
+
+def test_grid_minima_finds_every_basin_lowest_first():
+    from reflecto.reconstruct.normal import _grid_minima, _tilt_grid
+
+    grid = _tilt_grid(16.0, 3.0)
+    deg = np.degrees(np.arctan(grid))  # small-angle offsets in degrees
+    a, b = np.array([9.0, 0.0]), np.array([-6.0, 6.0])
+    e = np.minimum(0.2 + 0.1 * np.linalg.norm(deg - a, axis=1), 0.05 + 0.1 * np.linalg.norm(deg - b, axis=1))
+    e[5] = np.inf  # an unusable candidate is never a minimum
+    mins = _grid_minima(grid, e, 4.8)
+    assert len(mins) == 2
+    assert np.linalg.norm(deg[mins[0]] - b) < 2.0 and np.linalg.norm(deg[mins[1]] - a) < 2.0
+
+
 def test_smooth_tails_keeps_the_peak_and_removes_tail_noise():
     from reflecto.hemicube import hemicube
     from reflecto.reconstruct.ndf import TAIL_KEEP, smooth_tails
