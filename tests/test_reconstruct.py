@@ -25,7 +25,9 @@ def test_specular_beckmann_ndf_and_ks_with_known_eta():
     rel = np.abs(m.ndf_values[peak] / d_true[peak] - 1)
     assert rel.mean() < 0.05, rel.mean()
     assert np.allclose(m.ks, 1.0, rtol=0.02) and np.all(m.kd < 0.01)
-    assert res.summary["residual_median_rel"] < 0.01
+    # over the bins measured (91 % of the samples read zero: censored, not counted);
+    # dim bins of a few DN carry their rounding error
+    assert res.summary["residual_median_rel"] < 0.03
     assert np.isfinite(m.ndf_values).all() and res.summary["albedo_max"] <= 1.05
 
 
@@ -260,3 +262,17 @@ def test_narrow_beckmann_lobe_merged_at_full_resolution():
     res = reconstruct(extract_slices(simulate_capture(src, dev, seed=1), nominal_calibration(dev)))
     assert brdf_error(src, res.model, stride=3).normalized < 0.005
     assert np.allclose(res.model.eta, 1.5, rtol=0.005) and np.allclose(res.model.ks, 0.8, rtol=0.01)
+
+
+def test_zero_readings_are_not_ndf_data():
+    """GGX α = 0.05, k_d = 0, ideal (noiseless) camera: the tail beyond 20° reads zero on
+    the brightest LEDs. Merged as f = 0 it pulled the NDF there to 0.2–0.6 of the truth
+    (eq. 10 error 1.14 %); as censored samples it is measured by the other LEDs."""
+    from reflecto.evaluate.metrics import brdf_error
+
+    src = AnalyticBRDF(distribution="ggx", alpha=0.05, kd=0.0, ks=0.8, eta=1.5)
+    dev = Device.builtin("ideal")
+    res = reconstruct(extract_slices(simulate_capture(src, dev, seed=1), nominal_calibration(dev)))
+    assert 0.3 < res.summary["censored_fraction"] < 0.9
+    assert brdf_error(src, res.model, stride=3).normalized < 0.007
+    assert np.allclose(res.model.eta, 1.5, rtol=0.005) and np.all(res.model.kd < 1e-3)

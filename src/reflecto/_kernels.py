@@ -513,8 +513,11 @@ def as_dirs(a) -> np.ndarray:
 
 
 @njit(**_OPTS)
-def merge_linear(raw, rows, cols, t, black, sat, dark, out, valid):
+def merge_linear(raw, rows, cols, t, black, sat, dark, black_limit, out, valid, near_black):
     """Linear HDR merge at pixels ``(rows, cols)``: :func:`reflecto.instrument.hdr.merge_linear`.
+
+    ``near_black`` (L, P) is set where the value rests on one exposure whose signal is
+    below ``black_limit`` DN in every channel.
 
     ``raw`` (L, E, H, W, 3); ``t`` exposure times sorted by slot; writes ``out`` (L, P, 3)
     in DN/ms and ``valid`` (L, P).
@@ -527,6 +530,7 @@ def merge_linear(raw, rows, cols, t, black, sat, dark, out, valid):
             wsum = 0.0
             a0 = a1 = a2 = 0.0
             longest_done = False
+            only_dark = False
             for q in range(n_e - 1, -1, -1):
                 e = order[q]
                 z0 = float(raw[l, e, r, c, 0])
@@ -535,8 +539,10 @@ def merge_linear(raw, rows, cols, t, black, sat, dark, out, valid):
                 if max(z0, z1, z2) >= sat:
                     continue
                 s0, s1, s2 = z0 - black, z1 - black, z2 - black
-                if max(s0, s1, s2) < dark and longest_done:
+                top = max(s0, s1, s2)
+                if top < dark and longest_done:
                     continue
+                only_dark = top < black_limit and not longest_done
                 longest_done = True
                 w = t[e]
                 wsum += w
@@ -548,9 +554,11 @@ def merge_linear(raw, rows, cols, t, black, sat, dark, out, valid):
                 out[l, p, 1] = a1 / wsum
                 out[l, p, 2] = a2 / wsum
                 valid[l, p] = True
+                near_black[l, p] = only_dark
             else:
                 out[l, p, 0] = out[l, p, 1] = out[l, p, 2] = 0.0
                 valid[l, p] = False
+                near_black[l, p] = False
 
 
 @njit(**_OPTS)

@@ -5,6 +5,11 @@
   optimal) and zero weight for saturated (``Z ≥ 0.95 Z_max``) or near-black pixels
   (``Z − Z_black`` below :data:`DARK_DN`), except that the longest unsaturated exposure
   always keeps its weight, so dark-but-valid pixels measure ≈ 0 instead of a hole.
+  Pixels that read zero in that exposure are also reported (``black``): on a camera
+  whose read noise does not dither its quantization (below :data:`DITHER_DN` DN RMS)
+  a signal under half a DN rounds to 0 every time, so their values are bounds, not
+  measurements (:attr:`~reflecto.instrument.slices.Slices.censored`). Rounded values
+  of a DN or more stay: their rounding errors average out over pixels.
 * Gamma-encoded 8-bit camera — Debevec–Malik response recovery and merge (OpenCV's
   ``CalibrateDebevec`` / ``MergeDebevec``), the response kept in the calibration.
 
@@ -25,14 +30,22 @@ Array = NDArray[np.float64]
 
 #: Raw values this close to the black level (DN) count as near-black.
 DARK_DN = 4.0
+#: Read noise (DN) from which the quantization counts as dithered (near-black values
+#: unbiased on average, so kept).
+DITHER_DN = 0.5
+#: A signal below this (DN, black-subtracted) in every channel read zero: an undithered
+#: quantizer gives no measurement, only the bound "below half a DN".
+BLACK_DN = 0.5
 #: Fraction of the ADC range above which a raw value counts as saturated.
 SATURATION = 0.95
 
 
 def merge_linear_pixels(
     raw: NDArray[np.integer], exposures_ms: Array, camera: Camera, rows: NDArray[np.intp], cols: NDArray[np.intp]
-) -> tuple[Array, NDArray[np.bool_]]:
-    """Linear merge at the pixels ``(rows, cols)`` only: shapes ``(L, P, 3)``, ``(L, P)``.
+) -> tuple[Array, NDArray[np.bool_], NDArray[np.bool_]]:
+    """Linear merge at the pixels ``(rows, cols)`` only: radiance ``(L, P, 3)``, valid
+    and black masks ``(L, P)`` (black: the value rests on the longest usable exposure
+    alone, which read below :data:`BLACK_DN` — zero — in every channel).
 
     A pixel is saturated if any channel is, so colour ratios stay unbiased.
     (Weights ``w_j = t_j`` make the merge ``Σ_j signal_j / Σ_j t_j`` over the used
@@ -44,11 +57,17 @@ def merge_linear_pixels(
     n = len(rows)
     out = np.empty((raw.shape[0], n, 3))
     valid = np.empty((raw.shape[0], n), dtype=bool)
+    near_black = np.empty((raw.shape[0], n), dtype=bool)
     _kernels.merge_linear(
         np.ascontiguousarray(raw), np.ascontiguousarray(rows, dtype=np.intp), np.ascontiguousarray(cols, dtype=np.intp),
-        t, float(camera.black_level), SATURATION * camera.max_value, DARK_DN, out, valid,
+        t, float(camera.black_level), SATURATION * camera.max_value, DARK_DN, BLACK_DN, out, valid, near_black,
     )  # fmt: skip
-    return out, valid
+    return out, valid, near_black
+
+
+def dithered(camera: Camera) -> bool:
+    """Whether the camera's read noise dithers its quantization (≥ :data:`DITHER_DN` DN RMS)."""
+    return camera.read_noise / camera.gain >= DITHER_DN
 
 
 def merge_linear(raw: NDArray[np.integer], exposures_ms: Array, camera: Camera) -> tuple[Array, NDArray[np.bool_]]:
@@ -58,7 +77,7 @@ def merge_linear(raw: NDArray[np.integer], exposures_ms: Array, camera: Camera) 
     """
     h, w = raw.shape[2:4]
     rows, cols = np.divmod(np.arange(h * w), w)
-    out, valid = merge_linear_pixels(raw, exposures_ms, camera, rows, cols)
+    out, valid, _ = merge_linear_pixels(raw, exposures_ms, camera, rows, cols)
     return out.reshape(raw.shape[0], h, w, 3), valid.reshape(raw.shape[0], h, w)
 
 

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from .. import geometry
 from .calibrate import Calibration
 from .capture import Capture, CaptureError
-from .hdr import merge_debevec, merge_linear_pixels
+from .hdr import dithered, merge_debevec, merge_linear_pixels
 
 Array = NDArray[np.float64]
 
@@ -44,6 +44,12 @@ class Slices:
         ``(row, col)`` of each view direction, shape ``(P, 2)``.
     frame
         Rows ``(t, b, n)`` of the frame the directions are expressed in (identity: device).
+    censored
+        Valid samples below the camera's detection limit, shape ``(L, P)``, or ``None``:
+        zero in the longest exposure of a camera without dithering read noise, whose
+        quantizer rounds a signal under half a DN to 0 every time. Their values (≈ 0)
+        are bounds, not measurements: the reconstruction uses them to bound k_d, not
+        as NDF or Fresnel data.
     """
 
     light: Array
@@ -52,6 +58,7 @@ class Slices:
     valid: NDArray[np.bool_]
     pixels: NDArray[np.intp]
     frame: Array = dataclasses.field(default_factory=lambda: np.eye(3))
+    censored: NDArray[np.bool_] | None = None
 
     @property
     def n_leds(self) -> int:
@@ -72,7 +79,7 @@ class Slices:
         values = self.values * ratio[:, None, None]
         # LEDs within ~3° of the new horizon: cos θ_i is too uncertain to correct by
         valid = self.valid & (view[None, :, 2] > 0) & (new[:, None] > MIN_LIGHT_COS)
-        return Slices(light, view, values, valid, self.pixels, frame)
+        return Slices(light, view, values, valid, self.pixels, frame, self.censored)
 
 
 def extract_slices(capture: Capture, calibration: Calibration) -> Slices:
@@ -90,7 +97,8 @@ def extract_slices(capture: Capture, calibration: Calibration) -> Slices:
         rad, valid = merge_debevec(capture.raw, capture.exposures_ms, calibration.response)
         rad, valid = rad[:, rows, cols], valid[:, rows, cols]
     else:
-        rad, valid = merge_linear_pixels(capture.raw, capture.exposures_ms, dev.camera, rows, cols)
+        rad, valid, near_black = merge_linear_pixels(capture.raw, capture.exposures_ms, dev.camera, rows, cols)
     ok = valid & np.all(scale > 0, axis=-1)
     values = np.divide(rad, scale, out=np.zeros_like(rad), where=ok[..., None])
-    return Slices(calibration.leds.copy(), dirs[rows, cols], values, ok, np.stack([rows, cols], -1))
+    censored = None if dev.camera.response == "gamma" or dithered(dev.camera) else near_black & ok
+    return Slices(calibration.leds.copy(), dirs[rows, cols], values, ok, np.stack([rows, cols], -1), censored=censored)

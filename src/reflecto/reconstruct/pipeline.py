@@ -141,10 +141,13 @@ WORK_SIGMA = (46, 64)
 #: azimuths gave the same errors on the smooth lobes of the analytic grid, but moved η
 #: of sparkling materials (aventurnine 1.68 → 1.39): it skips texels of a spiky NDF.
 WORK_QUAD = (64, 256)
-#: An LED with fewer valid samples than this fraction of the median LED's is counted
-#: as lost (below the tilted sample's horizon), and the NDF's holes take the
-#: lobe-guided fill in every iteration.
+#: An LED with fewer usable samples than this fraction of the median LED's is counted
+#: as lost (below the tilted sample's horizon, or its slice below the detection
+#: limit), and the NDF's holes take the lobe-guided fill in every iteration.
 LOST_LED_FRACTION = 0.25
+#: When more than this fraction of the valid samples is below the detection limit
+#: (:attr:`Slices.censored`), the NDF's holes take the lobe-guided fill in every iteration.
+CENSORED_FRACTION = 0.25
 
 
 def _sigma_work(cube: Any, d: Array, azimuthal_min: bool):
@@ -185,19 +188,23 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     ok = sl.valid & valid
     kd_max = kd_upper_bound(sl.values, ok)
     kd_max = np.maximum(kd_max, 0.0)
+    # samples below the camera's detection limit bound k_d (above) but are no NDF data
+    meas = ok if sl.censored is None else ok & ~sl.censored
     work = hemicube(opt.work_resolution or 128)
-    bins = bin_samples(sl.light, sl.view, sl.values, ok, work)
+    bins = bin_samples(sl.light, sl.view, sl.values, meas, work)
     if opt.work_resolution is None:
         n = auto_work_resolution(bins)
         if n != work.n:
             work = hemicube(n)
-            bins = bin_samples(sl.light, sl.view, sl.values, ok, work)
+            bins = bin_samples(sl.light, sl.view, sl.values, meas, work)
     pairs = overlap_pairs(bins, n_leds)
-    # a tilt that sinks LEDs below the horizon leaves holes inside the NDF, not only at
-    # its grazing rim; the plain fill's flat level there biases S, and through S the
-    # η of the next fit (GGX α = 0.1 at 10° tilt: η 1.34 instead of 1.5)
-    per_led = ok.sum(axis=1)
-    lost_led = bool(np.any(per_led < LOST_LED_FRACTION * np.median(per_led)))
+    # a tilt that sinks LEDs below the horizon (or a slice below the detection limit)
+    # leaves holes inside the NDF, not only at its grazing rim; the plain fill's flat
+    # level there biases S, and through S the η of the next fit (GGX α = 0.1 at 10°
+    # tilt: η 1.34 instead of 1.5)
+    per_led = meas.sum(axis=1)
+    censored_fraction = 1.0 - float(meas.sum()) / max(float(ok.sum()), 1.0)
+    inner_holes = bool(np.any(per_led < LOST_LED_FRACTION * np.median(per_led))) or censored_fraction > CENSORED_FRACTION
     c = bins.cos_d
     cos_io = bins.i[:, 2] * bins.o[:, 2]
     w_merge = bins.count * ndf_mod.merge_weights(bins.o)  # eq. 9 per pixel, summed over the bin
@@ -251,9 +258,11 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
                 wv *= ndf_mod.position_correction(work, d_work, offsets)
             # holes: plain push–pull while η and S settle; the lobe-guided fill (which
             # costs a fit) for the final NDF, whose tails set its normalization and S,
-            # and throughout when an LED was lost (plain fill tested better on the
-            # analytic grid's GGX α = 0.4 otherwise: η within 1.8 % vs 2.6 %)
-            fill = ndf_mod.fill_holes if (last or lost_led) else ndf_mod.push_pull
+            # and throughout when holes lie inside the measured region (an LED lost,
+            # or much of the capture below the detection limit; GGX α = 0.1, k_d = 0:
+            # η 1.14 for 1.5 with the plain fill). Otherwise the plain fill tested
+            # better on the analytic grid's GGX α = 0.4 (η within 1.8 % vs 2.6 %).
+            fill = ndf_mod.fill_holes if (last or inner_holes) else ndf_mod.push_pull
             d_work = np.maximum(fill(work, wsum, wv), 0.0)
             norm = float(d_work @ work.projected_solid_angles)
             d_work /= max(norm, 1e-300)
@@ -306,6 +315,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         "symmetry_plane_offsets_deg": plane_off,
         "excluded_leds": sorted(excluded),
         "lost_leds": np.flatnonzero(per_led < LOST_LED_FRACTION * np.median(per_led)).tolist(),
+        "censored_fraction": censored_fraction,
         "pair_error": None if fit is None else np.where(np.isfinite(fit.pair_error), fit.pair_error, -1).tolist(),
         "iterations": history,
         "samples": int(bins.count[use].sum()),
