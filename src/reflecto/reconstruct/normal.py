@@ -150,13 +150,23 @@ def estimate_normal_consistency(
 
 
 def refine_normal(dist: ConsistencyDistance, normal: Array, step_deg: float = 1.0,
-                  limit: float = math.inf, maxfev: int = 80) -> tuple[Array, float]:
+                  limit: float = math.inf, maxfev: int = 80, probe_deg: float = 0.0,
+                  n_probe: int = 12) -> tuple[Array, float]:
     """Nelder–Mead on ``dist`` from ``normal`` (initial steps ``step_deg``); candidates
     whose tangent offset exceeds ``limit`` count as infinitely far.
+
+    With ``probe_deg > 0`` the start is the best of ``normal`` and ``n_probe`` normals
+    on each of two rings, ``probe_deg / 2`` and ``probe_deg`` around it: a shallow dip of the distance a degree or two
+    from the true normal (a ridge between them) otherwise holds the search.
 
     Returns the unit normal (device frame) and the distance at it.
     """
     xy0 = np.asarray(normal[:2], dtype=np.float64) / float(normal[2])
+    if probe_deg > 0:
+        a = np.arange(n_probe) * (2 * math.pi / n_probe)
+        unit = np.stack([np.cos(a), np.sin(a)], axis=1)
+        cands = np.vstack([xy0] + [xy0 + math.tan(math.radians(r)) * unit for r in (0.5 * probe_deg, probe_deg)])
+        xy0 = cands[int(np.argmin([dist(xy) for xy in cands]))]
     d = math.tan(math.radians(step_deg))
     res = minimize(lambda xy: dist(xy) if float(np.hypot(xy[0], xy[1])) <= limit else float("inf"), xy0,
                    method="Nelder-Mead", options={"xatol": 5e-4, "fatol": 1e-6, "maxfev": maxfev,

@@ -181,7 +181,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         # the found frame sharpens the distance around the truth: refine once more
         frame = geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
         shadow = reconstruct(slices.reframe(frame), quick).model.shadowing
-        normal, sym_dist = refine_normal(ConsistencyDistance(slices, valid, shadow, n=64, stride=1), normal, 0.5, maxfev=50)
+        normal, sym_dist = refine_normal(ConsistencyDistance(slices, valid, shadow, n=64, stride=1), normal, 0.5,
+                                         maxfev=50, probe_deg=1.5)
         frame = geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
     sl = slices.reframe(frame) if opt.estimate_normal else slices
     # ρ_d/π ≤ min f (in the sample frame): an upper bound of k_d; half of it starts the fit
