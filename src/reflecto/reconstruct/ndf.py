@@ -50,26 +50,31 @@ def merge_sums(cube: Hemicube, texel: NDArray[np.intp], texel_tau: NDArray[np.in
     return out
 
 
-def top_offsets(cube: Hemicube, h: Array, texel: NDArray[np.intp], texel_tau: NDArray[np.intp], w: Array,
-                wsum: Array) -> tuple[Array, Array]:
+def bin_offsets(cube: Hemicube, h: Array) -> tuple[Array, Array]:
+    """Offset of each half vector ``h`` (B, 3) from its top-face texel's centre, in
+    texels: ``(Δcol, Δrow)``, each shape ``(B,)``; 0 off the top face."""
+    face, col, row = cube._face_coords(h)
+    top = face == 0
+    return np.where(top, col - np.floor(col + 0.5), 0.0), np.where(top, row - np.floor(row + 0.5), 0.0)
+
+
+def top_offsets(cube: Hemicube, offsets: tuple[Array, Array], texel: NDArray[np.intp], texel_tau: NDArray[np.intp],
+                w: Array, wsum: Array) -> tuple[Array, Array]:
     """Mean position of the merged samples within each top-face texel, in texels.
 
     A texel's merged value is the weighted mean of its samples, which sit at ``h``
     (and, mirrored by eq. 3's τ, at ``τh``), not at the texel's centre; the camera
     samples the half vector along sparse curves, so the mean offset of a texel is up
-    to half a texel and varies from texel to texel. Returns ``(Δcol, Δrow)``, shape
-    ``(N, N)`` each, ``Σ w·Δ / Σ w`` per texel (0 where nothing was merged). Bins off the
-    top face count with offset 0.
+    to half a texel and varies from texel to texel. ``offsets`` are the bins' own
+    (:func:`bin_offsets`). Returns ``(Δcol, Δrow)``, shape ``(N, N)`` each,
+    ``Σ w·Δ / Σ w`` per texel (0 where nothing was merged).
     """
     n = cube.n
-    face, col, row = cube._face_coords(h)
-    top = face == 0
-    dc = np.where(top, col - np.floor(col + 0.5), 0.0) * w
-    dr = np.where(top, row - np.floor(row + 0.5), 0.0) * w
     inv = np.divide(1.0, wsum[: n * n], out=np.zeros(n * n), where=wsum[: n * n] > 0)
     out = []
-    for d in (dc, dr):  # τ = diag(−1, −1, 1) mirrors a top-face offset to its negative
-        s = np.bincount(texel, weights=d, minlength=cube.size)[: n * n] - np.bincount(texel_tau, weights=d, minlength=cube.size)[: n * n]
+    for d in offsets:  # τ = diag(−1, −1, 1) mirrors a top-face offset to its negative
+        wd = w * d
+        s = np.bincount(texel, weights=wd, minlength=cube.size)[: n * n] - np.bincount(texel_tau, weights=wd, minlength=cube.size)[: n * n]
         out.append((s * inv).reshape(n, n))
     return out[0], out[1]
 

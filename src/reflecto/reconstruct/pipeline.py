@@ -211,6 +211,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     w_merge = bins.count * ndf_mod.merge_weights(bins.o)  # eq. 9 per pixel, summed over the bin
     o_cells = grid_stencil(bins.o, *WORK_SIGMA)  # S(o) of every bin, against each iteration's table
     dh, d_lum = np.empty((len(bins), 3)), np.empty(len(bins))
+    bin_dc, bin_dr = ndf_mod.bin_offsets(work, bins.h)
+    merged_for: set[int] | None = None
 
     eta = np.full(3, 1.5 if opt.fixed_eta is None else float(opt.fixed_eta))
     kd = 0.5 * kd_max
@@ -247,8 +249,10 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             eta, kd = fit.eta, fit.kd
         use = ~np.isin(bins.led, list(excluded)) if excluded else slice(None)  # a slice: views, no copies
         tex, tex_tau, wb = bins.texel[use], bins.texel_tau[use], w_merge[use]
-        wsum = ndf_mod.merge_sums(work, tex, tex_tau, wb)  # eq. 9's Σw: fixed while the bins used are
-        offsets = ndf_mod.top_offsets(work, bins.h[use], tex, tex_tau, wb, wsum)
+        if merged_for != excluded:  # eq. 9's Σw and the samples' mean texel offsets: fixed while the bins used are
+            wsum = ndf_mod.merge_sums(work, tex, tex_tau, wb)
+            offsets = ndf_mod.top_offsets(work, (bin_dc[use], bin_dr[use]), tex, tex_tau, wb, wsum)
+            merged_for = set(excluded)
         # (B, 3), or (B, 1) while the fit shares one η (its first iterations); fixed within the inner loop
         fres = np.maximum(fresnel(c[:, None], eta[None, :1] if np.all(eta == eta[0]) else eta[None, :]), 1e-6)
         for inner in range(opt.inner_iterations):
