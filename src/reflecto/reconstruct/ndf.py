@@ -204,6 +204,15 @@ def fit_lobe(cube: Hemicube, wsum: Array, wvsum: Array) -> Array | None:
 def fill_holes(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-12) -> Array:
     """Merged NDF with the texels that no sample reaches filled (measured texels unchanged).
 
+    See :func:`fill_holes_and_lobe`, which also returns the fitted lobe.
+    """
+    return fill_holes_and_lobe(cube, wsum, wvsum, min_weight)[0]
+
+
+def fill_holes_and_lobe(cube: Hemicube, wsum: Array, wvsum: Array,
+                        min_weight: float = 1e-12) -> tuple[Array, Array | None]:
+    """Merged NDF with the texels that no sample reaches filled, and ``log`` of the guiding lobe.
+
     Plain push–pull fills a hole with a smooth average of its measured neighbours, so
     beyond the measured region (grazing θ_h, where the layout sees nothing) the NDF
     would stay flat at its last measured level. Here the hole takes the shape of a lobe
@@ -215,20 +224,112 @@ def fill_holes(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e
     obs = wsum > min_weight
     log_lobe = fit_lobe(cube, np.where(obs, wsum, 0.0), np.where(obs, wvsum, 0.0))
     if log_lobe is None:
-        return push_pull(cube, wsum, wvsum, min_weight)
+        return push_pull(cube, wsum, wvsum, min_weight), None
     plain = push_pull(cube, wsum, wvsum, min_weight)
     v = np.where(obs, wvsum / np.maximum(wsum, min_weight), 0.0)
     # the ratio is taken where the lobe was fitted: in the deep tail the measured
     # values are noise and diffuse residue, orders of magnitude off any lobe
     pos = obs & (v > LOBE_FLOOR * max(float(v.max()), 1e-300))
     if not np.any(pos):
-        return plain
+        return plain, log_lobe
     w = np.where(pos, wsum, 0.0)
     ratio = np.zeros(cube.size)
     ratio[pos] = np.log(v[pos]) - log_lobe[pos]
     guided = np.exp(np.minimum(log_lobe + push_pull(cube, w, w * ratio, min_weight), 700.0))
     # a hole never exceeds the flat fill: the lobe only makes tails decay
-    return np.where(obs, v, np.minimum(guided, plain))
+    return np.where(obs, v, np.minimum(guided, plain)), log_lobe
+
+
+#: :func:`smooth_wide` smooths at this fraction of the peak's narrowest half width at half maximum …
+WIDE_SMOOTH_FRACTION = 0.2
+#: … where the fitted lobe is below this fraction of its maximum (none) …
+WIDE_SMOOTH_START = 0.25
+#: … blending in (log-linearly in the level) to all of it below this fraction.
+WIDE_SMOOTH_FULL = 0.03
+#: Below this fraction of its maximum the fitted lobe's ``r`` (deep tails, where the
+#: measured values are noise and diffuse residue) neither enters the filter …
+WIDE_SMOOTH_FLOOR = 1e-3
+#: … nor is replaced; the blend fades out between this fraction and the floor.
+WIDE_SMOOTH_FADE = 1e-2
+#: :func:`smooth_wide` leaves the NDF alone when the fitted lobe misses it by more than
+#: this log-RMS (above :data:`WIDE_SMOOTH_FADE` of the peak).
+WIDE_SMOOTH_MISFIT = 0.08
+#: Resolution at which :func:`smooth_wide` filters (texels of ≈ 1.4°) …
+WIDE_SMOOTH_N = 64
+#: … with at most this many binomial passes (σ ≤ 2.8 texels ≈ 4°: the flanks of the
+#: widest lobes gain nothing from more, and each pass costs).
+WIDE_SMOOTH_MAX_PASSES = 16
+
+
+def half_width(cube: Hemicube, d: Array) -> float:
+    """Narrowest half width at half maximum of the NDF's peak (radians).
+
+    From the texels where ``D ≥ max D / 2``: the covariance of their slopes
+    ``(h_x, h_y)/h_z`` (projected-solid-angle weights) has eigenvalues ``a²/4`` for an
+    elliptical region of slope semi-axes ``a``; returns ``atan(2 √λ_min)``.
+    """
+    peak = float(d.max()) if d.size else 0.0
+    if not peak > 0:
+        return 0.0
+    sel = d >= 0.5 * peak
+    h = cube.directions[sel]
+    w = cube.projected_solid_angles[sel]
+    s = h[:, :2] / h[:, 2:3]
+    mean = (w @ s) / w.sum()
+    c = ((s - mean) * w[:, None]).T @ (s - mean) / w.sum()
+    return math.atan(2.0 * math.sqrt(max(float(np.linalg.eigvalsh(c)[0]), 0.0)))
+
+
+def smooth_wide(cube: Hemicube, d: Array, log_lobe: Array | None) -> Array:
+    """Smooth a wide lobe's flanks at a fifth of its half width, relative to its fitted lobe.
+
+    Away from the peak a texel is reached by few of the camera's sparse sampling curves,
+    and the merged NDF of a wide lobe (GGX α = 0.4) shows them as arcs ±10 % off the
+    truth, a few texels apart, while the NDF itself varies over tens of degrees. So
+    ``log D' = L + (1 − w) r + w·S(r)``, where ``L`` is the fitted lobe
+    (:func:`fit_lobe`), ``r = log D − L`` and ``S`` a binomial filter of σ =
+    :data:`WIDE_SMOOTH_FRACTION` × the narrowest half width (:func:`half_width`, at
+    :data:`WIDE_SMOOTH_N`, at most :data:`WIDE_SMOOTH_MAX_PASSES` passes, over the texels above :data:`WIDE_SMOOTH_FLOOR` of the
+    maximum); ``w`` is 0 above
+    :data:`WIDE_SMOOTH_START` of the maximum (the peak keeps its data), 1 from
+    :data:`WIDE_SMOOTH_FULL` down to :data:`WIDE_SMOOTH_FADE`, and 0 again below
+    :data:`WIDE_SMOOTH_FLOOR` (deep tails are :func:`smooth_tails`' business).
+    Filtering ``r`` rather than ``log D`` keeps the lobe's curvature: filtering
+    ``log D`` lowered Beckmann α = 0.2 flanks by 1–2 % (the filtered mean of a concave
+    function); for the same reason the NDF is left unchanged where the lobe misses it
+    by more than :data:`WIDE_SMOOTH_MISFIT` (log-RMS), as it is for a peak narrower
+    than ≈ 3.5° (σ under half a filter texel) and for an NDF without a lobe. The mass
+    is kept. The levels are those of ``D`` itself, relative to its maximum.
+    """
+    hw = half_width(cube, d)
+    passes = int(round(2.0 * (WIDE_SMOOTH_FRACTION * hw / (0.5 * math.pi / WIDE_SMOOTH_N)) ** 2))
+    passes = min(passes, WIDE_SMOOTH_MAX_PASSES)
+    if passes < 1 or log_lobe is None or cube.n < WIDE_SMOOTH_N:
+        return d
+    peak = float(d.max())
+    lobe = np.maximum(log_lobe, math.log(1e-12 * peak))
+    log_d = np.log(np.maximum(d, 1e-12 * peak))
+    r = log_d - lobe
+    level = log_d - math.log(peak)
+    inside = (level >= math.log(WIDE_SMOOTH_FLOOR)).astype(np.float64)
+    # a lobe that does not follow the NDF (a diffuse residue in the tail pulled the fit)
+    # would put its curvature into r: then leave the NDF as it is
+    om = cube.projected_solid_angles * (level >= math.log(WIDE_SMOOTH_FADE))
+    r_mean = float(om @ r) / float(om.sum())
+    if math.sqrt(float(om @ (r - r_mean) ** 2) / float(om.sum())) > WIDE_SMOOTH_MISFIT:
+        return d
+    # normalized convolution over the texels above the floor: the deep tail's r stays out
+    f = cube.n // WIDE_SMOOTH_N
+    coarse, low_w = cube.downsample(inside, f)
+    _, low_r = cube.downsample(inside * r, f)
+    num = coarse.lookup(coarse.smooth(low_r, passes), cube.directions)
+    den = coarse.lookup(coarse.smooth(low_w, passes), cube.directions)
+    smoothed = np.where(den > 1e-3, num / np.maximum(den, 1e-3), r)
+    w = _ramp(-level, -math.log(WIDE_SMOOTH_START), -math.log(WIDE_SMOOTH_FULL))
+    w *= _ramp(level, math.log(WIDE_SMOOTH_FLOOR), math.log(WIDE_SMOOTH_FADE))
+    out = np.exp(np.minimum(lobe + r + w * (smoothed - r), 700.0))
+    om = cube.projected_solid_angles
+    return out * (float(d @ om) / max(float(out @ om), 1e-300))
 
 
 #: :func:`smooth_tails` keeps texels at or above this fraction of the peak unchanged …

@@ -11,7 +11,7 @@
             completed by symmetry (eq. 3)                     ndf.py
             S from the NDF (eq. 8)                            shadowing.py
             k_s per channel (linear least squares)
-    smooth the NDF's weak tails (ndf.smooth_tails)
+    smooth a wide lobe's flanks (ndf.smooth_wide) and the weak tails (ndf.smooth_tails)
     resample the NDF to the output hemicube (512² top, 512×256 sides)
 
 Colour: one NDF shared by R, G, B (built from the luminance-weighted per-channel
@@ -267,8 +267,11 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             # or much of the capture below the detection limit; GGX α = 0.1, k_d = 0:
             # η 1.14 for 1.5 with the plain fill). Otherwise the plain fill tested
             # better on the analytic grid's GGX α = 0.4 (η within 1.8 % vs 2.6 %).
-            fill = ndf_mod.fill_holes if (last or inner_holes) else ndf_mod.push_pull
-            d_work = np.maximum(fill(work, wsum, wv), 0.0)
+            if last or inner_holes:
+                d_work, log_lobe = ndf_mod.fill_holes_and_lobe(work, wsum, wv)
+            else:
+                d_work, log_lobe = ndf_mod.push_pull(work, wsum, wv), None
+            d_work = np.maximum(d_work, 0.0)
             norm = float(d_work @ work.projected_solid_angles)
             d_work /= max(norm, 1e-300)
             if not (last and inner == opt.inner_iterations - 1):  # the final S comes from the output NDF
@@ -287,6 +290,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         if any(x is not None and abs(x) > PLANE_THRESHOLD_DEG for x in plane_off):
             shake = True
     out_cube = hemicube(opt.resolution)
+    d_work = ndf_mod.smooth_wide(work, d_work, log_lobe - math.log(max(norm, 1e-300)) if log_lobe is not None else None)
     d_work = ndf_mod.smooth_tails(work, d_work)
     d_out = np.maximum(ndf_mod.resample(work, d_work, out_cube), 0.0)
     model = MicrofacetBRDF(d_out, kd, ks, eta)
