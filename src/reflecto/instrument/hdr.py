@@ -5,11 +5,12 @@
   optimal) and zero weight for saturated (``Z ≥ 0.95 Z_max``) or near-black pixels
   (``Z − Z_black`` below :data:`DARK_DN`), except that the longest unsaturated exposure
   always keeps its weight, so dark-but-valid pixels measure ≈ 0 instead of a hole.
-  Pixels that read zero in that exposure are also reported (``black``): on a camera
-  whose read noise does not dither its quantization (below :data:`DITHER_DN` DN RMS)
-  a signal under half a DN rounds to 0 every time, so their values are bounds, not
-  measurements (:attr:`~reflecto.instrument.slices.Slices.censored`). Rounded values
-  of a DN or more stay: their rounding errors average out over pixels.
+  Pixels that read 0 or 1 DN in that exposure are also reported (``black``): on a
+  camera whose read noise does not dither its quantization (below :data:`DITHER_DN`
+  DN RMS) a signal under half a DN rounds to 0 every time and one up to 1.5 DN to 1,
+  so their values are bounds, not measurements
+  (:attr:`~reflecto.instrument.slices.Slices.censored`; :data:`BLACK_DN`). Rounded
+  values of 2 DN or more stay: their rounding errors average out over pixels.
 * Gamma-encoded 8-bit camera — Debevec–Malik response recovery and merge (OpenCV's
   ``CalibrateDebevec`` / ``MergeDebevec``), the response kept in the calibration.
 
@@ -33,9 +34,13 @@ DARK_DN = 4.0
 #: Read noise (DN) from which the quantization counts as dithered (near-black values
 #: unbiased on average, so kept).
 DITHER_DN = 0.5
-#: A signal below this (DN, black-subtracted) in every channel read zero: an undithered
-#: quantizer gives no measurement, only the bound "below half a DN".
-BLACK_DN = 0.5
+#: A reading below this (DN, black-subtracted) in every channel — 0 or 1 DN — is no
+#: measurement on an undithered quantizer, only a bound: 0 means a signal under half a
+#: DN, 1 anything in [0.5, 1.5), and once the zeros are set aside the ones that remain
+#: are biased high (in the tail of a k_d = 0 lobe, where the signal fades through a
+#: DN, they read ≈ 2× the signal). From 2 DN on the rounding error is ≤ 25 % and the
+#: selection bias small.
+BLACK_DN = 1.5
 #: Fraction of the ADC range above which a raw value counts as saturated.
 SATURATION = 0.95
 
@@ -45,7 +50,7 @@ def merge_linear_pixels(
 ) -> tuple[Array, NDArray[np.bool_], NDArray[np.bool_]]:
     """Linear merge at the pixels ``(rows, cols)`` only: radiance ``(L, P, 3)``, valid
     and black masks ``(L, P)`` (black: the value rests on the longest usable exposure
-    alone, which read below :data:`BLACK_DN` — zero — in every channel).
+    alone, which read below :data:`BLACK_DN` — 0 or 1 DN — in every channel).
 
     A pixel is saturated if any channel is, so colour ratios stay unbiased.
     (Weights ``w_j = t_j`` make the merge ``Σ_j signal_j / Σ_j t_j`` over the used

@@ -46,10 +46,11 @@ class Slices:
         Rows ``(t, b, n)`` of the frame the directions are expressed in (identity: device).
     censored
         Valid samples below the camera's detection limit, shape ``(L, P)``, or ``None``:
-        zero in the longest exposure of a camera without dithering read noise, whose
-        quantizer rounds a signal under half a DN to 0 every time. Their values (≈ 0)
-        are bounds, not measurements: the reconstruction uses them to bound k_d, not
-        as NDF or Fresnel data.
+        0 or 1 DN in the longest exposure of a camera without dithering read noise,
+        whose quantizer rounds a signal under half a DN to 0 and one up to 1.5 DN to 1
+        every time (:data:`reflecto.instrument.hdr.BLACK_DN`). Their values are
+        bounds, not measurements: the reconstruction uses them to bound k_d, not as
+        NDF or Fresnel data.
     """
 
     light: Array
