@@ -242,12 +242,12 @@ def fill_holes_and_lobe(cube: Hemicube, wsum: Array, wvsum: Array,
 
 #: :func:`smooth_wide` smooths at this fraction of the peak's narrowest half width at half maximum …
 WIDE_SMOOTH_FRACTION = 0.2
-#: … where the fitted lobe is below this fraction of its maximum (none) …
+#: … where D is below this fraction of its maximum (none) …
 WIDE_SMOOTH_START = 0.25
 #: … blending in (log-linearly in the level) to all of it below this fraction.
 WIDE_SMOOTH_FULL = 0.03
-#: Below this fraction of its maximum the fitted lobe's ``r`` (deep tails, where the
-#: measured values are noise and diffuse residue) neither enters the filter …
+#: Below this fraction of its maximum D's ``r`` (deep tails, where the measured values
+#: are noise and diffuse residue) neither enters the filter …
 WIDE_SMOOTH_FLOOR = 1e-3
 #: … nor is replaced; the blend fades out between this fraction and the floor.
 WIDE_SMOOTH_FADE = 1e-2
@@ -289,8 +289,8 @@ def smooth_wide(cube: Hemicube, d: Array, log_lobe: Array | None) -> Array:
     ``log D' = L + (1 − w) r + w·S(r)``, where ``L`` is the fitted lobe
     (:func:`fit_lobe`), ``r = log D − L`` and ``S`` a binomial filter of σ =
     :data:`WIDE_SMOOTH_FRACTION` × the narrowest half width (:func:`half_width`, at
-    :data:`WIDE_SMOOTH_N`, at most :data:`WIDE_SMOOTH_MAX_PASSES` passes, over the texels above :data:`WIDE_SMOOTH_FLOOR` of the
-    maximum); ``w`` is 0 above
+    :data:`WIDE_SMOOTH_N`, at most :data:`WIDE_SMOOTH_MAX_PASSES` passes, over the
+    texels above :data:`WIDE_SMOOTH_FLOOR` of the maximum); ``w`` is 0 above
     :data:`WIDE_SMOOTH_START` of the maximum (the peak keeps its data), 1 from
     :data:`WIDE_SMOOTH_FULL` down to :data:`WIDE_SMOOTH_FADE`, and 0 again below
     :data:`WIDE_SMOOTH_FLOOR` (deep tails are :func:`smooth_tails`' business).
@@ -314,9 +314,10 @@ def smooth_wide(cube: Hemicube, d: Array, log_lobe: Array | None) -> Array:
     inside = (level >= math.log(WIDE_SMOOTH_FLOOR)).astype(np.float64)
     # a lobe that does not follow the NDF (a diffuse residue in the tail pulled the fit)
     # would put its curvature into r: then leave the NDF as it is
-    om = cube.projected_solid_angles * (level >= math.log(WIDE_SMOOTH_FADE))
-    r_mean = float(om @ r) / float(om.sum())
-    if math.sqrt(float(om @ (r - r_mean) ** 2) / float(om.sum())) > WIDE_SMOOTH_MISFIT:
+    om = cube.projected_solid_angles
+    wm = om * (level >= math.log(WIDE_SMOOTH_FADE))
+    r_mean = float(wm @ r) / float(wm.sum())
+    if math.sqrt(float(wm @ (r - r_mean) ** 2) / float(wm.sum())) > WIDE_SMOOTH_MISFIT:
         return d
     # normalized convolution over the texels above the floor: the deep tail's r stays out
     f = cube.n // WIDE_SMOOTH_N
@@ -328,7 +329,6 @@ def smooth_wide(cube: Hemicube, d: Array, log_lobe: Array | None) -> Array:
     w = _ramp(-level, -math.log(WIDE_SMOOTH_START), -math.log(WIDE_SMOOTH_FULL))
     w *= _ramp(level, math.log(WIDE_SMOOTH_FLOOR), math.log(WIDE_SMOOTH_FADE))
     out = np.exp(np.minimum(lobe + r + w * (smoothed - r), 700.0))
-    om = cube.projected_solid_angles
     return out * (float(d @ om) / max(float(out @ om), 1e-300))
 
 
