@@ -193,7 +193,10 @@ def test_compiled_binning_matches_numpy():
     rng = np.random.default_rng(3)
     strided = np.ones(200_000)
     strided[::16] = rng.random(12_500)  # the subsample holds every small value
-    cols = (rng.random(200_000), np.sort(rng.random(200_000))[::-1].copy(), np.r_[np.ones(199_000), rng.random(1000)], strided)
+    # quantized data tie at the bottom by the thousand: the ranks may fall among the ties
+    ties = rng.permutation(np.r_[rng.random(380) * 1e-3, np.full(100_000, 2e-3), 2e-3 + rng.random(99_620)])
+    cols = (rng.random(200_000), np.sort(rng.random(200_000))[::-1].copy(), np.r_[np.ones(199_000), rng.random(1000)],
+            strided, ties, np.full(200_000, 0.25))
     for y in cols:
         v = np.stack([y, y[::-1], np.roll(y, 7)], axis=-1).reshape(4, 50_000, 3)
         ok = rng.random((4, 50_000)) > 0.05

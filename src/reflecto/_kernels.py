@@ -614,20 +614,24 @@ def quantize_ndf(d, psa, normalize, out):
 
 @njit(**_OPTS)
 def gather_below(values, valid, thresholds, out):
-    """Per channel ``c``, the valid ``values[k, c] ≤ thresholds[c]`` into ``out[c, :count[c]]``.
+    """Per channel ``c``, the valid ``values[k, c] < thresholds[c]`` into ``out[c, :count[c]]``.
 
     :func:`reflecto.reconstruct.samples.kd_upper_bound`; ``values`` (M, 3), ``valid``
-    (M,), ``out`` (3, ≥ count). Returns the counts, shape ``(3,)``.
+    (M,), ``out`` (3, ≥ count). Returns the counts and the numbers of valid values
+    equal to the thresholds, each of shape ``(3,)``.
     """
     counts = np.zeros(3, dtype=np.int64)
+    equal = np.zeros(3, dtype=np.int64)
     for k in range(values.shape[0]):
         if valid[k]:
             for c in range(3):
                 v = values[k, c]
-                if v <= thresholds[c]:
+                if v < thresholds[c]:
                     out[c, counts[c]] = v
                     counts[c] += 1
-    return counts
+                elif v == thresholds[c]:
+                    equal[c] += 1
+    return counts, equal
 
 
 @njit(**_OPTS)

@@ -113,11 +113,12 @@ def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-
     is continuous, not blocky). Measured texels are never changed.
     """
     cubes = [cube]
-    ws, vs = [np.ascontiguousarray(wsum, dtype=np.float64)], [np.ascontiguousarray(wvsum, dtype=np.float64)]
+    # Σw and Σw·v side by side: one block reduction per level sums both
+    levels = [np.stack([np.asarray(wsum, dtype=np.float64), np.asarray(wvsum, dtype=np.float64)], axis=1)]
     while cubes[-1].n > 4:
-        ws.append(cubes[-1].block_reduce(ws[-1], 2))
-        vs.append(cubes[-1].block_reduce(vs[-1], 2))
+        levels.append(cubes[-1].block_reduce(levels[-1], 2))
         cubes.append(cubes[-1]._coarse(2))
+    ws, vs = [x[:, 0] for x in levels], [x[:, 1] for x in levels]
     # coarsest level: fill any remaining hole with the global mean
     w, v = ws[-1], vs[-1]
     total_w = max(float(w.sum()), min_weight)

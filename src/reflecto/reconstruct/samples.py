@@ -164,12 +164,18 @@ def kd_upper_bound(values: Array, valid: NDArray[np.bool_]) -> Array:
     if len(sub) > 4 * m:
         thresholds = np.partition(sub, m, axis=0)[m]
     low = np.empty((3, n))
-    counts = _kernels.gather_below(flat, ok, thresholds, low)
+    counts, equal = _kernels.gather_below(flat, ok, thresholds, low)
     out = np.empty(3)
     for ch in range(3):
-        if counts[ch] <= hi:  # the subsample's threshold kept too few: all values of the channel
+        if counts[ch] + equal[ch] <= hi:  # the subsample's threshold kept too few: all values of the channel
             thresholds[ch] = np.inf
-            counts = _kernels.gather_below(flat, ok, thresholds, low)
-        part = np.partition(low[ch, : counts[ch]], [lo, hi] if hi > lo else lo)
-        out[ch] = _interpolate(float(part[lo]), float(part[hi]), t)
+            counts, equal = _kernels.gather_below(flat, ok, thresholds, low)
+        # ranks below counts[ch] are among the gathered values; the others up to hi
+        # equal the threshold (quantized data tie there by the thousand: no partition)
+        c = int(counts[ch])
+        need = [r for r in sorted({lo, hi}) if r < c]
+        part = np.partition(low[ch, :c], need) if need else low[ch, :0]
+        a = float(part[lo]) if lo < c else float(thresholds[ch])
+        b = float(part[hi]) if hi < c else float(thresholds[ch])
+        out[ch] = _interpolate(a, b, t)
     return out * math.pi
