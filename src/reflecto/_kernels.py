@@ -651,3 +651,41 @@ def partial_ndf(f, kd_over_pi, cos_io, s_led, led, s_o, fres, lum, dh, d_lum):
             dh[k, c] = v
             acc += v * lum[c]
         d_lum[k] = acc
+
+
+@njit(**_OPTS)
+def ct_lobe(i, o, scale, f0, m, out):
+    """``scale · D G F / (π cos θ_i cos θ_o)`` per pair: :func:`reflecto.evaluate.cooktorrance._lobe`.
+
+    The same arithmetic as the NumPy reference (Beckmann D, V-groove G, Schlick F),
+    times ``scale`` (the fit's √w cos θ_i), without its temporaries.
+    """
+    m2 = m * m
+    for k in range(i.shape[0]):
+        ix, iy, iz = i[k, 0], i[k, 1], i[k, 2]
+        ox, oy, oz = o[k, 0], o[k, 1], o[k, 2]
+        if not (iz > 0.0 and oz > 0.0):
+            out[k] = 0.0
+            continue
+        hx, hy, hz = ix + ox, iy + oy, iz + oz
+        n = math.sqrt(hx * hx + hy * hy + hz * hz)
+        if n > 0.0:
+            hx, hy, hz = hx / n, hy / n, hz / n
+        else:
+            hx = hy = hz = 0.0
+        ch = min(max(hz, 1e-9), 1.0)
+        c = min(max(ix * hx + iy * hy + iz * hz, 1e-9), 1.0)
+        t2 = (1.0 - ch * ch) / (ch * ch)
+        d = math.exp(-t2 / m2) / (math.pi * m2 * ch**4)
+        g = min(1.0, min(2 * ch * iz / c, 2 * ch * oz / c))
+        f = f0 + (1 - f0) * (1 - c) ** 5
+        den = math.pi * max(iz, 1e-9) * max(oz, 1e-9)
+        out[k] = d * max(g, 0.0) * f / den * scale[k]
+
+
+@njit(**_OPTS)
+def ct_residual(diff, lobe, y, rd, rs, out):
+    """``out[k, c] = rd[c] diff[k] + rs[c] lobe[k] − y[k, c]``: the Cook–Torrance fit's residual."""
+    for k in range(y.shape[0]):
+        for c in range(3):
+            out[k, c] = rd[c] * diff[k] + rs[c] * lobe[k] - y[k, c]

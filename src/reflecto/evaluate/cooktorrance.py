@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
-from .. import geometry
+from .. import _kernels, geometry
 from ..sources.base import BRDFSource
 from .metrics import evaluate_on_grid, metric_grid
 
@@ -88,19 +88,19 @@ def _lobe(i: Array, o: Array, f0: float, m: float) -> Array:
     return np.where((ci > 0) & (co > 0), d * np.maximum(g, 0.0) * f / den, 0.0)
 
 
-def _nnls2(a: Array, b: Array, y: Array) -> tuple[float, float]:
-    """``min |x0 a + x1 b − y|²`` with x ≥ 0."""
-    aa, ab, bb, ay, by = a @ a, a @ b, b @ b, a @ y, b @ y
+def _nnls2(aa: float, ab: float, bb: float, ay: float, by: float) -> tuple[float, float]:
+    """``min |x0 a + x1 b − y|²`` with x ≥ 0, from the dot products of ``a``, ``b``, ``y``."""
     det = aa * bb - ab * ab
     if det > 1e-300:
         x0 = (bb * ay - ab * by) / det
         x1 = (aa * by - ab * ay) / det
         if x0 >= 0 and x1 >= 0:
             return float(x0), float(x1)
+    # one of them at 0: |c a − y|² = c² aa − 2c ay + |y|², compared without |y|²
     c0 = max(ay / aa, 0.0) if aa > 0 else 0.0
     c1 = max(by / bb, 0.0) if bb > 0 else 0.0
-    e0 = float(np.sum((c0 * a - y) ** 2))
-    e1 = float(np.sum((c1 * b - y) ** 2))
+    e0 = c0 * c0 * aa - 2.0 * c0 * ay
+    e1 = c1 * c1 * bb - 2.0 * c1 * by
     return (c0, 0.0) if e0 <= e1 else (0.0, c1)
 
 
@@ -109,18 +109,23 @@ def fit_cook_torrance(reference: BRDFSource, stride: int = 4, reference_values: 
     g = metric_grid(stride)
     r = evaluate_on_grid(reference, g) if reference_values is None else reference_values
     ok = np.all(r >= 0, axis=1) & np.all(np.isfinite(r), axis=1)
-    i, o, r = g.i[ok], g.o[ok], r[ok]
+    i, o, r = np.ascontiguousarray(g.i[ok]), np.ascontiguousarray(g.o[ok]), r[ok]
     sw = np.sqrt(g.w[ok]) * i[:, 2]  # residual = √w (R − M) cos θ_i
-    y = r * sw[:, None]
+    y = np.ascontiguousarray(r * sw[:, None])
     diff = sw / math.pi
+    # fixed by the data: the diffuse column's dot products
+    aa, ay = float(diff @ diff), diff @ y
+    lobe = np.empty(len(sw))
 
     def solve(f0: float, m: float) -> tuple[Array, Array, Array]:
-        lobe = _lobe(i, o, f0, m) * sw
+        # one compiled pass for the lobe; its dot products by BLAS; ρ_d, ρ_s in closed form
+        _kernels.ct_lobe(i, o, sw, f0, m, lobe)
+        ab, bb, by = float(diff @ lobe), float(lobe @ lobe), lobe @ y
         rd, rs = np.zeros(3), np.zeros(3)
-        res = np.empty_like(y)
         for ch in range(3):
-            rd[ch], rs[ch] = _nnls2(diff, lobe, y[:, ch])
-            res[:, ch] = rd[ch] * diff + rs[ch] * lobe - y[:, ch]
+            rd[ch], rs[ch] = _nnls2(aa, ab, bb, float(ay[ch]), float(by[ch]))
+        res = np.empty_like(y)
+        _kernels.ct_residual(diff, lobe, y, rd, rs, res)
         return rd, rs, res
 
     def resid(x: Array) -> Array:

@@ -245,16 +245,18 @@ def fit_fresnel(
         if fixed_eta is None:
             x0 = [math.log(max(float(eta0_ch[ch]) - 1.0, 1e-3))] + x0
         x = np.asarray(x0, dtype=np.float64)
-        if np.all(np.isfinite(r(x))):
+        rx = r(x)
+        if np.all(np.isfinite(rx)):
             # MINPACK's lmdif directly: least_squares(method="lm") runs the same
             # algorithm but spends ≈ 4 ms per fit in Python around the Jacobian
             # full_output: a fit that runs out of evaluations (maxfev = 600, as
-            # least_squares) keeps its last iterate without a warning
-            sol = leastsq(r, x, Dfun=jac, col_deriv=True, ftol=1e-8, xtol=1e-8, gtol=1e-8, full_output=True)[0]
-            if np.all(np.isfinite(sol)) and np.all(np.isfinite(r(sol))):
-                x = np.atleast_1d(sol)
+            # least_squares) keeps its last iterate without a warning; its fvec is
+            # r at that iterate
+            sol, _, info, *_ = leastsq(r, x, Dfun=jac, col_deriv=True, ftol=1e-8, xtol=1e-8, gtol=1e-8, full_output=True)
+            if np.all(np.isfinite(sol)) and np.all(np.isfinite(info["fvec"])):
+                x, rx = np.atleast_1d(sol), info["fvec"]
         eta[ch], kd[ch] = parts(x)
-        resid[:, ch] = r(x) / w
+        resid[:, ch] = rx / w
     if not per_channel:
         frac = kd[0] / max(float(kd_max @ LUM), 1e-300)
         eta[:], kd[:] = eta[0], frac * kd_max
