@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -148,6 +150,23 @@ def overlap_pairs_numpy(bins: Bins, n_leds: int, symmetric: bool = True) -> Pair
     return Pairs(np.concatenate(ps), np.concatenate(qs), np.concatenate(sym))
 
 
+def _remember_last(fun: Callable[[Array], Array]) -> Callable[[Array], Array]:
+    """``fun`` that returns its previous result again for the same ``x``.
+
+    leastsq evaluates the residual and the Jacobian at the start point once to check
+    their shapes and again to start: each is one pass over every pair saved.
+    """
+    last: list[Any] = [None, None]
+
+    def wrapped(x: Array) -> Array:
+        key = np.asarray(x, dtype=np.float64).tobytes()
+        if key != last[0]:
+            last[0], last[1] = key, fun(x)
+        return last[1]
+
+    return wrapped
+
+
 def fit_fresnel(
     bins: Bins,
     pairs: Pairs,
@@ -219,12 +238,14 @@ def fit_fresnel(
             e = float(fixed_eta) if fixed_eta is not None else min(1.0 + max(math.exp(min(float(x[0]), 10.0)), 1e-3), ETA_MAX)
             return e, hi / (1.0 + math.exp(-float(np.clip(x[-1], -40.0, 40.0))))
 
+        @_remember_last
         def r(x: Array, fp: Array = fp, fq: Array = fq) -> Array:
             e, k = parts(x)
             out = np.empty(len(fp))
             _kernels.pair_residuals(cp, cq, fp, fq, ap, aq, w, e, k / math.pi, level, out)
             return out
 
+        @_remember_last
         def jac(x: Array, fp: Array = fp, fq: Array = fq, hi: float = hi) -> Array:
             # analytic ∂r/∂x (rows: x), chained through η = 1 + e^x₀ and k_d = hi·sigmoid(x₁);
             # 0 where parts() clamps. One pass instead of MINPACK's one evaluation per parameter
