@@ -330,8 +330,8 @@ def smooth_wide(cube: Hemicube, d: Array, log_lobe: Array | None) -> Array:
     f = cube.n // WIDE_SMOOTH_N
     coarse, low_w = cube.downsample(inside, f)
     _, low_r = cube.downsample(inside * r, f)
-    num = coarse.lookup(coarse.smooth(low_r, passes), cube.directions)
-    den = coarse.lookup(coarse.smooth(low_w, passes), cube.directions)
+    num = resample(coarse, coarse.smooth(low_r, passes), cube)
+    den = resample(coarse, coarse.smooth(low_w, passes), cube)
     smoothed = np.where(den > 1e-3, num / np.maximum(den, 1e-3), r)
     w = _ramp(-level, -math.log(WIDE_SMOOTH_START), -math.log(WIDE_SMOOTH_FULL))
     w *= _ramp(level, math.log(WIDE_SMOOTH_FLOOR), math.log(WIDE_SMOOTH_FADE))
@@ -382,7 +382,7 @@ def smooth_tails(cube: Hemicube, d: Array, passes: int | None = None) -> Array:
     narrow = cube.smooth(log_d, passes) if passes > 0 else log_d
     # deep tails (≲ 10⁻⁴ of the peak, a few photons per pixel): the 128-texel scale
     coarse, low = cube.downsample(log_d, cube.n // 128)
-    wide = coarse.lookup(coarse.smooth(low, 2), cube.directions)
+    wide = resample(coarse, coarse.smooth(low, 2), cube)
     w2 = _ramp(level, math.log10(DEEP_FULL), math.log10(TAIL_FULL))
     smoothed = np.exp(w2 * narrow + (1.0 - w2) * wide)
     w = _ramp(level, math.log10(TAIL_FULL), math.log10(TAIL_KEEP))
@@ -391,8 +391,8 @@ def smooth_tails(cube: Hemicube, d: Array, passes: int | None = None) -> Array:
     # that no mass moves between regions and normalization does not lift the peak
     wc = (1.0 - w) * cube.projected_solid_angles
     f = cube.n // 128
-    num = coarse.lookup(coarse.smooth(cube.block_reduce(wc * d, f), 2), cube.directions)
-    den = coarse.lookup(coarse.smooth(cube.block_reduce(wc * smoothed, f), 2), cube.directions)
+    num = resample(coarse, coarse.smooth(cube.block_reduce(wc * d, f), 2), cube)
+    den = resample(coarse, coarse.smooth(cube.block_reduce(wc * smoothed, f), 2), cube)
     k = np.where(den > 0, num / np.maximum(den, 1e-300), 1.0)
     return np.where(w >= 1.0, d, np.exp(w * log_d) * (k * smoothed) ** (1.0 - w))
 
