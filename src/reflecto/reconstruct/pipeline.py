@@ -4,7 +4,7 @@
 
     estimate the altered normal (§5.4)                       normal.py
     bin samples per LED and working texel                     samples.py
-    repeat (3 ≤ 5, Fresnel loop):
+    repeat (3 to 5 times, until η moves < 1 %; Fresnel loop):
         fit η and k_d to overlapping bins (§5.1, eqs. 5–6)    fresnel_fit.py
         repeat (2 ≤ 6, NDF/shadowing loop):
             partial NDFs (eq. 7), merged (eq. 9) and
@@ -85,8 +85,14 @@ class Options:
         Use this η instead of fitting it (for layouts whose overlaps miss the lobe).
     max_tilt_deg
         Largest tilt searched by the normal estimate (degrees).
-    outer_iterations, inner_iterations
-        Fresnel and NDF/shadowing loops (paper: ≤ 5 and ≤ 6; 3 and 2 converge here).
+    outer_iterations, min_outer_iterations, eta_tolerance
+        The Fresnel loop runs at least ``min_outer_iterations`` and at most
+        ``outer_iterations`` times (paper: ≤ 5); it stops once the fitted (luminance) η
+        moves by less than ``eta_tolerance`` (relative) from one iteration to the next.
+        Most captures stop at 3; rough GGX lobes take 4–5 (α = 0.4, η = 2: 2.23, 2.17,
+        2.04, 2.00).
+    inner_iterations
+        NDF/shadowing loop per Fresnel iteration (paper: ≤ 6; 2 converge here).
     detect_shake
         Flag captures whose E(η) exceeds :data:`SHAKE_THRESHOLD` (§5.1) or whose steep
         slices are not mirror-symmetric about the normal (:mod:`.symmetry`).
@@ -101,7 +107,9 @@ class Options:
     work_resolution: int | None = None
     estimate_normal: bool = False
     max_tilt_deg: float = 16.0
-    outer_iterations: int = 3
+    outer_iterations: int = 5
+    min_outer_iterations: int = 3
+    eta_tolerance: float = 0.01
     inner_iterations: int = 2
     detect_shake: bool = True
     fixed_eta: float | None = None
@@ -174,7 +182,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     if opt.estimate_normal:
         n_first = opt.work_resolution or 128
         quick = dataclasses.replace(opt, estimate_normal=False, resolution=n_first, work_resolution=n_first,
-                                    outer_iterations=2, detect_shake=False, energy_clamp=False)
+                                    outer_iterations=2, min_outer_iterations=2, detect_shake=False,
+                                    energy_clamp=False)
         shadow = reconstruct(slices, quick).model.shadowing
         coarse = ConsistencyDistance(slices, valid, shadow, n=32, stride=3)
         fine = ConsistencyDistance(slices, valid, shadow, n=64, stride=1)
@@ -230,6 +239,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     for outer in range(opt.outer_iterations):
         a = cos_io / np.maximum(s_led[bins.led] * s_o, 1e-12)
         last = outer == opt.outer_iterations - 1
+        eta_start, kd_start = eta, kd
         fit = fit_fresnel(bins, pairs, a, n_leds, kd, eta, kd_max, excluded, opt.fixed_eta, per_channel=last)
         # shake (§5.1): judged once S is known (outer 1); the LED whose exclusion lowers
         # E(η) most is dropped and the fit repeated
@@ -247,6 +257,14 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             if best[1] is not None and best[0] < 0.5 * fit.error:
                 excluded.add(best[1])
                 fit = fit_fresnel(bins, pairs, a, n_leds, kd, eta, kd_max, excluded, opt.fixed_eta, per_channel=last)
+        if not last and outer >= opt.min_outer_iterations - 1 and fit.n_pairs > 0 and np.all(np.isfinite(fit.eta)):
+            # converged (η moved less than the tolerance): this iteration is the last;
+            # its fit per channel, from the same start as the luminance fit just made
+            before, now = float(eta_start @ LUM), float(fit.eta @ LUM)
+            if abs(now - before) <= opt.eta_tolerance * before:
+                last = True
+                fit = fit_fresnel(bins, pairs, a, n_leds, kd_start, eta_start, kd_max, excluded, opt.fixed_eta,
+                                  per_channel=True)
         if fit.n_pairs > 0 and np.all(np.isfinite(fit.eta)):
             eta, kd = fit.eta, fit.kd
         use = ~np.isin(bins.led, list(excluded)) if excluded else slice(None)  # a slice: views, no copies
@@ -285,6 +303,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             den = float(np.sum(wb * d_b * d_b))
             ks = np.maximum((wb * d_b) @ dh[use] / max(den, 1e-300), 0.0)
         history.append({"eta": eta.tolist(), "E": fit.error, "kd": kd.tolist(), "ks": ks.tolist()})
+        if last:
+            break
     # second shake cue: slices whose mirror plane misses the normal (see .symmetry)
     plane_off: list[float | None] = []
     if opt.detect_shake:
