@@ -178,6 +178,7 @@ def fit_fresnel(
     exclude: set[int] | None = None,
     fixed_eta: float | None = None,
     per_channel: bool = True,
+    diagnostics: bool = True,
 ) -> FresnelFit:
     """Fit η and k_d per channel to the overlapping bins (eq. 6, see the module docstring).
 
@@ -198,6 +199,9 @@ def fit_fresnel(
     per_channel
         Fit each channel; otherwise fit the luminance once and scale k_d per channel
         by ``kd_max`` (a cheaper start for the first iterations).
+    diagnostics
+        Also compute ``error_median``, ``pair_error`` and ``theta_d_spread_deg`` (NaN
+        otherwise): the loop's intermediate fits need only E(η).
     """
     exclude = exclude or set()
     n_none = FresnelFit(np.asarray(eta0, float).copy(), np.asarray(kd0, float).copy(), float("nan"),
@@ -284,6 +288,8 @@ def fit_fresnel(
         resid[:, 1:] = resid[:, :1]
     lum_res = resid @ LUM
     error = float(np.sqrt(np.sum(w * w * lum_res**2) / np.sum(w * w)))
+    if not diagnostics:
+        return FresnelFit(eta, kd, error, np.full((n_leds, n_leds), np.nan), int(len(p)), float("nan"), float("nan"))
     order = np.argsort(np.abs(lum_res))
     cw = np.cumsum((w * w)[order])
     error_median = float(np.abs(lum_res[order])[np.searchsorted(cw, 0.5 * cw[-1])])

@@ -240,7 +240,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         a = cos_io / np.maximum(s_led[bins.led] * s_o, 1e-12)
         last = outer == opt.outer_iterations - 1
         eta_start, kd_start = eta, kd
-        fit = fit_fresnel(bins, pairs, a, n_leds, kd, eta, kd_max, excluded, opt.fixed_eta, per_channel=last)
+        fit = fit_fresnel(bins, pairs, a, n_leds, kd, eta, kd_max, excluded, opt.fixed_eta, per_channel=last,
+                          diagnostics=last)
         # shake (§5.1): judged once S is known (outer 1); the LED whose exclusion lowers
         # E(η) most is dropped and the fit repeated
         if outer == min(1, opt.outer_iterations - 1):
@@ -249,14 +250,16 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             shake = True
             best = (fit.error, None)
             for k in range(n_leds):
-                trial = fit_fresnel(bins, pairs, a, n_leds, kd, eta, kd_max, {k}, opt.fixed_eta, per_channel=False)
+                trial = fit_fresnel(bins, pairs, a, n_leds, kd, eta, kd_max, {k}, opt.fixed_eta, per_channel=False,
+                                    diagnostics=False)
                 if np.isfinite(trial.error) and trial.error < best[0]:
                     best = (trial.error, k)
             # drop an LED only if that explains the inconsistency (E at least halves);
             # otherwise the shake spans several LEDs: keep the data, flag the capture
             if best[1] is not None and best[0] < 0.5 * fit.error:
                 excluded.add(best[1])
-                fit = fit_fresnel(bins, pairs, a, n_leds, kd, eta, kd_max, excluded, opt.fixed_eta, per_channel=last)
+                fit = fit_fresnel(bins, pairs, a, n_leds, kd, eta, kd_max, excluded, opt.fixed_eta,
+                                  per_channel=last, diagnostics=last)
         if not last and outer >= opt.min_outer_iterations - 1 and fit.n_pairs > 0 and np.all(np.isfinite(fit.eta)):
             # converged (η moved less than the tolerance): this iteration is the last;
             # its fit per channel, from the same start as the luminance fit just made
