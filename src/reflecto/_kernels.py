@@ -21,6 +21,15 @@ _OPTS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
 
 @njit(inline="always", **_OPTS)
+def _unit(x, y, z):
+    """``(x, y, z) / |(x, y, z)|``, or zeros for the zero vector."""
+    n = math.sqrt(x * x + y * y + z * z)
+    if n > 0.0:
+        return x / n, y / n, z / n
+    return 0.0, 0.0, 0.0
+
+
+@njit(inline="always", **_OPTS)
 def _face_coords(x: float, y: float, z: float, n: int) -> tuple[int, float, float]:
     """Face and continuous texel coordinates: :meth:`Hemicube._face_coords_xyz`."""
     if z < 0.0:
@@ -299,18 +308,9 @@ def bin_finish(light, used, cnt, fsum, osum, size):
         led[b] = l
         texel[b] = used[b] % size
         ox, oy, oz = osum[b, 0], osum[b, 1], osum[b, 2]
-        n = math.sqrt(ox * ox + oy * oy + oz * oz)
-        if n > 0.0:
-            ox, oy, oz = ox / n, oy / n, oz / n
-        else:
-            ox = oy = oz = 0.0
+        ox, oy, oz = _unit(ox, oy, oz)
         ix, iy, iz = light[l, 0], light[l, 1], light[l, 2]
-        hx, hy, hz = ix + ox, iy + oy, iz + oz
-        n = math.sqrt(hx * hx + hy * hy + hz * hz)
-        if n > 0.0:
-            hx, hy, hz = hx / n, hy / n, hz / n
-        else:
-            hx = hy = hz = 0.0
+        hx, hy, hz = _unit(ix + ox, iy + oy, iz + oz)
         i[b, 0], i[b, 1], i[b, 2] = ix, iy, iz
         o[b, 0], o[b, 1], o[b, 2] = ox, oy, oz
         h[b, 0], h[b, 1], h[b, 2] = hx, hy, hz
@@ -667,12 +667,7 @@ def ct_lobe(i, o, scale, f0, m, out):
         if not (iz > 0.0 and oz > 0.0):
             out[k] = 0.0
             continue
-        hx, hy, hz = ix + ox, iy + oy, iz + oz
-        n = math.sqrt(hx * hx + hy * hy + hz * hz)
-        if n > 0.0:
-            hx, hy, hz = hx / n, hy / n, hz / n
-        else:
-            hx = hy = hz = 0.0
+        hx, hy, hz = _unit(ix + ox, iy + oy, iz + oz)
         ch = min(max(hz, 1e-9), 1.0)
         c = min(max(ix * hx + iy * hy + iz * hz, 1e-9), 1.0)
         t2 = (1.0 - ch * ch) / (ch * ch)
