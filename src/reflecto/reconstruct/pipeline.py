@@ -142,8 +142,10 @@ def auto_work_resolution(bins: Any) -> int:
 
 #: Rings and azimuths of the half-vector quadrature of the energy check's albedo.
 ALBEDO_QUAD = 48
-#: The summary's median relative residual is taken over at most this many bins.
-RESIDUAL_BINS = 8192
+#: The summary's median relative residual is taken over at most this many bins (an
+#: even subsample; 2048 moves the median by ≤ 5 % of itself against all bins, e.g.
+#: 0.00157 for 0.00151, and costs 0.6 ms instead of 3.4 ms at 8192).
+RESIDUAL_BINS = 2048
 
 #: (n_theta, n_phi) of the loop's σ tables (eq. 8); the final model uses the full grid.
 WORK_SIGMA = (46, 64)
