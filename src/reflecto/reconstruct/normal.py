@@ -76,7 +76,8 @@ class ConsistencyDistance:
         bins = bin_samples(sl.light, sl.view, sl.values, ok, self.cube)
         pairs = overlap_pairs(bins, self.n_leds)
         a = bins.i[:, 2] * bins.o[:, 2] / np.maximum(self.shadowing(bins.i) * self.shadowing(bins.o), 1e-6)
-        fit = fit_fresnel(bins, pairs, a, self.n_leds, 0.5 * kd_max, np.full(3, 1.5), kd_max, per_channel=False)
+        fit = fit_fresnel(bins, pairs, a, self.n_leds, 0.5 * kd_max, np.full(3, 1.5), kd_max, per_channel=False,
+                          diagnostics=False)
         return float(fit.error) if np.isfinite(fit.error) and fit.n_pairs >= MIN_PAIRS else float("inf")
 
 
