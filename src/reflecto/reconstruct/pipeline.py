@@ -240,10 +240,11 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     history = []
     for outer in range(opt.outer_iterations):
         a = cos_io / np.maximum(s_led[bins.led] * s_o, 1e-12)
-        last = outer == opt.outer_iterations - 1
-        eta_start, kd_start = eta, kd
-        fit = fit_fresnel(bins, pairs, a, n_leds, kd, eta, kd_max, excluded, opt.fixed_eta, per_channel=last,
-                          diagnostics=last)
+        # from min_outer_iterations on, any iteration may be the last: those fit per channel
+        per_channel = outer >= opt.min_outer_iterations - 1 or outer == opt.outer_iterations - 1
+        eta_before = float(eta @ LUM)
+        fit = fit_fresnel(bins, pairs, a, n_leds, kd, eta, kd_max, excluded, opt.fixed_eta, per_channel=per_channel,
+                          diagnostics=per_channel)
         # shake (§5.1): judged once S is known (outer 1); the LED whose exclusion lowers
         # E(η) most is dropped and the fit repeated
         if outer == min(1, opt.outer_iterations - 1):
@@ -261,17 +262,12 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             if best[1] is not None and best[0] < 0.5 * fit.error:
                 excluded.add(best[1])
                 fit = fit_fresnel(bins, pairs, a, n_leds, kd, eta, kd_max, excluded, opt.fixed_eta,
-                                  per_channel=last, diagnostics=last)
-        if not last and outer >= opt.min_outer_iterations - 1 and fit.n_pairs > 0 and np.all(np.isfinite(fit.eta)):
-            # converged (η moved less than the tolerance): this iteration is the last;
-            # its fit per channel, from the same start as the luminance fit just made
-            before, now = float(eta_start @ LUM), float(fit.eta @ LUM)
-            if abs(now - before) <= opt.eta_tolerance * before:
-                last = True
-                fit = fit_fresnel(bins, pairs, a, n_leds, kd_start, eta_start, kd_max, excluded, opt.fixed_eta,
-                                  per_channel=True)
+                                  per_channel=per_channel, diagnostics=per_channel)
         if fit.n_pairs > 0 and np.all(np.isfinite(fit.eta)):
             eta, kd = fit.eta, fit.kd
+        # converged once (luminance) η moves by less than the tolerance; the paper stops at 5
+        converged = abs(float(eta @ LUM) - eta_before) <= opt.eta_tolerance * eta_before
+        last = outer == opt.outer_iterations - 1 or (outer >= opt.min_outer_iterations - 1 and converged)
         use = ~np.isin(bins.led, list(excluded)) if excluded else slice(None)  # a slice: views, no copies
         tex, tex_tau, wb = bins.texel[use], bins.texel_tau[use], w_merge[use]
         if merged_for != excluded:  # eq. 9's Σw and the samples' mean texel offsets: fixed while the bins used are
