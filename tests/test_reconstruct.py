@@ -90,6 +90,29 @@ def test_kd_bound_ignores_grazing_leds_where_diffuse_fades():
     assert brdf_error(src, m_all, stride=3).normalized > 5 * err
 
 
+def test_box_mean_takes_the_noise_out_of_the_kd_bound():
+    """A flat diffuse field with 10 % noise: the 0.2 % percentile sits ≈ 29 % low on the
+    raw samples, within 7 % after the 5×5 box mean (edge pixels average fewer
+    neighbours); the box keeps a ramp's level."""
+    from reflecto.reconstruct.samples import box_mean, kd_upper_bound
+
+    rng = np.random.default_rng(0)
+    rows, cols = np.meshgrid(np.arange(60), np.arange(80), indexing="ij")
+    pixels = np.stack([rows.ravel(), cols.ravel()], axis=1)
+    level = 0.1 / np.pi
+    values = level * (1.0 + 0.1 * rng.standard_normal((2, len(pixels), 3)))
+    valid = np.ones((2, len(pixels)), bool)
+    valid[0, ::7] = False  # holes are left out of the means
+    raw = kd_upper_bound(values, valid) / 0.1
+    boxed = kd_upper_bound(box_mean(values, valid, pixels), valid) / 0.1
+    assert np.all(raw < 0.75), raw
+    assert np.all(np.abs(boxed - 1.0) < 0.07), boxed
+    ramp = np.broadcast_to((1.0 + 0.01 * pixels[:, 1])[None, :, None], values.shape)
+    inner = (pixels[:, 0] > 2) & (pixels[:, 0] < 57) & (pixels[:, 1] > 2) & (pixels[:, 1] < 77)
+    ones = np.ones_like(valid)
+    assert np.allclose(box_mean(ramp, ones, pixels)[:, inner], ramp[:, inner])
+
+
 def test_fresnel_loop_runs_until_eta_converges():
     """A rough GGX lobe's η still moves at the third outer iteration (2.23, 2.17, 2.04):
     the loop goes on until it moves less than the tolerance, at most five times."""
