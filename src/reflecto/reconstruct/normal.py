@@ -29,7 +29,7 @@ from scipy.optimize import minimize
 from .. import geometry
 from ..hemicube import hemicube
 from .fresnel_fit import fit_fresnel, overlap_pairs
-from .samples import bin_samples, kd_upper_bound
+from .samples import bin_samples, kd_bound
 
 Array = NDArray[np.float64]
 
@@ -57,22 +57,26 @@ class ConsistencyDistance:
         Working hemicube resolution of the bins.
     stride
         Use every ``stride``-th pixel (speed).
+    kd_bound_max_deg
+        The reconstruction's :attr:`~.pipeline.Options.kd_bound_max_deg` (same k_d bound).
     """
 
-    def __init__(self, slices, valid: NDArray[np.bool_], shadowing, n: int = 64, stride: int = 1) -> None:
+    def __init__(self, slices, valid: NDArray[np.bool_], shadowing, n: int = 64, stride: int = 1,
+                 kd_bound_max_deg: float = 75.0) -> None:
         px = np.arange(0, slices.view.shape[0], stride)
         self.slices = type(slices)(slices.light, slices.view[px], slices.values[:, px], slices.valid[:, px] & valid[:, px],
                                    slices.pixels[px], slices.frame)
         self.shadowing = shadowing
         self.cube = hemicube(n)
         self.n_leds = slices.n_leds
+        self.kd_bound_max_deg = kd_bound_max_deg
 
     def __call__(self, normal_xy: Array) -> float:
         sl = self.slices.reframe(tilt_frame(float(normal_xy[0]), float(normal_xy[1])))
         ok = sl.valid
         if ok.sum() < 1000:
             return float("inf")
-        kd_max = kd_upper_bound(sl.values, ok)
+        kd_max = kd_bound(sl.light, sl.view, sl.values, ok, sl.pixels, self.kd_bound_max_deg)
         bins = bin_samples(sl.light, sl.view, sl.values, ok, self.cube)
         pairs = overlap_pairs(bins, self.n_leds)
         a = bins.i[:, 2] * bins.o[:, 2] / np.maximum(self.shadowing(bins.i) * self.shadowing(bins.o), 1e-6)

@@ -62,7 +62,7 @@ from ..instrument.slices import Slices
 from . import ndf as ndf_mod
 from .fresnel_fit import FresnelFit, fit_fresnel, overlap_pairs
 from .normal import ConsistencyDistance, estimate_normal_consistency, refine_normal
-from .samples import bin_samples, box_mean, kd_upper_bound
+from .samples import bin_samples, kd_bound
 from .symmetry import PLANE_THRESHOLD_DEG, plane_offsets
 
 Array = NDArray[np.float64]
@@ -200,24 +200,20 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
                                     outer_iterations=2, min_outer_iterations=2, detect_shake=False,
                                     energy_clamp=False)
         shadow = reconstruct(slices, quick).model.shadowing
-        coarse = ConsistencyDistance(slices, valid, shadow, n=32, stride=3)
-        fine = ConsistencyDistance(slices, valid, shadow, n=64, stride=1)
+        coarse = ConsistencyDistance(slices, valid, shadow, n=32, stride=3, kd_bound_max_deg=opt.kd_bound_max_deg)
+        fine = ConsistencyDistance(slices, valid, shadow, n=64, stride=1, kd_bound_max_deg=opt.kd_bound_max_deg)
         normal, sym_dist = estimate_normal_consistency(coarse, fine, opt.max_tilt_deg)
         # the first S was derived in the device frame, off by the tilt; S derived in
         # the found frame sharpens the distance around the truth: refine once more
         frame = geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
         shadow = reconstruct(slices.reframe(frame), quick).model.shadowing
-        normal, sym_dist = refine_normal(ConsistencyDistance(slices, valid, shadow, n=64, stride=1), normal, 0.5,
+        normal, sym_dist = refine_normal(ConsistencyDistance(slices, valid, shadow, n=64, stride=1, kd_bound_max_deg=opt.kd_bound_max_deg), normal, 0.5,
                                          maxfev=50, probe_deg=1.5)
         frame = geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
     sl = slices.reframe(frame) if opt.estimate_normal else slices
-    # ρ_d/π ≤ min f (in the sample frame): an upper bound of k_d; half of it starts the fit
+    # ρ_d/π ≤ f away from grazing (in the sample frame): an upper bound of k_d; half of it starts the fit
     ok = sl.valid & valid
-    c_lim = math.cos(math.radians(opt.kd_bound_max_deg))
-    near = (sl.light[:, 2] >= c_lim)[:, None] & (sl.view[:, 2] >= c_lim)[None, :]
-    leds = np.flatnonzero(near.any(axis=1))  # (box_mean costs per LED: only those that bound)
-    kd_max = kd_upper_bound(box_mean(sl.values[leds], ok[leds], sl.pixels), (ok & near)[leds])
-    kd_max = np.maximum(kd_max, 0.0)
+    kd_max = kd_bound(sl.light, sl.view, sl.values, ok, sl.pixels, opt.kd_bound_max_deg)
     # samples below the camera's detection limit bound k_d (above) but are no NDF data
     meas = ok if sl.censored is None else ok & ~sl.censored
     work = hemicube(opt.work_resolution or 128)

@@ -167,6 +167,22 @@ def box_mean(values: Array, valid: NDArray[np.bool_], pixels: NDArray[np.intp], 
     return np.divide(out[..., :3], out[..., 3:], out=np.zeros_like(values), where=valid[..., None] & (out[..., 3:] > 0))
 
 
+def kd_bound(light: Array, view: Array, values: Array, valid: NDArray[np.bool_], pixels: NDArray[np.intp],
+             max_deg: float) -> Array:
+    """Upper bound of ρ_d per channel (shape ``(3,)``): :func:`kd_upper_bound` of the
+    box-averaged slices (:func:`box_mean`) over the samples with θ_i, θ_o ≤ ``max_deg``.
+
+    Real diffuse darkens at grazing incidence (the shared materials: down to 1/20 at
+    85°), so grazing LEDs would hold the bound below ρ_d; noise would pull a raw low
+    percentile ≈ 3σ down. ``light`` (L, 3), ``view`` (P, 3), ``values`` (L, P, 3),
+    ``valid`` (L, P), ``pixels`` (P, 2); directions in the sample frame.
+    """
+    c_lim = math.cos(math.radians(max_deg))
+    near = valid & (light[:, 2] >= c_lim)[:, None] & (view[:, 2] >= c_lim)[None, :]
+    leds = np.flatnonzero(near.any(axis=1))  # box_mean costs per LED: only those that bound
+    return np.maximum(kd_upper_bound(box_mean(values[leds], valid[leds], pixels), near[leds]), 0.0)
+
+
 def kd_upper_bound(values: Array, valid: NDArray[np.bool_]) -> Array:
     """``π · f_low`` per channel: ρ_d/π ≤ f everywhere, so ρ_d ≤ π min f (shape ``(3,)``).
 
