@@ -4,8 +4,10 @@ import dataclasses
 import json
 
 import numpy as np
+import pytest
 
 from reflecto.cli import main
+from reflecto.errors import ParameterError
 from reflecto.instrument.calibrate import nominal_calibration
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
@@ -111,6 +113,43 @@ def test_box_mean_takes_the_noise_out_of_the_kd_bound():
     inner = (pixels[:, 0] > 2) & (pixels[:, 0] < 57) & (pixels[:, 1] > 2) & (pixels[:, 1] < 77)
     ones = np.ones_like(valid)
     assert np.allclose(box_mean(ramp, ones, pixels)[:, inner], ramp[:, inner])
+
+
+def test_kd_bound_without_steep_samples_falls_back_to_all_of_them():
+    """No LED within kd_bound_max_deg (30°: the steepest is at 37.8°) used to crash the
+    percentile on an empty set; every valid sample then bounds k_d. A pure Lambertian
+    (k_s = 0) keeps ρ_d = 0.2 under either bound (the ideal camera quantizes the flat
+    floor to 0.2009)."""
+    from reflecto.reconstruct.samples import kd_bound
+
+    src = AnalyticBRDF(distribution="ggx", alpha=0.3, kd=0.2, ks=0.0, eta=1.5)
+    dev = Device.builtin("ideal")
+    sl = extract_slices(simulate_capture(src, dev, seed=1), nominal_calibration(dev))
+    for deg in (30.0, 75.0):
+        bound = kd_bound(sl.light, sl.view, sl.values, sl.valid, sl.pixels, deg)
+        assert np.allclose(bound, 0.2, rtol=0.006), (deg, bound)
+    assert np.all(kd_bound(sl.light, sl.view, sl.values, np.zeros_like(sl.valid), sl.pixels, 75.0) == 0.0)
+    m = reconstruct(sl, Options(kd_bound_max_deg=30.0)).model
+    assert np.allclose(m.kd, 0.2, rtol=0.006), m.kd
+
+
+@pytest.mark.parametrize("bad", [dict(kd_bound_max_deg=0.0), dict(kd_bound_max_deg=float("nan")),
+                                 dict(fixed_eta=0.8), dict(fixed_eta=float("inf")), dict(resolution=2),
+                                 dict(outer_iterations=0), dict(max_tilt_deg=-1.0), dict(eta_tolerance=-0.1)])
+def test_impossible_options_are_refused(bad):
+    with pytest.raises(ParameterError, match="reconstruction options"):
+        Options(**bad)
+
+
+def test_cli_refuses_an_impossible_eta_without_writing(tmp_path, capsys):
+    cap = tmp_path / "cap"
+    from conftest import ROOT
+
+    assert main(["simulate", str(ROOT / "examples" / "ggx-plastic.json"), "-o", str(cap), "-q"]) == 0
+    out = tmp_path / "m.npz"
+    assert main(["reconstruct", str(cap), "--eta", "0.5", "-o", str(out)]) != 0
+    assert "fixed η must be" in capsys.readouterr().err
+    assert not list(tmp_path.glob("m*"))
 
 
 def test_fresnel_loop_runs_until_eta_converges():

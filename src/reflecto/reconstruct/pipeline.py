@@ -53,7 +53,7 @@ from numpy.typing import NDArray
 
 from .. import _kernels, geometry
 from ..colour import LUM
-from ..errors import ReflectoError
+from ..errors import ParameterError, ReflectoError
 from ..fresnel import fresnel
 from ..hemicube import hemicube
 from ..model import MicrofacetBRDF
@@ -128,6 +128,23 @@ class Options:
     azimuthal_min: bool = False
     energy_clamp: bool = True
     kd_bound_max_deg: float = 75.0
+
+    def __post_init__(self) -> None:
+        def bad(what: str) -> ParameterError:
+            return ParameterError(f"reconstruction options: {what}")
+
+        if self.resolution < 8 or (self.work_resolution is not None and self.work_resolution < 8):
+            raise bad(f"hemicube resolutions must be ≥ 8, got {self.resolution} and {self.work_resolution}")
+        if self.outer_iterations < 1 or self.inner_iterations < 1 or not 1 <= self.min_outer_iterations:
+            raise bad("iteration counts must be ≥ 1")
+        if not (math.isfinite(self.eta_tolerance) and self.eta_tolerance >= 0):
+            raise bad(f"eta_tolerance must be finite and ≥ 0, got {self.eta_tolerance}")
+        if self.fixed_eta is not None and not (math.isfinite(self.fixed_eta) and self.fixed_eta > 1.0):
+            raise bad(f"a fixed η must be a finite relative index > 1, got {self.fixed_eta}")
+        if not (math.isfinite(self.max_tilt_deg) and 0.0 < self.max_tilt_deg < 60.0):
+            raise bad(f"max_tilt_deg must lie in (0°, 60°), got {self.max_tilt_deg}")
+        if not (math.isfinite(self.kd_bound_max_deg) and 0.0 < self.kd_bound_max_deg <= 90.0):
+            raise bad(f"kd_bound_max_deg must lie in (0°, 90°], got {self.kd_bound_max_deg}")
 
 
 @dataclasses.dataclass

@@ -175,10 +175,15 @@ def kd_bound(light: Array, view: Array, values: Array, valid: NDArray[np.bool_],
     Real diffuse darkens at grazing incidence (the shared materials: down to 1/20 at
     85°), so grazing LEDs would hold the bound below ρ_d; noise would pull a raw low
     percentile ≈ 3σ down. ``light`` (L, 3), ``view`` (P, 3), ``values`` (L, P, 3),
-    ``valid`` (L, P), ``pixels`` (P, 2); directions in the sample frame.
+    ``valid`` (L, P), ``pixels`` (P, 2); directions in the sample frame. Without a
+    valid sample within ``max_deg`` every valid sample bounds; without any, 0.
     """
     c_lim = math.cos(math.radians(max_deg))
     near = valid & (light[:, 2] >= c_lim)[:, None] & (view[:, 2] >= c_lim)[None, :]
+    if not near.any():  # no sample that steep (a small max_deg, or the steep slices saturated): all of them
+        near = valid
+    if not near.any():
+        return np.zeros(3)
     leds = np.flatnonzero(near.any(axis=1))  # box_mean costs per LED: only those that bound
     return np.maximum(kd_upper_bound(box_mean(values[leds], valid[leds], pixels), near[leds]), 0.0)
 
@@ -199,6 +204,8 @@ def kd_upper_bound(values: Array, valid: NDArray[np.bool_]) -> Array:
     flat = values.reshape(-1, 3)
     ok = valid.ravel()
     n = int(np.count_nonzero(ok))
+    if n == 0:
+        raise ValueError("kd_upper_bound: no valid sample")
     lo, hi, t = _percentile_ranks(n, KD_BOUND_PERCENTILE)
     thresholds = np.full(3, np.inf)
     sub = flat[::_SUBSAMPLE][ok[::_SUBSAMPLE]]
