@@ -684,3 +684,56 @@ def ct_residual(diff, lobe, y, rd, rs, out):
     for k in range(y.shape[0]):
         for c in range(3):
             out[k, c] = rd[c] * diff[k] + rs[c] * lobe[k] - y[k, c]
+
+
+@njit(**_OPTS)
+def box_mean(values, valid, rows, cols, h, w, radius, out):
+    """Mean of the valid samples in a ``(2 radius + 1)²`` pixel box per LED:
+    :func:`reflecto.reconstruct.samples.box_mean_numpy` (sums instead of SciPy's means).
+
+    ``values`` (L, P, 3), ``valid`` (L, P), ``rows``/``cols`` (P,) inside an ``h × w``
+    image; ``out`` (L, P, 3) gets 0 at invalid samples. Separable running sums: one
+    pass along the rows, one along the columns.
+    """
+    n_l, n_p = valid.shape
+    img = np.zeros((h, w, 4))
+    tmp = np.zeros((h, w, 4))
+    for k in range(n_l):
+        img[:] = 0.0
+        for p in range(n_p):
+            if valid[k, p]:
+                r, c = rows[p], cols[p]
+                for ch in range(3):
+                    img[r, c, ch] = values[k, p, ch]
+                img[r, c, 3] = 1.0
+        s = np.zeros(4)
+        for r in range(h):  # along each row: tmp[r, c] = Σ img[r, c-radius..c+radius]
+            s[:] = 0.0
+            for c in range(min(radius, w)):
+                for ch in range(4):
+                    s[ch] += img[r, c, ch]
+            for c in range(w):
+                for ch in range(4):
+                    if c + radius < w:
+                        s[ch] += img[r, c + radius, ch]
+                    tmp[r, c, ch] = s[ch]
+                    if c - radius >= 0:
+                        s[ch] -= img[r, c - radius, ch]
+        s2 = np.zeros((w, 4))  # along each column, all columns at once (row-major order)
+        for r in range(min(radius, h)):
+            for c in range(w):
+                for ch in range(4):
+                    s2[c, ch] += tmp[r, c, ch]
+        for r in range(h):
+            for c in range(w):
+                for ch in range(4):
+                    if r + radius < h:
+                        s2[c, ch] += tmp[r + radius, c, ch]
+                    img[r, c, ch] = s2[c, ch]
+                    if r - radius >= 0:
+                        s2[c, ch] -= tmp[r - radius, c, ch]
+        for p in range(n_p):
+            r, c = rows[p], cols[p]
+            cnt = img[r, c, 3]
+            for ch in range(3):
+                out[k, p, ch] = img[r, c, ch] / cnt if valid[k, p] and cnt > 0.0 else 0.0

@@ -323,7 +323,11 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
                 d_work, log_lobe = ndf_mod.push_pull(work, wsum, wv), None
             d_work = np.maximum(d_work, 0.0)
             norm = float(d_work @ work.projected_solid_angles)
-            d_work /= max(norm, 1e-300)
+            if norm > 0.0:
+                d_work /= norm
+            else:  # no specular anywhere (a pure diffuse): any normalized NDF, k_s comes out 0
+                d_work[:] = 1.0 / math.pi
+                norm, log_lobe = 1.0, None
             if not (last and inner == opt.inner_iterations - 1):  # the final S comes from the output NDF
                 table = _sigma_work(work, d_work, opt.azimuthal_min)
                 s_led = table.eval(sl.light)

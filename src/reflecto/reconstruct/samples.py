@@ -152,8 +152,20 @@ def box_mean(values: Array, valid: NDArray[np.bool_], pixels: NDArray[np.intp], 
     A low percentile of noisy samples sits ≈ 3σ below their level; averaged over 25
     pixels, σ falls 5×, while the smooth diffuse floor that the percentile looks
     for keeps its level. ``values`` (L, P, 3), ``valid`` (L, P), ``pixels`` (P, 2) rows
-    and columns.
+    and columns. Compiled running sums (:func:`box_mean_numpy` is the reference).
     """
+    rows = np.ascontiguousarray(pixels[:, 0], dtype=np.intp)
+    cols = np.ascontiguousarray(pixels[:, 1], dtype=np.intp)
+    out = np.empty(np.shape(values), dtype=np.float64)
+    if out.size == 0:
+        return out
+    _kernels.box_mean(np.ascontiguousarray(values, dtype=np.float64), np.ascontiguousarray(valid, dtype=np.bool_),
+                      rows, cols, int(rows.max()) + 1, int(cols.max()) + 1, int(radius), out)
+    return out
+
+
+def box_mean_numpy(values: Array, valid: NDArray[np.bool_], pixels: NDArray[np.intp], radius: int = BOX_RADIUS) -> Array:
+    """NumPy/SciPy reference of :func:`box_mean` (``scipy.ndimage.uniform_filter``)."""
     from scipy.ndimage import uniform_filter
 
     n_l = values.shape[0]
