@@ -135,7 +135,7 @@ class Options:
 
         if self.resolution < 8 or (self.work_resolution is not None and self.work_resolution < 8):
             raise bad(f"hemicube resolutions must be ≥ 8, got {self.resolution} and {self.work_resolution}")
-        if self.outer_iterations < 1 or self.inner_iterations < 1 or not 1 <= self.min_outer_iterations:
+        if min(self.outer_iterations, self.inner_iterations, self.min_outer_iterations) < 1:
             raise bad("iteration counts must be ≥ 1")
         if not (math.isfinite(self.eta_tolerance) and self.eta_tolerance >= 0):
             raise bad(f"eta_tolerance must be finite and ≥ 0, got {self.eta_tolerance}")
