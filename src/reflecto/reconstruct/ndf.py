@@ -402,12 +402,75 @@ def _ramp(x: Array, lo: float, hi: float) -> Array:
     return np.clip((x - lo) / (hi - lo), 0.0, 1.0)
 
 
+#: A log-cubic value of the refined top face is clipped to this factor of the coarse maximum.
+CUBIC_OVERSHOOT = 1.2
+#: Fractions of the peak between which the refined top face goes from bilinear to
+#: log-cubic: the tails of measured NDFs (noisy, near zero) stay bilinear, as the
+#: cubic's ringing there cost the RGL export of a reconstructed metal 5 → 14 % (95th
+#: percentile).
+CUBIC_FLOOR = (1e-3, 1e-2)
+
+
 def resample(src: Hemicube, values: Array, dst: Hemicube) -> Array:
-    """Bilinear resampling of a hemicube table to another resolution."""
+    """Resample a hemicube table to another resolution.
+
+    Refinement by an integer factor (the reconstruction's working NDF to the output
+    one): the top face by cubic spline interpolation of ``log D``, the side faces
+    bilinearly. Bilinear interpolation of ``D`` cuts a lobe's peak: with N even the
+    normal lies between four texel centres, 0.45° from each at N = 128, where GGX
+    α = 0.1 is 2.3 % below its peak; a quadratic ``log D`` near the peak is what a
+    cubic reproduces (GGX α = 0.1: BRDF error 0.47 → 0.32 %). Only texels above
+    :data:`CUBIC_FLOOR` of the peak take the cubic (blended in across it), and its
+    overshoot is clipped to :data:`CUBIC_OVERSHOOT` times the coarse maximum.
+    Otherwise bilinear lookup.
+    """
     if src.n == dst.n:
         return values.copy()
     if dst.n % src.n == 0 and np.ndim(values) == 1:  # refinement: texel centres on a fixed grid
         out = np.empty(dst.size)
         _kernels.upsample(src.pad(values), src._pad_offsets, src.n, dst.n // src.n, out)
+        n, m = src.n, dst.n // src.n
+        top = np.asarray(values[: n * n], dtype=np.float64).reshape(n, n)
+        peak = float(top.max())
+        if peak > 0.0 and np.all(np.isfinite(top)):
+            k = dst.n * dst.n
+            cub = _log_cubic_refine(np.log(np.maximum(top, CUBIC_FLOOR[0] * peak)), m, CUBIC_OVERSHOOT * peak)
+            # the cubic only within the lobe: blended in from CUBIC_FLOOR (bilinear below)
+            lo, hi = np.log(CUBIC_FLOOR[0]), np.log(CUBIC_FLOOR[1])
+            t = np.clip((np.log(np.maximum(out[:k], 1e-300) / peak) - lo) / (hi - lo), 0.0, 1.0)
+            out[:k] += t * (cub - out[:k])
         return out
     return src.lookup(values, dst.directions)
+
+
+#: Texels of edge replication around the top face before the spline prefilter.
+_CUBIC_PAD = 4
+
+
+@functools.lru_cache(maxsize=8)
+def _cubic_weights(n: int, m: int) -> Array:
+    """Cubic B-spline weights, shape ``(n m, n + 2 pad)``: row ``j`` evaluates the spline
+    of the padded coefficients at the centre of fine texel ``j`` (a fixed grid, so the
+    2-D evaluation is two matrix products)."""
+    x = (np.arange(n * m) + 0.5) / m - 0.5 + _CUBIC_PAD  # in padded coarse coordinates
+    k0 = np.floor(x).astype(int) - 1
+    w = np.zeros((n * m, n + 2 * _CUBIC_PAD))
+    for t in range(4):
+        k = k0 + t
+        d = np.abs(x - k)
+        b = np.where(d < 1.0, 2.0 / 3.0 - d * d + 0.5 * d**3, np.where(d < 2.0, (2.0 - d) ** 3 / 6.0, 0.0))
+        w[np.arange(n * m), k] += b
+    w.setflags(write=False)
+    return w
+
+
+def _log_cubic_refine(log_top: Array, m: int, cap: float) -> Array:
+    """``exp`` of the cubic spline of ``log_top`` (n × n) at the centres of an m-times
+    finer grid, clipped to ``cap``; flattened, shape ``((n m)²,)``."""
+    from scipy.ndimage import spline_filter
+
+    n = log_top.shape[0]
+    coef = spline_filter(np.pad(log_top, _CUBIC_PAD, mode="edge"), order=3, mode="mirror")
+    w = _cubic_weights(n, m)
+    v = w @ coef @ w.T
+    return np.minimum(np.exp(v, out=v), cap).ravel()
