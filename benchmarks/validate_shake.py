@@ -5,9 +5,11 @@ shaken capture (``simulate_capture(..., shake=True)``: from a random LED on, in 
 device's firing order, the sample turns by 3–8° about a random horizontal axis) and
 one clean capture are reconstructed with the default options. Prints per material,
 for both captures, E(η) where the shake test reads it, the largest offset of a steep
-LED's symmetry plane from the normal (:mod:`reflecto.reconstruct.symmetry`), whether
-the capture was flagged, and the moved LEDs and the angle; then the detection rate
-and the number of false alarms, for the two cues together and each alone, and the
+LED's symmetry plane from the normal (:mod:`reflecto.reconstruct.symmetry`), the
+isotropy and reciprocity log ratios between LED pairs
+(:mod:`reflecto.reconstruct.consistency`), whether the capture was flagged, and the
+moved LEDs and the angle; then the detection rate and the number of false alarms, for
+the three cues together and each alone, and the
 detection rate by the firing position of the first moved LED.
 
 Run: ``.venv/bin/python benchmarks/validate_shake.py [--jobs N] [--device as-built]
@@ -31,6 +33,7 @@ from conftest import SHARED  # noqa: E402
 
 
 from reflecto.reconstruct.pipeline import SHAKE_THRESHOLD  # noqa: E402
+from reflecto.reconstruct.consistency import THRESHOLD as PAIR_THRESHOLD  # noqa: E402
 from reflecto.reconstruct.symmetry import PLANE_THRESHOLD_DEG  # noqa: E402
 
 
@@ -57,7 +60,9 @@ def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None]) -> dict:
         out[key] = {"E": s["fresnel_error"], "E_check": s["fresnel_error_at_check"], "flagged": s["shake_detected"],
                     "excluded": s["excluded_leds"],
                     "E_flag": s["fresnel_error_at_check"] is not None and s["fresnel_error_at_check"] > SHAKE_THRESHOLD,
-                    "plane": max((abs(x) for x in planes), default=None)}
+                    "plane": max((abs(x) for x in planes), default=None),
+                    "pairs": {f"{c['kind'][:3]} {c['a']}-{c['b']}": c["log_ratio"] for c in s["consistency_checks"]},
+                    "pair_flag": any(abs(c["log_ratio"]) > PAIR_THRESHOLD[c["kind"]] for c in s["consistency_checks"])}
         if shake:
             info = cap.extra["simulation"]["shake"]
             out["from_led"], out["angle_deg"] = info["from_led"], info["angle_deg"]
@@ -85,15 +90,22 @@ def main() -> None:
         def plane(x: dict) -> str:
             return "  –  " if x["plane"] is None else f"{x['plane']:4.1f}°"
 
-        print(f"{r['name']:30s} clean E {c['E_check']:.3f} plane {plane(c)} {'FLAG' if c['flagged'] else '    '}   "
+        def pairs(x: dict) -> str:
+            return " ".join(f"{k} {v:+.2f}" for k, v in x["pairs"].items()).ljust(26)
+
+        print(f"{r['name']:30s} clean E {c['E_check']:.3f} plane {plane(c)} {pairs(c)} {'FLAG' if c['flagged'] else '    '}   "
               f"shaken (LEDs {','.join(map(str, r['moved']))}, {r['angle_deg']:.1f}°) E {s['E_check']:.3f} plane {plane(s)} "
+              f"{pairs(s)} "
               f"{'FLAG' if s['flagged'] else '    '}{'  excluded ' + str(s['excluded']) if s['excluded'] else ''}")
     n = len(rows)
     print(f"detected {sum(r['shaken']['flagged'] for r in rows)}/{n} shaken; "
           f"false alarms {sum(r['clean']['flagged'] for r in rows)}/{n} clean")
-    for cue, key in (("E(η) alone", "E_flag"), ("symmetry plane alone", "plane")):
+    for cue, key in (("E(η) alone", "E_flag"), ("symmetry plane alone", "plane"),
+                     ("isotropy/reciprocity alone", "pair_flag")):
         def hit(x: dict, key: str = key) -> bool:
-            return bool(x[key]) if key == "E_flag" else x[key] is not None and x[key] > PLANE_THRESHOLD_DEG
+            if key == "plane":
+                return x[key] is not None and x[key] > PLANE_THRESHOLD_DEG
+            return bool(x[key])
         print(f"  {cue}: detected {sum(hit(r['shaken']) for r in rows)}/{n}, "
               f"false alarms {sum(hit(r['clean']) for r in rows)}/{n}")
     print("detection by firing position of the first moved LED: " + ", ".join(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -136,17 +137,17 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _reconstruct_one(job: tuple[str, str | None, str, bool, float | None]) -> dict:
+def _reconstruct_one(job: tuple[str, str | None, str, bool, float | None, bool]) -> dict:
     from .instrument.calibrate import load_calibration
     from .instrument.capture import read_capture
     from .instrument.slices import extract_slices
     from .io import atomic_write
     from .reconstruct.pipeline import Options, reconstruct
 
-    cap_dir, cal_path, out, normal, eta = job
+    cap_dir, cal_path, out, normal, eta, anisotropic = job
     cap = read_capture(cap_dir)
     cal = load_calibration(cal_path, cap.device)
-    res = reconstruct(extract_slices(cap, cal), Options(estimate_normal=normal, fixed_eta=eta))
+    res = reconstruct(extract_slices(cap, cal), Options(estimate_normal=normal, fixed_eta=eta, anisotropic=anisotropic))
     res.summary["capture"] = str(cap_dir)
     res.model.metadata.update({"capture": str(cap_dir), "eta_fit_error": res.summary["fresnel_error"]})
     res.model.save(out)
@@ -160,6 +161,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
+    from .reconstruct.consistency import THRESHOLD as PAIR_THRESHOLD
     from .reconstruct.symmetry import PLANE_THRESHOLD_DEG
 
     caps = list(args.captures)
@@ -170,7 +172,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     else:
         Path(args.output).mkdir(parents=True, exist_ok=True)
         outs = [str(Path(args.output) / (Path(c).name + ".reflecto")) for c in caps]
-    jobs = [(c, args.calibration, o, args.estimate_normal, args.eta) for c, o in zip(caps, outs)]
+    jobs = [(c, args.calibration, o, args.estimate_normal, args.eta, args.anisotropic) for c, o in zip(caps, outs)]
     show = args.progress or (len(jobs) > 1 and sys.stderr.isatty())
     if len(jobs) == 1:
         results = [_reconstruct_one(jobs[0])]
@@ -183,9 +185,13 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         flag = ""
         if r["shake_detected"]:
             planes = [k for k, x in enumerate(r["symmetry_plane_offsets_deg"]) if x is not None and abs(x) > PLANE_THRESHOLD_DEG]
+            pairs = [f"{c['kind']} {c['a']}-{c['b']} ×{math.exp(c['log_ratio']):.2f}" for c in r["consistency_checks"]
+                     if abs(c["log_ratio"]) > PAIR_THRESHOLD[c["kind"]]]
             flag = (f"  SHAKE DETECTED (E(η) {r['fresnel_error_at_check']:.2f}"
                     + (f"; LEDs {planes} not symmetric about the normal" if planes else "")
-                    + (f"; LEDs {r['excluded_leds']} excluded" if r["excluded_leds"] else "") + ")")
+                    + (f"; {', '.join(pairs)}" if pairs else "")
+                    + (f"; LEDs {r['excluded_leds']} excluded" if r["excluded_leds"] else "")
+                    + ("; an anisotropic material reads like this too: --anisotropic" if planes or pairs else "") + ")")
         print(f"{out}: eta {np.round(r['eta'], 3).tolist()}, kd {np.round(r['kd'], 3).tolist()}, "
               f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, {r['seconds'] * 1000:.0f} ms{flag}")
     return 0
@@ -354,6 +360,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-o", "--output", required=True, help="model file (.reflecto) or, for several captures, a folder")
     q.add_argument("--estimate-normal", action="store_true", help="estimate the altered normal (§5.4; experimental)")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it")
+    q.add_argument("--anisotropic", action="store_true",
+                   help="the material may be anisotropic: skip the shake cues that assume isotropy (E(η) remains)")
     q.add_argument("--jobs", type=int, default=0, help="worker processes for several captures (default: all cores)")
     q.add_argument("--progress", action="store_true", help="progress bar")
     q.set_defaults(func=cmd_reconstruct)

@@ -60,6 +60,7 @@ from ..model import MicrofacetBRDF
 from ..shadowing import grid_stencil, sigma_table
 from ..instrument.slices import Slices
 from . import ndf as ndf_mod
+from .consistency import PairCheck, pair_checks
 from .fresnel_fit import FresnelFit, fit_fresnel, overlap_pairs
 from .normal import ConsistencyDistance, estimate_normal_consistency, refine_normal
 from .samples import bin_samples, kd_bound
@@ -102,8 +103,14 @@ class Options:
     inner_iterations
         NDF/shadowing loop per Fresnel iteration (paper: ≤ 6; 2 converge here).
     detect_shake
-        Flag captures whose E(η) exceeds :data:`SHAKE_THRESHOLD` (§5.1) or whose steep
-        slices are not mirror-symmetric about the normal (:mod:`.symmetry`).
+        Flag captures whose E(η) exceeds :data:`SHAKE_THRESHOLD` (§5.1), whose steep
+        slices are not mirror-symmetric about the normal (:mod:`.symmetry`), or whose
+        LED pairs break isotropy or reciprocity (:mod:`.consistency`).
+    anisotropic
+        The material may be anisotropic (brushed metal, fabrics with a weave): the two
+        shake cues that assume an isotropic BRDF (mirror planes, isotropy/reciprocity)
+        are skipped, E(η) remains. With the default ``False`` a clean anisotropic
+        capture is flagged as shaken (analytic GGX with α_x/α_y = 2–4: 6 of 8).
     azimuthal_min
         Apply the azimuthal-minimum constraint of Wang et al. 2008 to S (§5.2). Off by
         default: it is exact for isotropic NDFs and biases S for anisotropic ones.
@@ -124,6 +131,7 @@ class Options:
     eta_tolerance: float = 0.01
     inner_iterations: int = 2
     detect_shake: bool = True
+    anisotropic: bool = False
     fixed_eta: float | None = None
     azimuthal_min: bool = False
     energy_clamp: bool = True
@@ -341,9 +349,14 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             break
     # second shake cue: slices whose mirror plane misses the normal (see .symmetry)
     plane_off: list[float | None] = []
-    if opt.detect_shake:
+    checks: list[PairCheck] = []
+    if opt.detect_shake and not opt.anisotropic:
         plane_off = plane_offsets(sl.light, sl.view, sl.values, ok)
         if any(x is not None and abs(x) > PLANE_THRESHOLD_DEG for x in plane_off):
+            shake = True
+        # third: isotropy and reciprocity across LEDs, model-free (see .consistency)
+        checks = pair_checks(sl.light, sl.view, sl.values, meas)
+        if any(c.inconsistent for c in checks):
             shake = True
     out_cube = hemicube(opt.resolution)
     d_work = ndf_mod.smooth_wide(work, d_work, log_lobe - math.log(max(norm, 1e-300)) if log_lobe is not None else None)
@@ -381,6 +394,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         "fresnel_theta_d_spread_deg": None if fit is None else fit.theta_d_spread_deg,
         "shake_detected": shake,
         "symmetry_plane_offsets_deg": plane_off,
+        "consistency_checks": [dataclasses.asdict(c) for c in checks],
         "excluded_leds": sorted(excluded),
         "lost_leds": np.flatnonzero(per_led < LOST_LED_FRACTION * np.median(per_led)).tolist(),
         "censored_fraction": censored_fraction,
