@@ -533,3 +533,16 @@ def test_anisotropic_option_keeps_a_clean_anisotropic_capture_unflagged():
     assert aniso.summary["consistency_checks"] == [] and aniso.summary["symmetry_plane_offsets_deg"] == []
     assert np.array_equal(default.model.ndf_values, aniso.model.ndf_values)
     assert default.model.eta.tolist() == aniso.model.eta.tolist()
+
+
+def test_cli_anisotropic_flag_reaches_the_reconstruction(tmp_path, capsys):
+    src = tmp_path / "brushed.json"
+    src.write_text(json.dumps({"type": "analytic", "distribution": "ggx", "alpha": [0.1, 0.4], "rotation_deg": 30,
+                               "kd": 0.1, "ks": 0.7, "eta": 1.5}))
+    assert main(["simulate", str(src), "-o", str(tmp_path / "c"), "--seed", "1", "-q"]) == 0
+    for flag, shaken in (([], True), (["--anisotropic"], False)):
+        out = tmp_path / f"m{len(flag)}.reflecto"
+        assert main(["reconstruct", str(tmp_path / "c"), *flag, "-o", str(out)]) == 0
+        assert json.loads(out.with_suffix(".json").read_text())["shake_detected"] == shaken
+        printed = capsys.readouterr().out
+        assert ("SHAKE DETECTED" in printed) == shaken and ("--anisotropic" in printed) == shaken
