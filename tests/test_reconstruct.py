@@ -405,9 +405,12 @@ def test_fresnel_subsample_is_drawn_per_pair(shared):
     bins, pairs, a, n_leds, kd0, eta0, kd_max = calls[1][0][:7]
     assert len(pairs) > 4 * fresnel_fit.MAX_PAIRS  # a subsample is drawn
     rest = pairs.select(slice(1, None))
-    # the draws are the pairs' own: the same hash for the same pair in both lists
-    assert np.array_equal(rest.u, pairs.u[1:]) and np.all((pairs.u >= 0) & (pairs.u < 1))
-    assert abs(float(np.mean(pairs.u < 0.25)) - 0.25) < 0.01  # uniform
+    # the draws depend on the pairs' (LED, texel) keys, not on bin indices: bins
+    # renumbered (every index + 7 into bins padded in front) give the same hashes
+    pad = dataclasses.replace(bins, led=np.r_[np.zeros(7, bins.led.dtype), bins.led],
+                              texel=np.r_[np.zeros(7, bins.texel.dtype), bins.texel])
+    assert np.array_equal(fresnel_fit.pair_hash(pad, pairs.p + 7, pairs.q + 7), pairs.u)
+    assert np.all((pairs.u >= 0) & (pairs.u < 1)) and abs(float(np.mean(pairs.u < 0.25)) - 0.25) < 0.01
     etas = [fit(bins, pr, a, n_leds, kd0, eta0, kd_max, per_channel=False, diagnostics=False).eta[0]
             for pr in (pairs, rest, pairs.select(slice(2, None)))]
     assert max(etas) / min(etas) - 1 < 0.01, etas
