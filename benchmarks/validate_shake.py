@@ -7,14 +7,16 @@ one clean capture are reconstructed with the default options. Prints per materia
 for both captures, E(η) where the shake test reads it, the largest offset of a steep
 LED's symmetry plane from the normal (:mod:`reflecto.reconstruct.symmetry`), the
 isotropy and reciprocity log ratios between LED pairs
-(:mod:`reflecto.reconstruct.consistency`), whether the capture was flagged, and the
+(:mod:`reflecto.reconstruct.consistency`), the check frames' |log ratio| against their
+LEDs' slices (:mod:`reflecto.reconstruct.repeat`), whether the capture was flagged, and the
 moved LEDs and the angle; then the detection rate and the number of false alarms, for
-the three cues together and each alone, and the
+the four cues together and each alone, and the
 detection rate by the firing position of the first moved LED.
 
 Run: ``.venv/bin/python benchmarks/validate_shake.py [--jobs N] [--device as-built]
-[--firing-order 0,1,2,3,4,5]`` (≈ 2 minutes on 2 cores); ``--firing-order`` tries
-another order of the same LEDs (the default is the device's).
+[--firing-order 0,1,2,3,4,5] [--check-leds 0|4,0|none]`` (≈ 2 minutes on 2 cores);
+``--firing-order`` tries another order of the same LEDs and ``--check-leds`` other
+check frames (the defaults are the device's).
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ from reflecto.reconstruct.consistency import THRESHOLD as PAIR_THRESHOLD  # noqa
 from reflecto.reconstruct.symmetry import PLANE_THRESHOLD_DEG  # noqa: E402
 
 
-def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None]) -> dict:
+def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None, tuple[int, ...] | None]) -> dict:
     from reflecto.instrument.calibrate import load_calibration, nominal_calibration
     from reflecto.instrument.device import load_device
     from reflecto.instrument.simulate import simulate_capture
@@ -45,10 +47,12 @@ def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None]) -> dict:
     from reflecto.reconstruct.pipeline import reconstruct
     from reflecto.sources import load_source
 
-    k, path, device, cal_path, order = args
+    k, path, device, cal_path, order, check = args
     dev = load_device(device)
     if order is not None:
         dev = dataclasses.replace(dev, firing_order=order)
+    if check is not None:
+        dev = dataclasses.replace(dev, check_leds=check)
     cal = load_calibration(cal_path, dev.nominal()) if cal_path else nominal_calibration(dev)
     src = load_source(path)
     out = {"name": Path(path).stem}
@@ -62,7 +66,10 @@ def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None]) -> dict:
                     "E_flag": s["fresnel_error_at_check"] is not None and s["fresnel_error_at_check"] > SHAKE_THRESHOLD,
                     "plane": max((abs(x) for x in planes), default=None),
                     "pairs": {f"{c['kind'][:3]} {c['a']}-{c['b']}": c["log_ratio"] for c in s["consistency_checks"]},
-                    "pair_flag": any(abs(c["log_ratio"]) > PAIR_THRESHOLD[c["kind"]] for c in s["consistency_checks"])}
+                    "pair_flag": any(abs(c["log_ratio"]) > PAIR_THRESHOLD[c["kind"]] for c in s["consistency_checks"]),
+                    "repeat": max((abs(c["log_ratio"]) if c["log_ratio"] is not None else float("inf")
+                                   for c in s["repeat_checks"]), default=None),
+                    "repeat_flag": any(c["moved"] for c in s["repeat_checks"])}
         if shake:
             info = cap.extra["simulation"]["shake"]
             out["from_led"], out["angle_deg"] = info["from_led"], info["angle_deg"]
@@ -77,12 +84,16 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--device", default="ideal", help="ideal or as-built (virtual calibration, kept in out/)")
     ap.add_argument("--firing-order", help="LED indices in firing order, e.g. 0,1,2,3,4,5 (default: the device's)")
+    ap.add_argument("--check-leds", help="LEDs fired again after the sequence, e.g. 0 or 4,0; 'none' for no "
+                    "check frames (default: the device's)")
     args = ap.parse_args()
     order = tuple(int(x) for x in args.firing_order.split(",")) if args.firing_order else None
+    check = None if args.check_leds is None else (
+        () if args.check_leds == "none" else tuple(int(x) for x in args.check_leds.split(",")))
     cal_path = prepare_calibration(ROOT / "out", args.device)
     paths = find_materials([SHARED / "rgl", SHARED / "merl-nbrdf"])
     with ProcessPoolExecutor(args.jobs) as pool:
-        rows = list(pool.map(one, [(k, str(p), args.device, cal_path, order) for k, p in enumerate(paths)]))
+        rows = list(pool.map(one, [(k, str(p), args.device, cal_path, order, check) for k, p in enumerate(paths)]))
     by_led: dict[int, list[bool]] = {}
     for r in rows:
         c, s = r["clean"], r["shaken"]
@@ -93,15 +104,19 @@ def main() -> None:
         def pairs(x: dict) -> str:
             return " ".join(f"{k} {v:+.2f}" for k, v in x["pairs"].items()).ljust(26)
 
-        print(f"{r['name']:30s} clean E {c['E_check']:.3f} plane {plane(c)} {pairs(c)} {'FLAG' if c['flagged'] else '    '}   "
-              f"shaken (LEDs {','.join(map(str, r['moved']))}, {r['angle_deg']:.1f}°) E {s['E_check']:.3f} plane {plane(s)} "
-              f"{pairs(s)} "
+        def rep(x: dict) -> str:
+            return " –   " if x["repeat"] is None else f"{x['repeat']:5.3f}"
+
+        print(f"{r['name']:30s} clean E {c['E_check']:.3f} check {rep(c)} plane {plane(c)} {pairs(c)} "
+              f"{'FLAG' if c['flagged'] else '    '}   "
+              f"shaken (LEDs {','.join(map(str, r['moved']))}, {r['angle_deg']:.1f}°) E {s['E_check']:.3f} "
+              f"check {rep(s)} plane {plane(s)} {pairs(s)} "
               f"{'FLAG' if s['flagged'] else '    '}{'  excluded ' + str(s['excluded']) if s['excluded'] else ''}")
     n = len(rows)
     print(f"detected {sum(r['shaken']['flagged'] for r in rows)}/{n} shaken; "
           f"false alarms {sum(r['clean']['flagged'] for r in rows)}/{n} clean")
-    for cue, key in (("E(η) alone", "E_flag"), ("symmetry plane alone", "plane"),
-                     ("isotropy/reciprocity alone", "pair_flag")):
+    for cue, key in (("E(η) alone", "E_flag"), ("check frames alone", "repeat_flag"),
+                     ("symmetry plane alone", "plane"), ("isotropy/reciprocity alone", "pair_flag")):
         def hit(x: dict, key: str = key) -> bool:
             if key == "plane":
                 return x[key] is not None and x[key] > PLANE_THRESHOLD_DEG

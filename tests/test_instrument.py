@@ -238,6 +238,11 @@ def _edit_manifest(d, fn):
         (lambda d: [cv2.imwrite(str(d / f"led4_t{t}ms.png"), np.full((240, 320, 3), 4095, np.uint16)) for t in (1, 8)],
          "saturated"),
         (lambda d: (d / "manifest.json").write_text("{not json"), "not valid JSON"),
+        (lambda d: (d / "led0_t8ms_check.png").unlink(), "frame is missing"),
+        (lambda d: _edit_manifest(d, lambda m: m["frames"].pop()), "check frame of LED 0 at 8 ms"),
+        (lambda d: _edit_manifest(d, lambda m: m["frames"].append({**m["frames"][2], "check": True})),
+         "check frame for LED 1 at 1 ms is not part of the device"),
+        (lambda d: _edit_manifest(d, lambda m: m["device"].update(check_leds=[0, 9])), "check_leds"),
     ],
 )
 def test_bad_captures_are_refused(capture_dir, damage, message, tmp_path, capsys):
@@ -250,7 +255,9 @@ def test_cli_simulate_calibrate_and_errors(tmp_path, capsys):
     src = tmp_path / "s.json"
     src.write_text('{"type": "analytic", "distribution": "beckmann", "alpha": 0.3, "kd": 0.2, "ks": 0.5}')
     assert main(["simulate", str(src), "--device", "as-built", "--tilt", "5", "-o", str(tmp_path / "c"), "-q"]) == 0
-    assert len(list((tmp_path / "c").glob("*.png"))) == 12
+    # 6 LEDs × 2 exposures, and the check frames of LED 0 fired again at the end
+    assert len(list((tmp_path / "c").glob("*.png"))) == 14
+    assert sorted(p.name for p in (tmp_path / "c").glob("*_check.png")) == ["led0_t1ms_check.png", "led0_t8ms_check.png"]
     assert main(["simulate", str(src), "--tilt", "45", "-o", str(tmp_path / "t")]) == 1
     assert "tilt" in capsys.readouterr().err and not (tmp_path / "t").exists()
     assert main(["simulate", str(src), "--device", str(tmp_path / "nodev.toml"), "-o", str(tmp_path / "u")]) == 1
@@ -281,6 +288,38 @@ def test_device_files(tmp_path):
         with pytest.raises((FileFormatError, ParameterError), match="firing_order"):
             load_device(p)
     shutil.rmtree(tmp_path)
+
+
+def test_check_frames_round_trip_and_older_captures_without_them(tmp_path):
+    dev = Device.builtin("as-built")
+    cap = simulate_capture(SRC, dev, seed=4, shake=True)
+    assert cap.check.shape == (1,) + cap.raw.shape[1:]
+    back = read_capture(write_capture(cap, tmp_path / "cap"))
+    assert np.array_equal(back.check, cap.check) and np.array_equal(back.raw, cap.raw)
+    assert back.device.check_leds == (0,)
+    # a capture written by a device without check frames (as before they existed) reads
+    # as it did, and gives the same slices as the same sequence with them
+    plain = dataclasses.replace(dev, check_leds=())
+    old = simulate_capture(SRC, plain, seed=4, shake=True)
+    assert old.check is None and np.array_equal(old.raw, cap.raw)  # the check frames draw their noise last
+    m = tmp_path / "old" / "manifest.json"
+    write_capture(old, tmp_path / "old")
+    assert "check_leds" not in json.loads(m.read_text())["device"]
+    assert read_capture(tmp_path / "old").check is None
+    sl = extract_slices(read_capture(tmp_path / "old"), nominal_calibration(plain))
+    assert sl.check_leds == () and sl.check_values is None
+    # a sample capture of a device with check frames cannot be written without them
+    with pytest.raises(Exception, match="check frames"):
+        write_capture(dataclasses.replace(cap, check=None), tmp_path / "bad")
+    assert not (tmp_path / "bad").exists()
+    # reframing carries the check slice with its LED's cos θ_i correction
+    s1 = extract_slices(cap, nominal_calibration(dev))
+    tilted = s1.reframe(g.frame_from_normal(g.normalize(np.array([0.05, 0.0, 1.0])), np.array([1.0, 0.0, 0.0])))
+    ratio = tilted.values[0] / np.where(s1.values[0] > 0, s1.values[0], np.nan)
+    ratio_check = tilted.check_values[0] / np.where(s1.check_values[0] > 0, s1.check_values[0], np.nan)
+    assert np.nanmax(np.abs(ratio - ratio_check)) < 1e-12
+    with pytest.raises(ParameterError, match="check_leds"):
+        dataclasses.replace(dev, check_leds=(0, 0))
 
 
 def test_shake_moves_the_leds_fired_after_it():

@@ -527,9 +527,10 @@ def test_zero_readings_are_not_ndf_data():
     assert np.allclose(res.model.eta, 1.5, rtol=0.005) and np.all(res.model.kd < 1e-3)
 
 
-def _turned_cos_scale(cap, dev) -> np.ndarray:
+def _turned_cos_scale(cap, dev, every_led: bool = False, leds: np.ndarray | None = None) -> np.ndarray:
     """Per LED, cos θ_i of the turned sample over the assumed cos θ_i: the factor by
-    which a shake scales a Lambertian slice (1 for the LEDs that did not move)."""
+    which a shake scales a Lambertian slice (1 for the LEDs that did not move, unless
+    ``every_led``: then the factor a firing after the shake would see)."""
     import math
 
     info = cap.extra["simulation"]["shake"]
@@ -537,10 +538,10 @@ def _turned_cos_scale(cap, dev) -> np.ndarray:
     a = math.radians(info["angle_deg"])
     kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
     rot = np.eye(3) + math.sin(a) * kx + (1 - math.cos(a)) * kx @ kx  # Pose.rotated
-    leds = dev.leds
+    leds = dev.leds if leds is None else leds
     turned = leds @ rot  # Pose.to_local of the turned (untilted) frame: rot.T @ led
     scale = np.ones(len(leds))
-    for m in info["moved_leds"]:
+    for m in range(len(leds)) if every_led else info["moved_leds"]:
         scale[m] = turned[m, 2] / leds[m, 2]
     return scale
 
@@ -576,6 +577,51 @@ def test_isotropy_and_reciprocity_of_a_shaken_lambertian_read_the_turned_cosines
         res = reconstruct(extract_slices(cap, cal)).summary
         assert res["shake_detected"] >= any(c.inconsistent for c in got)
     assert flagged >= 2  # these seeds straddle both pairs at least twice
+
+
+@pytest.mark.parametrize("device", ["ideal", "as-built"])
+def test_check_frame_of_a_shaken_lambertian_reads_the_turned_cosine(device):
+    """The check frame fires LED 0 again after the sequence. On a Lambertian it differs
+    from LED 0's slice by exactly cos θ_0'/cos θ_0 of the turned sample (ground truth
+    from the manifest's axis and angle and the device's true LED direction), whatever LED the shake started at; a clean
+    capture repeats the slice (bit for bit on the noiseless camera, within noise on
+    the as-built one, whose calibration cancels in the comparison) and is not flagged."""
+    from reflecto.instrument.simulate import _truth
+    from reflecto.reconstruct.repeat import MIN_Z, THRESHOLD, repeat_checks
+
+    dev = Device.builtin(device)
+    assert dev.check_leds == (0,) and dev.order[0] == 0
+    cal = nominal_calibration(dev)
+    src = AnalyticBRDF(distribution="ggx", alpha=0.3, kd=(0.5, 0.4, 0.3), ks=0.0, eta=1.5)
+    clean = extract_slices(simulate_capture(src, dev, seed=3), cal)
+    (c,) = repeat_checks(clean)
+    assert not c.moved and c.led == 0 and c.blocks > 100
+    if device == "ideal":
+        assert np.array_equal(clean.check_values[0], clean.values[0]) and c.log_ratio == 0.0
+        assert not reconstruct(clean).summary["shake_detected"]
+    else:  # (without its calibration the as-built LEDs' spread reads as broken isotropy)
+        assert abs(c.log_ratio) < 0.1 * THRESHOLD and c.z < MIN_Z and c.changed_blocks == 0
+    for seed in range(5):
+        cap = simulate_capture(src, dev, seed=seed, shake=True, shake_deg=3.0)
+        expect = np.log(_turned_cos_scale(cap, dev, every_led=True, leds=_truth(dev)[1])[0])
+        (c,) = repeat_checks(extract_slices(cap, cal))
+        assert abs(c.log_ratio - expect) < 0.003 + 0.01 * abs(expect), (seed, c, expect)
+        assert c.moved == (abs(expect) > 0.03), (seed, c, expect)
+
+
+def test_check_frames_flag_a_shaken_anisotropic_capture_without_isotropy_cues():
+    """The check frames assume no symmetry: with ``anisotropic=True`` (no mirror-plane or
+    pair cues) a clean anisotropic capture stays unflagged and a shaken one is flagged,
+    by the check frame and not by E(η)."""
+    dev = Device.builtin("ideal")
+    cal = nominal_calibration(dev)
+    src = AnalyticBRDF(distribution="ggx", alpha=(0.1, 0.4), rotation_deg=30, kd=0.1, ks=0.7, eta=1.5)
+    opt = Options(anisotropic=True)
+    clean = reconstruct(extract_slices(simulate_capture(src, dev, seed=1), cal), opt).summary
+    assert not clean["shake_detected"] and [c["moved"] for c in clean["repeat_checks"]] == [False]
+    shaken = reconstruct(extract_slices(simulate_capture(src, dev, seed=1, shake=True, shake_deg=4.0), cal), opt).summary
+    assert shaken["shake_detected"] and shaken["repeat_checks"][0]["moved"]
+    assert shaken["fresnel_error_at_check"] < 0.7  # E(η) alone would not have seen it
 
 
 def test_anisotropic_option_keeps_a_clean_anisotropic_capture_unflagged():

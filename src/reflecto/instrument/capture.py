@@ -7,11 +7,15 @@ and exposure one raw image (16-bit PNG, RGB, ``height × width``), and
     {"format": "reflecto-capture", "version": 1, "kind": "sample",
      "device": {... nominal device description ...},
      "image": {"width": 320, "height": 240, "channels": 3, "encoding": "png16"},
-     "frames": [{"file": "led0_t1.png", "led": 0, "exposure_ms": 1.0}, ...],
+     "frames": [{"file": "led0_t1.png", "led": 0, "exposure_ms": 1.0}, ...,
+                {"file": "led0_t1ms_check.png", "led": 0, "exposure_ms": 1.0, "check": true}],
      "simulation": {...}}          # provenance only; the pipeline never reads it
 
+A sample capture of a device with ``check_leds`` also holds their check frames: the
+same LED fired again after the whole sequence, at the same exposures, to detect motion.
 Reading validates everything before any value is used: every frame present and of the
-right size, one frame per (LED, exposure) of the device, no frame saturated everywhere.
+right size, one frame per (LED, exposure) of the device and per (check LED, exposure),
+no frame saturated everywhere.
 """
 
 from __future__ import annotations
@@ -60,6 +64,9 @@ class Capture:
         Exposure time of each exposure slot, shape ``(E,)``.
     kind
         ``"sample"`` or a calibration kind.
+    check
+        Check frames of ``device.check_leds`` (sample captures), shape
+        ``(C, E, height, width, 3)``, or ``None`` when the device takes none.
     extra
         Further manifest entries (``simulation`` provenance, calibration targets).
     """
@@ -70,14 +77,20 @@ class Capture:
     kind: str = "sample"
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)
     path: Path | None = None
+    check: NDArray[np.integer] | None = None
 
     @property
     def n_leds(self) -> int:
         return self.raw.shape[0]
 
 
-def frame_name(led: int, exposure_ms: float) -> str:
-    return f"led{led}_t{exposure_ms:g}ms.png"
+def frame_name(led: int, exposure_ms: float, check: bool = False) -> str:
+    return f"led{led}_t{exposure_ms:g}ms{'_check' if check else ''}.png"
+
+
+def expects_check_frames(device: Device, kind: str) -> bool:
+    """Check frames belong to sample captures of a device that takes them."""
+    return kind == "sample" and bool(device.check_leds)
 
 
 def _write_png(path: Path, img: NDArray[np.integer]) -> None:
@@ -128,6 +141,12 @@ def write_capture(capture: Capture, out_dir: str | Path) -> Path:
     out_dir = Path(out_dir)
     dev = capture.device
     h, w = capture.raw.shape[2:4]
+    if expects_check_frames(dev, capture.kind):
+        shape = (len(dev.check_leds),) + capture.raw.shape[1:]
+        if capture.check is None or capture.check.shape != shape:
+            got = None if capture.check is None else capture.check.shape
+            raise ReflectoError(f"{out_dir}: the device takes check frames of LEDs {list(dev.check_leds)}: "
+                                f"expected check frames of shape {shape}, got {got}")
     frames = []
     with atomic_dir(out_dir) as tmp:
         for led in range(capture.raw.shape[0]):
@@ -135,6 +154,12 @@ def write_capture(capture: Capture, out_dir: str | Path) -> Path:
                 name = frame_name(led, float(t))
                 _write_png(tmp / name, capture.raw[led, e])
                 frames.append({"file": name, "led": led, "exposure_ms": float(t)})
+        if expects_check_frames(dev, capture.kind) and capture.check is not None:
+            for c, led in enumerate(dev.check_leds):
+                for e, t in enumerate(capture.exposures_ms):
+                    name = frame_name(led, float(t), check=True)
+                    _write_png(tmp / name, capture.check[c, e])
+                    frames.append({"file": name, "led": led, "exposure_ms": float(t), "check": True})
         manifest = {
             "format": CAPTURE_FORMAT,
             "version": CAPTURE_VERSION,
@@ -190,34 +215,44 @@ def read_capture(cap_dir: str | Path) -> Capture:
         if len(own) != len(times) or any(not (t > 0 and np.isfinite(t)) for t in own):
             raise CaptureError(mpath, f"expected {len(times)} positive exposure times per LED, found {own}")
         times = np.array(own)
-    expected = {(led, float(t)) for led in range(device.n_leds) for t in times}
-    got: dict[tuple[int, float], str] = {}
+    kind = str(m.get("kind", "sample"))
+    check_leds = device.check_leds if expects_check_frames(device, kind) else ()
+    expected = {(led, float(t), False) for led in range(device.n_leds) for t in times}
+    expected |= {(led, float(t), True) for led in check_leds for t in times}
+    got: dict[tuple[int, float, bool], str] = {}
     for f in frames:
         try:
-            key = (int(f["led"]), float(f["exposure_ms"]))
+            key = (int(f["led"]), float(f["exposure_ms"]), bool(f.get("check", False)))
             name = str(f["file"])
-        except (KeyError, TypeError, ValueError):
+        except (AttributeError, KeyError, TypeError, ValueError):
             raise FileFormatError(mpath, f"invalid frame entry {f!r}") from None
+        what = f"{'check frame' if key[2] else 'frame'} for LED {key[0]} at {key[1]:g} ms"
         if key not in expected:
-            raise CaptureError(mpath, f"frame {name}: LED {key[0]} / {key[1]:g} ms is not part of the device "
-                               f"({device.n_leds} LEDs × exposures {list(times)})")
+            raise CaptureError(mpath, f"{name}: {what} is not part of the device "
+                               f"({device.n_leds} LEDs × exposures {list(times)}, check LEDs {list(check_leds)})")
         if key in got:
-            raise CaptureError(mpath, f"frame for LED {key[0]} at {key[1]:g} ms listed twice")
+            raise CaptureError(mpath, f"{what} listed twice")
         if Path(name).name != name:
             raise CaptureError(mpath, f"frame file {name!r} must be a plain name inside the capture folder")
         got[key] = name
     missing = sorted(expected - set(got))
     if missing:
-        led, t = missing[0]
-        raise CaptureError(mpath, f"{len(missing)} frame(s) missing from the manifest, e.g. LED {led} at {t:g} ms")
+        led, t, chk = missing[0]
+        raise CaptureError(mpath, f"{len(missing)} frame(s) missing from the manifest, e.g. "
+                           f"{'the check frame of ' if chk else ''}LED {led} at {t:g} ms")
     dtype = np.uint8 if device.camera.bits == 8 else np.uint16
     raw = np.empty((device.n_leds, len(times), height, width, 3), dtype=dtype)
-    for (led, t), name in got.items():
+    check = np.empty((len(check_leds), len(times), height, width, 3), dtype=dtype) if check_leds else None
+    for (led, t, chk), name in got.items():
         e = int(np.flatnonzero(times == t)[0])
-        raw[led, e] = read_image(cap_dir / name, (height, width), dtype)
-    cap = Capture(device, raw, times, kind=str(m.get("kind", "sample")),
+        img = read_image(cap_dir / name, (height, width), dtype)
+        if chk:
+            check[check_leds.index(led), e] = img  # type: ignore[index]
+        else:
+            raw[led, e] = img
+    cap = Capture(device, raw, times, kind=kind,
                   extra={k: v for k, v in m.items() if k not in
-                         {"format", "version", "kind", "device", "image", "frames"}}, path=cap_dir)
+                         {"format", "version", "kind", "device", "image", "frames"}}, path=cap_dir, check=check)
     check_saturation(cap)
     return cap
 

@@ -55,6 +55,15 @@ DEFAULT_LED_ANGLES = (
 #: shake after the 52.2° LED went unseen (0/11 in benchmarks/validate_shake.py).
 DEFAULT_FIRING_ORDER = (0, 1, 3, 5, 4, 2)
 
+#: LEDs fired once more after the whole sequence: a check frame (both exposures) of the
+#: first LED. A clean capture repeats it exactly (up to camera noise); after a shake
+#: at any point of the sequence the sample has turned, and the grazing (85°) LED's
+#: slice changes by |log ratio| 0.06–5.4 on the 50 shared materials wherever it holds
+#: signal (:mod:`reflecto.reconstruct.repeat`: no model needed, anisotropic materials
+#: too). It costs two frames: 14 instead of 12, 8.6 instead of 10 captures per second
+#: (docs/instrument.md).
+DEFAULT_CHECK_LEDS = (DEFAULT_FIRING_ORDER[0],)
+
 
 def _firing_order(value: Any, where: str) -> tuple[int, ...] | None:
     if value is None:
@@ -63,6 +72,15 @@ def _firing_order(value: Any, where: str) -> tuple[int, ...] | None:
         return tuple(int(k) for k in value)
     except (TypeError, ValueError):
         raise ParameterError(f"{where}: firing_order must be a list of LED indices") from None
+
+
+def _check_leds(value: Any, where: str) -> tuple[int, ...]:
+    if value is None:
+        return ()
+    try:
+        return tuple(int(k) for k in value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{where}: check_leds must be a list of LED indices") from None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -196,6 +214,10 @@ class Device:
     #: capture's timing depends on it: a hand shake moves the sample for the LEDs
     #: fired after it (see :data:`DEFAULT_FIRING_ORDER`).
     firing_order: tuple[int, ...] | None = None
+    #: LEDs fired again after the whole sequence (check frames, see
+    #: :data:`DEFAULT_CHECK_LEDS`); a sample capture holds one frame per check LED and
+    #: exposure besides the sequence's.
+    check_leds: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         angles = tuple(tuple(float(x) for x in a) for a in self.led_angles)
@@ -216,6 +238,10 @@ class Device:
             if sorted(order) != list(range(len(angles))):
                 raise ParameterError(f"device: firing_order must list each of the {len(angles)} LED indices once, got {list(order)}")
             object.__setattr__(self, "firing_order", order)
+        check = tuple(int(k) for k in self.check_leds)
+        if any(not 0 <= k < len(angles) for k in check) or len(set(check)) != len(check):
+            raise ParameterError(f"device: check_leds must list distinct LED indices in [0, {len(angles)}), got {list(check)}")
+        object.__setattr__(self, "check_leds", check)
 
     @property
     def order(self) -> tuple[int, ...]:
@@ -263,6 +289,8 @@ class Device:
             d["occluder_deg"] = self.occluder_deg
         if self.firing_order is not None:
             d["firing_order"] = list(self.firing_order)
+        if self.check_leds:
+            d["check_leds"] = list(self.check_leds)
         if with_truth and self.truth is not None:
             d["truth"] = self.truth.to_dict()
         return d
@@ -270,7 +298,7 @@ class Device:
     # ------------------------------------------------------------- factories
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "device") -> Device:
-        known = {"name", "optics", "leds", "camera", "truth", "occluder_deg", "firing_order"}
+        known = {"name", "optics", "leds", "camera", "truth", "occluder_deg", "firing_order", "check_leds"}
         if not isinstance(d, dict):
             raise ParameterError(f"{where}: expected a table/object")
         if set(d) - known:
@@ -301,6 +329,7 @@ class Device:
             truth=truth,
             occluder_deg=float(d.get("occluder_deg", 0.0)),
             firing_order=_firing_order(d.get("firing_order"), where),
+            check_leds=_check_leds(d.get("check_leds"), where),
         )
 
     @classmethod
@@ -308,10 +337,10 @@ class Device:
         """``"ideal"``, ``"as-built"``, or ``"earlier"`` (the DWT*10 baseline layout)."""
         if name == "ideal":
             return cls("ideal", Optics(), DEFAULT_LED_ANGLES, Camera(read_noise=0.0, shot_noise=False),
-                       firing_order=DEFAULT_FIRING_ORDER)
+                       firing_order=DEFAULT_FIRING_ORDER, check_leds=DEFAULT_CHECK_LEDS)
         if name == "as-built":
             return cls("as-built", Optics(), DEFAULT_LED_ANGLES, Camera(), truth=_as_built_truth(),
-                       firing_order=DEFAULT_FIRING_ORDER)
+                       firing_order=DEFAULT_FIRING_ORDER, check_leds=DEFAULT_CHECK_LEDS)
         if name == "earlier":
             return cls("earlier", Optics(axis_tilt_deg=0.0), EARLIER_LED_ANGLES,
                        Camera(read_noise=0.0, shot_noise=False), occluder_deg=EARLIER_OCCLUDER_DEG)

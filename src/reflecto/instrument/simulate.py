@@ -189,9 +189,8 @@ def simulate_capture(
     # an occluder in the light path (earlier device) blocks the central views
     scale = cam.sensitivity * trans[mask][:, None] * ~device.occluded(o)[:, None]
     power = device.led_irradiance * intensity
-    rates = np.zeros((device.n_leds, h, w, 3))
-    for k in range(device.n_leds):
-        p = poses[k]
+
+    def rate(k: int, p: Pose) -> Array:
         i_loc = p.to_local(leds[k])
         o_loc = p.to_local(o)
         ok = (o_loc[:, 2] > 0) & (i_loc[2] > 0)
@@ -200,12 +199,26 @@ def simulate_capture(
             f[ok] = source.eval(np.broadcast_to(i_loc, (int(ok.sum()), 3)), o_loc[ok])
         if not np.all(np.isfinite(f)):
             raise ParameterError(f"source {source_name or source.name} returned non-finite values")
-        rates[k][mask] = f * (max(i_loc[2], 0.0) * power[k]) * scale
+        r = np.zeros((h, w, 3))
+        r[mask] = f * (max(i_loc[2], 0.0) * power[k]) * scale
+        return r
+
+    rates = np.stack([rate(k, poses[k]) for k in range(device.n_leds)])
     times = exposure_times(cam, float(rates.max()))
     raw = np.empty((device.n_leds, len(times), h, w, 3), dtype=raw_dtype)
     for k in range(device.n_leds):
         for e, t in enumerate(times):
             raw[k, e] = expose(rates[k], t, cam, rng)
+    # check frames: fired after the whole sequence, in the pose of its last LED; their
+    # noise is drawn after the sequence's, which stays as without them
+    check = None
+    if device.check_leds:
+        final = poses[device.order[-1]]
+        check = np.empty((len(device.check_leds), len(times), h, w, 3), dtype=raw_dtype)
+        for c, k in enumerate(device.check_leds):
+            r = rates[k] if final is poses[k] else rate(k, final)
+            for e, t in enumerate(times):
+                check[c, e] = expose(r, t, cam, rng)
     sim = {
         "source": source_name or source.name,
         "seed": seed,
@@ -216,7 +229,7 @@ def simulate_capture(
         "shake": shake_info,
         "device_truth": device.name if device.truth is not None else None,
     }
-    return Capture(device.nominal(), raw, np.array(times), "sample", {"simulation": sim})
+    return Capture(device.nominal(), raw, np.array(times), "sample", {"simulation": sim}, check=check)
 
 
 # --------------------------------------------------------------- calibration

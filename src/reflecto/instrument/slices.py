@@ -51,6 +51,12 @@ class Slices:
         every time (:data:`reflecto.instrument.hdr.BLACK_DN`). Their values are
         bounds, not measurements: the reconstruction uses them to bound k_d, not as
         NDF or Fresnel data.
+    check_leds, check_values, check_valid
+        The device's check frames (the LEDs ``check_leds`` fired again after the
+        sequence), merged like the slices: values ``(C, P, 3)`` and validity ``(C, P)``
+        for the same view directions; ``()`` and ``None`` when there are none. They are
+        no data for the BRDF: a clean capture repeats the slice of the same LED, and a
+        difference is motion (:mod:`reflecto.reconstruct.repeat`).
     """
 
     light: Array
@@ -60,6 +66,9 @@ class Slices:
     pixels: NDArray[np.intp]
     frame: Array = dataclasses.field(default_factory=lambda: np.eye(3))
     censored: NDArray[np.bool_] | None = None
+    check_leds: tuple[int, ...] = ()
+    check_values: Array | None = None
+    check_valid: NDArray[np.bool_] | None = None
 
     @property
     def n_leds(self) -> int:
@@ -80,7 +89,13 @@ class Slices:
         values = self.values * ratio[:, None, None]
         # LEDs within ~3° of the new horizon: cos θ_i is too uncertain to correct by
         valid = self.valid & (view[None, :, 2] > 0) & (new[:, None] > MIN_LIGHT_COS)
-        return Slices(light, view, values, valid, self.pixels, frame, self.censored)
+        check_values = check_valid = None
+        if self.check_values is not None and self.check_valid is not None:
+            k = list(self.check_leds)
+            check_values = self.check_values * ratio[k, None, None]
+            check_valid = self.check_valid & valid[k]
+        return Slices(light, view, values, valid, self.pixels, frame, self.censored,
+                      self.check_leds, check_values, check_valid)
 
 
 def extract_slices(capture: Capture, calibration: Calibration) -> Slices:
@@ -94,12 +109,23 @@ def extract_slices(capture: Capture, calibration: Calibration) -> Slices:
         if calibration.response is None:
             raise CaptureError(capture.path or "<capture>", "gamma camera: the calibration has no response curve")
     dirs, mask, rows, cols, scale = calibration.pixel_geometry()
-    if dev.camera.response == "gamma":
-        rad, valid = merge_debevec(capture.raw, capture.exposures_ms, calibration.response)
-        rad, valid = rad[:, rows, cols], valid[:, rows, cols]
-    else:
-        rad, valid, near_black = merge_linear_pixels(capture.raw, capture.exposures_ms, dev.camera, rows, cols)
-    ok = valid & np.all(scale > 0, axis=-1)
-    values = np.divide(rad, scale, out=np.zeros_like(rad), where=ok[..., None])
-    censored = None if dev.camera.response == "gamma" or dithered(dev.camera) else near_black & ok
-    return Slices(calibration.leds.copy(), dirs[rows, cols], values, ok, np.stack([rows, cols], -1), censored=censored)
+
+    def merge(raw: NDArray[np.integer], scl: Array) -> tuple[Array, NDArray[np.bool_], NDArray[np.bool_] | None]:
+        near_black = None
+        if dev.camera.response == "gamma":
+            rad, valid = merge_debevec(raw, capture.exposures_ms, calibration.response)
+            rad, valid = rad[:, rows, cols], valid[:, rows, cols]
+        else:
+            rad, valid, near_black = merge_linear_pixels(raw, capture.exposures_ms, dev.camera, rows, cols)
+        ok = valid & np.all(scl > 0, axis=-1)
+        return np.divide(rad, scl, out=np.zeros_like(rad), where=ok[..., None]), ok, near_black
+
+    values, ok, near_black = merge(capture.raw, scale)
+    censored = None if near_black is None or dithered(dev.camera) else near_black & ok
+    check_leds: tuple[int, ...] = ()
+    check_values = check_valid = None
+    if capture.check is not None and dev.check_leds:
+        check_leds = dev.check_leds
+        check_values, check_valid, _ = merge(capture.check, scale[list(check_leds)])
+    return Slices(calibration.leds.copy(), dirs[rows, cols], values, ok, np.stack([rows, cols], -1), censored=censored,
+                  check_leds=check_leds, check_values=check_values, check_valid=check_valid)

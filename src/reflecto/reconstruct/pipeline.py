@@ -61,6 +61,7 @@ from ..shadowing import grid_stencil, sigma_table
 from ..instrument.slices import Slices
 from . import ndf as ndf_mod
 from .consistency import PairCheck, pair_checks
+from .repeat import RepeatCheck, repeat_checks
 from .fresnel_fit import FresnelFit, fit_fresnel, overlap_pairs
 from .normal import ConsistencyDistance, estimate_normal_consistency, refine_normal
 from .samples import bin_samples, kd_bound
@@ -103,13 +104,14 @@ class Options:
     inner_iterations
         NDF/shadowing loop per Fresnel iteration (paper: ≤ 6; 2 converge here).
     detect_shake
-        Flag captures whose E(η) exceeds :data:`SHAKE_THRESHOLD` (§5.1), whose steep
-        slices are not mirror-symmetric about the normal (:mod:`.symmetry`), or whose
-        LED pairs break isotropy or reciprocity (:mod:`.consistency`).
+        Flag captures whose E(η) exceeds :data:`SHAKE_THRESHOLD` (§5.1), whose check
+        frames differ from their LEDs' slices (:mod:`.repeat`), whose steep slices are
+        not mirror-symmetric about the normal (:mod:`.symmetry`), or whose LED pairs
+        break isotropy or reciprocity (:mod:`.consistency`).
     anisotropic
         The material may be anisotropic (brushed metal, fabrics with a weave): the two
         shake cues that assume an isotropic BRDF (mirror planes, isotropy/reciprocity)
-        are skipped, E(η) remains. With the default ``False`` a clean anisotropic
+        are skipped; E(η) and the check frames remain. With the default ``False`` a clean anisotropic
         capture is flagged as shaken (analytic GGX with α_x/α_y = 2–4: 6 of 8).
     azimuthal_min
         Apply the azimuthal-minimum constraint of Wang et al. 2008 to S (§5.2). Off by
@@ -350,6 +352,12 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     # second shake cue: slices whose mirror plane misses the normal (see .symmetry)
     plane_off: list[float | None] = []
     checks: list[PairCheck] = []
+    repeats: list[RepeatCheck] = []
+    if opt.detect_shake:
+        # fourth, model-free and valid for any BRDF: check frames repeat their LED's slice
+        repeats = repeat_checks(slices)
+        if any(r.moved for r in repeats):
+            shake = True
     if opt.detect_shake and not opt.anisotropic:
         plane_off = plane_offsets(sl.light, sl.view, sl.values, ok)
         if any(x is not None and abs(x) > PLANE_THRESHOLD_DEG for x in plane_off):
@@ -395,6 +403,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         "shake_detected": shake,
         "symmetry_plane_offsets_deg": plane_off,
         "consistency_checks": [dataclasses.asdict(c) for c in checks],
+        "repeat_checks": [{k: (v if not isinstance(v, float) or math.isfinite(v) else None)
+                           for k, v in dataclasses.asdict(r).items()} for r in repeats],
         "excluded_leds": sorted(excluded),
         "lost_leds": np.flatnonzero(per_led < LOST_LED_FRACTION * np.median(per_led)).tolist(),
         "censored_fraction": censored_fraction,
