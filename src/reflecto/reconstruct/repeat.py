@@ -88,7 +88,8 @@ def repeat_checks(slices: Slices) -> list[RepeatCheck]:
     n_blocks = int(block.max()) + 1
     out = []
     for c, k in enumerate(slices.check_leds):
-        both = slices.valid[k] & slices.check_valid[c]
+        both = (slices.valid[k] & slices.check_valid[c] & np.all(np.isfinite(slices.values[k]), axis=-1)
+                & np.all(np.isfinite(slices.check_values[c]), axis=-1))  # a NaN pixel is no evidence
         ya = (slices.values[k] @ LUM)[both]
         yb = (slices.check_values[c] @ LUM)[both]
         blk = block[both]
