@@ -77,9 +77,9 @@ class Problem:
         self.present = np.bincount(self.kh, minlength=merl.N_THETA_H) > 0
 
     def lobe_geometry(self, model: MicrofacetBRDF | None, shadowing: str) -> np.ndarray:
-        """``S(i)S(o)/(4 cos cos)`` per sample (without D, k_s, F)."""
+        """``S(i)S(o)/(4 cos cos)`` per sample (without D, k_s, F); S ≡ 1 before an NDF exists."""
         ci, co = self.i[:, 2], self.o[:, 2]
-        if model is None or shadowing == "none":
+        if model is None:
             return 1.0 / (4.0 * ci * co)
         t = model.sigma_table
         si = np.maximum(t.eval_sigma(self.i), ci)

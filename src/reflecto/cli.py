@@ -188,7 +188,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
             pairs = [f"{c['kind']} {c['a']}-{c['b']} ×{math.exp(c['log_ratio']):.2f}" for c in r["consistency_checks"]
                      if abs(c["log_ratio"]) > PAIR_THRESHOLD[c["kind"]]]
             moved = [f"LED {c['led']}" + (f" ×{math.exp(c['log_ratio']):.2f}" if c["log_ratio"] is not None else " lit once")
-                     for c in r.get("repeat_checks", []) if c["moved"]]
+                     for c in r["repeat_checks"] if c["moved"]]
             flag = (f"  SHAKE DETECTED (E(η) {r['fresnel_error_at_check']:.2f}"
                     + (f"; {', '.join(moved)} changed between its two firings" if moved else "")
                     + (f"; LEDs {planes} not symmetric about the normal" if planes else "")

@@ -154,7 +154,7 @@ def write_capture(capture: Capture, out_dir: str | Path) -> Path:
                 name = frame_name(led, float(t))
                 _write_png(tmp / name, capture.raw[led, e])
                 frames.append({"file": name, "led": led, "exposure_ms": float(t)})
-        if expects_check_frames(dev, capture.kind) and capture.check is not None:
+        if expects_check_frames(dev, capture.kind):  # shape checked above
             for c, led in enumerate(dev.check_leds):
                 for e, t in enumerate(capture.exposures_ms):
                     name = frame_name(led, float(t), check=True)
