@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -137,32 +136,29 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _reconstruct_one(job: tuple[str, str | None, str, bool, float | None, bool]) -> dict:
+def _reconstruct_one(job: tuple[str, str | None, str, bool, float | None, str]) -> dict:
     from .instrument.calibrate import load_calibration
     from .instrument.capture import read_capture
     from .instrument.slices import extract_slices
     from .io import atomic_write
-    from .reconstruct.pipeline import Options, reconstruct
+    from .reconstruct import Options, reconstruct
 
-    cap_dir, cal_path, out, normal, eta, anisotropic = job
+    cap_dir, cal_path, out, normal, eta, isotropic = job
     cap = read_capture(cap_dir)
     cal = load_calibration(cal_path, cap.device)
-    res = reconstruct(extract_slices(cap, cal), Options(estimate_normal=normal, fixed_eta=eta, anisotropic=anisotropic))
-    res.summary["capture"] = str(cap_dir)
-    res.model.metadata.update({"capture": str(cap_dir), "eta_fit_error": res.summary["fresnel_error"]})
+    res = reconstruct(extract_slices(cap, cal), Options(estimate_normal=normal, fixed_eta=eta, isotropic=isotropic))
+    summary = {"capture": str(cap_dir), **res.summary()}
+    res.model.metadata.update({"capture": str(cap_dir), "model_error": summary["model_error"]})
     res.model.save(out)
     with atomic_write(Path(out).with_suffix(".json"), "w") as fh:
-        fh.write(json.dumps(res.summary, indent=1))
-    return res.summary
+        fh.write(json.dumps(summary, indent=1))
+    return {**summary, "motion": res.motion.describe()}
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     from concurrent.futures import ProcessPoolExecutor
 
     from tqdm import tqdm
-
-    from .reconstruct.consistency import THRESHOLD as PAIR_THRESHOLD
-    from .reconstruct.symmetry import PLANE_THRESHOLD_DEG
 
     caps = list(args.captures)
     if len(caps) > 1 and not Path(args.output).suffix == "":
@@ -172,7 +168,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     else:
         Path(args.output).mkdir(parents=True, exist_ok=True)
         outs = [str(Path(args.output) / (Path(c).name + ".reflecto")) for c in caps]
-    jobs = [(c, args.calibration, o, args.estimate_normal, args.eta, args.anisotropic) for c, o in zip(caps, outs)]
+    jobs = [(c, args.calibration, o, args.estimate_normal, args.eta, args.isotropic) for c, o in zip(caps, outs)]
     show = args.progress or (len(jobs) > 1 and sys.stderr.isatty())
     if len(jobs) == 1:
         results = [_reconstruct_one(jobs[0])]
@@ -182,21 +178,12 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         with ProcessPoolExecutor(max_workers=args.jobs or os.cpu_count()) as ex:
             results = list(tqdm(ex.map(_reconstruct_one, jobs), total=len(jobs), disable=not show, desc="reconstruct"))
     for out, r in zip(outs, results):
-        flag = ""
-        if r["shake_detected"]:
-            planes = [k for k, x in enumerate(r["symmetry_plane_offsets_deg"]) if x is not None and abs(x) > PLANE_THRESHOLD_DEG]
-            pairs = [f"{c['kind']} {c['a']}-{c['b']} ×{math.exp(c['log_ratio']):.2f}" for c in r["consistency_checks"]
-                     if abs(c["log_ratio"]) > PAIR_THRESHOLD[c["kind"]]]
-            moved = [f"LED {c['led']}" + (f" ×{math.exp(c['log_ratio']):.2f}" if c["log_ratio"] is not None else " lit once")
-                     for c in r["repeat_checks"] if c["moved"]]
-            flag = (f"  SHAKE DETECTED (E(η) {r['fresnel_error_at_check']:.2f}"
-                    + (f"; {', '.join(moved)} changed between its two firings" if moved else "")
-                    + (f"; LEDs {planes} not symmetric about the normal" if planes else "")
-                    + (f"; {', '.join(pairs)}" if pairs else "")
-                    + (f"; LEDs {r['excluded_leds']} excluded" if r["excluded_leds"] else "")
-                    + ("; an anisotropic material reads like this too: --anisotropic" if planes or pairs else "") + ")")
-        print(f"{out}: eta {np.round(r['eta'], 3).tolist()}, kd {np.round(r['kd'], 3).tolist()}, "
+        flag = f"  SHAKE DETECTED ({r['motion']})" if r["shake_detected"] else ""
+        kind = "isotropic" if r["isotropic"] else "anisotropic"
+        print(f"{out}: {kind}, eta {r['eta'][0]:.3f}, kd {np.round(r['kd'], 3).tolist()}, "
               f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, {r['seconds'] * 1000:.0f} ms{flag}")
+        for note in r["notes"]:
+            print(f"  note: {note}")
     return 0
 
 
@@ -363,8 +350,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-o", "--output", required=True, help="model file (.reflecto) or, for several captures, a folder")
     q.add_argument("--estimate-normal", action="store_true", help="estimate the altered normal (§5.4; experimental)")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it")
-    q.add_argument("--anisotropic", action="store_true",
-                   help="the material may be anisotropic: skip the shake cues that assume isotropy (E(η) remains)")
+    q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
+                   help="reconstruct a 1-D isotropic NDF (yes), a hemicube NDF for an anisotropic material (no), "
+                        "or decide from the capture (auto)")
     q.add_argument("--jobs", type=int, default=0, help="worker processes for several captures (default: all cores)")
     q.add_argument("--progress", action="store_true", help="progress bar")
     q.set_defaults(func=cmd_reconstruct)

@@ -8,6 +8,11 @@
 * ``F`` — Cook–Torrance Fresnel (eq. 4) with a per-channel real index η;
 * ``k_d`` (diffuse albedo ρ_d), ``k_s`` — per channel.
 
+Two tabulations of ``D``: :class:`MicrofacetBRDF` holds any NDF on a hemicube
+(anisotropic materials, §5.5); :class:`IsotropicMicrofacetBRDF` holds an isotropic
+``D(θ_h)`` on polar nodes (:mod:`reflecto.polar`), which is what an isotropic
+material's reconstruction determines, at a fraction of the storage and cost.
+
 Evaluation uses the cancelled form ``k_s D F / (4 σ(i) σ(o))`` (algorithm-reference
 eq. 1.6), which is finite at grazing angles. The physical unit is sr⁻¹ throughout; the
 paper's "4π" constant is *not* used (algorithm-reference §3.2–§3.3).
@@ -31,6 +36,7 @@ from .errors import FileFormatError, ParameterError
 from .fresnel import FresnelTable, fresnel
 from .hemicube import Hemicube, hemicube
 from .io import atomic_write
+from .polar import IsotropicNDF
 from .shadowing import SigmaTable, sigma_table
 from .sources.base import BRDFSource
 from .sources.base import rgb_triplet as _rgb
@@ -39,8 +45,10 @@ Array = NDArray[np.float64]
 
 #: Format identifier and version of reflecto model files.
 MODEL_FORMAT = "reflecto-model"
-MODEL_VERSION = 1
+MODEL_VERSION = 2
 MODEL_SUFFIX = ".reflecto"
+
+__all__ = ["MicrofacetBRDF", "IsotropicMicrofacetBRDF", "load_model", "MODEL_SUFFIX"]
 
 
 class MicrofacetBRDF(BRDFSource):
@@ -221,6 +229,7 @@ class MicrofacetBRDF(BRDFSource):
         meta = {
             "format": MODEL_FORMAT,
             "version": MODEL_VERSION,
+            "ndf_kind": "hemicube",
             "resolution": self.cube.n,
             "kd": self.kd.tolist(),
             "ks": self.ks.tolist(),
@@ -246,6 +255,7 @@ class MicrofacetBRDF(BRDFSource):
                     raise FileFormatError(path, "not a reflecto model file (meta.json or ndf.npy missing)")
                 meta = json.loads(z.read("meta.json").decode("utf-8"))
                 raw = z.read("ndf.npy")
+                theta_raw = z.read("ndf_theta.npy") if "ndf_theta.npy" in names else None
         except FileNotFoundError:
             raise FileFormatError(path, "no such file") from None
         except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError) as e:
@@ -262,6 +272,8 @@ class MicrofacetBRDF(BRDFSource):
                 path,
                 f"written by a newer reflecto (model format version {version}; this version reads <= {MODEL_VERSION})",
             )
+        if meta.get("ndf_kind", "hemicube") == "isotropic":
+            return IsotropicMicrofacetBRDF._from_file(path, meta, raw, theta_raw)
         try:
             ndf = np.load(io.BytesIO(raw), allow_pickle=False)
         except ValueError as e:
@@ -286,6 +298,167 @@ class MicrofacetBRDF(BRDFSource):
             raise FileFormatError(path, f"invalid model parameters ({e})") from None
 
 
-def load_model(path: str | Path) -> MicrofacetBRDF:
-    """Read a reflecto model file (see :meth:`MicrofacetBRDF.load`)."""
+def load_model(path: str | Path) -> MicrofacetBRDF | IsotropicMicrofacetBRDF:
+    """Read a reflecto model file, hemicube or isotropic (see :meth:`MicrofacetBRDF.load`)."""
     return MicrofacetBRDF.load(path)
+
+
+class IsotropicMicrofacetBRDF(BRDFSource):
+    """Generalized microfacet BRDF (eqs. 1–2) with an isotropic NDF ``D(θ_h)``.
+
+    ``f(i, o) = k_d/π + k_s D(θ_h) F(i·h; η) / (4 σ(i) σ(o))`` (the cancelled form of
+    eq. 1.6), with ``D`` and ``σ`` from :class:`reflecto.polar.IsotropicNDF`.
+
+    Parameters
+    ----------
+    ndf
+        The NDF: an :class:`~reflecto.polar.IsotropicNDF`, or ``(nodes, values)``
+        (radians, sr⁻¹; normalized here unless ``normalize=False``).
+    kd, ks, eta
+        Per-channel diffuse albedo, specular scale and relative index (3 numbers or one).
+    correlated
+        Height-correlated Smith form instead of the separable product (§1.3).
+    metadata
+        Free JSON-serializable information kept in the model file.
+    """
+
+    kind = "model"
+
+    def __init__(self, ndf: IsotropicNDF | tuple[ArrayLike, ArrayLike], kd: ArrayLike = 0.0, ks: ArrayLike = 1.0,
+                 eta: ArrayLike = 1.5, *, normalize: bool = True, correlated: bool = False,
+                 metadata: dict[str, Any] | None = None, path: Path | None = None) -> None:
+        if not isinstance(ndf, IsotropicNDF):
+            nodes, values = ndf
+            # stored as float32 in model files: round now so that save/load is exact
+            values = np.asarray(values, dtype=np.float64)
+            if normalize:
+                values = IsotropicNDF(nodes, values).values
+            ndf = IsotropicNDF(np.asarray(nodes, np.float64), np.asarray(values, "<f4").astype(np.float64),
+                               normalize=False)
+        self.ndf_table = ndf
+        self.kd = _rgb(kd, "kd")
+        self.ks = _rgb(ks, "ks")
+        self.eta = _rgb(eta, "eta")
+        if np.any(self.kd < 0) or np.any(self.ks < 0):
+            raise ParameterError("kd and ks must be >= 0")
+        if np.any(self.eta <= 0):
+            raise ParameterError("eta must be > 0")
+        self.correlated = bool(correlated)
+        self.metadata = dict(metadata or {})
+        self.path = path
+        self.reciprocal = True
+        self.isotropic = True
+        self._fresnel_table = FresnelTable(self.eta)
+        self._hemicube: dict[int, MicrofacetBRDF] = {}
+
+    @property
+    def resolution(self) -> int:
+        """Number of polar nodes of the NDF."""
+        return len(self.ndf_table.nodes)
+
+    def ndf(self, h: ArrayLike) -> Array:
+        """``D(h)`` in sr⁻¹; 0 below the horizon."""
+        return self.ndf_table(h)
+
+    def shadowing(self, k: ArrayLike) -> Array:
+        """APS shadowing ``S(k) = (k·n)/σ(k)`` in [0, 1] (eq. 8)."""
+        k = np.asarray(k, dtype=np.float64)
+        return self.ndf_table.shadowing(k[..., 2] / np.maximum(np.linalg.norm(k, axis=-1), 1e-300))
+
+    def fresnel(self, c: ArrayLike) -> Array:
+        """Per-channel ``F(c; η)`` (eq. 4), shape ``c.shape + (3,)``."""
+        return fresnel(np.asarray(c)[..., None], self.eta)
+
+    def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
+        """BRDF in sr⁻¹ (eqs. 1–2), shape ``(..., 3)``; 0 below the horizon."""
+        i = np.asarray(i, dtype=np.float64)
+        o = np.asarray(o, dtype=np.float64)
+        i, o = np.broadcast_arrays(i, o)
+        ci, co = i[..., 2], o[..., 2]
+        ok = (ci > 0) & (co > 0)
+        hs = i + o
+        norm = np.sqrt(np.einsum("...k,...k->...", hs, hs))
+        norm = np.where(norm > 0, norm, 1.0)
+        ch = hs[..., 2] / norm
+        c = np.abs(np.einsum("...k,...k->...", i, hs)) / norm
+        d = self.ndf_table.at_theta(np.arccos(np.clip(ch, -1.0, 1.0)))
+        si = self.ndf_table.projected_area(ci)
+        so = self.ndf_table.projected_area(co)
+        if self.correlated:
+            denom = 4.0 * (si * np.maximum(co, 0) + so * np.maximum(ci, 0) - np.maximum(ci, 0) * np.maximum(co, 0))
+        else:
+            denom = 4.0 * si * so
+        spec = np.divide(d, denom, out=np.zeros_like(d), where=ok & (denom > 0) & (ch > 0))
+        f = self._fresnel_table(c)
+        f *= self.ks
+        f *= spec[..., None]
+        f += self.kd / math.pi
+        f[~ok] = 0.0
+        return f
+
+    def to_hemicube(self, resolution: int = 128) -> MicrofacetBRDF:
+        """The same BRDF with its NDF tabulated on a hemicube (for plots and the §5.5 merge)."""
+        if resolution not in self._hemicube:
+            cube = hemicube(resolution)
+            self._hemicube[resolution] = MicrofacetBRDF(self.ndf(cube.directions), self.kd, self.ks, self.eta,
+                                                        correlated=self.correlated, metadata=self.metadata)
+        return self._hemicube[resolution]
+
+    def parameters(self) -> dict[str, Any]:
+        return {
+            "resolution": f"isotropic, {self.resolution} polar nodes",
+            "kd": self.kd.tolist(),
+            "ks": self.ks.tolist(),
+            "eta": self.eta.tolist(),
+            "shadowing": "height-correlated Smith" if self.correlated else "separable APS (eq. 8)",
+            **({"metadata": self.metadata} if self.metadata else {}),
+        }
+
+    def save(self, path: str | Path) -> Path:
+        """Write the model file atomically (a zip of ``meta.json``, ``ndf.npy``, ``ndf_theta.npy``)."""
+        path = Path(path)
+        values = self.ndf_table.values.astype("<f4")
+        nodes = self.ndf_table.nodes.astype("<f8")
+        arrays = {}
+        for name, a in (("ndf.npy", values), ("ndf_theta.npy", nodes)):
+            buf = io.BytesIO()
+            np.save(buf, a, allow_pickle=False)
+            arrays[name] = buf.getvalue()
+        meta = {
+            "format": MODEL_FORMAT,
+            "version": MODEL_VERSION,
+            "ndf_kind": "isotropic",
+            "resolution": len(nodes),
+            "kd": self.kd.tolist(),
+            "ks": self.ks.tolist(),
+            "eta": self.eta.tolist(),
+            "correlated": self.correlated,
+            "ndf_sha256": hashlib.sha256(values.tobytes() + nodes.tobytes()).hexdigest(),
+            "metadata": self.metadata,
+        }
+        with atomic_write(path) as fh:
+            with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED) as z:
+                z.writestr("meta.json", json.dumps(meta, indent=1))
+                for name, raw in arrays.items():
+                    z.writestr(name, raw)
+        return path
+
+    @classmethod
+    def _from_file(cls, path: Path, meta: dict[str, Any], raw: bytes, theta_raw: bytes | None) -> IsotropicMicrofacetBRDF:
+        if theta_raw is None:
+            raise FileFormatError(path, "isotropic model without its polar nodes (ndf_theta.npy)")
+        try:
+            values = np.load(io.BytesIO(raw), allow_pickle=False)
+            nodes = np.load(io.BytesIO(theta_raw), allow_pickle=False)
+        except ValueError as e:
+            raise FileFormatError(path, f"damaged NDF array ({e})") from None
+        values = np.ascontiguousarray(values, dtype="<f4")
+        nodes = np.ascontiguousarray(nodes, dtype="<f8")
+        if hashlib.sha256(values.tobytes() + nodes.tobytes()).hexdigest() != meta.get("ndf_sha256"):
+            raise FileFormatError(path, "NDF checksum mismatch: the file is damaged")
+        try:
+            ndf = IsotropicNDF(nodes, values.astype(np.float64), normalize=False)
+            return cls(ndf, meta["kd"], meta["ks"], meta["eta"], correlated=bool(meta.get("correlated", False)),
+                       metadata=meta.get("metadata") or {}, path=path)
+        except (KeyError, ParameterError) as e:
+            raise FileFormatError(path, f"invalid model parameters ({e})") from None
