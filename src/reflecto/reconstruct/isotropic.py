@@ -228,7 +228,11 @@ class LuminanceProblem:
         self.geometry = 1.0 / (4.0 * bins.cos_i * bins.cos_o)
         self.measured = ~bins.censored
         self.shadow = np.ones(len(bins))
+        self.shadow_geometry = self.geometry.copy()  # S · geometry, kept with the shadowing
         self.w = np.ones(len(bins))
+        self._r = np.empty(len(bins))
+        self._spec = np.empty(len(bins))
+        self._deta = np.empty(len(bins))
         self.h = np.zeros((len(nodes), len(nodes)))
         self.beta = np.zeros(len(nodes))
         self.prior_constant = 0.0
@@ -247,11 +251,17 @@ class LuminanceProblem:
         r = m - self.f
         return np.where(self.measured, r, np.maximum(r, 0.0)), m
 
+    def data_pass(self, s: LuminanceState, jacobian: bool = False) -> float:
+        """``Σ w r²`` in one compiled pass (:func:`._polar_kernels.luminance_pass`); fills
+        the residual, and with ``jacobian`` the specular and η columns, in place."""
+        return _polar_kernels.luminance_pass(self.j, self.t, s.z, self.shadow_geometry, self.bins.cos_d, self.f,
+                                             self.w, self.measured, s.kd, s.g, s.eta, jacobian, self._r,
+                                             self._spec, self._deta)
+
     def cost(self, s: LuminanceState) -> float:
         """The cost; ``inf`` for a state whose NDF overflows (a rejected trial step)."""
         with np.errstate(over="ignore", invalid="ignore"):
-            r, _ = self.residuals(s)
-            c = float(self.w @ (r * r) + s.z @ self.h @ s.z - 2.0 * self.beta @ s.z + self.prior_constant)
+            c = self.data_pass(s) + float(s.z @ self.h @ s.z - 2.0 * self.beta @ s.z) + self.prior_constant
         return c if math.isfinite(c) else math.inf
 
 
@@ -432,18 +442,14 @@ def _apply(problem: LuminanceProblem, s: LuminanceState, step: Array, tie_ks: bo
 def _normal_equations(problem: LuminanceProblem, s: LuminanceState, tie_ks: bool) -> tuple[Array, Array]:
     """``JᵀWJ + H`` and ``JᵀWr + Hz − β`` over ``(z, k_d, log g, log(η − 1))``."""
     k = len(problem.nodes)
-    spec, fr = problem.specular(s)
-    r, _ = problem.residuals(s)
-    active = problem.measured | (r > 0)
-    w = np.where(active, problem.w, 0.0)
-    de = 1e-6 * s.eta
-    d_eta = spec * ((fresnel(problem.bins.cos_d, s.eta + de) - fr) / de) / np.maximum(fr, 1e-300) * (s.eta - 1.0)
+    problem.data_pass(s, jacobian=True)
+    r, spec, d_eta = problem._r, problem._spec, problem._deta
+    w = np.where(problem.measured | (r > 0), problem.w, 0.0)
     dcols = np.ascontiguousarray(np.stack([np.full(len(r), 1.0 / math.pi), spec, d_eta], axis=1))
     diag, off = np.empty(k), np.empty(k - 1)
     cross, dense = np.empty((k, 3)), np.empty((3, 3))
     gz, gd = np.empty(k), np.empty(3)
-    _polar_kernels.normal_equations(problem.j.astype(np.int64), problem.t, spec, dcols, r, w, k, diag, off, cross,
-                                    dense, gz, gd)
+    _polar_kernels.normal_equations(problem.j, problem.t, spec, dcols, r, w, k, diag, off, cross, dense, gz, gd)
     a = np.zeros((k + 3, k + 3))
     a[np.arange(k), np.arange(k)] = diag
     a[np.arange(k - 1), np.arange(1, k)] = off
@@ -519,6 +525,7 @@ def update_shadowing(problem: LuminanceProblem, s: LuminanceState, damping: bool
     ndf = IsotropicNDF(problem.nodes, np.exp(s.z - s.z.max()))
     new = ndf.shadowing(problem.bins.cos_i) * ndf.shadowing(problem.bins.cos_o)
     problem.shadow = np.sqrt(problem.shadow * new) if damping else new
+    problem.shadow_geometry = problem.shadow * problem.geometry
 
 
 def initial_state(problem: LuminanceProblem, eta: float = 1.5) -> LuminanceState:
