@@ -116,3 +116,32 @@ def test_model_ceiling_recovers_a_brdf_of_the_papers_class():
         assert np.allclose(m.kd, (0.3, 0.2, 0.1), rtol=1e-2), (cut, m.kd)
         err = brdf_error(src, m, stride=2).normalized
         assert err < tol, (cut, err)
+
+
+def test_same_data_cook_torrance_recovers_a_cook_torrance_capture():
+    """Fitted to a capture of a Cook–Torrance BRDF, the same-data baseline finds its
+    roughness and albedos again from the six slices alone."""
+    from reflecto.evaluate.cooktorrance import fit_cook_torrance_capture
+    from reflecto.instrument.calibrate import nominal_calibration
+    from reflecto.instrument.device import Device
+    from reflecto.instrument.simulate import simulate_capture
+    from reflecto.instrument.slices import extract_slices
+
+    truth = CookTorrance(rho_d=(0.3, 0.2, 0.1), rho_s=(0.5, 0.5, 0.5), f0=0.05, m=0.15)
+    dev = Device.builtin("ideal")
+    sl = extract_slices(simulate_capture(truth, dev, seed=1), nominal_calibration(dev))
+    fit = fit_cook_torrance_capture(sl)
+    assert abs(fit.m / 0.15 - 1) < 0.03
+    assert np.allclose(fit.rho_d, [0.3, 0.2, 0.1], atol=0.01)
+    assert np.allclose(fit.rho_s * fit.f0, 0.5 * 0.05, rtol=0.1)
+
+
+def test_protocol_split_is_the_documented_draw(shared):
+    """The halves are disjoint, 25 + 25, stratified (5 + 20 each) and the hash draw of evaluate/split.py."""
+    from reflecto.evaluate.split import TUNING, VALIDATION, draw_split
+
+    rgl = sorted(p.stem for p in (shared / "rgl").glob("*.bsdf"))
+    merl = sorted(p.stem for p in (shared / "merl-nbrdf").glob("*.h5"))
+    assert not TUNING & VALIDATION and len(TUNING) == len(VALIDATION) == 25
+    assert len(TUNING & set(rgl)) == 5 and len(VALIDATION & set(merl)) == 20
+    assert draw_split([rgl, merl]) == (set(TUNING), set(VALIDATION))
