@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import geometry
 from ..errors import FileFormatError
 from ..io import atomic_write
-from .base import BRDFSource, read_file_bytes
+from .base import MAX_BRDF_VALUE, BRDFSource, check_plausible, read_file_bytes
 
 Array = NDArray[np.float64]
 
@@ -103,10 +103,12 @@ def bin_directions() -> tuple[Array, Array]:
 def read_merl_table(path: str | Path) -> Array:
     """Read a MERL file; returns the stored values scaled to sr⁻¹, shape ``(90, 90, 180, 3)``.
 
-    Unmeasured bins keep their negative value (times the channel scale).
+    Unmeasured bins keep their negative value (times the channel scale). Refuses
+    files of the wrong size or dimensions, NaN or infinite values, values above
+    :data:`~reflecto.sources.base.MAX_BRDF_VALUE` and tables without a measured bin.
     """
     path = Path(path)
-    raw = read_file_bytes(path)
+    raw = read_file_bytes(path, FILE_BYTES, f"a MERL file ({FILE_BYTES} bytes)")
     if len(raw) < HEADER_BYTES:
         raise FileFormatError(path, f"truncated MERL file: {len(raw)} bytes, no complete header")
     dims = tuple(int(v) for v in np.frombuffer(raw[:HEADER_BYTES], dtype="<i4"))
@@ -119,7 +121,13 @@ def read_merl_table(path: str | Path) -> Array:
     if not np.all(np.isfinite(vals)):
         bad = int(np.count_nonzero(~np.isfinite(vals)))
         raise FileFormatError(path, f"{bad} values are NaN or infinite")
-    return (vals * SCALE[:, None]).T.reshape(SHAPE + (3,))
+    table = (vals * SCALE[:, None]).T.reshape(SHAPE + (3,))
+    peak = float(table.max())
+    if peak > MAX_BRDF_VALUE:
+        raise FileFormatError(path, f"values up to {peak:.3g} sr⁻¹, more than {MAX_BRDF_VALUE:g}: damaged, or not a BRDF")
+    if not np.any(np.all(table >= 0, axis=-1)):
+        raise FileFormatError(path, "no bin holds a measured value (all are negative, MERL's 'unmeasured')")
+    return table
 
 
 def write_merl_table(path: str | Path, table: ArrayLike) -> Path:
@@ -191,6 +199,7 @@ class MerlBRDF(BRDFSource):
         self._flat = self.table.reshape(N_BINS, 3)
         self.reciprocal = True  # φ_d folding makes lookups reciprocal by construction
         self.isotropic = True
+        check_plausible(self, self.path)
 
     @classmethod
     def from_table(cls, table: ArrayLike, name: str = "merl") -> MerlBRDF:
