@@ -367,6 +367,8 @@ def make_parents(folder: Path) -> list[Path]:
         if p.parent == p:
             break
         p = p.parent
+    if p.exists() and not p.is_dir():
+        raise OutputError(p, "cannot create the folder: a file of that name is in the way")
     created = []
     for d in reversed(missing):
         try:
@@ -382,7 +384,7 @@ def make_parents(folder: Path) -> list[Path]:
             raise OutputError(d, f"cannot create the folder: {problem}") from None
         created.append(d)
     if not folder.is_dir():
-        raise OutputError(folder, "not a folder (a file of that name is in the way)")
+        raise OutputError(folder, "cannot create the folder: a file of that name is in the way")
     return created
 
 

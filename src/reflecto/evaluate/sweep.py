@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import BatchError, FileFormatError, ReflectoError, ReflectoWarning, one_line
-from ..io import atomic_write, make_parents, read_description, read_json
+from ..io import atomic_write, make_parents, read_description, read_json, remove_empty
 
 MATERIAL_SUFFIXES = (".binary", ".bsdf", ".h5", ".json", ".toml")
 #: Resolution of the sphere renders kept per material (Fig. 4).
@@ -409,6 +409,7 @@ def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ide
     finally:
         bar.close()
     recs = [records[k] for k in sorted(records)]
+    remove_empty([out / "materials"])  # nothing finished, ever: no empty folder left behind
     write_failures(out / "failures.json", failures)
     write_table(recs, out / "results.csv")
     if recs:

@@ -24,6 +24,7 @@ import dataclasses
 import json
 import math
 import struct
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -103,6 +104,71 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_CAPTURE_BYTES = 1 << 30
 
 
+def _check_png(data: bytes, path: Path, shape: tuple[int, int], depth_bits: int) -> None:
+    """Validate a PNG before decoding: header against ``shape`` and bit depth, every chunk's
+    length and CRC, the compressed image data inflating to exactly the pixel rows with valid
+    filter bytes (bounded inflation: no decompression bomb), and the end chunk.
+
+    A damaged frame is refused here, naming the file, instead of by the decoder (which
+    prints its own complaints).
+    """
+    if len(data) < 33 or data[:8] != PNG_SIGNATURE or data[12:16] != b"IHDR":
+        raise CaptureError(path, "not a readable image (frames are PNG files)")
+    width, height, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", data[16:29])
+    if (height, width) != shape:
+        raise CaptureError(path, f"image is {width}×{height}, the manifest says {shape[1]}×{shape[0]}")
+    if colour != 2:
+        raise CaptureError(path, f"expected an RGB image, got PNG colour type {colour}")
+    if depth != depth_bits:
+        raise CaptureError(path, f"image has {depth}-bit pixels, expected {depth_bits}-bit")
+    pos, idat, end = 8, [], False
+    while pos + 12 <= len(data):
+        (length,) = struct.unpack_from(">I", data, pos)
+        kind = data[pos + 4 : pos + 8]
+        if length > len(data) - pos - 12:
+            break
+        body = data[pos + 8 : pos + 8 + length]
+        (crc,) = struct.unpack_from(">I", data, pos + 8 + length)
+        if zlib.crc32(kind + body) != crc:
+            raise CaptureError(path, f"damaged PNG: chunk {kind!r} at byte {pos} fails its CRC")
+        if kind == b"IDAT":
+            idat.append(body)
+        pos += 12 + length
+        if kind == b"IEND":
+            end = True
+            break
+    if not end:
+        raise CaptureError(path, "damaged PNG: truncated (no end chunk)")
+    if interlace != 0:
+        return  # Adam7 rows differ in length; the decoder checks them
+    row = 1 + width * 3 * depth // 8
+    need = row * height
+    z = zlib.decompressobj()
+    try:
+        rows = z.decompress(b"".join(idat), need + 1)
+    except zlib.error as e:
+        raise CaptureError(path, f"damaged PNG: image data does not inflate ({e})") from None
+    if len(rows) != need or not z.eof:
+        raise CaptureError(path, f"damaged PNG: image data holds {len(rows)}{'+' if not z.eof else ''} bytes, "
+                           f"{need} expected")
+    if max(rows[::row]) > 4:
+        raise CaptureError(path, "damaged PNG: invalid row filter type")
+
+
+def _decode_quietly(data: bytes) -> NDArray[np.integer] | None:
+    """``cv2.imdecode`` without OpenCV's own warnings on stderr (a damaged file is our error to report)."""
+    try:
+        from cv2.utils import logging as cv_log
+    except ImportError:  # older OpenCV builds
+        return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    level = cv_log.getLogLevel()
+    cv_log.setLogLevel(cv_log.LOG_LEVEL_SILENT)
+    try:
+        return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    finally:
+        cv_log.setLogLevel(level)
+
+
 def read_image(path: Path, shape: tuple[int, int], dtype: type) -> NDArray[np.integer]:
     """Read a 16- or 8-bit RGB PNG; refuse missing, unreadable, special or wrong-size files.
 
@@ -117,16 +183,8 @@ def read_image(path: Path, shape: tuple[int, int], dtype: type) -> NDArray[np.in
     itemsize = np.dtype(dtype).itemsize
     limit = 2 * shape[0] * shape[1] * 3 * itemsize + (1 << 20)
     data = read_input(path, limit, "a frame of this size", missing="frame is missing")
-    if len(data) < 33 or data[:8] != PNG_SIGNATURE or data[12:16] != b"IHDR":
-        raise CaptureError(path, "not a readable image (frames are PNG files)")
-    width, height, depth, colour = struct.unpack(">IIBB", data[16:26])
-    if (height, width) != shape:
-        raise CaptureError(path, f"image is {width}×{height}, the manifest says {shape[1]}×{shape[0]}")
-    if colour != 2:
-        raise CaptureError(path, f"expected an RGB image, got PNG colour type {colour}")
-    if depth != 8 * itemsize:
-        raise CaptureError(path, f"image has {depth}-bit pixels, expected {np.dtype(dtype)}")
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    _check_png(data, path, shape, 8 * itemsize)
+    img = _decode_quietly(data)
     if img is None:
         raise CaptureError(path, "not a readable image (damaged PNG)")
     if img.ndim != 3 or img.shape[2] != 3:
