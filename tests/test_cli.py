@@ -52,6 +52,7 @@ def test_console_script_runs():
 
 
 # ------------------------------------------------------------ issue 25: ergonomics
+import argparse  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import pytest  # noqa: E402
@@ -71,7 +72,7 @@ def _json_out(capsys) -> dict:
 
 
 def _subparsers():
-    sub = next(a for a in build_parser()._actions if isinstance(a, __import__("argparse")._SubParsersAction))
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     return sub.choices
 
 

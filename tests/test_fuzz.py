@@ -1066,7 +1066,7 @@ def fuzz_base(tmp_path_factory, shared) -> Path:
 
 #: The default run: every (kind, command) pair but the slow ones, then more cases of
 #: the cheap kinds, each with a seed of its own; < 30 s on 2 cores.
-DEFAULT_CASES = 64
+DEFAULT_CASES = 48
 
 
 def test_fuzz_campaign_small(fuzz_base, tmp_path):

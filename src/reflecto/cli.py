@@ -13,6 +13,7 @@ import json
 import math
 import shutil
 import sys
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -21,7 +22,7 @@ import numpy as np
 from . import __version__
 from .errors import BatchError, OutputError, ReflectoError, ReflectoWarning, one_line
 
-_SHOW_WARNING = __import__("warnings").showwarning
+_SHOW_WARNING = warnings.showwarning
 
 
 def _interactive() -> bool:
@@ -230,6 +231,7 @@ def _report_failures(failures: list[tuple[str, str]]) -> None:
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     import os
+    import time
 
     from .evaluate.sweep import Progress, run_batch
 
@@ -265,9 +267,9 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     try:
         if len(jobs) == 1:
             # one capture: its error is the command's error (nothing else to finish)
-            t0 = __import__("time").perf_counter()
+            t0 = time.perf_counter()
             summary = _reconstruct_one(*jobs[0])
-            finished(0, True, summary, __import__("time").perf_counter() - t0)
+            finished(0, True, summary, time.perf_counter() - t0)
         else:
             run_batch(_reconstruct_one, jobs, caps, args.jobs or os.cpu_count() or 1, finished)
     finally:
@@ -631,8 +633,6 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):  #
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    import warnings
-
     parser = build_parser()
     args = parser.parse_args(argv)
     new = _new_paths(getattr(args, "output", None))
@@ -642,6 +642,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         warnings.showwarning = _show_warning
         try:
             rc = int(args.func(args))
+            sys.stdout.flush()
+        except BrokenPipeError:
+            # the reader of stdout went away (`| head`): the work is done, say nothing more
+            import os
+
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            rc = 141
         except ReflectoError as e:
             print(f"reflecto: error: {one_line(e)}", file=sys.stderr)
         except OSError as e:
@@ -653,7 +660,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print("reflecto: interrupted", file=sys.stderr)
             rc = 130
         finally:
-            if rc != 0:
+            if rc in (1, 130):
                 _clean_up(new, args.command)
     return rc
 

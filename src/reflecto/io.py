@@ -395,7 +395,25 @@ def remove_empty(folders: list[Path]) -> None:
             d.rmdir()
 
 
+def _replaceable(path: Path, folder: bool = False) -> None:
+    """Refuse an output path that holds something a rename must not replace (a device, a FIFO, ...)."""
+    try:
+        st = os.lstat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        return  # a missing parent, or a file in its place: make_parents says which
+    except OSError as e:
+        raise OutputError(path, f"cannot write: {e.strerror or e}") from None
+    if stat.S_ISLNK(st.st_mode) or (stat.S_ISDIR(st.st_mode) if folder else stat.S_ISREG(st.st_mode)):
+        return
+    if stat.S_ISDIR(st.st_mode):
+        raise OutputError(path, "is a folder; cannot write a file there")
+    if folder and stat.S_ISREG(st.st_mode):
+        raise OutputError(path, "a file of that name is in the way")
+    raise OutputError(path, "is a device, FIFO or socket; refusing to replace it with an output")
+
+
 def _temp_file(path: Path, suffix: str) -> tuple[int, str, list[Path]]:
+    _replaceable(path)
     created = make_parents(path.parent)
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
@@ -467,6 +485,7 @@ def atomic_folder(path: str | Path) -> Iterator[Path]:
     parent created for it.
     """
     path = Path(path)
+    _replaceable(path, folder=True)
     created = make_parents(path.parent)
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent))
