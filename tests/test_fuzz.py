@@ -373,8 +373,11 @@ def _zip_members(path: Path) -> dict[str, bytes]:
 
 
 def _write_zip(path: Path, members: dict[str, bytes] | list[tuple[str, bytes]]) -> None:
+    import warnings
+
     items = members.items() if isinstance(members, dict) else members
-    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as z:
+    with warnings.catch_warnings(), zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as z:
+        warnings.simplefilter("ignore")  # zipfile's own "Duplicate name" when the harness means it
         for n, d in items:
             z.writestr(n, d)
 
