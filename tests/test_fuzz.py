@@ -524,7 +524,7 @@ KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], bool]] = {
     "NBRDF .h5": (("info", "tabulate"), ("nbrdf.h5", "nbrdf.json"), False),
     "NBRDF .json": (("info",), ("nbrdf.h5", "nbrdf.json"), False),
     "model .reflecto": (("info", "export", "report", "tabulate"), ("model",), True),
-    "device file": (("layout", "simulate"), ("device.json", "device.toml", "analytic.json"), False),
+    "device file": (("layout", "simulate", "simulate-calibration"), ("device.json", "device.toml", "analytic.json"), False),
     "capture manifest": (("reconstruct",), ("cap",), False),
     "capture frame": (("reconstruct",), ("cap",), False),
     "calibration .npz": (("reconstruct",), ("cap-ab", "cal.npz"), True),
@@ -696,6 +696,8 @@ def command_argv(command: str, src: Path, d: Path, out: Path, rng: random.Random
         if src.name.startswith("device"):
             return ["simulate", str(d / "analytic.json"), "--device", str(src), "-o", str(out / "cap"), "-q"]
         return ["simulate", str(src), "-o", str(out / "cap"), "-q"]
+    if command == "simulate-calibration":
+        return ["simulate-calibration", "--device", str(src), "-o", str(out / "calib"), "-q"]
     if command == "layout":
         return ["layout", "--device", str(src), "--json", "--resolution", "16"]
     if command == "compare":
