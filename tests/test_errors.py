@@ -537,6 +537,10 @@ def test_calibration_checksum_and_truncation(calib, tmp_path):
     bad = _craft_calibration(calib[1], tmp_path / "neg.npz", scale=-scale)
     with pytest.raises(FileFormatError, match="negative"):
         Calibration.load(bad)
+    dark = scale.copy()
+    dark[2] = 0.0  # an LED with no radiometric calibration: every sample of its slice would be dropped
+    with pytest.raises(FileFormatError, match="LED 2: the scale field is zero on 100 % of the view disc"):
+        Calibration.load(_craft_calibration(calib[1], tmp_path / "dark.npz", scale=dark))
     assert np.array_equal(Calibration.load(calib[1]).scale, np.load(calib[1])["scale"])  # numpy still reads it
 
 

@@ -192,7 +192,14 @@ def _reconstruct_one(cap_dir: str, cal_path: str | None, out: str, normal: bool,
                            "differ from its nominal design: pass --calibration FILE (from `reflecto calibrate`), "
                            "or --nominal to use the nominal calibration anyway")
     cal = load_calibration(cal_path, cap.device)
-    res = reconstruct(extract_slices(cap, cal), Options(estimate_normal=normal, fixed_eta=eta, anisotropic=anisotropic))
+    options = Options(estimate_normal=normal, fixed_eta=eta, anisotropic=anisotropic)
+    try:
+        res = reconstruct(extract_slices(cap, cal), options)
+    except CaptureError:
+        raise
+    except ReflectoError as e:  # the reconstruction's own errors do not know the capture's folder
+        problem = str(e).removeprefix("capture: ")
+        raise CaptureError(cap_dir, problem + (f" (calibration {cal_path})" if cal_path else "")) from None
     res.summary["capture"] = str(cap_dir)
     if cal_path is None and nominal:
         res.summary["calibration"] = "nominal (--nominal)"

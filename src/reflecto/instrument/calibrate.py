@@ -172,6 +172,10 @@ class Calibration:
             raise FileFormatError(path, "scale field contains NaN or infinity")
         if np.any(scale < 0):
             raise FileFormatError(path, "scale field has negative values")
+        dark = _dark_led(device, optics, scale)
+        if dark is not None:
+            raise FileFormatError(path, f"LED {dark[0]}: the scale field is zero on {100 * (1 - dark[1]):.0f} % of "
+                                  "the view disc (a calibration has it on at least half)")
         response = None
         if "response.npy" in members:
             response = npy_array(members["response.npy"], path, "response.npy", dtype="<f8", shape=(256, 3))
@@ -190,6 +194,20 @@ class Calibration:
 #: (degrees): the as-built device's errors are ±0.5°; more means a wrong mirror normal
 #: or spot. docs/limits.md.
 MAX_LED_OFFSET_DEG = 5.0
+
+
+def _dark_led(device: Device, optics: Optics, scale: NDArray[np.float32]) -> tuple[int, float] | None:
+    """The first LED whose scale is positive on less than half of the unblocked view disc,
+    with that fraction (None if every LED is calibrated over most of it)."""
+    dirs, mask = optics.pixel_directions()
+    view = mask & ~device.occluded(dirs)
+    if not view.any():
+        return 0, 0.0
+    for k in range(len(scale)):
+        lit = float(np.all(scale[k][view] > 0, axis=-1).mean())
+        if lit < 0.5:
+            return k, lit
+    return None
 
 
 def _verify_checksums(path: Path, meta: dict[str, Any], members: dict[str, bytes]) -> None:
@@ -489,7 +507,7 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
         rad, valid = merge_debevec(white.raw, white.exposures_ms, response)
     else:
         rad, valid = merge_linear(white.raw, white.exposures_ms, cam)
-    dirs_px, mask = optics.pixel_directions()
+    _, mask = optics.pixel_directions()
     scale = np.empty(rad.shape, dtype=np.float32)
     for k in range(device.n_leds):
         ok = (valid[k] & mask).astype(np.float64)
@@ -498,12 +516,11 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
             sm = ndimage.gaussian_filter(rad[k, ..., c] * ok, FIELD_SMOOTHING_PX, mode="nearest")
             field = np.divide(sm, sm_w, out=np.zeros_like(sm), where=sm_w > 1e-3)
             scale[k, ..., c] = field / (albedo / math.pi)
-    view = mask & ~device.occluded(dirs_px)
-    for k in range(device.n_leds):
-        lit = np.all(scale[k][view] > 0, axis=-1).mean() if view.any() else 0.0
-        if not np.all(np.isfinite(scale[k])) or lit < 0.5:
-            raise CaptureError(calib_dir / "white", f"LED {k}: the white standard reads a signal on only "
-                               f"{100 * lit:.0f} % of the view disc; no radiometric calibration")
+    dark = _dark_led(device, optics, scale)
+    if dark is not None or not np.all(np.isfinite(scale)):
+        k, lit = dark if dark is not None else (0, 0.0)
+        raise CaptureError(calib_dir / "white", f"LED {k}: the white standard reads a signal on only "
+                           f"{100 * lit:.0f} % of the view disc; no radiometric calibration")
     led_err = np.degrees(np.arccos(np.clip(np.sum(leds * device.leds, axis=1), -1, 1)))
     report = {"kind": "measured", **geo_report, "led_offset_from_nominal_deg": np.round(led_err, 3).tolist(),
               "white_albedo": albedo}
