@@ -174,11 +174,54 @@ def test_model_checksum_covers_parameters_and_metadata(model_file, tmp_path):
         MicrofacetBRDF.load(_zip(tmp_path / "extra.reflecto", m))
 
 
-def test_model_save_load_round_trip_is_exact_and_version_2(model_file):
+def test_model_save_load_round_trip_is_exact_and_version_3(model_file):
     meta = json.loads(_members(model_file)["meta.json"])
-    assert meta["version"] == 2 and set(meta["arrays"]) == {"ndf"} and len(meta["sha256"]) == 64
+    assert meta["version"] == 3 and set(meta["arrays"]) == {"ndf"} and len(meta["sha256"]) == 64
     back = MicrofacetBRDF.load(model_file)
     assert back.metadata == {"note": "test"} and back.kd.tolist() == [0.3] * 3
+
+
+def _isotropic_model(tmp_path: Path) -> Path:
+    from reflecto.model import IsotropicMicrofacetBRDF
+    from reflecto.polar import polar_nodes
+
+    nodes = polar_nodes()
+    d = SRC.ndf(np.stack([np.sin(nodes), 0 * nodes, np.cos(nodes)], -1))
+    return IsotropicMicrofacetBRDF((nodes, d), 0.3, 0.6, 1.5, metadata={"note": "iso"}).save(tmp_path / "iso.reflecto")
+
+
+def test_isotropic_model_files_are_checksummed_over_nodes_values_and_metadata(tmp_path):
+    from reflecto.model import IsotropicMicrofacetBRDF
+
+    good = _isotropic_model(tmp_path)
+    meta = json.loads(_members(good)["meta.json"])
+    assert meta["ndf_kind"] == "isotropic" and set(meta["arrays"]) == {"ndf", "ndf_theta"}
+    back = load_source(good)
+    assert isinstance(back, IsotropicMicrofacetBRDF) and back.metadata == {"note": "iso"}
+    m = _members(good)
+    nodes = rio.npy_array(m["ndf_theta.npy"], good, "ndf_theta.npy")
+    m["ndf_theta.npy"] = _npy(nodes * 0.99)  # the nodes are covered too
+    with pytest.raises(FileFormatError, match="array 'ndf_theta' checksum mismatch"):
+        MicrofacetBRDF.load(_zip(tmp_path / "nodes.reflecto", m))
+    bad = _craft_model(good, tmp_path / "kd.reflecto", lambda meta: meta.update(kd=[2.0, 0, 0]))
+    with pytest.raises(FileFormatError, match="kd must be three finite numbers in \\[0, 1\\]"):
+        MicrofacetBRDF.load(bad)
+
+
+def test_version_2_files_of_either_kind_read_with_a_warning(model_file, tmp_path):
+    """Format version 2 (ndf_kind, ndf_sha256 over the NDF and its nodes) is read, range-checked, with a warning."""
+    for good in (model_file, _isotropic_model(tmp_path)):
+        m = _members(good)
+        meta = json.loads(m["meta.json"])
+        covered = rio.npy_array(m["ndf.npy"], good, "ndf.npy").tobytes()
+        if "ndf_theta.npy" in m:
+            covered += rio.npy_array(m["ndf_theta.npy"], good, "ndf_theta.npy").tobytes()
+        v2 = {k: v for k, v in meta.items() if k not in ("arrays", "sha256")}
+        v2.update(version=2, ndf_sha256=rio.sha256(covered))
+        m["meta.json"] = json.dumps(v2).encode()
+        with pytest.warns(ReflectoWarning, match="version 2 checksums only the NDF"):
+            back = MicrofacetBRDF.load(_zip(tmp_path / f"v2-{good.name}", m))
+        assert back.kd.tolist() == meta["kd"]
 
 
 def test_version_1_model_reads_with_a_warning(model_file, tmp_path):

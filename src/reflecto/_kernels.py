@@ -513,11 +513,12 @@ def as_dirs(a) -> np.ndarray:
 
 
 @njit(**_OPTS)
-def merge_linear(raw, rows, cols, t, black, sat, dark, black_limit, out, valid, near_black):
+def merge_linear(raw, rows, cols, t, black, sat, dark, black_limit, out, valid, near_black, t_sum, n_used):
     """Linear HDR merge at pixels ``(rows, cols)``: :func:`reflecto.instrument.hdr.merge_linear`.
 
     ``near_black`` (L, P) is set where the value rests on one exposure whose signal is
-    below ``black_limit`` DN in every channel.
+    below ``black_limit`` DN in every channel; ``t_sum`` (L, P) is the summed time of the
+    exposures used (ms) and ``n_used`` (L, P) their number (the noise model's inputs).
 
     ``raw`` (L, E, H, W, 3); ``t`` exposure times sorted by slot; writes ``out`` (L, P, 3)
     in DN/ms and ``valid`` (L, P).
@@ -531,6 +532,7 @@ def merge_linear(raw, rows, cols, t, black, sat, dark, black_limit, out, valid, 
             a0 = a1 = a2 = 0.0
             longest_done = False
             only_dark = False
+            used = 0
             for q in range(n_e - 1, -1, -1):
                 e = order[q]
                 z0 = float(raw[l, e, r, c, 0])
@@ -546,6 +548,7 @@ def merge_linear(raw, rows, cols, t, black, sat, dark, black_limit, out, valid, 
                 longest_done = True
                 w = t[e]
                 wsum += w
+                used += 1
                 a0 += s0
                 a1 += s1
                 a2 += s2
@@ -559,6 +562,8 @@ def merge_linear(raw, rows, cols, t, black, sat, dark, black_limit, out, valid, 
                 out[l, p, 0] = out[l, p, 1] = out[l, p, 2] = 0.0
                 valid[l, p] = False
                 near_black[l, p] = False
+            t_sum[l, p] = wsum
+            n_used[l, p] = used
 
 
 @njit(**_OPTS)

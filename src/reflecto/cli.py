@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import shutil
 import sys
 import warnings
@@ -176,15 +175,16 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _reconstruct_one(cap_dir: str, cal_path: str | None, out: str, normal: bool, eta: float | None,
-                     anisotropic: bool, nominal: bool) -> dict:
-    """Reconstruct one capture into ``out`` (+ its ``.json`` summary); returns the summary."""
+                     isotropic: str, nominal: bool) -> dict:
+    """Reconstruct one capture into ``out`` (+ its ``.json`` summary); returns the summary
+    with the motion cues described (``motion``)."""
     import os
 
     from .instrument.calibrate import load_calibration, needs_calibration
     from .instrument.capture import CaptureError, read_capture
     from .instrument.slices import extract_slices
     from .io import atomic_write
-    from .reconstruct.pipeline import Options, reconstruct
+    from .reconstruct import Options, reconstruct
 
     cap = read_capture(cap_dir)
     if cal_path is None and not nominal and needs_calibration(cap.device):
@@ -192,7 +192,7 @@ def _reconstruct_one(cap_dir: str, cal_path: str | None, out: str, normal: bool,
                            "differ from its nominal design: pass --calibration FILE (from `reflecto calibrate`), "
                            "or --nominal to use the nominal calibration anyway")
     cal = load_calibration(cal_path, cap.device)
-    options = Options(estimate_normal=normal, fixed_eta=eta, anisotropic=anisotropic)
+    options = Options(estimate_normal=normal, fixed_eta=eta, isotropic=isotropic)
     try:
         res = reconstruct(extract_slices(cap, cal), options)
     except CaptureError:
@@ -200,35 +200,16 @@ def _reconstruct_one(cap_dir: str, cal_path: str | None, out: str, normal: bool,
     except ReflectoError as e:  # the reconstruction's own errors do not know the capture's folder
         problem = str(e).removeprefix("capture: ")
         raise CaptureError(cap_dir, problem + (f" (calibration {cal_path})" if cal_path else "")) from None
-    res.summary["capture"] = str(cap_dir)
+    summary = {"capture": str(cap_dir), **res.summary()}
     if cal_path is None and nominal:
-        res.summary["calibration"] = "nominal (--nominal)"
+        summary["calibration"] = "nominal (--nominal)"
     # the model names its capture relative to its own folder, where readers look for it
     rel = os.path.relpath(Path(cap_dir).resolve(), Path(out).resolve().parent)
-    res.model.metadata.update({"capture": rel, "eta_fit_error": res.summary["fresnel_error"]})
+    res.model.metadata.update({"capture": rel, "model_error": summary["model_error"]})
     res.model.save(out)
     with atomic_write(Path(out).with_suffix(".json"), "w") as fh:
-        fh.write(json.dumps(res.summary, indent=1))
-    return res.summary
-
-
-def _shake_note(r: dict) -> str:
-    from .reconstruct.consistency import THRESHOLD as PAIR_THRESHOLD
-    from .reconstruct.symmetry import PLANE_THRESHOLD_DEG
-
-    if not r["shake_detected"]:
-        return ""
-    planes = [k for k, x in enumerate(r["symmetry_plane_offsets_deg"]) if x is not None and abs(x) > PLANE_THRESHOLD_DEG]
-    pairs = [f"{c['kind']} {c['a']}-{c['b']} ×{math.exp(c['log_ratio']):.2f}" for c in r["consistency_checks"]
-             if abs(c["log_ratio"]) > PAIR_THRESHOLD[c["kind"]]]
-    moved = [f"LED {c['led']}" + (f" ×{math.exp(c['log_ratio']):.2f}" if c["log_ratio"] is not None else " lit once")
-             for c in r["repeat_checks"] if c["moved"]]
-    return (f"  SHAKE DETECTED (E(η) {r['fresnel_error_at_check']:.2f}"
-            + (f"; {', '.join(moved)} changed between its two firings" if moved else "")
-            + (f"; LEDs {planes} not symmetric about the normal" if planes else "")
-            + (f"; {', '.join(pairs)}" if pairs else "")
-            + (f"; LEDs {r['excluded_leds']} excluded" if r["excluded_leds"] else "")
-            + ("; an anisotropic material reads like this too: --anisotropic" if planes or pairs else "") + ")")
+        fh.write(json.dumps(summary, indent=1))
+    return {**summary, "motion": res.motion.describe()}
 
 
 def _report_failures(failures: list[tuple[str, str]]) -> None:
@@ -258,7 +239,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         from .io import make_parents
 
         make_parents(Path(args.output))
-    jobs = [(c, args.calibration, o, args.estimate_normal, args.eta, args.anisotropic, args.nominal)
+    jobs = [(c, args.calibration, o, args.estimate_normal, args.eta, args.isotropic, args.nominal)
             for c, o in zip(caps, outs)]
     results: dict[int, dict] = {}
     failures: list[tuple[str, str]] = []
@@ -283,9 +264,13 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         bar.close()
     models = [{"capture": caps[k], "output": outs[k], "summary": results[k]} for k in sorted(results)]
     info = {"models": models, "failed": [{"capture": c, "error": m} for c, m in failures]}
-    lines = [f"{outs[k]}: eta {np.round(r['eta'], 3).tolist()}, kd {np.round(r['kd'], 3).tolist()}, "
-             f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, {r['seconds'] * 1000:.0f} ms{_shake_note(r)}"
-             for k, r in sorted(results.items())]
+    lines = []
+    for k, r in sorted(results.items()):
+        flag = f"  SHAKE DETECTED ({r['motion']})" if r["shake_detected"] else ""
+        kind = "isotropic" if r["isotropic"] else "anisotropic"
+        lines.append(f"{outs[k]}: {kind}, eta {r['eta'][0]:.3f}, kd {np.round(r['kd'], 3).tolist()}, "
+                     f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, {r['seconds'] * 1000:.0f} ms{flag}")
+        lines += [f"  note: {note}" for note in r["notes"]]
     if args.json:
         print(json.dumps(info, indent=1))
     elif lines:
@@ -533,8 +518,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-o", "--output", required=True, help="model file (.reflecto) or, for several captures, a folder")
     q.add_argument("--estimate-normal", action="store_true", help="estimate the altered normal (§5.4; experimental)")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it")
-    q.add_argument("--anisotropic", action="store_true",
-                   help="the material may be anisotropic: skip the shake cues that assume isotropy (E(η) remains)")
+    q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
+                   help="reconstruct a 1-D isotropic NDF (yes), a hemicube NDF for an anisotropic material (no), "
+                        "or decide from the capture (auto)")
     q.add_argument("--jobs", type=int, default=0, help="worker processes for several captures (0: all cores)")
     q.add_argument("--progress", action="store_true",
                    help="show progress also for one capture (several captures show it unless -q): "

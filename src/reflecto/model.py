@@ -8,6 +8,11 @@
 * ``F`` — Cook–Torrance Fresnel (eq. 4) with a per-channel real index η;
 * ``k_d`` (diffuse albedo ρ_d), ``k_s`` — per channel.
 
+Two tabulations of ``D``: :class:`MicrofacetBRDF` holds any NDF on a hemicube
+(anisotropic materials, §5.5); :class:`IsotropicMicrofacetBRDF` holds an isotropic
+``D(θ_h)`` on polar nodes (:mod:`reflecto.polar`), which is what an isotropic
+material's reconstruction determines, at a fraction of the storage and cost.
+
 Evaluation uses the cancelled form ``k_s D F / (4 σ(i) σ(o))`` (algorithm-reference
 eq. 1.6), which is finite at grazing angles. The physical unit is sr⁻¹ throughout; the
 paper's "4π" constant is *not* used (algorithm-reference §3.2–§3.3).
@@ -30,6 +35,7 @@ from .errors import FileFormatError, ParameterError, short_repr
 from .fresnel import FresnelTable, fresnel
 from .hemicube import Hemicube, hemicube
 from .io import atomic_write
+from .polar import IsotropicNDF
 from .shadowing import SigmaTable, sigma_table
 from .sources.base import BRDFSource
 from .sources.base import rgb_triplet as _rgb
@@ -38,8 +44,10 @@ Array = NDArray[np.float64]
 
 #: Format identifier and version of reflecto model files.
 MODEL_FORMAT = "reflecto-model"
-MODEL_VERSION = 2
+MODEL_VERSION = 3
 MODEL_SUFFIX = ".reflecto"
+
+__all__ = ["MicrofacetBRDF", "IsotropicMicrofacetBRDF", "load_model", "MODEL_SUFFIX"]
 
 
 class MicrofacetBRDF(BRDFSource):
@@ -221,6 +229,7 @@ class MicrofacetBRDF(BRDFSource):
         meta = {
             "format": MODEL_FORMAT,
             "version": MODEL_VERSION,
+            "ndf_kind": "hemicube",
             "resolution": self.cube.n,
             "kd": self.kd.tolist(),
             "ks": self.ks.tolist(),
@@ -245,20 +254,30 @@ class MicrofacetBRDF(BRDFSource):
         sizes before inflating), the format and version, the checksums of the
         metadata and of every array, each array's header against its bytes, the
         parameters' types and ranges, the NDF's normalization and the albedo.
-        Version-1 files (only the NDF checksummed) are read with a
+        Files of format versions 1 and 2 (only the NDF checksummed) are read with a
         :class:`~reflecto.errors.ReflectoWarning`. A capture folder named in the
         metadata (``capture``) is kept only if it lies inside the model's folder.
+        Returns an :class:`IsotropicMicrofacetBRDF` for a file of ``ndf_kind``
+        ``"isotropic"``.
         """
         path = Path(path)
         meta, arrays = _read_model_file(path)
-        n, kd, ks, eta, correlated, metadata = _model_parameters(path, meta)
+        kd, ks, eta, correlated, metadata = _model_parameters(path, meta)
+        metadata = _local_metadata(path, metadata)
+        kind = meta.get("ndf_kind", "hemicube")
+        if kind == "isotropic":
+            return IsotropicMicrofacetBRDF._from_file(path, meta, arrays, (kd, ks, eta, correlated, metadata))
+        if kind != "hemicube":
+            raise FileFormatError(path, f"unknown NDF kind {short_repr(kind)} (expected 'hemicube' or 'isotropic')")
+        n = meta.get("resolution")
+        if not isinstance(n, int) or isinstance(n, bool) or n < 4 or n % 2 or n > MAX_MODEL_RESOLUTION:
+            raise FileFormatError(path, f"invalid NDF resolution {short_repr(n)} (an even number in [4, {MAX_MODEL_RESOLUTION}])")
         ndf = arrays.get("ndf")
         if ndf is None or ndf.dtype != np.dtype("<f4") or ndf.shape != (3 * n * n,):
             got = None if ndf is None else f"{ndf.shape} {ndf.dtype}"
             raise FileFormatError(path, f"NDF array is {got}, expected (3·{n}²,) float32")
         try:
-            model = cls(ndf, kd, ks, eta, normalize=False, correlated=correlated,
-                        metadata=_local_metadata(path, metadata), path=path)
+            model = cls(ndf, kd, ks, eta, normalize=False, correlated=correlated, metadata=metadata, path=path)
         except ParameterError as e:
             raise FileFormatError(path, f"invalid model parameters ({e})") from None
         _check_model(path, model)
@@ -267,6 +286,7 @@ class MicrofacetBRDF(BRDFSource):
 
 #: Limits and ranges of model files (docs/limits.md).
 MAX_MODEL_RESOLUTION = 2048
+MAX_POLAR_NODES = 1 << 16
 MAX_MODEL_META_BYTES = 16 << 20
 ETA_RANGE = (1.0, 100.0)
 #: Largest directional albedo of a model file: the reconstruction clamps it to 1
@@ -313,8 +333,8 @@ def _read_model_file(path: Path) -> tuple[dict[str, Any], dict[str, NDArray[Any]
             path,
             f"written by a newer reflecto (model format version {version}; this version reads <= {MODEL_VERSION})",
         )
-    if version == 1:
-        return meta, _v1_arrays(path, meta, members)
+    if version < 3:
+        return meta, _legacy_arrays(path, meta, members)
     return meta, _checked_arrays(path, meta, members)
 
 
@@ -348,27 +368,28 @@ def _checked_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes])
     return arrays
 
 
-def _v1_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes]) -> dict[str, NDArray[Any]]:
-    """The NDF of a version-1 file (whose checksum covers the NDF only), with a warning."""
+def _legacy_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes]) -> dict[str, NDArray[Any]]:
+    """The NDF (and polar nodes) of a version-1 or -2 file, whose checksum covers only
+    those, with a warning."""
     import warnings
 
     from .errors import ReflectoWarning
     from .io import npy_array
 
-    ndf = npy_array(members["ndf.npy"], path, "ndf.npy", dtype="<f4")
-    if hashlib.sha256(ndf.tobytes()).hexdigest() != meta.get("ndf_sha256"):
+    arrays = {"ndf": npy_array(members["ndf.npy"], path, "ndf.npy", dtype="<f4")}
+    covered = arrays["ndf"].tobytes()
+    if "ndf_theta.npy" in members:
+        arrays["ndf_theta"] = npy_array(members["ndf_theta.npy"], path, "ndf_theta.npy", dtype="<f8")
+        covered += arrays["ndf_theta"].tobytes()
+    if hashlib.sha256(covered).hexdigest() != meta.get("ndf_sha256"):
         raise FileFormatError(path, "NDF checksum mismatch: the file is damaged")
-    warnings.warn(f"{path}: model format version 1 checksums only the NDF; its parameters are range-checked "
-                  "but not verified (save it again to get version 2)", ReflectoWarning, stacklevel=3)
-    return {"ndf": ndf}
+    warnings.warn(f"{path}: model format version {meta['version']} checksums only the NDF; its parameters are "
+                  "range-checked but not verified (save it again to get version 3)", ReflectoWarning, stacklevel=3)
+    return arrays
 
 
-def _model_parameters(path: Path, meta: dict[str, Any]) -> tuple[int, Array, Array, Array, bool, dict[str, Any]]:
-    """Resolution, k_d, k_s, η, correlated and metadata of a model file, types and ranges checked."""
-    n = meta.get("resolution")
-    if not isinstance(n, int) or isinstance(n, bool) or n < 4 or n % 2 or n > MAX_MODEL_RESOLUTION:
-        raise FileFormatError(path, f"invalid NDF resolution {short_repr(n)} (an even number in [4, {MAX_MODEL_RESOLUTION}])")
-
+def _model_parameters(path: Path, meta: dict[str, Any]) -> tuple[Array, Array, Array, bool, dict[str, Any]]:
+    """k_d, k_s, η, correlated and metadata of a model file, types and ranges checked."""
     def triple(key: str, lo: float, hi: float) -> Array:
         v = meta.get(key)
         ok = isinstance(v, list) and len(v) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
@@ -387,7 +408,7 @@ def _model_parameters(path: Path, meta: dict[str, Any]) -> tuple[int, Array, Arr
     metadata = meta.get("metadata") or {}
     if not isinstance(metadata, dict):
         raise FileFormatError(path, f"'metadata' must be an object, got {short_repr(metadata)}")
-    return n, kd, ks, eta, correlated, metadata
+    return kd, ks, eta, correlated, metadata
 
 
 def _local_metadata(path: Path, metadata: dict[str, Any]) -> dict[str, Any]:
@@ -413,7 +434,7 @@ def _local_metadata(path: Path, metadata: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _check_model(path: Path, model: MicrofacetBRDF) -> None:
+def _check_model(path: Path, model: MicrofacetBRDF | IsotropicMicrofacetBRDF) -> None:
     """Ranges, NDF normalization (eq. 1.2) and albedo of a model (as loaded or about to be saved)."""
     from .sources.base import check_plausible
 
@@ -421,12 +442,173 @@ def _check_model(path: Path, model: MicrofacetBRDF) -> None:
         raise FileFormatError(path, f"k_d {model.kd.tolist()} outside [0, 1]")
     if not (np.all(model.eta >= ETA_RANGE[0]) and np.all(model.eta <= ETA_RANGE[1])):
         raise FileFormatError(path, f"η {model.eta.tolist()} outside [{ETA_RANGE[0]:g}, {ETA_RANGE[1]:g}]")
-    total = float(model.ndf_values @ model.cube.projected_solid_angles)
+    if isinstance(model, IsotropicMicrofacetBRDF):
+        total = model.ndf_table.normalization
+    else:
+        total = float(model.ndf_values @ model.cube.projected_solid_angles)
     if not abs(total - 1.0) <= NDF_NORM_TOLERANCE:
         raise FileFormatError(path, f"the NDF is not normalized (∫ D cos θ dω = {total:.6g}, eq. 1.2 needs 1)")
     check_plausible(model, path, albedo_range=(0.0, MODEL_ALBEDO_MAX))
 
 
-def load_model(path: str | Path) -> MicrofacetBRDF:
-    """Read a reflecto model file (see :meth:`MicrofacetBRDF.load`)."""
+def load_model(path: str | Path) -> MicrofacetBRDF | IsotropicMicrofacetBRDF:
+    """Read a reflecto model file, hemicube or isotropic (see :meth:`MicrofacetBRDF.load`)."""
     return MicrofacetBRDF.load(path)
+
+
+class IsotropicMicrofacetBRDF(BRDFSource):
+    """Generalized microfacet BRDF (eqs. 1–2) with an isotropic NDF ``D(θ_h)``.
+
+    ``f(i, o) = k_d/π + k_s D(θ_h) F(i·h; η) / (4 σ(i) σ(o))`` (the cancelled form of
+    eq. 1.6), with ``D`` and ``σ`` from :class:`reflecto.polar.IsotropicNDF`.
+
+    Parameters
+    ----------
+    ndf
+        The NDF: an :class:`~reflecto.polar.IsotropicNDF`, or ``(nodes, values)``
+        (radians, sr⁻¹; normalized here unless ``normalize=False``).
+    kd, ks, eta
+        Per-channel diffuse albedo, specular scale and relative index (3 numbers or one).
+    correlated
+        Height-correlated Smith form instead of the separable product (§1.3).
+    metadata
+        Free JSON-serializable information kept in the model file.
+    """
+
+    kind = "model"
+
+    def __init__(self, ndf: IsotropicNDF | tuple[ArrayLike, ArrayLike], kd: ArrayLike = 0.0, ks: ArrayLike = 1.0,
+                 eta: ArrayLike = 1.5, *, normalize: bool = True, correlated: bool = False,
+                 metadata: dict[str, Any] | None = None, path: Path | None = None) -> None:
+        if not isinstance(ndf, IsotropicNDF):
+            nodes, values = ndf
+            # stored as float32 in model files: round now so that save/load is exact
+            values = np.asarray(values, dtype=np.float64)
+            if normalize:
+                values = IsotropicNDF(nodes, values).values
+            ndf = IsotropicNDF(np.asarray(nodes, np.float64), np.asarray(values, "<f4").astype(np.float64),
+                               normalize=False)
+        self.ndf_table = ndf
+        self.kd = _rgb(kd, "kd")
+        self.ks = _rgb(ks, "ks")
+        self.eta = _rgb(eta, "eta")
+        if np.any(self.kd < 0) or np.any(self.ks < 0):
+            raise ParameterError("kd and ks must be >= 0")
+        if np.any(self.eta <= 0):
+            raise ParameterError("eta must be > 0")
+        self.correlated = bool(correlated)
+        self.metadata = dict(metadata or {})
+        self.path = path
+        self.reciprocal = True
+        self.isotropic = True
+        self._fresnel_table = FresnelTable(self.eta)
+        self._hemicube: dict[int, MicrofacetBRDF] = {}
+
+    @property
+    def resolution(self) -> int:
+        """Number of polar nodes of the NDF."""
+        return len(self.ndf_table.nodes)
+
+    def ndf(self, h: ArrayLike) -> Array:
+        """``D(h)`` in sr⁻¹; 0 below the horizon."""
+        return self.ndf_table(h)
+
+    def shadowing(self, k: ArrayLike) -> Array:
+        """APS shadowing ``S(k) = (k·n)/σ(k)`` in [0, 1] (eq. 8)."""
+        k = np.asarray(k, dtype=np.float64)
+        return self.ndf_table.shadowing(k[..., 2] / np.maximum(np.linalg.norm(k, axis=-1), 1e-300))
+
+    def fresnel(self, c: ArrayLike) -> Array:
+        """Per-channel ``F(c; η)`` (eq. 4), shape ``c.shape + (3,)``."""
+        return fresnel(np.asarray(c)[..., None], self.eta)
+
+    def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
+        """BRDF in sr⁻¹ (eqs. 1–2), shape ``(..., 3)``; 0 below the horizon."""
+        i = np.asarray(i, dtype=np.float64)
+        o = np.asarray(o, dtype=np.float64)
+        i, o = np.broadcast_arrays(i, o)
+        ci, co = i[..., 2], o[..., 2]
+        ok = (ci > 0) & (co > 0)
+        hs = i + o
+        norm = np.sqrt(np.einsum("...k,...k->...", hs, hs))
+        norm = np.where(norm > 0, norm, 1.0)
+        ch = hs[..., 2] / norm
+        c = np.abs(np.einsum("...k,...k->...", i, hs)) / norm
+        d = self.ndf_table.at_theta(np.arccos(np.clip(ch, -1.0, 1.0)))
+        si = self.ndf_table.projected_area(ci)
+        so = self.ndf_table.projected_area(co)
+        if self.correlated:
+            denom = 4.0 * (si * np.maximum(co, 0) + so * np.maximum(ci, 0) - np.maximum(ci, 0) * np.maximum(co, 0))
+        else:
+            denom = 4.0 * si * so
+        spec = np.divide(d, denom, out=np.zeros_like(d), where=ok & (denom > 0) & (ch > 0))
+        f = self._fresnel_table(c)
+        f *= self.ks
+        f *= spec[..., None]
+        f += self.kd / math.pi
+        f[~ok] = 0.0
+        return f
+
+    def to_hemicube(self, resolution: int = 128) -> MicrofacetBRDF:
+        """The same BRDF with its NDF tabulated on a hemicube (for plots and the §5.5 merge)."""
+        if resolution not in self._hemicube:
+            cube = hemicube(resolution)
+            self._hemicube[resolution] = MicrofacetBRDF(self.ndf(cube.directions), self.kd, self.ks, self.eta,
+                                                        correlated=self.correlated, metadata=self.metadata)
+        return self._hemicube[resolution]
+
+    def parameters(self) -> dict[str, Any]:
+        return {
+            "resolution": f"isotropic, {self.resolution} polar nodes",
+            "kd": self.kd.tolist(),
+            "ks": self.ks.tolist(),
+            "eta": self.eta.tolist(),
+            "shadowing": "height-correlated Smith" if self.correlated else "separable APS (eq. 8)",
+            **({"metadata": self.metadata} if self.metadata else {}),
+        }
+
+    def save(self, path: str | Path) -> Path:
+        """Write the model file atomically: ``meta.json``, ``ndf.npy`` (D at the nodes,
+        float32) and ``ndf_theta.npy`` (the nodes, radians), checksummed as
+        :meth:`MicrofacetBRDF.save` describes; a model that :meth:`MicrofacetBRDF.load`
+        would refuse is refused here with :class:`ParameterError`."""
+        path = Path(path)
+        meta = {
+            "format": MODEL_FORMAT,
+            "version": MODEL_VERSION,
+            "ndf_kind": "isotropic",
+            "resolution": self.resolution,
+            "kd": self.kd.tolist(),
+            "ks": self.ks.tolist(),
+            "eta": self.eta.tolist(),
+            "correlated": self.correlated,
+            "metadata": self.metadata,
+        }
+        arrays = {"ndf": self.ndf_table.values.astype("<f4"), "ndf_theta": self.ndf_table.nodes.astype("<f8")}
+        try:
+            _check_model(path, self)
+        except FileFormatError as e:
+            raise ParameterError(f"{path}: not saved, the model is invalid: {e.problem}") from None
+        _write_model_file(path, meta, arrays)
+        return path
+
+    @classmethod
+    def _from_file(cls, path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[Any]],
+                   params: tuple[Array, Array, Array, bool, dict[str, Any]]) -> IsotropicMicrofacetBRDF:
+        """The model of an isotropic file whose arrays and parameters :meth:`MicrofacetBRDF.load` checked."""
+        values, nodes = arrays.get("ndf"), arrays.get("ndf_theta")
+        if nodes is None:
+            raise FileFormatError(path, "isotropic model without its polar nodes (ndf_theta.npy)")
+        n = meta.get("resolution", len(nodes))
+        if (values is None or values.dtype != np.dtype("<f4") or nodes.dtype != np.dtype("<f8") or values.ndim != 1
+                or values.shape != nodes.shape or n != len(nodes) or not 3 <= len(nodes) <= MAX_POLAR_NODES):
+            raise FileFormatError(path, f"isotropic NDF arrays must be 3 to {MAX_POLAR_NODES} float32 values on as "
+                                  "many float64 nodes, as the resolution says")
+        kd, ks, eta, correlated, metadata = params
+        try:
+            ndf = IsotropicNDF(nodes, values.astype(np.float64), normalize=False)
+            model = cls(ndf, kd, ks, eta, correlated=correlated, metadata=metadata, path=path)
+        except ParameterError as e:
+            raise FileFormatError(path, f"invalid model parameters ({e})") from None
+        _check_model(path, model)
+        return model

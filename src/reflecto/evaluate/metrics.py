@@ -127,3 +127,16 @@ def brdf_error(reference: BRDFSource, test: BRDFSource, stride: int = 1, albedo_
     log_rmse = np.sqrt(np.sum(w * (np.log1p(rc) - np.log1p(np.maximum(mc, 0.0))) ** 2, axis=0) / np.sum(w))
     a = max_albedo(reference) if albedo_ref is None else albedo_ref
     return Error(rmse, float(rmse.mean() / max(a, 1e-12)), float(log_rmse.mean()), a)
+
+
+def ndf_error(reference: BRDFSource, model: BRDFSource, resolution: int = 256, floor: float = 0.01) -> float:
+    """Mean relative error of ``model``'s NDF against ``reference``'s where the reference's
+    ``D`` exceeds ``floor`` of its peak, over the texel directions of a hemicube of the
+    given resolution (dimensionless). Both must have an ``ndf(h)`` method."""
+    from ..hemicube import hemicube
+
+    h = hemicube(resolution).directions
+    d = reference.ndf(h)
+    m = model.ndf(h)
+    peak = d > floor * d.max()
+    return float(np.mean(np.abs(m[peak] / d[peak] - 1.0)))

@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from ..colour import LUM
 from ..io import atomic_path, atomic_write
-from ..model import MicrofacetBRDF
+from ..model import MicrofacetBRDF, load_model
 from ..plotting import pyplot, save_figure
 from ..sources.base import BRDFSource
 
@@ -71,8 +71,9 @@ def _save_png(fig_or_array: Any, path: Path) -> str:
 def ndf_figures(model: MicrofacetBRDF, out: Path) -> list[tuple[str, str]]:
     """Unfolded hemicube and polar plot of the NDF; returns ``[(file, caption)]``."""
     plt = pyplot()
-    cube = model.cube
-    d = np.maximum(model.ndf_values, 1e-6 * model.ndf_values.max())
+    tab = model.to_hemicube(128) if hasattr(model, "to_hemicube") else model  # an isotropic model: tabulated
+    cube = tab.cube
+    d = np.maximum(tab.ndf_values, 1e-6 * tab.ndf_values.max())
     fig, ax = plt.subplots(figsize=(5.2, 4.6))
     im = ax.imshow(np.log10(cube.unfold(d)), origin="lower", cmap="magma")
     fig.colorbar(im, ax=ax, label="log₁₀ D (sr⁻¹)")
@@ -154,7 +155,7 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     from ..sources import load_source
 
     model_path = Path(model_path)
-    model = MicrofacetBRDF.load(model_path)
+    model = load_model(model_path)
     ref = load_source(reference) if reference is not None else None
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -163,13 +164,13 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
         "η (R, G, B)": np.round(model.eta, 4).tolist(),
         "k_d (R, G, B)": np.round(model.kd, 4).tolist(),
         "k_s (R, G, B)": np.round(model.ks, 4).tolist(),
-        "NDF resolution": f"{model.cube.n}×{model.cube.n} top, {model.cube.n}×{model.cube.half} sides",
+        "NDF": model.parameters()["resolution"],
         "max directional albedo": round(float(model.albedo(np.array([0.0, 30.0, 60.0, 80.0])).max()), 4),
     }
     summary_path = model_path.with_suffix(".json")
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
-    for key, label in (("normal_tilt_deg", "normal tilt (deg)"), ("fresnel_error", "E(η) of the fit"),
-                       ("shake_detected", "shake detected"), ("residual_median_rel", "median residual on the samples")):
+    for key, label in (("normal_tilt_deg", "normal tilt (deg)"), ("model_error", "relative model error ε of the fit"),
+                       ("shake_detected", "shake detected"), ("isotropic", "isotropic")):
         if key in summary and summary[key] is not None:
             v = summary[key]
             numbers[label] = round(v, 4) if isinstance(v, float) else v

@@ -93,7 +93,7 @@ def _reconstruct(src: Any, device_name: str, calibration: str | None, seed: int)
     from ..instrument.device import load_device
     from ..instrument.simulate import simulate_capture
     from ..instrument.slices import extract_slices
-    from ..reconstruct.pipeline import reconstruct
+    from ..reconstruct import reconstruct
 
     t = {}
     dev = load_device(device_name)
@@ -139,11 +139,12 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
         t0 = time.perf_counter()
         err = brdf_error(src, res.model, stride=METRIC_STRIDE, albedo_ref=alb, reference_values=ref_vals)
         tm[f"{label}_metric_s"] = time.perf_counter() - t0
-        s = res.summary
+        m = res.model
         rec[label] = {"error": err.normalized, "log_rmse": err.log_rmse, "rmse": err.rmse.tolist(),
-                      "eta": s["eta"], "kd": s["kd"], "ks": s["ks"], "fresnel_error": s["fresnel_error"],
-                      "shake_detected": s["shake_detected"], "albedo_max": s["albedo_max"],
-                      "energy_scale": s["energy_scale"], "finite": bool(np.all(np.isfinite(res.model.ndf_values)))}
+                      "eta": m.eta.tolist(), "kd": m.kd.tolist(), "ks": m.ks.tolist(), "isotropic": res.isotropic,
+                      "model_error": res.model_error, "shake_detected": res.shake_detected,
+                      "albedo_max": res.albedo_max, "energy_scale": res.energy_scale, "notes": res.notes,
+                      "finite": bool(np.isfinite(err.normalized))}
         renders[label] = render_sphere(res.model, SPHERE_RES, supersample=2)
     t0 = time.perf_counter()
     ct = fit_cook_torrance(src)

@@ -46,11 +46,14 @@ SATURATION = 0.95
 
 
 def merge_linear_pixels(
-    raw: NDArray[np.integer], exposures_ms: Array, camera: Camera, rows: NDArray[np.intp], cols: NDArray[np.intp]
-) -> tuple[Array, NDArray[np.bool_], NDArray[np.bool_]]:
+    raw: NDArray[np.integer], exposures_ms: Array, camera: Camera, rows: NDArray[np.intp], cols: NDArray[np.intp],
+    noise: bool = False,
+) -> tuple[Array, ...]:
     """Linear merge at the pixels ``(rows, cols)`` only: radiance ``(L, P, 3)``, valid
     and black masks ``(L, P)`` (black: the value rests on the longest usable exposure
-    alone, which read below :data:`BLACK_DN` — 0 or 1 DN — in every channel).
+    alone, which read below :data:`BLACK_DN` — 0 or 1 DN — in every channel); with
+    ``noise``, also the noise model's standard deviation of the merged luminance
+    (:func:`merge_noise`, DN/ms, ``(L, P)``) and the summed exposure time (ms, ``(L, P)``).
 
     A pixel is saturated if any channel is, so colour ratios stay unbiased.
     (Weights ``w_j = t_j`` make the merge ``Σ_j signal_j / Σ_j t_j`` over the used
@@ -63,11 +66,35 @@ def merge_linear_pixels(
     out = np.empty((raw.shape[0], n, 3))
     valid = np.empty((raw.shape[0], n), dtype=bool)
     near_black = np.empty((raw.shape[0], n), dtype=bool)
+    t_sum = np.empty((raw.shape[0], n))
+    n_used = np.empty((raw.shape[0], n))
     _kernels.merge_linear(
         np.ascontiguousarray(raw), np.ascontiguousarray(rows, dtype=np.intp), np.ascontiguousarray(cols, dtype=np.intp),
         t, float(camera.black_level), SATURATION * camera.max_value, DARK_DN, BLACK_DN, out, valid, near_black,
+        t_sum, n_used,
     )  # fmt: skip
-    return out, valid, near_black
+    if not noise:
+        return out, valid, near_black
+    return out, valid, near_black, merge_noise(out, t_sum, n_used, camera), t_sum
+
+
+def merge_noise(radiance: Array, t_sum: Array, n_used: Array, camera: Camera) -> Array:
+    """Standard deviation (DN/ms) of a merged luminance, from the camera's noise model.
+
+    ``Σ_j s_j / Σ_j t_j`` over ``n`` used exposures has the variance
+    ``(n (r² + 1/12) + L Σt / g) / (Σt)²``: read noise ``r`` (DN RMS, per exposure),
+    the uniform quantization error of 1 DN (1/12 DN², also on a noiseless camera) and
+    the photon shot noise of the ``L Σt`` collected DN (variance ``DN / g`` for ``g``
+    electrons per DN). ``radiance`` (L, P, 3) in DN/ms; ``t_sum``, ``n_used`` (L, P).
+    """
+    from ..colour import LUM
+
+    read_dn = camera.read_noise / camera.gain
+    lum = np.maximum(radiance @ LUM, 0.0)
+    var = n_used * (read_dn * read_dn + 1.0 / 12.0)
+    if camera.shot_noise:
+        var = var + lum * t_sum / camera.gain
+    return np.sqrt(var) / np.maximum(t_sum, 1e-300)
 
 
 def dithered(camera: Camera) -> bool:

@@ -17,7 +17,8 @@ from numpy.typing import NDArray
 from .. import geometry
 from .calibrate import Calibration
 from .capture import Capture, CaptureError
-from .hdr import dithered, merge_debevec, merge_linear_pixels
+from ..colour import LUM
+from .hdr import BLACK_DN, dithered, merge_debevec, merge_linear_pixels
 
 Array = NDArray[np.float64]
 
@@ -51,6 +52,15 @@ class Slices:
         every time (:data:`reflecto.instrument.hdr.BLACK_DN`). Their values are
         bounds, not measurements: the reconstruction uses them to bound k_d, not as
         NDF or Fresnel data.
+    noise
+        Standard deviation of each sample's luminance (sr⁻¹) from the camera's noise
+        model (read, shot and quantization noise of the exposures merged,
+        :func:`reflecto.instrument.hdr.merge_noise`), shape ``(L, P)``, or ``None`` when
+        the camera has no noise model (gamma-encoded).
+    limit
+        The detection limit of each sample (sr⁻¹): the luminance that
+        :data:`reflecto.instrument.hdr.BLACK_DN` represents in its longest exposure;
+        a censored sample's value lies below it. Shape ``(L, P)`` or ``None``.
     check_leds, check_values, check_valid
         The device's check frames (the LEDs ``check_leds`` fired again after the
         sequence), merged like the slices: values ``(C, P, 3)`` and validity ``(C, P)``
@@ -66,6 +76,8 @@ class Slices:
     pixels: NDArray[np.intp]
     frame: Array = dataclasses.field(default_factory=lambda: np.eye(3))
     censored: NDArray[np.bool_] | None = None
+    noise: Array | None = None
+    limit: Array | None = None
     check_leds: tuple[int, ...] = ()
     check_values: Array | None = None
     check_valid: NDArray[np.bool_] | None = None
@@ -94,8 +106,9 @@ class Slices:
             k = list(self.check_leds)
             check_values = self.check_values * ratio[k, None, None]
             check_valid = self.check_valid & valid[k]
-        return Slices(light, view, values, valid, self.pixels, frame, self.censored,
-                      self.check_leds, check_values, check_valid)
+        rescale = (lambda a: None if a is None else a * ratio[:, None])
+        return Slices(light, view, values, valid, self.pixels, frame, self.censored, rescale(self.noise),
+                      rescale(self.limit), self.check_leds, check_values, check_valid)
 
 
 def _check_inputs(capture: Capture, calibration: Calibration) -> None:
@@ -135,22 +148,28 @@ def extract_slices(capture: Capture, calibration: Calibration) -> Slices:
             raise CaptureError(capture.path or "<capture>", "gamma camera: the calibration has no response curve")
     dirs, mask, rows, cols, scale = calibration.pixel_geometry()
 
-    def merge(raw: NDArray[np.integer], scl: Array) -> tuple[Array, NDArray[np.bool_], NDArray[np.bool_] | None]:
-        near_black = None
+    def merge(raw: NDArray[np.integer], scl: Array) -> tuple[Array, NDArray[np.bool_], NDArray[np.bool_] | None,
+                                                             Array | None, Array | None]:
+        near_black = noise = limit = None
         if dev.camera.response == "gamma":
             rad, valid = merge_debevec(raw, capture.exposures_ms, calibration.response)
             rad, valid = rad[:, rows, cols], valid[:, rows, cols]
         else:
-            rad, valid, near_black = merge_linear_pixels(raw, capture.exposures_ms, dev.camera, rows, cols)
+            rad, valid, near_black, sigma, t_sum = merge_linear_pixels(raw, capture.exposures_ms, dev.camera, rows,
+                                                                        cols, noise=True)
         ok = valid & np.all(scl > 0, axis=-1)
-        return np.divide(rad, scl, out=np.zeros_like(rad), where=ok[..., None]), ok, near_black
+        if near_black is not None:  # the noise and the detection limit in BRDF units (sr⁻¹)
+            s_lum = np.where(ok, scl @ LUM, np.inf)
+            noise = np.where(ok, sigma / s_lum, 0.0)
+            limit = np.where(ok, BLACK_DN / np.maximum(t_sum, 1e-300) / s_lum, 0.0)
+        return np.divide(rad, scl, out=np.zeros_like(rad), where=ok[..., None]), ok, near_black, noise, limit
 
-    values, ok, near_black = merge(capture.raw, scale)
+    values, ok, near_black, noise, limit = merge(capture.raw, scale)
     censored = None if near_black is None or dithered(dev.camera) else near_black & ok
     check_leds: tuple[int, ...] = ()
     check_values = check_valid = None
     if capture.check is not None and dev.check_leds:
         check_leds = dev.check_leds
-        check_values, check_valid, _ = merge(capture.check, scale[list(check_leds)])
+        check_values, check_valid, *_ = merge(capture.check, scale[list(check_leds)])
     return Slices(calibration.leds.copy(), dirs[rows, cols], values, ok, np.stack([rows, cols], -1), censored=censored,
-                  check_leds=check_leds, check_values=check_values, check_valid=check_valid)
+                  noise=noise, limit=limit, check_leds=check_leds, check_values=check_values, check_valid=check_valid)

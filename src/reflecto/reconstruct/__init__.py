@@ -1,5 +1,7 @@
-"""The §5 reconstruction: six BRDF slices → generalized microfacet BRDF."""
+"""The §5 reconstruction: BRDF slices → generalized microfacet BRDF (:mod:`.pipeline`)."""
 
-from .pipeline import ReconstructionResult, reconstruct
+from .isotropy import IsotropyTest
+from .motion import MotionReport
+from .pipeline import Options, Reconstruction, reconstruct
 
-__all__ = ["ReconstructionResult", "reconstruct"]
+__all__ = ["IsotropyTest", "MotionReport", "Options", "Reconstruction", "reconstruct"]

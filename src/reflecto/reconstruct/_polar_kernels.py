@@ -1,0 +1,99 @@
+"""Compiled loops of the isotropic fit (:mod:`reflecto.reconstruct.isotropic`).
+
+Each has a NumPy reference in that module (``*_numpy``) that the tests compare it with.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+_OPTS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+
+
+@njit(**_OPTS)
+def bin_polar(mask, light, view, values, noise, bound, edges, td_step, n_td, count, sums, out_f):  # pragma: no cover
+    """Accumulate the samples where ``mask`` (L, P) holds into (LED, θ_h cell, θ_d cell) bins.
+
+    For LED ``l`` and pixel ``p``: ``h = normalize(i + o)``, its θ_h cell ``j``
+    (``edges[j] ≤ θ_h < edges[j+1]``, bisection) and θ_d cell ``⌊θ_d / td_step⌋``; the
+    bin is ``(l · (len(edges) − 1) + j) · n_td + k``. ``count`` (keys,) receives the
+    pixel count, ``sums`` (keys, 5) the sums of θ_h, ``c = cos θ_d``, ``cos θ_o``, the
+    noise variance ``noise²`` and ``bound``, ``out_f`` (keys, 3) the sums of ``f``.
+    ``noise`` and ``bound`` are (L, P) (zeros where the slices carry none).
+    """
+    n_cells = edges.shape[0] - 1
+    for l in range(mask.shape[0]):
+        ix, iy, iz = light[l, 0], light[l, 1], light[l, 2]
+        for p in range(mask.shape[1]):
+            if not mask[l, p]:
+                continue
+            hx = ix + view[p, 0]
+            hy = iy + view[p, 1]
+            hz = iz + view[p, 2]
+            nrm = math.sqrt(hx * hx + hy * hy + hz * hz)
+            hz /= nrm
+            th = math.acos(min(max(hz, -1.0), 1.0))
+            c = min(max((ix * hx + iy * hy) / nrm + iz * hz, 0.0), 1.0)
+            lo, hi = 0, n_cells
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                if edges[mid] <= th:
+                    lo = mid
+                else:
+                    hi = mid
+            k = min(int(math.acos(c) / td_step), n_td - 1)
+            key = (l * n_cells + lo) * n_td + k
+            count[key] += 1.0
+            sums[key, 0] += th
+            sums[key, 1] += c
+            sums[key, 2] += view[p, 2]
+            sums[key, 3] += noise[l, p] * noise[l, p]
+            sums[key, 4] += bound[l, p]
+            out_f[key, 0] += values[l, p, 0]
+            out_f[key, 1] += values[l, p, 1]
+            out_f[key, 2] += values[l, p, 2]
+
+
+@njit(**_OPTS)
+def normal_equations(j, t, spec, dcols, r, w, n_nodes, diag, off, cross, dense, grad_z, grad_d):  # pragma: no cover
+    """Gauss–Newton normal equations of the luminance fit, ``JᵀWJ`` and ``JᵀWr``.
+
+    Residual ``b`` depends on the log-NDF nodes ``j[b]``, ``j[b] + 1`` through
+    ``∂r/∂z = spec[b] (1 − t[b])``, ``spec[b] t[b]`` and on the dense parameters
+    through ``dcols[b, :]``. Writes the tridiagonal z block (``diag`` (K,), ``off``
+    (K − 1,)), the z–dense block ``cross`` (K, D), the dense block ``dense`` (D, D)
+    and the gradients ``grad_z`` (K,), ``grad_d`` (D,). ``w`` is 0 for inactive residuals.
+    """
+    n_d = dcols.shape[1]
+    diag[:] = 0.0
+    off[:] = 0.0
+    cross[:, :] = 0.0
+    dense[:, :] = 0.0
+    grad_z[:] = 0.0
+    grad_d[:] = 0.0
+    for b in range(r.shape[0]):
+        wb = w[b]
+        if wb == 0.0:
+            continue
+        k = j[b]
+        a0 = spec[b] * (1.0 - t[b])
+        a1 = spec[b] * t[b]
+        wr = wb * r[b]
+        diag[k] += wb * a0 * a0
+        diag[k + 1] += wb * a1 * a1
+        off[k] += wb * a0 * a1
+        grad_z[k] += a0 * wr
+        grad_z[k + 1] += a1 * wr
+        for q in range(n_d):
+            cq = dcols[b, q] * wb
+            cross[k, q] += a0 * cq
+            cross[k + 1, q] += a1 * cq
+            grad_d[q] += dcols[b, q] * wr
+            for u in range(q, n_d):
+                dense[q, u] += cq * dcols[b, u]
+    for q in range(n_d):
+        for u in range(q):
+            dense[q, u] = dense[u, q]

@@ -1,0 +1,244 @@
+"""The reconstruction of an anisotropic material: a hemicube NDF from the slices (§5.1–5.3).
+
+::
+
+    bin samples per LED and working texel                     samples.py
+    repeat (3 to 5 times, until η moves < 1 %; Fresnel loop):
+        fit η and k_d to overlapping bins (§5.1, eqs. 5–6)    fresnel_fit.py
+        repeat (NDF/shadowing loop):
+            partial NDFs (eq. 7), merged (eq. 9) and
+            completed by symmetry (eq. 3)                     ndf.py
+            S from the NDF (eq. 8)                            shadowing.py
+            k_s per channel (linear least squares)
+    smooth a wide lobe's flanks and the weak tails            ndf.py
+    resample the NDF to the output hemicube (512² top, 512×256 sides)
+
+An isotropic material is reconstructed by :mod:`.isotropic` instead, whose 1-D NDF
+sees every ring of half vectors from all six LEDs; this path keeps the azimuthal
+structure an anisotropic NDF has, which the slices sample only where they cross.
+
+Colour: one NDF shared by R, G, B (built from the luminance-weighted partial NDFs);
+``k_d`` and ``k_s`` per channel. One ``η`` (the luminance fit) for the three channels,
+as in :mod:`.isotropic`; ``k_s ≤ 1`` per channel.
+
+η and k_d come from the consistency of overlapping bins (direct and τ-symmetric
+pairs, :mod:`.fresnel_fit`); k_d is bounded above by the Lambertian bound
+``ρ_d ≤ π f`` over the samples with θ_i, θ_o ≤ ``kd_bound_max_deg``
+(:func:`.samples.kd_bound`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .. import _kernels
+from ..colour import LUM
+from ..fresnel import fresnel
+from ..hemicube import Hemicube, hemicube
+from ..instrument.slices import Slices
+from ..model import MicrofacetBRDF
+from ..shadowing import grid_stencil, sigma_table
+from . import ndf as ndf_mod
+from .fresnel_fit import FresnelFit, Pairs, fit_fresnel, overlap_pairs
+from .samples import Bins, bin_samples, kd_bound
+
+Array = NDArray[np.float64]
+
+__all__ = ["HemicubeFit", "fit_hemicube", "auto_work_resolution"]
+
+#: E(η) (at outer iteration 1) above which an LED is looked for that explains the
+#: inconsistency (its exclusion at least halves E(η)); §5.1's shake handling.
+SHAKE_THRESHOLD = 0.7
+#: (n_theta, n_phi) of the loop's σ tables (eq. 8); the final model uses the full grid.
+WORK_SIGMA = (46, 64)
+#: (rings, azimuths) of the loop's σ quadrature (the model's: 128 × 256).
+WORK_QUAD = (64, 256)
+#: An LED with fewer usable samples than this fraction of the median LED's is counted
+#: as lost (below the tilted sample's horizon, or its slice below the detection limit).
+LOST_LED_FRACTION = 0.25
+#: When more than this fraction of the valid samples is below the detection limit,
+#: the NDF's holes take the lobe-guided fill in every iteration.
+CENSORED_FRACTION = 0.25
+
+
+def auto_work_resolution(bins: Bins) -> int:
+    """128, 256 or 512: finer where the specular peak spans few 128-texels.
+
+    At N = 128 a texel near the normal is ≈ 0.9° wide while the camera samples the
+    half vector every ≈ 0.2°, so peaks narrower than a few texels (α ≲ 0.07) are
+    merged at a finer resolution. 512 is taken when the brightest LED's peak has
+    fewer than 20 bins above half its maximum, 256 below 24.
+    """
+    g = (bins.f @ LUM) * bins.i[:, 2] * bins.o[:, 2]
+    top = int(bins.led[int(np.argmax(g))])
+    mine = g[bins.led == top]
+    n_half = int(np.count_nonzero(mine > 0.5 * mine.max()))
+    return 512 if n_half < 20 else 256 if n_half < 24 else 128
+
+
+@dataclasses.dataclass
+class HemicubeFit:
+    """Result of :func:`fit_hemicube`.
+
+    ``fresnel_error`` is E(η) of the last Fresnel fit and ``fresnel_error_at_check``
+    at outer iteration 1 (§5.1); ``excluded_leds`` the LEDs left out because their
+    exclusion explained E(η); ``lost_leds`` those with too few samples;
+    ``ks_at_bound`` whether ``k_s ≤ 1`` binds in some channel.
+    """
+
+    model: MicrofacetBRDF
+    eta: float
+    fresnel_error: float
+    fresnel_error_at_check: float
+    excluded_leds: list[int]
+    lost_leds: list[int]
+    ks_at_bound: bool
+    iterations: int
+
+
+@dataclasses.dataclass
+class _Merge:
+    """The bins of a working hemicube and what the NDF loop keeps fixed about them."""
+
+    cube: Hemicube
+    bins: Bins
+    pairs: Pairs
+    w_merge: Array
+    o_cells: object
+    bin_offsets: tuple[Array, Array]
+    inner_holes: bool
+    lost_leds: list[int]
+
+
+def _prepare(sl: Slices, ok: NDArray[np.bool_], work_resolution: int | None) -> _Merge:
+    """Bins on the working hemicube (resolution chosen by :func:`auto_work_resolution`)."""
+    meas = ok if sl.censored is None else ok & ~sl.censored
+    work = hemicube(work_resolution or 128)
+    bins = bin_samples(sl.light, sl.view, sl.values, meas, work)
+    if work_resolution is None:
+        n = auto_work_resolution(bins)
+        if n != work.n:
+            work = hemicube(n)
+            bins = bin_samples(sl.light, sl.view, sl.values, meas, work)
+    # a tilt that sinks LEDs below the horizon (or a slice below the detection limit)
+    # leaves holes inside the NDF, not only at its grazing rim: fill them lobe-guided
+    per_led = meas.sum(axis=1)
+    lost = np.flatnonzero(per_led < LOST_LED_FRACTION * np.median(per_led)).tolist()
+    censored_fraction = 1.0 - float(meas.sum()) / max(float(ok.sum()), 1.0)
+    return _Merge(work, bins, overlap_pairs(bins, sl.n_leds), bins.count * ndf_mod.merge_weights(bins.o),
+                  grid_stencil(bins.o, *WORK_SIGMA), ndf_mod.bin_offsets(work, bins.h),
+                  bool(lost) or censored_fraction > CENSORED_FRACTION, lost)
+
+
+@dataclasses.dataclass
+class _LoopState:
+    eta: Array
+    kd: Array
+    ks: Array
+    s_led: Array
+    s_o: Array
+    d_work: Array
+    log_lobe: Array | None = None
+    norm: float = 1.0
+
+
+def _ndf_pass(mg: _Merge, st: _LoopState, use, merged, fres: Array, last: bool, light: Array) -> None:
+    """One pass of the NDF/shadowing loop: eq. 7, eq. 9 (+ eq. 3), hole fill, S (eq. 8), k_s."""
+    bins, work = mg.bins, mg.cube
+    wsum, offsets = merged
+    dh, d_lum = np.empty((len(bins), 3)), np.empty(len(bins))
+    cos_io = bins.i[:, 2] * bins.o[:, 2]
+    _kernels.partial_ndf(bins.f, st.kd / math.pi, cos_io, st.s_led, bins.led, st.s_o, fres, LUM, dh, d_lum)
+    tex, tex_tau, wb = bins.texel[use], bins.texel_tau[use], mg.w_merge[use]
+    wv = ndf_mod.merge_sums(work, tex, tex_tau, wb * d_lum[use])
+    if st.d_work.any():  # each texel's value moved to its centre (first order, previous NDF's slope)
+        wv *= ndf_mod.position_correction(work, st.d_work, offsets)
+    if last or mg.inner_holes:
+        d, st.log_lobe = ndf_mod.fill_holes_and_lobe(work, wsum, wv)
+    else:
+        d, st.log_lobe = ndf_mod.push_pull(work, wsum, wv), None
+    d = np.maximum(d, 0.0)
+    st.norm = float(d @ work.projected_solid_angles)
+    if st.norm > 0.0:
+        d /= st.norm
+    else:  # no specular anywhere (a pure diffuse): any normalized NDF, k_s comes out 0
+        d[:] = 1.0 / math.pi
+        st.norm, st.log_lobe = 1.0, None
+    st.d_work = d
+    table = sigma_table(work, d, n_theta=WORK_SIGMA[0], n_phi=WORK_SIGMA[1], n_u=WORK_QUAD[0], n_phi_quad=WORK_QUAD[1])
+    st.s_led = table.eval(light)
+    st.s_o = table.eval_at(mg.o_cells)
+    d_b = d[tex]
+    den = float(np.sum(wb * d_b * d_b))
+    st.ks = np.clip((wb * d_b) @ dh[use] / max(den, 1e-300), 0.0, 1.0)
+
+
+def _fresnel_step(mg: _Merge, st: _LoopState, kd_max: Array, excluded: set[int], fixed_eta: float | None,
+                  check: bool) -> FresnelFit:
+    """η and k_d from the overlaps (§5.1, one η); at the check iteration an LED whose
+    exclusion at least halves an E(η) above :data:`SHAKE_THRESHOLD` is excluded."""
+    bins = mg.bins
+    a = bins.i[:, 2] * bins.o[:, 2] / np.maximum(st.s_led[bins.led] * st.s_o, 1e-12)
+    fit = fit_fresnel(bins, mg.pairs, a, len(st.s_led), st.kd, st.eta, kd_max, excluded, fixed_eta,
+                      per_channel=False, diagnostics=False)
+    if check and fit.error > SHAKE_THRESHOLD:
+        trials = [(fit_fresnel(bins, mg.pairs, a, len(st.s_led), st.kd, st.eta, kd_max, {k}, fixed_eta,
+                               per_channel=False, diagnostics=False).error, k) for k in range(len(st.s_led))]
+        err, k = min(((e, k) for e, k in trials if np.isfinite(e)), default=(math.inf, None))
+        if k is not None and err < 0.5 * fit.error:
+            excluded.add(k)
+            fit = fit_fresnel(bins, mg.pairs, a, len(st.s_led), st.kd, st.eta, kd_max, excluded, fixed_eta,
+                              per_channel=False, diagnostics=False)
+    return fit
+
+
+def fit_hemicube(sl: Slices, ok: NDArray[np.bool_], *, fixed_eta: float | None = None,
+                 work_resolution: int | None = None, resolution: int = 512, outer_iterations: int = 5,
+                 min_outer_iterations: int = 3, eta_tolerance: float = 0.01, inner_iterations: int = 2,
+                 kd_bound_max_deg: float = 75.0) -> HemicubeFit:
+    """Reconstruct a hemicube NDF and the scalars from slices in the sample frame (module docstring)."""
+    mg = _prepare(sl, ok, work_resolution)
+    kd_max = kd_bound(sl.light, sl.view, sl.values, ok, sl.pixels, kd_bound_max_deg)
+    eta0 = 1.5 if fixed_eta is None else float(fixed_eta)
+    st = _LoopState(np.full(3, eta0), 0.5 * kd_max, np.ones(3), np.ones(sl.n_leds), np.ones(len(mg.bins)),
+                    np.zeros(mg.cube.size))
+    excluded: set[int] = set()
+    merged_for, merged = None, None
+    e_check = fit_error = math.nan
+    outer = 0
+    for outer in range(outer_iterations):
+        eta_before = float(st.eta @ LUM)
+        fit = _fresnel_step(mg, st, kd_max, excluded, fixed_eta, check=outer == min(1, outer_iterations - 1))
+        if outer == min(1, outer_iterations - 1):
+            e_check = float(fit.error)
+        fit_error = float(fit.error)
+        if fit.n_pairs > 0 and np.all(np.isfinite(fit.eta)):
+            st.eta, st.kd = fit.eta, fit.kd
+        converged = abs(float(st.eta @ LUM) - eta_before) <= eta_tolerance * eta_before
+        last = outer == outer_iterations - 1 or (outer >= min_outer_iterations - 1 and converged)
+        use = ~np.isin(mg.bins.led, list(excluded)) if excluded else slice(None)
+        if merged_for != excluded:  # eq. 9's Σw and the samples' mean texel offsets, fixed while the bins are
+            wsum = ndf_mod.merge_sums(mg.cube, mg.bins.texel[use], mg.bins.texel_tau[use], mg.w_merge[use])
+            offsets = ndf_mod.top_offsets(mg.cube, (mg.bin_offsets[0][use], mg.bin_offsets[1][use]),
+                                          mg.bins.texel[use], mg.bins.texel_tau[use], mg.w_merge[use], wsum)
+            merged_for, merged = set(excluded), (wsum, offsets)
+        fres = np.maximum(fresnel(mg.bins.cos_d[:, None], st.eta[None, :1]), 1e-6)
+        for _ in range(inner_iterations):
+            _ndf_pass(mg, st, use, merged, fres, last, sl.light)
+        if last:
+            break
+    return HemicubeFit(_output_model(mg, st, resolution), float(st.eta[0]), fit_error, e_check, sorted(excluded),
+                       mg.lost_leds, bool(np.any(st.ks >= 1.0)), outer + 1)
+
+
+def _output_model(mg: _Merge, st: _LoopState, resolution: int) -> MicrofacetBRDF:
+    """Smooth the working NDF's flanks and tails, refine it to the output hemicube."""
+    lobe = st.log_lobe - math.log(max(st.norm, 1e-300)) if st.log_lobe is not None else None
+    d = ndf_mod.smooth_wide(mg.cube, st.d_work, lobe)
+    d = ndf_mod.smooth_tails(mg.cube, d)
+    d_out = ndf_mod.resample(mg.cube, np.maximum(d, 0.0), hemicube(resolution))
+    return MicrofacetBRDF(d_out, st.kd, st.ks, st.eta)

@@ -1,0 +1,637 @@
+"""The reconstruction of an isotropic material: a 1-D NDF ``D(θ_h)`` fitted to the slices (§5.1–5.3).
+
+For an isotropic BRDF the NDF depends on ``θ_h`` only, so every sample with the same
+``θ_h`` sees the same ``D``, whatever its LED and view: the six slices overlap along
+every ring of half vectors, not only where two slices cross (the paper's overlaps).
+This module fits the paper's model (eqs. 1, 2, 4, 8) to the slices directly:
+
+``f(i, o) = k_d/π + k_s D(θ_h) F(θ_d; η) S(θ_i) S(θ_o) / (4 cos θ_i cos θ_o)``
+
+with ``log D`` linear between polar nodes (:mod:`reflecto.polar`) and ``S`` derived
+from ``D`` (eq. 8). The stages:
+
+1. :func:`bin_polar` — samples averaged per (LED, θ_h cell, θ_d cell); samples below
+   the camera's detection limit (:attr:`Slices.censored`) become upper bounds.
+2. :class:`LuminanceProblem` and :func:`solve` — weighted least squares of the
+   luminance over ``(log D nodes, k_d, k_s, η)`` by Levenberg–Marquardt, with ``S``
+   fixed; the weights are the inverse variance of the camera noise of each bin mean
+   plus a relative model error ``ε`` (the misfit of real materials to the model),
+   re-estimated from the residuals (:func:`model_error`); bounds enter as one-sided
+   residuals; a curvature prior on ``log D`` below the camera's resolution
+   (:data:`SMOOTH_LENGTH`) and, beyond the last measured ring, a prior that keeps the
+   ratio to a fitted lobe constant (:func:`lobe_log`).
+3. :func:`fit_luminance` — the fixed point of the fit and ``S`` (eq. 8 from the
+   current ``D``; the paper's NDF/shadowing iteration), under the physical bound
+   ``k_s ≤ 1`` (a microfacet reflects at most ``F``): when the unconstrained optimum
+   needs ``k_s > 1``, the fit continues with ``k_s = 1``, where the specular level
+   fixes ``η``.
+4. :func:`channel_scalars` — ``k_d`` and ``k_s ≤ 1`` per colour channel with the
+   shared ``D`` and ``η`` (linear least squares).
+
+One ``η`` serves the three channels: the per-channel ``k_s`` carries the specular
+colour, and within the device's ``θ_d`` range a per-channel real ``η`` is not
+identifiable from the Fresnel curve's shape (algorithm-reference §2.2–2.3).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..colour import LUM
+from ..errors import ReflectoError
+from ..fresnel import fresnel
+from ..instrument.slices import Slices
+from ..model import IsotropicMicrofacetBRDF
+from ..polar import IsotropicNDF, polar_nodes
+from . import _polar_kernels
+
+Array = NDArray[np.float64]
+
+__all__ = ["PolarBins", "IsotropicFit", "bin_polar", "fit_isotropic", "LuminanceProblem", "solve",
+           "fit_luminance", "channel_scalars", "lobe_log"]
+
+#: θ_h cells of the bins per interval between two NDF nodes.
+CELLS_PER_INTERVAL = 2
+#: Width of the θ_d cells of the bins (radians): F and S vary slowly with θ_d.
+TD_STEP = math.radians(1.0)
+#: Length scale of the curvature prior on log D (radians): 0.1°, below the camera's
+#: sampling of the half vector (≈ 0.2° per pixel), so that it shapes only what the data
+#: leave open (gaps between rings, the unobserved grazing rim), never a resolved lobe.
+SMOOTH_LENGTH = math.radians(0.1)
+#: Weight of the tail prior relative to one radian of data (see :func:`prior`): large,
+#: so that beyond the last measured ring the NDF keeps the shape of the fitted lobe.
+TAIL_WEIGHT = 1e3
+#: Without a camera noise model, bins are weighted as if their noise were this
+#: fraction of the brightest bin (one DN of a 12-bit range).
+UNKNOWN_NOISE_FLOOR = 1.0 / 4096.0
+#: The model error is estimated over bins whose camera noise is below this fraction of
+#: their value (1 %: a reading of ≳ 30 DN on the 12-bit noiseless camera) …
+QUIET_NOISE = 0.01
+#: … when there are at least this many of them (else over all measured bins).
+MIN_QUIET_BINS = 100
+#: Largest relative index searched (F0 = 0.92; algorithm-reference §2.1).
+ETA_MAX = 50.0
+#: Smallest relative index searched (F0 = 2.5e-7).
+ETA_MIN = 1.001
+#: Outer iterations (S from D, ε from the residuals) of :func:`fit_luminance`.
+OUTER_ITERATIONS = 5
+#: Levenberg–Marquardt stops when the cost falls by less than this fraction.
+LM_TOLERANCE = 1e-5
+LM_MAX_ITERATIONS = 40
+
+
+@dataclasses.dataclass
+class PolarBins:
+    """Samples averaged per (LED, θ_h cell, θ_d cell), shape ``(B,)`` unless noted.
+
+    Attributes
+    ----------
+    led, count
+        LED index and number of pixels of each bin.
+    theta_h, cos_d, cos_i, cos_o
+        Mean half-vector polar angle (radians), ``cos θ_d``, ``cos θ_i``, ``cos θ_o``.
+    f
+        Mean BRDF (sr⁻¹), shape ``(B, 3)``; for a censored bin its detection limit.
+    noise
+        Standard deviation of the bin's mean luminance from the camera noise (sr⁻¹).
+    censored
+        The bin holds samples below the detection limit: ``f`` bounds the BRDF from above.
+    """
+
+    led: NDArray[np.intp]
+    count: Array
+    theta_h: Array
+    cos_d: Array
+    cos_i: Array
+    cos_o: Array
+    f: Array
+    noise: Array
+    censored: NDArray[np.bool_]
+
+    def __len__(self) -> int:
+        return len(self.led)
+
+    @property
+    def luminance(self) -> Array:
+        return self.f @ LUM
+
+
+def bin_polar(slices: Slices, nodes: Array, valid: NDArray[np.bool_]) -> PolarBins:
+    """Average the ``valid`` samples of the slices per (LED, θ_h cell, θ_d cell).
+
+    The θ_h cells halve the node intervals (:data:`CELLS_PER_INTERVAL`): a bin's mean
+    BRDF then stands for its mean θ_h to second order in a half interval.
+
+    Censored samples (below the detection limit) form their own bins, whose value is
+    the mean detection limit (:attr:`Slices.limit`; the sample's own reading where the
+    slices carry none). The noise of a bin is ``√(Σ σ²)/n`` over its ``n`` pixels
+    (:attr:`Slices.noise`; 0 where the slices carry none).
+    """
+    censored = valid & slices.censored if slices.censored is not None else np.zeros_like(valid)
+    edges = np.interp(np.arange((len(nodes) - 1) * CELLS_PER_INTERVAL + 1) / CELLS_PER_INTERVAL,
+                      np.arange(len(nodes)), nodes)
+    parts = [_bin_group(slices, edges, valid & ~censored, False), _bin_group(slices, edges, censored, True)]
+    parts = [p for p in parts if p is not None]
+    if not parts:
+        raise ReflectoError("capture: no valid samples")
+    return PolarBins(*(np.concatenate([getattr(p, f.name) for p in parts])
+                       for f in dataclasses.fields(PolarBins)))
+
+
+def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: bool) -> PolarBins | None:
+    if not mask.any():
+        return None
+    zeros = np.zeros(mask.shape)
+    noise = zeros if slices.noise is None else np.ascontiguousarray(slices.noise, dtype=np.float64)
+    bound = zeros
+    if is_bound:
+        bound = slices.limit if slices.limit is not None else slices.values @ LUM
+        bound = np.ascontiguousarray(bound, dtype=np.float64)
+    n_td = int(math.ceil(0.5 * math.pi / TD_STEP)) + 1
+    n_keys = slices.n_leds * (len(edges) - 1) * n_td
+    count = np.zeros(n_keys)
+    sums = np.zeros((n_keys, 5))
+    fsum = np.zeros((n_keys, 3))
+    _polar_kernels.bin_polar(np.ascontiguousarray(mask), np.ascontiguousarray(slices.light, dtype=np.float64),
+                             np.ascontiguousarray(slices.view, dtype=np.float64),
+                             np.ascontiguousarray(slices.values, dtype=np.float64), noise, bound, edges, TD_STEP, n_td,
+                             count, sums, fsum)
+    used = np.flatnonzero(count)
+    n = count[used]
+    led = (used // ((len(edges) - 1) * n_td)).astype(np.intp)
+    f = fsum[used] / n[:, None]
+    if is_bound:  # the bound: the mean detection limit, as a neutral (luminance) value
+        f = np.repeat((sums[used, 4] / n)[:, None], 3, axis=1)
+    return PolarBins(led, n, sums[used, 0] / n, sums[used, 1] / n, slices.light[led, 2].copy(), sums[used, 2] / n, f,
+                     np.sqrt(sums[used, 3]) / n, np.full(len(used), is_bound))
+
+
+def bin_polar_numpy(mask: NDArray[np.bool_], light: Array, view: Array, values: Array, noise: Array, bound: Array,
+                    edges: Array, n_td: int) -> tuple[Array, Array, Array]:
+    """NumPy reference of the compiled binning kernel: ``(count, sums, f sums)`` per key."""
+    li, pi = np.nonzero(mask)
+    i, o = light[li], view[pi]
+    hs = i + o
+    nrm = np.linalg.norm(hs, axis=1)
+    th = np.arccos(np.clip(hs[:, 2] / nrm, -1.0, 1.0))
+    c = np.clip(np.einsum("ij,ij->i", i, hs) / nrm, 0.0, 1.0)
+    n_cells = len(edges) - 1
+    j = np.clip(np.searchsorted(edges, th, side="right") - 1, 0, n_cells - 1)
+    k = np.minimum((np.arccos(c) / TD_STEP).astype(np.intp), n_td - 1)
+    key = (li * n_cells + j) * n_td + k
+    n_keys = light.shape[0] * n_cells * n_td
+    count = np.bincount(key, minlength=n_keys).astype(np.float64)
+    cols = (th, c, o[:, 2], noise[li, pi] ** 2, bound[li, pi])
+    sums = np.stack([np.bincount(key, x, n_keys) for x in cols], axis=1)
+    fs = np.stack([np.bincount(key, values[li, pi, q], n_keys) for q in range(3)], axis=1)
+    return count, sums, fs
+
+
+# ----------------------------------------------------------------------------- the luminance fit
+
+
+@dataclasses.dataclass
+class LuminanceState:
+    """Parameters of the luminance fit: ``log D`` at the nodes (unnormalized), ``k_d``,
+    the specular gain ``g`` (``k_s = g ∫ e^z cos``) and ``η``."""
+
+    z: Array
+    kd: float
+    g: float
+    eta: float
+
+    def copy(self) -> LuminanceState:
+        return LuminanceState(self.z.copy(), self.kd, self.g, self.eta)
+
+
+class LuminanceProblem:
+    """The weighted least-squares problem of the luminance, with ``S`` and the weights fixed.
+
+    Residual of bin ``b``: ``m_b − f_b`` with ``m_b = k_d/π + g F(c_b; η) e^{z(θ_b)} S_b /
+    (4 cos θ_i cos θ_o)`` (``S_b = S(θ_i) S(θ_o)``); for a censored bin ``max(0, m_b − f_b)``.
+    Cost ``Σ w_b r_b² + zᵀHz − 2 βᵀz + c`` (the priors of :func:`prior`; ``c`` makes the
+    prior a sum of squares, so the cost is ≥ 0).
+    """
+
+    def __init__(self, bins: PolarBins, nodes: Array) -> None:
+        from ..polar import interpolation_cells
+
+        self.bins = bins
+        self.nodes = nodes
+        self.j, self.t = interpolation_cells(nodes, bins.theta_h)
+        self.f = bins.luminance
+        self.geometry = 1.0 / (4.0 * bins.cos_i * bins.cos_o)
+        self.measured = ~bins.censored
+        self.shadow = np.ones(len(bins))
+        self.w = np.ones(len(bins))
+        self.h = np.zeros((len(nodes), len(nodes)))
+        self.beta = np.zeros(len(nodes))
+        self.prior_constant = 0.0
+        self.kd_max = math.inf
+
+    def specular(self, s: LuminanceState) -> tuple[Array, Array]:
+        """``g F e^z S / (4 cos cos)`` per bin, and F."""
+        z = s.z
+        log_d = (1.0 - self.t) * z[self.j] + self.t * z[self.j + 1]
+        fr = fresnel(self.bins.cos_d, s.eta)
+        return s.g * fr * np.exp(np.minimum(log_d, 700.0)) * self.shadow * self.geometry, fr
+
+    def residuals(self, s: LuminanceState) -> tuple[Array, Array]:
+        """Residuals (bounds one-sided) and the model values."""
+        spec, _ = self.specular(s)
+        m = s.kd / math.pi + spec
+        r = m - self.f
+        return np.where(self.measured, r, np.maximum(r, 0.0)), m
+
+    def cost(self, s: LuminanceState) -> float:
+        r, _ = self.residuals(s)
+        return float(self.w @ (r * r) + s.z @ self.h @ s.z - 2.0 * self.beta @ s.z + self.prior_constant)
+
+
+def prior(problem: LuminanceProblem, s: LuminanceState) -> None:
+    """Set the problem's priors on ``log D`` (``H``, ``β``) for the weights in place.
+
+    * Curvature: ``λ ∫ (∂²z/∂θ²)² dθ`` with ``λ = ρ ℓ⁴``, ``ρ`` the data's weight per
+      radian of θ_h in log units (``Σ w m²`` over the measured span) and ``ℓ`` =
+      :data:`SMOOTH_LENGTH`; at the pole ``z`` is mirrored (``∂z/∂θ = 0``).
+    * Tail: beyond the last ring any measured bin touches, the first differences of
+      ``z − L`` (``L`` the lobe of :func:`lobe_log`) are held at 0 with weight
+      :data:`TAIL_WEIGHT` ``ρ Δθ``: the NDF continues as the lobe does, at the ratio it
+      has at the last measured ring.
+    """
+    nodes = problem.nodes
+    k = len(nodes)
+    _, m = problem.residuals(s)
+    me = problem.measured
+    span = float(np.ptp(problem.bins.theta_h[me])) if me.any() else 1.0
+    rho = float(np.sum((problem.w * m * m)[me])) / max(span, 1e-3)
+    h = rho * SMOOTH_LENGTH**4 * _curvature_matrix(nodes.tobytes())
+    beta = np.zeros(k)
+    constant = 0.0
+    wn = np.bincount(problem.j[me], problem.w[me], k) + np.bincount(problem.j[me] + 1, problem.w[me], k)
+    seen = np.flatnonzero(wn > 0)
+    if len(seen) and seen[-1] < k - 1:
+        lobe = lobe_log(nodes, s.z, wn > 0)
+        if lobe is not None:
+            first = seen[-1]
+            rows = np.zeros((k - 1 - first, k))
+            idx = np.arange(first, k - 1)
+            rows[np.arange(len(idx)), idx + 1] = 1.0
+            rows[np.arange(len(idx)), idx] = -1.0
+            pt = TAIL_WEIGHT * rho * float(np.median(np.diff(nodes))) * rows.T @ rows
+            h = h + pt
+            beta = pt @ lobe
+            constant = float(lobe @ pt @ lobe)
+    problem.h, problem.beta, problem.prior_constant = h, beta, constant
+
+
+@functools.lru_cache(maxsize=4)
+def _curvature_matrix(nodes_key: bytes) -> Array:
+    """``Pᵀ P`` with ``(P z)_k ≈ z''(θ_k) √(Δθ_k)`` (non-uniform second differences, mirror at 0)."""
+    nodes = np.frombuffer(nodes_key, dtype=np.float64)
+    k = len(nodes)
+    p = np.zeros((k - 1, k))
+    h = nodes[1] - nodes[0]
+    p[0, 0], p[0, 1] = -2.0 / h**2, 2.0 / h**2
+    for q in range(1, k - 1):
+        h0, h1 = nodes[q] - nodes[q - 1], nodes[q + 1] - nodes[q]
+        p[q, q - 1] = 2.0 / (h0 * (h0 + h1))
+        p[q, q] = -2.0 / (h0 * h1)
+        p[q, q + 1] = 2.0 / (h1 * (h0 + h1))
+    width = 0.5 * (nodes[np.minimum(np.arange(k - 1) + 1, k - 1)] - nodes[np.maximum(np.arange(k - 1) - 1, 0)])
+    p *= np.sqrt(width)[:, None]
+    out = p.T @ p
+    out.setflags(write=False)
+    return out
+
+
+def lobe_log(nodes: Array, z: Array, observed: NDArray[np.bool_]) -> Array | None:
+    """``log`` of the GGX or Beckmann lobe that fits ``z`` best on the observed nodes, or ``None``.
+
+    Both are linear in ``tan²θ`` after a transform (Walter et al. 2007):
+    GGX ``(D cos⁴θ)^(−½) = a + b tan²θ``, Beckmann ``log(D cos⁴θ) = a − b tan²θ``.
+    Fitted by least squares (GGX weighted to relative errors) on the observed nodes
+    above 10⁻³ of the largest observed value and below 85°; the family with the smaller
+    log-RMS misfit wins. The result is floored 50 (in log) below that value.
+    """
+    if not observed.any():
+        return None
+    peak = float(z[observed].max())
+    sel = observed & (z > peak + math.log(1e-3)) & (nodes < math.radians(85.0))
+    if np.count_nonzero(sel) < 4:
+        return None
+    th = nodes[sel]
+    x = np.stack([np.ones(len(th)), np.tan(th) ** 2], axis=1)
+    lc4 = z[sel] + 4.0 * np.log(np.cos(th)) - peak
+    best: tuple[float, str, Array] | None = None
+    for family in ("ggx", "beckmann"):
+        y, ww = (np.exp(-0.5 * lc4), np.exp(lc4)) if family == "ggx" else (lc4, np.ones(len(lc4)))
+        sw = np.sqrt(ww)
+        coef = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=None)[0]
+        if (family == "ggx" and (coef[0] <= 0 or coef[1] <= 0)) or (family == "beckmann" and coef[1] >= 0):
+            continue
+        fitted = -2.0 * np.log(x @ coef) if family == "ggx" else x @ coef
+        misfit = float(np.sqrt(np.mean((fitted - lc4) ** 2)))
+        if best is None or misfit < best[0]:
+            best = (misfit, family, coef)
+    if best is None:
+        return None
+    _, family, coef = best
+    th = np.minimum(nodes, math.radians(89.0))
+    q = coef[0] + coef[1] * np.tan(th) ** 2
+    log_l = (-2.0 * np.log(q) if family == "ggx" else q) - 4.0 * np.log(np.cos(th)) + peak
+    return np.maximum(log_l, peak - 50.0)
+
+
+def normalization(nodes: Array, z: Array) -> tuple[float, Array]:
+    """``N = ∫ e^z cos θ dω`` and its gradient ``∂ log N / ∂z`` (shape ``(K,)``)."""
+    from ..polar import _quadrature
+
+    q = _quadrature(nodes.tobytes())
+    d = np.exp(np.minimum((1.0 - q.t) * z[q.cells] + q.t * z[q.cells + 1], 700.0))
+    wd = q.norm_weights * d
+    n = float(wd.sum())
+    grad = (np.bincount(q.cells, wd * (1.0 - q.t), len(nodes)) + np.bincount(q.cells + 1, wd * q.t, len(nodes))) / n
+    return n, grad
+
+
+def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
+          tie_ks: bool = False) -> tuple[LuminanceState, float]:
+    """Levenberg–Marquardt on ``(z, k_d, log g, log(η − 1))`` with ``S`` and the weights fixed.
+
+    ``tie_ks`` holds ``k_s = g N(z) = 1`` (``log g = −log N(z)``: the ``log g`` column
+    folds into the ``z`` columns through ``∂ log N / ∂z``). Bounds: ``k_d ≥ 0`` and
+    ``η ∈ [ETA_MIN, ETA_MAX]`` (a parameter at a bound and pushed beyond it is held for
+    the step). Returns the state and its cost.
+    """
+    k = len(problem.nodes)
+    if tie_ks:
+        s = s.copy()
+        s.g = 1.0 / normalization(problem.nodes, s.z)[0]
+    cost = problem.cost(s)
+    mu = 1e-3
+    for _ in range(LM_MAX_ITERATIONS):
+        a, grad = _normal_equations(problem, s, tie_ks)
+        frozen = [k + 2] if fix_eta else []
+        if (s.eta >= ETA_MAX and grad[k + 2] < 0) or (s.eta <= ETA_MIN and grad[k + 2] > 0):
+            frozen.append(k + 2)
+        if (s.kd <= 0.0 and grad[k] > 0) or (s.kd >= problem.kd_max and grad[k] < 0):
+            frozen.append(k)
+        if tie_ks:
+            frozen.append(k + 1)
+        for q in frozen:
+            a[q, :] = 0.0
+            a[:, q] = 0.0
+            a[q, q] = 1.0
+            grad[q] = 0.0
+        diag = np.diag(a).copy()
+        diag += 1e-12 * diag.max()
+        improved = False
+        while mu < 1e10:
+            try:
+                step = -np.linalg.solve(a + mu * np.diag(diag), grad)
+            except np.linalg.LinAlgError:
+                mu *= 8.0
+                continue
+            trial = _apply(problem, s, step, tie_ks)
+            c = problem.cost(trial)
+            if np.isfinite(c) and c < cost:
+                improved, rel = True, (cost - c) / cost
+                s, cost = trial, c
+                mu = max(mu / 5.0, 1e-9)
+                break
+            mu *= 8.0
+        if not improved or rel < LM_TOLERANCE:
+            break
+    return s, cost
+
+
+def _apply(problem: LuminanceProblem, s: LuminanceState, step: Array, tie_ks: bool) -> LuminanceState:
+    k = len(problem.nodes)
+    z = s.z + step[:k]
+    eta = 1.0 + (s.eta - 1.0) * math.exp(float(np.clip(step[k + 2], -2.0, 2.0)))
+    out = LuminanceState(z, min(max(s.kd + float(step[k]), 0.0), problem.kd_max), s.g * math.exp(float(np.clip(step[k + 1], -3.0, 3.0))),
+                         min(max(eta, ETA_MIN), ETA_MAX))
+    if tie_ks:
+        out.g = 1.0 / normalization(problem.nodes, z)[0]
+    return out
+
+
+def _normal_equations(problem: LuminanceProblem, s: LuminanceState, tie_ks: bool) -> tuple[Array, Array]:
+    """``JᵀWJ + H`` and ``JᵀWr + Hz − β`` over ``(z, k_d, log g, log(η − 1))``."""
+    k = len(problem.nodes)
+    spec, fr = problem.specular(s)
+    r, _ = problem.residuals(s)
+    active = problem.measured | (r > 0)
+    w = np.where(active, problem.w, 0.0)
+    de = 1e-6 * s.eta
+    d_eta = spec * ((fresnel(problem.bins.cos_d, s.eta + de) - fr) / de) / np.maximum(fr, 1e-300) * (s.eta - 1.0)
+    dcols = np.ascontiguousarray(np.stack([np.full(len(r), 1.0 / math.pi), spec, d_eta], axis=1))
+    diag, off = np.empty(k), np.empty(k - 1)
+    cross, dense = np.empty((k, 3)), np.empty((3, 3))
+    gz, gd = np.empty(k), np.empty(3)
+    _polar_kernels.normal_equations(problem.j.astype(np.int64), problem.t, spec, dcols, r, w, k, diag, off, cross,
+                                    dense, gz, gd)
+    a = np.zeros((k + 3, k + 3))
+    a[np.arange(k), np.arange(k)] = diag
+    a[np.arange(k - 1), np.arange(1, k)] = off
+    a[np.arange(1, k), np.arange(k - 1)] = off
+    a[:k, k:] = cross
+    a[k:, :k] = cross.T
+    a[k:, k:] = dense
+    grad = np.concatenate([gz, gd])
+    if tie_ks:  # log g = −log N(z): the g column enters every z column through −∂log N/∂z
+        _, n = normalization(problem.nodes, s.z)
+        cg = a[:k, k + 1].copy()
+        a[:k, :k] += -np.outer(n, cg) - np.outer(cg, n) + a[k + 1, k + 1] * np.outer(n, n)
+        a[:k, k] -= n * a[k + 1, k]
+        a[:k, k + 2] -= n * a[k + 1, k + 2]
+        a[k, :k] = a[:k, k]
+        a[k + 2, :k] = a[:k, k + 2]
+        grad[:k] -= n * grad[k + 1]
+    a[:k, :k] += problem.h
+    grad[:k] += problem.h @ s.z - problem.beta
+    # the z level and g are one degree of freedom: a vanishing ridge on the level fixes it
+    a[:k, :k] += 1e-12 * max(float(diag.max()), 1e-300)
+    return a, grad
+
+
+def normal_equations_numpy(j: NDArray[np.intp], t: Array, spec: Array, dcols: Array, r: Array, w: Array,
+                           k: int) -> tuple[Array, Array, Array, Array, Array, Array]:
+    """NumPy reference of the compiled normal equations: ``(diag, off, cross, dense, grad_z, grad_d)``."""
+    a0, a1 = spec * (1.0 - t), spec * t
+    diag = np.bincount(j, w * a0 * a0, k) + np.bincount(j + 1, w * a1 * a1, k)
+    off = np.bincount(j, w * a0 * a1, k)[: k - 1]
+    wc = w[:, None] * dcols
+    cross = np.stack([np.bincount(j, wc[:, q] * a0, k) + np.bincount(j + 1, wc[:, q] * a1, k)
+                      for q in range(dcols.shape[1])], axis=1)
+    grad_z = np.bincount(j, w * a0 * r, k) + np.bincount(j + 1, w * a1 * r, k)
+    return diag, off, cross, dcols.T @ wc, grad_z, wc.T @ r
+
+
+def model_error(problem: LuminanceProblem, s: LuminanceState) -> float:
+    """Relative model error ``ε``: the RMS relative residual of the measured bins beyond
+    their camera noise (``ε² = mean(max(ρ² − ν², 0))`` with ``ρ = r/m``, ``ν = σ/m``),
+    over the bins whose noise is below :data:`QUIET_NOISE` of their value (where the
+    misfit is the model's, not a few DN's rounding and its selection at the detection
+    limit), the top 2 % trimmed so that a few outlying bins do not set it."""
+    r, m = problem.residuals(s)
+    me = problem.measured
+    mm = np.maximum(m[me], 1e-300)
+    nu = problem.bins.noise[me] / mm
+    excess = np.maximum((r[me] / mm) ** 2 - nu**2, 0.0)
+    quiet = nu < QUIET_NOISE
+    if np.count_nonzero(quiet) >= MIN_QUIET_BINS:
+        excess = excess[quiet]
+    if not len(excess):
+        return 0.05
+    excess = np.minimum(excess, np.percentile(excess, 98.0))
+    return float(math.sqrt(max(float(excess.mean()), 1e-8)))
+
+
+def set_weights(problem: LuminanceProblem, eps: float) -> None:
+    """``w = 1 / (σ² + ε² f²)``: the camera noise of the bin mean plus the model error,
+    relative to the measured value (the data's, not the model's, so that a poor
+    iterate cannot lower its own cost by lowering its weights). Without a noise model
+    (:attr:`Slices.noise` is ``None``) ``f`` is floored at :data:`UNKNOWN_NOISE_FLOOR`
+    of the brightest bin, as a 12-bit camera's one DN."""
+    f = np.maximum(problem.f, 0.0)
+    floor = UNKNOWN_NOISE_FLOOR * float(f.max()) if not np.any(problem.bins.noise > 0) else 0.0
+    problem.w = 1.0 / (problem.bins.noise**2 + (eps * np.maximum(f, floor)) ** 2 + 1e-300)
+
+
+def update_shadowing(problem: LuminanceProblem, s: LuminanceState, damping: bool = False) -> None:
+    """``S(θ_i) S(θ_o)`` of every bin from the current NDF (eq. 8); with ``damping`` the
+    geometric mean of the old and the new value (the fixed point ``S = S(D)``
+    oscillates for broad lobes when taken in full steps)."""
+    ndf = IsotropicNDF(problem.nodes, np.exp(s.z - s.z.max()))
+    new = ndf.shadowing(problem.bins.cos_i) * ndf.shadowing(problem.bins.cos_o)
+    problem.shadow = np.sqrt(problem.shadow * new) if damping else new
+
+
+def initial_state(problem: LuminanceProblem, eta: float = 1.5, kd: float | None = None) -> LuminanceState:
+    """``k_d`` (default: from a low percentile of the measured luminance), ``log D``
+    from the partial NDFs (eq. 7 with ``S = 1``) averaged per node, ``g = 1``."""
+    me = problem.measured
+    f = problem.f
+    if kd is None:
+        kd = 0.5 * math.pi * max(float(np.percentile(f[me], 2.0)), 0.0) if me.any() else 0.0
+    dhat = np.maximum((f - kd / math.pi) / (problem.geometry * fresnel(problem.bins.cos_d, eta)), 1e-9 * f.max())
+    k = len(problem.nodes)
+    w0 = problem.bins.count * me
+    j, t = problem.j, problem.t
+    num = np.bincount(j, w0 * (1 - t) * np.log(dhat), k) + np.bincount(j + 1, w0 * t * np.log(dhat), k)
+    den = np.bincount(j, w0 * (1 - t), k) + np.bincount(j + 1, w0 * t, k)
+    seen = den > 0
+    if not seen.any():
+        raise ReflectoError("capture: no measured sample above the detection limit")
+    z = np.interp(np.arange(k), np.flatnonzero(seen), num[seen] / den[seen])
+    return LuminanceState(z, kd, 1.0, eta)
+
+
+@dataclasses.dataclass
+class LuminanceFit:
+    """The converged luminance fit: state, model error ``ε``, cost, and whether ``k_s = 1`` holds."""
+
+    state: LuminanceState
+    eps: float
+    cost: float
+    ks_bound: bool
+    problem: LuminanceProblem
+
+    @property
+    def ks(self) -> float:
+        return self.state.g * normalization(self.problem.nodes, self.state.z)[0]
+
+
+def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
+                  kd_start: float | None = None, kd_max: float = math.inf) -> LuminanceFit:
+    """The luminance fit at its fixed point with ``S`` (module docstring, stage 3)."""
+    problem = LuminanceProblem(bins, nodes)
+    problem.kd_max = kd_max
+    s = initial_state(problem, 1.5 if fixed_eta is None else fixed_eta, kd_start)
+    eps = 0.05
+    tie = False
+    cost = math.inf
+    for _ in range(OUTER_ITERATIONS):
+        set_weights(problem, eps)
+        prior(problem, s)
+        s, cost = solve(problem, s, fix_eta=fixed_eta is not None, tie_ks=tie)
+        if not tie and s.g * normalization(nodes, s.z)[0] > 1.0:
+            tie = True  # the physical bound binds: continue on it
+            s, cost = solve(problem, s, fix_eta=fixed_eta is not None, tie_ks=True)
+        eps = model_error(problem, s)
+        update_shadowing(problem, s)
+    return LuminanceFit(s, eps, cost, tie, problem)
+
+
+def channel_scalars(fit: LuminanceFit) -> tuple[Array, Array]:
+    """``k_d ≥ 0`` and ``0 ≤ k_s ≤ 1`` per channel with the fitted ``D``, ``S`` and ``η``.
+
+    Linear least squares of ``f_c = k_{d,c}/π + k_{s,c} F D S/(4 cos cos)`` over the
+    measured bins with the luminance fit's weights; a bound that binds fixes that
+    scalar and the other is solved again.
+    """
+    p = fit.problem
+    s = fit.state
+    n, _ = normalization(p.nodes, s.z)
+    unit = LuminanceState(s.z, 0.0, 1.0 / n, s.eta)  # k_s = 1
+    base, _ = p.specular(unit)
+    me = p.measured
+    a = np.stack([np.full(int(me.sum()), 1.0 / math.pi), base[me]], axis=1)
+    w = p.w[me]
+    m = a.T @ (a * w[:, None])
+    kd, ks = np.zeros(3), np.zeros(3)
+    for c in range(3):
+        v = a.T @ (w * p.bins.f[me, c])
+        x = np.linalg.solve(m + 1e-12 * np.trace(m) * np.eye(2), v)
+        if not 0.0 <= x[1] <= 1.0:
+            x[1] = min(max(x[1], 0.0), 1.0)
+            x[0] = (v[0] - m[0, 1] * x[1]) / m[0, 0]
+        if x[0] < 0.0:
+            x[0] = 0.0
+            x[1] = min(max(v[1] / m[1, 1], 0.0), 1.0)
+        kd[c], ks[c] = x
+    return kd, ks
+
+
+@dataclasses.dataclass
+class IsotropicFit:
+    """Result of :func:`fit_isotropic`.
+
+    Attributes
+    ----------
+    model
+        The reconstructed BRDF.
+    eta
+        The relative index (one for R, G, B).
+    model_error
+        ``ε``, the RMS relative misfit of the measured bins beyond their noise.
+    ks_at_bound
+        The physical bound ``k_s ≤ 1`` binds (the specular level then fixes ``η``).
+    bins
+        Number of bins fitted (measured, censored).
+    """
+
+    model: IsotropicMicrofacetBRDF
+    eta: float
+    model_error: float
+    ks_at_bound: bool
+    bins: tuple[int, int]
+
+
+def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | None = None) -> IsotropicFit:
+    """Reconstruct an isotropic material from its slices (see the module docstring)."""
+    nodes = polar_nodes()
+    bins = bin_polar(slices, nodes, valid)
+    lum = fit_luminance(bins, nodes, fixed_eta)
+    kd, ks = channel_scalars(lum)
+    d = np.exp(lum.state.z - lum.state.z.max())
+    model = IsotropicMicrofacetBRDF((nodes, d), kd, ks, lum.state.eta)
+    return IsotropicFit(model, lum.state.eta, lum.eps, lum.ks_bound,
+                        (int(np.count_nonzero(~bins.censored)), int(np.count_nonzero(bins.censored))))

@@ -1,0 +1,112 @@
+"""Did the sample move during the capture? The shake cues of §5.1, gathered.
+
+* The check frames (:mod:`.repeat`): the device fires its first LED again at the end;
+  a changed slice is motion. Model-free, valid for any BRDF.
+* Mirror planes (:mod:`.symmetry`): an isotropic material's steep slices are
+  symmetric about the plane through their LED and the normal; after a turn, about
+  the turned normal.
+* Isotropy and reciprocity between LEDs (:mod:`.consistency`).
+
+The last two hold for isotropic materials only, so they are consulted only when the
+material was found (or declared) isotropic. ``E(η)`` of the hemicube path's Fresnel
+fit (§5.1's own cue) enters through :class:`~.hemicube_fit.HemicubeFit`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..instrument.slices import Slices
+from .consistency import THRESHOLD as PAIR_THRESHOLD
+from .consistency import PairCheck, pair_checks
+from .repeat import RepeatCheck, repeat_checks
+from .symmetry import PLANE_THRESHOLD_DEG, plane_offsets
+
+Array = NDArray[np.float64]
+
+__all__ = ["MotionReport", "detect_motion"]
+
+
+@dataclasses.dataclass
+class MotionReport:
+    """The shake cues of one capture and their verdict.
+
+    Attributes
+    ----------
+    repeat_checks
+        One per check LED (:class:`.repeat.RepeatCheck`).
+    plane_offsets_deg
+        Per LED the angle between its slice's mirror plane and the normal, or ``None``
+        (not steep enough, plane not located, or the test did not apply).
+    pair_checks
+        Isotropy and reciprocity comparisons (:class:`.consistency.PairCheck`).
+    excluded_leds
+        LEDs left out of the fit because they alone explained an inconsistency.
+    """
+
+    repeat_checks: list[RepeatCheck] = dataclasses.field(default_factory=list)
+    plane_offsets_deg: list[float | None] = dataclasses.field(default_factory=list)
+    pair_checks: list[PairCheck] = dataclasses.field(default_factory=list)
+    excluded_leds: list[int] = dataclasses.field(default_factory=list)
+
+    @property
+    def moved_leds(self) -> list[int]:
+        return [r.led for r in self.repeat_checks if r.moved]
+
+    @property
+    def tilted_planes(self) -> list[int]:
+        return [k for k, x in enumerate(self.plane_offsets_deg) if x is not None and abs(x) > PLANE_THRESHOLD_DEG]
+
+    @property
+    def inconsistent_pairs(self) -> list[PairCheck]:
+        return [c for c in self.pair_checks if c.inconsistent]
+
+    @property
+    def shake_detected(self) -> bool:
+        return bool(self.moved_leds or self.tilted_planes or self.inconsistent_pairs or self.excluded_leds)
+
+    def describe(self) -> str:
+        """One line naming the cues that fired ('' when none did)."""
+        parts = [f"LED {c.led} " + (f"×{math.exp(c.log_ratio):.2f}" if math.isfinite(c.log_ratio) else "lit once")
+                 + " between its two firings" for c in self.repeat_checks if c.moved]
+        if self.tilted_planes:
+            parts.append(f"LEDs {self.tilted_planes} not symmetric about the normal")
+        parts += [f"{c.kind} {c.a}-{c.b} ×{math.exp(c.log_ratio):.2f}" for c in self.inconsistent_pairs]
+        if self.excluded_leds:
+            parts.append(f"LEDs {self.excluded_leds} excluded")
+        return "; ".join(parts)
+
+    def to_dict(self) -> dict[str, Any]:
+        def finite(d: dict[str, Any]) -> dict[str, Any]:
+            return {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in d.items()}
+
+        return {"shake_detected": self.shake_detected,
+                "repeat_checks": [finite(dataclasses.asdict(r)) for r in self.repeat_checks],
+                "symmetry_plane_offsets_deg": self.plane_offsets_deg,
+                "consistency_checks": [dataclasses.asdict(c) for c in self.pair_checks],
+                "excluded_leds": self.excluded_leds}
+
+
+def detect_motion(device_frame: Slices, sample_frame: Slices, valid: NDArray[np.bool_],
+                  isotropic: bool) -> MotionReport:
+    """Run the cues that apply (see the module docstring).
+
+    ``device_frame`` carries the check frames (compared where they were taken);
+    ``sample_frame`` is the same capture in the sample's (estimated) frame, where the
+    mirror planes and the pairs are judged; ``valid`` marks the usable samples.
+    """
+    report = MotionReport(repeat_checks=repeat_checks(device_frame))
+    if isotropic:
+        ok = valid & sample_frame.valid
+        meas = ok if sample_frame.censored is None else ok & ~sample_frame.censored
+        report.plane_offsets_deg = plane_offsets(sample_frame.light, sample_frame.view, sample_frame.values, ok)
+        report.pair_checks = pair_checks(sample_frame.light, sample_frame.view, sample_frame.values, meas)
+    return report
+
+
+__all__ += ["PAIR_THRESHOLD", "PLANE_THRESHOLD_DEG"]
