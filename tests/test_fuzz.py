@@ -106,6 +106,12 @@ def build_base(folder: Path) -> Path:
     src = load_source(folder / "analytic.json")
     MicrofacetBRDF.from_ndf_function(src.ndf, resolution=32, kd=0.2, ks=0.5, eta=1.5,
                                      metadata={"capture": "cap", "note": "fuzz base"}).save(mdir / "model.reflecto")
+    from reflecto.model import IsotropicMicrofacetBRDF
+    from reflecto.polar import polar_nodes
+
+    nodes = polar_nodes()
+    d = src.ndf(np.stack([np.sin(nodes), 0 * nodes, np.cos(nodes)], -1))
+    IsotropicMicrofacetBRDF((nodes, d), 0.2, 0.5, 1.5, metadata={"capture": "cap"}).save(mdir / "iso.reflecto")
     (mdir / "model.json").write_text(json.dumps({"normal_tilt_deg": 0.1, "fresnel_error": 0.2, "shake_detected": False,
                                                  "residual_median_rel": 0.01}))
     dev = {"name": "fuzz-device", "leds": [[5.0, 0.0], [7.34, 305.77], [22.9, 167.71], [6.99, 75.82],
@@ -540,6 +546,14 @@ KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], bool]] = {
 RARE = {"fit-ct": 0.25, "render": 0.25}
 
 
+def base_choice(case: Case) -> str | None:
+    """For kinds with several valid files, the one a case damages (its seed's first draw)."""
+    choices = {"device file": ["device.json", "device.toml"], "model .reflecto": ["model.reflecto", "iso.reflecto"]}
+    if case.kind not in choices:
+        return None
+    return choices[case.kind][int(random.Random(case.seed).random() * 2)]
+
+
 def draw_cases(n: int, seed: int) -> list[Case]:
     """``n`` cases: every (kind, command) pair first, then random ones (deterministic in ``seed``)."""
     rng = random.Random(seed)
@@ -597,7 +611,8 @@ def prepare(case: Case, base: Path, d: Path, mutate: bool = True) -> tuple[list[
                 what = file_mutation(target, lambda: mutate_h5(rng, target))
         read_back = src
     elif kind == "model .reflecto" or kind == "summary .json":
-        src = d / "model" / "model.reflecto"
+        src = d / "model" / (base_choice(case) or "model.reflecto")
+        rng.random()  # the draw base_choice made
         target = src if kind == "model .reflecto" else d / "model" / "model.json"
         if mutate:
             if kind == "model .reflecto":
@@ -606,7 +621,8 @@ def prepare(case: Case, base: Path, d: Path, mutate: bool = True) -> tuple[list[
                 what = file_mutation(target, lambda: json_mutation(target))
         read_back = target
     elif kind == "device file":
-        target = d / rng.choice(["device.json", "device.toml"])
+        target = d / base_choice(case)
+        rng.random()  # the draw base_choice made
         if mutate:
             if target.suffix == ".json":
                 what = file_mutation(target, lambda: json_mutation(target))
@@ -1003,7 +1019,7 @@ def base_fingerprints(base: Path, work: Path) -> dict[str, str | None]:
     for kind, (cmds, _, _) in KINDS.items():
         d = Path(tempfile.mkdtemp(prefix="base-", dir=work))
         _, read_back, _, _ = prepare(Case(kind, cmds[0], 0), base, d, mutate=False)
-        if kind == "device file":  # the device is drawn per case: no single base
+        if base_choice(Case(kind, cmds[0], 0)) is not None:  # drawn per case: no single base
             out[kind] = None
         else:
             out[kind] = fingerprint(kind, read_back, d)
@@ -1029,9 +1045,10 @@ def campaign(cases: list[Case], base: Path, work: Path, jobs: int = 2, timeout: 
                 continue
             running.remove(r)
             p = dict(prints)
-            if r.case.kind == "device file":  # compared with whichever file the case drew
-                name = random.Random(r.case.seed).choice(["device.json", "device.toml"])
-                p[r.case.kind] = fingerprint(r.case.kind, base / name, base)
+            name = base_choice(r.case)
+            if name is not None:  # compared with whichever valid file the case drew
+                p[r.case.kind] = fingerprint(r.case.kind, base / ("model" if r.case.kind.startswith("model") else "") / name,
+                                             base)
             results.append(_finish(r, rec, p))
             if log:
                 log(results[-1])
