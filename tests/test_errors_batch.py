@@ -134,6 +134,12 @@ def test_resuming_a_sweep_with_a_damaged_record_redoes_it(tmp_path, fake_sweep):
         again = sweep_mod.sweep([mats], out, jobs=1, progress=False)
     assert [r["name"] for r in again] == ["m0", "m1"] and again == first
     assert "timings" in json.loads(rec.read_text())
+    # a number numpy can only hold as an object (2**64) in a render: the figures failed on it
+    damaged = json.loads(rec.read_text())
+    damaged["renders"]["ours"][0][0][0] = 2**64
+    rec.write_text(json.dumps(damaged))
+    with pytest.warns(ReflectoWarning, match="render 'ours' missing or invalid"):
+        assert sweep_mod.sweep([mats], out, jobs=1, progress=False) == first
 
 
 def test_sweep_raises_batch_error_with_records(tmp_path, fake_sweep):

@@ -187,10 +187,10 @@ def record_problem(rec: Any, name: str) -> str | None:
         return "renders missing"
     for key in ("reference", "ours", "earlier", "cook_torrance"):
         try:
-            img = np.asarray(renders.get(key), dtype=np.float64)
+            img = np.asarray(renders.get(key))  # as the figures read it: no object arrays
         except (TypeError, ValueError):
             return f"render {key!r} invalid"
-        if img.shape != (SPHERE_RES, SPHERE_RES, 3) or not np.all(np.isfinite(img)):
+        if img.shape != (SPHERE_RES, SPHERE_RES, 3) or img.dtype.kind not in "fiu" or not np.all(np.isfinite(img)):
             return f"render {key!r} missing or invalid"
     return None
 
