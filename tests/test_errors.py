@@ -379,6 +379,23 @@ def test_merl_values_of_1e200_are_refused(tmp_path):
         load_source(p)
 
 
+def test_merl_spike_between_quadrature_nodes_is_refused_by_its_hemispherical_albedo(tmp_path):
+    """6667 sr⁻¹ in one θ_h bin (15°) at θ_d 62–72°: the directional-albedo quadrature's
+    rings step over the bin (albedo < 0.5), its exact per-bin integral does not (found by
+    the fuzz campaign)."""
+    from reflecto.sources import merl
+    from reflecto.sources.base import directional_albedo
+
+    t = np.full(merl.SHAPE + (3,), 0.1)
+    t[37, 62:73, :, 0] = 6666.7
+    src = merl.MerlBRDF.from_table(t)
+    assert directional_albedo(src, [0.0, 20.0, 40.0, 60.0, 75.0], n_u=48, n_phi=64).max() < 1.5
+    assert merl.hemispherical_albedo(np.full(merl.SHAPE + (3,), 1 / np.pi)) == pytest.approx(1.0, abs=1e-3)
+    p = merl.write_merl_table(tmp_path / "spike.binary", t)
+    with pytest.raises(FileFormatError, match="spike.binary: hemispherical albedo \\[[0-9.]+, 0.3\\d+, 0.3\\d+\\] above"):
+        load_source(p)
+
+
 def _nbrdf(path: Path, shared: Path, edit=None, extra=None) -> Path:
     """Copy pvc.h5's layers into a new file, changing them with ``edit(name, array)``."""
     with h5py.File(shared / "merl-nbrdf" / "pvc.h5", "r") as src, h5py.File(path, "w") as dst:
@@ -522,6 +539,7 @@ def calib_copy(calib, tmp_path) -> Path:
     (lambda m: m["mirror"][1].update(led=-1), "led must be a distinct LED index in \\[0, 6\\), got -1"),
     (lambda m: m["mirror"][1].update(led=0), "led must be a distinct LED index"),
     (lambda m: m["grid"][0].update(directions=[[0, 0, 1], [1, 2]]), "directions of 'grid_0.png' must be"),
+    (lambda m: m["grid"][0]["directions"][0].__setitem__(1, 1e308), "must be finite unit vectors"),  # no overflow warning
     (lambda m: m["grid"][0].update(file="../../outside/x.png"), "grid image '../../outside/x.png' must be a relative name"),
     (lambda m: m["grid"][0].update(file="/dev/zero"), "grid image '/dev/zero' must be a relative name"),
     (lambda m: m["mirror"][0].update(file=None), "mirror image name must be a non-empty string"),

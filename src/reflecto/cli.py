@@ -632,6 +632,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     rc = 1
     with warnings.catch_warnings():
         warnings.simplefilter("always", ReflectoWarning)
+        # numpy's floating-point warnings (overflow in a hostile file's numbers, ...) are not
+        # messages for the user: the loaders check every value and name the file at fault
+        warnings.simplefilter("ignore", RuntimeWarning)
         warnings.showwarning = _show_warning
         try:
             rc = int(args.func(args))

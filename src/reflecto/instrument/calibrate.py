@@ -248,6 +248,8 @@ def led_problem(leds: Array, nominal: Array, index: list[int] | None = None) -> 
     index = list(range(len(leds))) if index is None else index
     if not np.all(np.isfinite(leds)):
         return "LED directions contain NaN or infinity"
+    if np.any(np.abs(leds) > 1.0 + 1e-5):
+        return "LED directions must be unit vectors"
     if np.any(np.abs(np.linalg.norm(leds, axis=1) - 1.0) > 1e-5):
         return "LED directions must be unit vectors"
     if np.any(leds[:, 2] <= 0):
@@ -379,7 +381,7 @@ def _unit_vectors(value: Any, where: Path, what: str, max_count: int) -> Array:
     if v.ndim != 2 or v.shape[1] != 3 or not 1 <= len(v) <= max_count:
         raise FileFormatError(where, f"{what} must be {'an [x, y, z] vector' if max_count == 1 else f'1 to {max_count} [x, y, z] vectors'}, "
                               f"got {short_repr(value)}")
-    if not np.all(np.isfinite(v)) or np.any(np.abs(np.linalg.norm(v, axis=1) - 1.0) > 1e-6):
+    if not np.all(np.abs(v) <= 1.0 + 1e-6) or np.any(np.abs(np.linalg.norm(v, axis=1) - 1.0) > 1e-6):
         raise FileFormatError(where, f"{what} must be finite unit vectors, got {short_repr(value)}")
     if np.any(v[:, 2] <= 0):
         raise FileFormatError(where, f"{what} must point above the sample plane (z > 0)")
