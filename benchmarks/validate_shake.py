@@ -34,7 +34,6 @@ sys.path.insert(0, str(ROOT / "tests"))
 from conftest import SHARED  # noqa: E402
 
 
-from reflecto.reconstruct.pipeline import SHAKE_THRESHOLD  # noqa: E402
 from reflecto.reconstruct.consistency import THRESHOLD as PAIR_THRESHOLD  # noqa: E402
 from reflecto.reconstruct.symmetry import PLANE_THRESHOLD_DEG  # noqa: E402
 
@@ -44,7 +43,7 @@ def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None, tuple[int
     from reflecto.instrument.device import load_device
     from reflecto.instrument.simulate import simulate_capture
     from reflecto.instrument.slices import extract_slices
-    from reflecto.reconstruct.pipeline import reconstruct
+    from reflecto.reconstruct import reconstruct
     from reflecto.sources import load_source
 
     k, path, device, cal_path, order, check = args
@@ -58,12 +57,12 @@ def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None, tuple[int
     out = {"name": Path(path).stem}
     for shake in (False, True):
         cap = simulate_capture(src, dev, seed=k, shake=shake)
-        s = reconstruct(extract_slices(cap, cal)).summary
+        res = reconstruct(extract_slices(cap, cal))
+        s = res.summary()
         key = "shaken" if shake else "clean"
         planes = [x for x in s["symmetry_plane_offsets_deg"] if x is not None]
-        out[key] = {"E": s["fresnel_error"], "E_check": s["fresnel_error_at_check"], "flagged": s["shake_detected"],
+        out[key] = {"eps": res.model_error, "isotropic": res.isotropic, "flagged": s["shake_detected"],
                     "excluded": s["excluded_leds"],
-                    "E_flag": s["fresnel_error_at_check"] is not None and s["fresnel_error_at_check"] > SHAKE_THRESHOLD,
                     "plane": max((abs(x) for x in planes), default=None),
                     "pairs": {f"{c['kind'][:3]} {c['a']}-{c['b']}": c["log_ratio"] for c in s["consistency_checks"]},
                     "pair_flag": any(abs(c["log_ratio"]) > PAIR_THRESHOLD[c["kind"]] for c in s["consistency_checks"]),
@@ -107,15 +106,18 @@ def main() -> None:
         def rep(x: dict) -> str:
             return " –   " if x["repeat"] is None else f"{x['repeat']:5.3f}"
 
-        print(f"{r['name']:30s} clean E {c['E_check']:.3f} check {rep(c)} plane {plane(c)} {pairs(c)} "
+        def kind(x: dict) -> str:
+            return "iso  " if x["isotropic"] else "ANISO"
+
+        print(f"{r['name']:30s} clean {kind(c)} check {rep(c)} plane {plane(c)} {pairs(c)} "
               f"{'FLAG' if c['flagged'] else '    '}   "
-              f"shaken (LEDs {','.join(map(str, r['moved']))}, {r['angle_deg']:.1f}°) E {s['E_check']:.3f} "
+              f"shaken (LEDs {','.join(map(str, r['moved']))}, {r['angle_deg']:.1f}°) {kind(s)} "
               f"check {rep(s)} plane {plane(s)} {pairs(s)} "
               f"{'FLAG' if s['flagged'] else '    '}{'  excluded ' + str(s['excluded']) if s['excluded'] else ''}")
     n = len(rows)
     print(f"detected {sum(r['shaken']['flagged'] for r in rows)}/{n} shaken; "
           f"false alarms {sum(r['clean']['flagged'] for r in rows)}/{n} clean")
-    for cue, key in (("E(η) alone", "E_flag"), ("check frames alone", "repeat_flag"),
+    for cue, key in (("check frames alone", "repeat_flag"),
                      ("symmetry plane alone", "plane"), ("isotropy/reciprocity alone", "pair_flag")):
         def hit(x: dict, key: str = key) -> bool:
             if key == "plane":
@@ -125,9 +127,8 @@ def main() -> None:
               f"false alarms {sum(hit(r['clean']) for r in rows)}/{n}")
     print("detection by firing position of the first moved LED: " + ", ".join(
         f"{k}: {sum(v)}/{len(v)}" for k, v in sorted(by_led.items())))
-    ratio = sorted(r["shaken"]["E"] / max(r["clean"]["E"], 1e-9) for r in rows)
-    print(f"E(shaken)/E(clean) per material: median {ratio[n // 2]:.2f}, "
-          f"< 1.5 on {sum(x < 1.5 for x in ratio)}/{n}")
+    print(f"clean captures found isotropic: {sum(r['clean']['isotropic'] for r in rows)}/{n}; "
+          f"shaken ones: {sum(r['shaken']['isotropic'] for r in rows)}/{n}")
 
 
 if __name__ == "__main__":

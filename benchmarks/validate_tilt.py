@@ -21,7 +21,7 @@ from reflecto.instrument.calibrate import nominal_calibration
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
 from reflecto.instrument.slices import extract_slices
-from reflecto.reconstruct.pipeline import Options, reconstruct
+from reflecto.reconstruct import Options, reconstruct
 from reflecto.sources.analytic import AnalyticBRDF
 
 MATERIALS = [
@@ -37,7 +37,7 @@ SEEDS = (1, 2)
 def main() -> None:
     dev = Device.builtin("ideal")
     cal = nominal_calibration(dev)
-    n = ok_normal = ok_error = 0
+    n = ok_normal = ok_error = flagged = 0
     for p in MATERIALS:
         src = AnalyticBRDF(**p)
         label = f"{p['distribution']} α={p['alpha']} η={p['eta']} k_d={p['kd']}"
@@ -48,15 +48,17 @@ def main() -> None:
                 cap = simulate_capture(src, dev, tilt_deg=tilt, seed=seed)
                 res = reconstruct(extract_slices(cap, cal), Options(estimate_normal=True))
                 truth = np.array(cap.extra["simulation"]["normal"])
-                off = math.degrees(math.acos(min(1.0, float(np.dot(truth, res.summary["normal"])))))
+                off = math.degrees(math.acos(min(1.0, float(np.dot(truth, res.frame[2])))))
                 e = brdf_error(src, res.model, stride=3).normalized
                 n += 1
                 ok_normal += off <= 0.5
                 ok_error += e <= 1.2 * e0
-                print(f"{label:30s} seed {seed} tilt {tilt:4.1f}°  found {res.summary['normal_tilt_deg']:5.2f}° (off {off:4.2f}°)  "
-                      f"lost LEDs {res.summary['lost_leds']}  error {100 * e:5.2f} % (untilted {100 * e0:5.2f} %, ×{e / e0:4.2f})  "
-                      f"η {res.model.eta[1]:.3f}", flush=True)
-    print(f"normal within 0.5°: {ok_normal}/{n}; error within 20 % of untilted: {ok_error}/{n}")
+                flagged += res.shake_detected
+                below = np.flatnonzero(dev.leds @ res.frame[2] < 0.05).tolist()
+                print(f"{label:30s} seed {seed} tilt {tilt:4.1f}°  found {res.normal_tilt_deg:5.2f}° (off {off:4.2f}°)  "
+                      f"LEDs below the horizon {below}  error {100 * e:5.2f} % (untilted {100 * e0:5.2f} %, ×{e / e0:4.2f})  "
+                      f"η {res.eta:.3f}{'  SHAKE FLAGGED: ' + res.motion.describe() if res.shake_detected else ''}", flush=True)
+    print(f"normal within 0.5°: {ok_normal}/{n}; error within 20 % of untilted: {ok_error}/{n}; flagged as shaken: {flagged}/{n}")
 
 
 if __name__ == "__main__":

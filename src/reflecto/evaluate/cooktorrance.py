@@ -105,12 +105,32 @@ def _nnls2(aa: float, ab: float, bb: float, ay: float, by: float) -> tuple[float
 
 
 def fit_cook_torrance(reference: BRDFSource, stride: int = 4, reference_values: Array | None = None) -> CookTorrance:
-    """Fit :class:`CookTorrance` to ``reference`` (see the module docstring)."""
+    """Fit :class:`CookTorrance` to ``reference`` on the MERL grid (see the module docstring)."""
     g = metric_grid(stride)
     r = evaluate_on_grid(reference, g) if reference_values is None else reference_values
     ok = np.all(r >= 0, axis=1) & np.all(np.isfinite(r), axis=1)
-    i, o, r = np.ascontiguousarray(g.i[ok]), np.ascontiguousarray(g.o[ok]), r[ok]
-    sw = np.sqrt(g.w[ok]) * i[:, 2]  # residual = √w (R − M) cos θ_i
+    return fit_cook_torrance_samples(g.i[ok], g.o[ok], r[ok], g.w[ok])
+
+
+def fit_cook_torrance_samples(i: ArrayLike, o: ArrayLike, f: ArrayLike, w: ArrayLike) -> CookTorrance:
+    """Fit :class:`CookTorrance` to BRDF samples by the residuals of eq. 10.
+
+    Minimises ``Σ w (f − f_CT)² cos² θ_i`` over ``(ρ_d, ρ_s, F0, m)``: ``ρ_d, ρ_s`` in
+    closed form (non-negative least squares per channel), ``(log m, F0)`` by bounded
+    trust-region least squares from the starts :data:`STARTS_M` × :data:`STARTS_F0`.
+
+    Parameters
+    ----------
+    i, o
+        Light and view directions, shape ``(N, 3)``.
+    f
+        BRDF values (sr⁻¹), shape ``(N, 3)``.
+    w
+        Weight of each sample (the metric's solid-angle weight, or a pixel count), ``(N,)``.
+    """
+    i, o = np.ascontiguousarray(i, dtype=np.float64), np.ascontiguousarray(o, dtype=np.float64)
+    r = np.asarray(f, dtype=np.float64)
+    sw = np.sqrt(np.asarray(w, dtype=np.float64)) * i[:, 2]  # residual = √w (R − M) cos θ_i
     y = np.ascontiguousarray(r * sw[:, None])
     diff = sw / math.pi
     # fixed by the data: the diffuse column's dot products
@@ -146,3 +166,19 @@ def fit_cook_torrance(reference: BRDFSource, stride: int = 4, reference_values: 
     f0, m = float(x[1]), math.exp(float(x[0]))
     rd, rs, _ = solve(f0, m)
     return CookTorrance(rd, rs, f0, m)
+
+
+def fit_cook_torrance_capture(slices: Any) -> CookTorrance:
+    """The same-data baseline: :class:`CookTorrance` fitted to exactly the samples a capture holds.
+
+    The parametric sparse fit the paper's related work compares against: every valid
+    sample of the slices (readings at the detection limit too, as they are), averaged
+    per LED and texel of a 128² hemicube (each bin weighs by its pixel count), fitted
+    by :func:`fit_cook_torrance_samples`.
+    """
+    from ..hemicube import hemicube
+    from ..reconstruct.samples import bin_samples
+
+    ok = slices.valid & np.all(np.isfinite(slices.values), axis=-1)
+    bins = bin_samples(slices.light, slices.view, slices.values, ok, hemicube(128))
+    return fit_cook_torrance_samples(bins.i, bins.o, bins.f, bins.count)

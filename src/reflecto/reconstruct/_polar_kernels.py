@@ -10,6 +10,8 @@ import math
 import numpy as np
 from numba import njit
 
+from .._kernels import _fresnel
+
 _OPTS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
 
@@ -97,3 +99,40 @@ def normal_equations(j, t, spec, dcols, r, w, n_nodes, diag, off, cross, dense, 
     for q in range(n_d):
         for u in range(q):
             dense[q, u] = dense[u, q]
+
+
+@njit(**_OPTS)
+def luminance_pass(j, t, z, shadow_geometry, cos_d, f, w, measured, kd, g, eta, jacobian, r_out, spec_out,
+                   deta_out):  # pragma: no cover - compiled
+    """One pass of the luminance fit over the bins: residuals and the weighted cost.
+
+    ``m_b = k_d/π + g F(c_b; η) e^{z(θ_b)} G_b`` with ``z`` interpolated at ``(j, t)`` and
+    ``G_b = S_b / (4 cos θ_i cos θ_o)`` (``shadow_geometry``); ``r_b = m_b − f_b``,
+    one-sided (``max(0, r_b)``) where ``measured[b]`` is False. Writes ``r_out``; with
+    ``jacobian`` also the specular part ``spec_out`` (``∂r/∂ log g``) and
+    ``deta_out = ∂r/∂ log(η − 1)`` (0 for an inactive bound). Returns ``Σ w r²``.
+    """
+    cost = 0.0
+    de = 1e-6 * eta
+    for b in range(r_out.shape[0]):
+        k = j[b]
+        lz = (1.0 - t[b]) * z[k] + t[b] * z[k + 1]
+        if lz > 700.0:
+            lz = 700.0
+        fr = _fresnel(cos_d[b], eta)
+        spec = g * fr * math.exp(lz) * shadow_geometry[b]
+        r = kd / math.pi + spec - f[b]
+        active = measured[b] or r > 0.0
+        if not active:
+            r = 0.0
+        r_out[b] = r
+        cost += w[b] * r * r
+        if jacobian:
+            if active:
+                spec_out[b] = spec
+                dfr = (_fresnel(cos_d[b], eta + de) - fr) / de
+                deta_out[b] = spec * dfr / (fr if fr > 0.0 else 1e-300) * (eta - 1.0)
+            else:
+                spec_out[b] = 0.0
+                deta_out[b] = 0.0
+    return cost

@@ -228,11 +228,14 @@ class LuminanceProblem:
         self.geometry = 1.0 / (4.0 * bins.cos_i * bins.cos_o)
         self.measured = ~bins.censored
         self.shadow = np.ones(len(bins))
+        self.shadow_geometry = self.geometry.copy()  # S · geometry, kept with the shadowing
         self.w = np.ones(len(bins))
+        self._r = np.empty(len(bins))
+        self._spec = np.empty(len(bins))
+        self._deta = np.empty(len(bins))
         self.h = np.zeros((len(nodes), len(nodes)))
         self.beta = np.zeros(len(nodes))
         self.prior_constant = 0.0
-        self.kd_max = math.inf
 
     def specular(self, s: LuminanceState) -> tuple[Array, Array]:
         """``g F e^z S / (4 cos cos)`` per bin, and F."""
@@ -248,9 +251,18 @@ class LuminanceProblem:
         r = m - self.f
         return np.where(self.measured, r, np.maximum(r, 0.0)), m
 
+    def data_pass(self, s: LuminanceState, jacobian: bool = False) -> float:
+        """``Σ w r²`` in one compiled pass (:func:`._polar_kernels.luminance_pass`); fills
+        the residual, and with ``jacobian`` the specular and η columns, in place."""
+        return _polar_kernels.luminance_pass(self.j, self.t, s.z, self.shadow_geometry, self.bins.cos_d, self.f,
+                                             self.w, self.measured, s.kd, s.g, s.eta, jacobian, self._r,
+                                             self._spec, self._deta)
+
     def cost(self, s: LuminanceState) -> float:
-        r, _ = self.residuals(s)
-        return float(self.w @ (r * r) + s.z @ self.h @ s.z - 2.0 * self.beta @ s.z + self.prior_constant)
+        """The cost; ``inf`` for a state whose NDF overflows (a rejected trial step)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            c = self.data_pass(s) + float(s.z @ self.h @ s.z - 2.0 * self.beta @ s.z) + self.prior_constant
+        return c if math.isfinite(c) else math.inf
 
 
 def prior(problem: LuminanceProblem, s: LuminanceState) -> None:
@@ -259,7 +271,7 @@ def prior(problem: LuminanceProblem, s: LuminanceState) -> None:
     * Curvature: ``λ ∫ (∂²z/∂θ²)² dθ`` with ``λ = ρ ℓ⁴``, ``ρ`` the data's weight per
       radian of θ_h in log units (``Σ w m²`` over the measured span) and ``ℓ`` =
       :data:`SMOOTH_LENGTH`; at the pole ``z`` is mirrored (``∂z/∂θ = 0``).
-    * Tail: beyond the last ring any measured bin touches, the first differences of
+    * Tail: beyond the last ring a measured bin lies in, the first differences of
       ``z − L`` (``L`` the lobe of :func:`lobe_log`) are held at 0 with weight
       :data:`TAIL_WEIGHT` ``ρ Δθ``: the NDF continues as the lobe does, at the ratio it
       has at the last measured ring.
@@ -273,12 +285,12 @@ def prior(problem: LuminanceProblem, s: LuminanceState) -> None:
     h = rho * SMOOTH_LENGTH**4 * _curvature_matrix(nodes.tobytes())
     beta = np.zeros(k)
     constant = 0.0
-    wn = np.bincount(problem.j[me], problem.w[me], k) + np.bincount(problem.j[me] + 1, problem.w[me], k)
-    seen = np.flatnonzero(wn > 0)
-    if len(seen) and seen[-1] < k - 1:
-        lobe = lobe_log(nodes, s.z, wn > 0)
+    # the last ring measured: the lower node of the outermost cell a measured bin lies in
+    # (the node above it is touched only through interpolation weights that vanish there)
+    if me.any():
+        first = int(problem.j[me].max())
+        lobe = lobe_log(nodes, s.z, np.arange(k) <= first) if first < k - 1 else None
         if lobe is not None:
-            first = seen[-1]
             rows = np.zeros((k - 1 - first, k))
             idx = np.arange(first, k - 1)
             rows[np.arange(len(idx)), idx + 1] = 1.0
@@ -370,9 +382,10 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
     the step). Returns the state and its cost.
     """
     k = len(problem.nodes)
-    if tie_ks:
+    if tie_ks:  # k_s = 1 with the NDF normalized
         s = s.copy()
-        s.g = 1.0 / normalization(problem.nodes, s.z)[0]
+        s.z = s.z - math.log(normalization(problem.nodes, s.z)[0])
+        s.g = 1.0
     cost = problem.cost(s)
     mu = 1e-3
     for _ in range(LM_MAX_ITERATIONS):
@@ -380,7 +393,7 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
         frozen = [k + 2] if fix_eta else []
         if (s.eta >= ETA_MAX and grad[k + 2] < 0) or (s.eta <= ETA_MIN and grad[k + 2] > 0):
             frozen.append(k + 2)
-        if (s.kd <= 0.0 and grad[k] > 0) or (s.kd >= problem.kd_max and grad[k] < 0):
+        if s.kd <= 0.0 and grad[k] > 0:
             frozen.append(k)
         if tie_ks:
             frozen.append(k + 1)
@@ -412,31 +425,31 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
 
 
 def _apply(problem: LuminanceProblem, s: LuminanceState, step: Array, tie_ks: bool) -> LuminanceState:
+    """The state after an LM step, renormalized: ``z`` shifted so that ``∫ e^z cos = 1``
+    and ``g`` scaled inversely (the model is unchanged: the shift is the gauge of the
+    ``(z level, g)`` pair), so ``g`` is ``k_s`` and the level cannot drift."""
     k = len(problem.nodes)
     z = s.z + step[:k]
+    n = normalization(problem.nodes, z)[0]
+    if not (math.isfinite(n) and n > 0):
+        return LuminanceState(z, s.kd, s.g, s.eta)  # rejected by its cost (inf)
+    z = z - math.log(n)
     eta = 1.0 + (s.eta - 1.0) * math.exp(float(np.clip(step[k + 2], -2.0, 2.0)))
-    out = LuminanceState(z, min(max(s.kd + float(step[k]), 0.0), problem.kd_max), s.g * math.exp(float(np.clip(step[k + 1], -3.0, 3.0))),
-                         min(max(eta, ETA_MIN), ETA_MAX))
-    if tie_ks:
-        out.g = 1.0 / normalization(problem.nodes, z)[0]
-    return out
+    g = 1.0 if tie_ks else s.g * n * math.exp(float(np.clip(step[k + 1], -3.0, 3.0)))
+    return LuminanceState(z, max(s.kd + float(step[k]), 0.0), g, min(max(eta, ETA_MIN), ETA_MAX))
 
 
 def _normal_equations(problem: LuminanceProblem, s: LuminanceState, tie_ks: bool) -> tuple[Array, Array]:
     """``JᵀWJ + H`` and ``JᵀWr + Hz − β`` over ``(z, k_d, log g, log(η − 1))``."""
     k = len(problem.nodes)
-    spec, fr = problem.specular(s)
-    r, _ = problem.residuals(s)
-    active = problem.measured | (r > 0)
-    w = np.where(active, problem.w, 0.0)
-    de = 1e-6 * s.eta
-    d_eta = spec * ((fresnel(problem.bins.cos_d, s.eta + de) - fr) / de) / np.maximum(fr, 1e-300) * (s.eta - 1.0)
+    problem.data_pass(s, jacobian=True)
+    r, spec, d_eta = problem._r, problem._spec, problem._deta
+    w = np.where(problem.measured | (r > 0), problem.w, 0.0)
     dcols = np.ascontiguousarray(np.stack([np.full(len(r), 1.0 / math.pi), spec, d_eta], axis=1))
     diag, off = np.empty(k), np.empty(k - 1)
     cross, dense = np.empty((k, 3)), np.empty((3, 3))
     gz, gd = np.empty(k), np.empty(3)
-    _polar_kernels.normal_equations(problem.j.astype(np.int64), problem.t, spec, dcols, r, w, k, diag, off, cross,
-                                    dense, gz, gd)
+    _polar_kernels.normal_equations(problem.j, problem.t, spec, dcols, r, w, k, diag, off, cross, dense, gz, gd)
     a = np.zeros((k + 3, k + 3))
     a[np.arange(k), np.arange(k)] = diag
     a[np.arange(k - 1), np.arange(1, k)] = off
@@ -512,15 +525,15 @@ def update_shadowing(problem: LuminanceProblem, s: LuminanceState, damping: bool
     ndf = IsotropicNDF(problem.nodes, np.exp(s.z - s.z.max()))
     new = ndf.shadowing(problem.bins.cos_i) * ndf.shadowing(problem.bins.cos_o)
     problem.shadow = np.sqrt(problem.shadow * new) if damping else new
+    problem.shadow_geometry = problem.shadow * problem.geometry
 
 
-def initial_state(problem: LuminanceProblem, eta: float = 1.5, kd: float | None = None) -> LuminanceState:
-    """``k_d`` (default: from a low percentile of the measured luminance), ``log D``
-    from the partial NDFs (eq. 7 with ``S = 1``) averaged per node, ``g = 1``."""
+def initial_state(problem: LuminanceProblem, eta: float = 1.5) -> LuminanceState:
+    """``k_d`` from a low percentile of the measured luminance, ``log D`` from the
+    partial NDFs (eq. 7 with ``S = 1``) averaged per node and normalized, ``g`` its scale."""
     me = problem.measured
     f = problem.f
-    if kd is None:
-        kd = 0.5 * math.pi * max(float(np.percentile(f[me], 2.0)), 0.0) if me.any() else 0.0
+    kd = 0.5 * math.pi * max(float(np.percentile(f[me], 2.0)), 0.0) if me.any() else 0.0
     dhat = np.maximum((f - kd / math.pi) / (problem.geometry * fresnel(problem.bins.cos_d, eta)), 1e-9 * f.max())
     k = len(problem.nodes)
     w0 = problem.bins.count * me
@@ -531,7 +544,8 @@ def initial_state(problem: LuminanceProblem, eta: float = 1.5, kd: float | None 
     if not seen.any():
         raise ReflectoError("capture: no measured sample above the detection limit")
     z = np.interp(np.arange(k), np.flatnonzero(seen), num[seen] / den[seen])
-    return LuminanceState(z, kd, 1.0, eta)
+    n = normalization(problem.nodes, z)[0]
+    return LuminanceState(z - math.log(n), kd, n, eta)
 
 
 @dataclasses.dataclass
@@ -549,12 +563,10 @@ class LuminanceFit:
         return self.state.g * normalization(self.problem.nodes, self.state.z)[0]
 
 
-def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
-                  kd_start: float | None = None, kd_max: float = math.inf) -> LuminanceFit:
+def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None) -> LuminanceFit:
     """The luminance fit at its fixed point with ``S`` (module docstring, stage 3)."""
     problem = LuminanceProblem(bins, nodes)
-    problem.kd_max = kd_max
-    s = initial_state(problem, 1.5 if fixed_eta is None else fixed_eta, kd_start)
+    s = initial_state(problem, 1.5 if fixed_eta is None else fixed_eta)
     eps = 0.05
     tie = False
     cost = math.inf
@@ -562,7 +574,7 @@ def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
         set_weights(problem, eps)
         prior(problem, s)
         s, cost = solve(problem, s, fix_eta=fixed_eta is not None, tie_ks=tie)
-        if not tie and s.g * normalization(nodes, s.z)[0] > 1.0:
+        if not tie and s.g > 1.0:
             tie = True  # the physical bound binds: continue on it
             s, cost = solve(problem, s, fix_eta=fixed_eta is not None, tie_ks=True)
         eps = model_error(problem, s)

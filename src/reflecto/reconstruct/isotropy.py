@@ -143,11 +143,15 @@ def _log_ratios(slices: Slices, valid: NDArray[np.bool_], model) -> tuple[Array,
     if slices.censored is not None:
         ok = ok & ~slices.censored
     ok[:, np.arange(ok.shape[1]) % PIXEL_STRIDE != 0] = False
+    diffuse = float(model.kd @ LUM) / math.pi
+    # a sample whose specular part is at least MIN_SPECULAR_FRACTION of the model's value
+    # reads at least diffuse / (1 − fraction) unless the model is far off: the others
+    # need no model evaluation
+    ok &= (slices.values @ LUM) > diffuse / (1.0 + MIN_SPECULAR_FRACTION)
     li, pi = np.nonzero(ok)
     i, o = slices.light[li], slices.view[pi]
     f = slices.values[li, pi] @ LUM
     pred = model.eval(i, o) @ LUM
-    diffuse = float(model.kd @ LUM) / math.pi
     spec = pred - diffuse
     h = i + o
     h /= np.linalg.norm(h, axis=1, keepdims=True)
