@@ -20,6 +20,7 @@ import numpy as np
 
 from . import __version__
 from .errors import BatchError, OutputError, ReflectoError, ReflectoWarning, one_line
+from .io import check_output
 
 _SHOW_WARNING = warnings.showwarning
 
@@ -91,6 +92,7 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     _check_suffix(out, "merl", f"use -o {out.with_suffix('.binary')}")
+    check_output(out)
     src = load_source(args.source)
     with _progress(merl.N_BINS, f"tabulating {src.name}", not args.quiet and not args.json and _interactive()) as bar:
         table = merl.tabulate(src, progress=bar.update)
@@ -138,6 +140,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .instrument.simulate import simulate_capture
     from .sources import load_source
 
+    check_output(args.output, folder=True)
     src = load_source(args.source)
     dev = load_device(args.device)
     cap = simulate_capture(src, dev, tilt_deg=args.tilt, tilt_azimuth_deg=args.tilt_azimuth,
@@ -155,6 +158,7 @@ def cmd_simulate_calibration(args: argparse.Namespace) -> int:
     from .instrument.device import load_device
     from .instrument.simulate import simulate_calibration
 
+    check_output(args.output, folder=True)
     dev = load_device(args.device)
     out = simulate_calibration(dev, args.output, seed=args.seed)
     files = sorted(str(p.relative_to(out)) for p in Path(out).rglob("*") if p.is_file())
@@ -165,6 +169,7 @@ def cmd_simulate_calibration(args: argparse.Namespace) -> int:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from .instrument.calibrate import calibrate
 
+    check_output(args.output)
     cal = calibrate(args.calib_dir)
     cal.save(args.output)
     r = cal.report
@@ -228,6 +233,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         raise OutputError(args.output, "with several captures, -o must be a folder")
     if len(caps) == 1 and Path(args.output).suffix:
         _check_suffix(args.output, "model", f"use -o {Path(args.output).with_suffix('.reflecto')}")
+        check_output(args.output)
         outs = [args.output]
     else:
         outs = [str(Path(args.output) / (Path(c).name + ".reflecto")) for c in caps]
@@ -300,6 +306,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     fmt = _export_format(args)
+    check_output(out)
     src = load_source(args.source)
     if fmt == "rgl":
         from .export.rgl import export_rgl

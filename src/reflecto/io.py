@@ -412,6 +412,22 @@ def _replaceable(path: Path, folder: bool = False) -> None:
     raise OutputError(path, "is a device, FIFO or socket; refusing to replace it with an output")
 
 
+def check_output(path: str | Path, folder: bool = False) -> None:
+    """Refuse at once an output that cannot be written (before the work that makes it).
+
+    The path must not hold something a rename must not replace, nor a file where a
+    folder goes (or the reverse), and its nearest existing parent must be a folder.
+    Nothing is created.
+    """
+    path = Path(path)
+    _replaceable(path, folder)
+    p = path.parent
+    while not p.exists() and not p.is_symlink() and p != p.parent:
+        p = p.parent
+    if p.exists() and not p.is_dir():
+        raise OutputError(p, "cannot create the folder: a file of that name is in the way")
+
+
 def _temp_file(path: Path, suffix: str) -> tuple[int, str, list[Path]]:
     _replaceable(path)
     created = make_parents(path.parent)
