@@ -16,6 +16,7 @@ import pytest
 from reflecto.cli import main
 from reflecto.errors import BatchError, ReflectoWarning
 from reflecto.evaluate import sweep as sweep_mod
+from reflecto.evaluate.split import half as sw_half
 from reflecto.io import atomic_write
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,8 +36,10 @@ def fake_run_material(path: str, out_dir: str, device: str = "ideal", calibratio
     img = np.full((sweep_mod.SPHERE_RES, sweep_mod.SPHERE_RES, 3), 0.1).tolist()
     rec = {"name": name, "file": path, "device": device, "seed": sweep_mod.material_seed(name),
            "timings": {"total_s": 0.01, "ours_reconstruct_s": 0.01, "cook_torrance_fit_s": 0.01},
-           "ours": {"error": a, "log_rmse": 0.1, "eta": [1.5, 1.5, 1.5], "albedo_max": a, "finite": True},
+           "ours": {"error": a, "log_rmse": 0.1, "eta": [1.5, 1.5, 1.5], "ks": [0.5, 0.5, 0.5], "albedo_max": a,
+                    "finite": True, "isotropic": True},
            "earlier": {"error": 2 * a, "log_rmse": 0.2}, "cook_torrance": {"error": 1.5 * a, "log_rmse": 0.1},
+           "same_data_ct": {"error": 1.2 * a, "log_rmse": 0.1}, "half": sw_half(name),
            "renders": {k: img for k in ("reference", "ours", "earlier", "cook_torrance")}, "albedo_ref": a}
     with atomic_write(Path(out_dir) / "materials" / f"{name}.json", "w") as fh:
         fh.write(json.dumps(rec))
@@ -64,7 +67,7 @@ def test_sweep_with_one_bad_material_of_five_finishes_the_four(tmp_path, fake_sw
     assert main(["sweep", str(mats), "-o", str(out), "--jobs", "2", "--json"]) == 1
     captured = capsys.readouterr()
     info = json.loads(captured.out)  # one JSON document, nothing after it
-    assert info["materials"] == 4 and [f["file"] for f in info["failed"]] == [str(mats / "m2-bad.bsdf")]
+    assert info["all"]["materials"] == 4 and [f["file"] for f in info["failed"]] == [str(mats / "m2-bad.bsdf")]
     errors = [l for l in captured.err.splitlines() if l.startswith("reflecto: error:")]
     assert len(errors) == 1 and "m2-bad.bsdf: 4294967295 fields, more than 64" in errors[0]
     assert sorted(p.name for p in (out / "materials").iterdir()) == [f"m{k}.json" for k in range(4)]

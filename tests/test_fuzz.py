@@ -66,6 +66,7 @@ OUTCOMES = ("refused", "accepted-same", "accepted-changed", "recovered") + FAILU
 def fake_run_material(path: str, out_dir: str, device: str = "ideal", calibration: str | None = None) -> dict:
     """The sweep's per-material evaluation, stood in: the real loader, a synthetic record."""
     from reflecto.evaluate import sweep as sw
+    from reflecto.evaluate.split import half as sw_half
     from reflecto.io import atomic_write
     from reflecto.sources import load_source
 
@@ -75,8 +76,10 @@ def fake_run_material(path: str, out_dir: str, device: str = "ideal", calibratio
     img = np.full((sw.SPHERE_RES, sw.SPHERE_RES, 3), 0.1).tolist()
     rec = {"name": name, "file": path, "device": device, "seed": sw.material_seed(name),
            "timings": {"total_s": 0.01, "ours_reconstruct_s": 0.01, "cook_torrance_fit_s": 0.01},
-           "ours": {"error": a, "log_rmse": 0.1, "eta": [1.5, 1.5, 1.5], "albedo_max": a, "finite": True},
+           "ours": {"error": a, "log_rmse": 0.1, "eta": [1.5, 1.5, 1.5], "ks": [0.5, 0.5, 0.5], "albedo_max": a,
+                    "finite": True, "isotropic": True},
            "earlier": {"error": 2 * a, "log_rmse": 0.2}, "cook_torrance": {"error": 1.5 * a, "log_rmse": 0.1},
+           "same_data_ct": {"error": 1.2 * a, "log_rmse": 0.1}, "half": sw_half(name),
            "renders": {k: img for k in ("reference", "ours", "earlier", "cook_torrance")}, "albedo_ref": a}
     with atomic_write(Path(out_dir) / "materials" / f"{name}.json", "w") as fh:
         fh.write(json.dumps(rec))

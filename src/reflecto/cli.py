@@ -412,6 +412,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     except BatchError as e:
         recs, failures = getattr(e, "records", []), e.failures
     s = summarize(recs)
+    a = s["all"]
     out = Path(args.output)
     files = [str(out / f) for f in ("results.csv", "fig5_errors.png", "fig4_spheres.png", "failures.json")
              if (out / f).is_file()]
@@ -419,14 +420,16 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(info, indent=1))
     elif not args.quiet:
-        lines = [f"{s['materials']} materials in {out}" + (f", {len(failures)} failed" if failures else "")]
-        if s["materials"]:
-            lines += [f"  ours < Cook–Torrance   {100 * s['ours_better_than_ct']:.0f} %",
-                      f"  ours < earlier device  {100 * s['ours_better_than_earlier']:.0f} %",
-                      f"  median ours / CT       {s['median_ratio_ours_over_ct']:.3g}",
-                      "  median error           ours {ours:.4g} · CT {cook_torrance:.4g} · earlier {earlier:.4g}".format(
-                          **s["median_error"]),
-                      f"  all finite: {s['all_finite']}, max albedo {s['max_albedo']:.4g}"]
+        lines = [f"{a['materials']} materials in {out}" + (f", {len(failures)} failed" if failures else "")]
+        n = a["materials"]
+        if n:
+            lines += [f"  ours < Cook–Torrance            {a['ours_better_than_ct']}/{n}",
+                      f"  ours < same-data Cook–Torrance  {a['ours_better_than_same_data_ct']}/{n}",
+                      f"  ours < earlier device           {a['ours_better_than_earlier']}/{n}",
+                      f"  median ours / CT                {a['median_ratio_ours_over_ct']:.3g}",
+                      "  median error                    ours {ours:.4g} · CT {cook_torrance:.4g} · same-data CT "
+                      "{same_data_ct:.4g} · earlier {earlier:.4g}".format(**a["median_error"]),
+                      f"  all finite: {a['all_finite']}, max albedo {a['max_albedo']:.4g}"]
         lines.append("wrote " + ", ".join(files))
         print("\n".join(lines))
     if failures:

@@ -495,14 +495,14 @@ def model_error(problem: LuminanceProblem, s: LuminanceState) -> float:
     limit), the top 2 % trimmed so that a few outlying bins do not set it."""
     r, m = problem.residuals(s)
     me = problem.measured
-    mm = np.maximum(m[me], 1e-300)
-    nu = problem.bins.noise[me] / mm
-    excess = np.maximum((r[me] / mm) ** 2 - nu**2, 0.0)
+    level = np.maximum(np.maximum(m[me], np.abs(problem.f[me])), 1e-300)  # noise can read below 0: not m alone
+    nu = problem.bins.noise[me] / level
     quiet = nu < QUIET_NOISE
-    if np.count_nonzero(quiet) >= MIN_QUIET_BINS:
-        excess = excess[quiet]
-    if not len(excess):
+    if np.count_nonzero(quiet) < MIN_QUIET_BINS:
+        quiet = nu < 1.0  # too few quiet bins: every bin above its noise
+    if not np.any(quiet):
         return 0.05
+    excess = np.maximum((r[me][quiet] / level[quiet]) ** 2 - nu[quiet] ** 2, 0.0)
     excess = np.minimum(excess, np.percentile(excess, 98.0))
     return float(math.sqrt(max(float(excess.mean()), 1e-8)))
 
@@ -563,14 +563,15 @@ class LuminanceFit:
         return self.state.g * normalization(self.problem.nodes, self.state.z)[0]
 
 
-def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None) -> LuminanceFit:
+def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
+                  outer_iterations: int = OUTER_ITERATIONS) -> LuminanceFit:
     """The luminance fit at its fixed point with ``S`` (module docstring, stage 3)."""
     problem = LuminanceProblem(bins, nodes)
     s = initial_state(problem, 1.5 if fixed_eta is None else fixed_eta)
     eps = 0.05
     tie = False
     cost = math.inf
-    for _ in range(OUTER_ITERATIONS):
+    for _ in range(outer_iterations):
         set_weights(problem, eps)
         prior(problem, s)
         s, cost = solve(problem, s, fix_eta=fixed_eta is not None, tie_ks=tie)

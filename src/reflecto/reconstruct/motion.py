@@ -8,7 +8,12 @@
 * Isotropy and reciprocity between LEDs (:mod:`.consistency`).
 
 The last two hold for isotropic materials only, so they are consulted only when the
-material was found (or declared) isotropic. ``E(η)`` of the hemicube path's Fresnel
+material was found (or declared) isotropic; and they judge the slices against the
+sample's normal, so they are not consulted when that normal was estimated from the
+same slices (§5.4): its error on measured materials (0.2–1°) reaches the plane
+threshold, and LEDs that a tilt brings to equal elevations are compared at grazing
+incidence, where fabrics break the pair equalities by 20–35 % without moving. The
+check frames need no normal and judge every capture. ``E(η)`` of the hemicube path's Fresnel
 fit (§5.1's own cue) enters through :class:`~.hemicube_fit.HemicubeFit`.
 """
 
@@ -93,7 +98,7 @@ class MotionReport:
 
 
 def detect_motion(device_frame: Slices, sample_frame: Slices, valid: NDArray[np.bool_],
-                  isotropic: bool) -> MotionReport:
+                  isotropic: bool, normal_estimated: bool = False) -> MotionReport:
     """Run the cues that apply (see the module docstring).
 
     ``device_frame`` carries the check frames (compared where they were taken);
@@ -101,7 +106,7 @@ def detect_motion(device_frame: Slices, sample_frame: Slices, valid: NDArray[np.
     mirror planes and the pairs are judged; ``valid`` marks the usable samples.
     """
     report = MotionReport(repeat_checks=repeat_checks(device_frame))
-    if isotropic:
+    if isotropic and not normal_estimated:
         ok = valid & sample_frame.valid
         meas = ok if sample_frame.censored is None else ok & ~sample_frame.censored
         report.plane_offsets_deg = plane_offsets(sample_frame.light, sample_frame.view, sample_frame.values, ok)

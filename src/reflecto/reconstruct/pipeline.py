@@ -39,7 +39,7 @@ from .hemicube_fit import HemicubeFit, fit_hemicube
 from .isotropic import ETA_MAX, IsotropicFit, fit_isotropic
 from .isotropy import IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
-from .normal import ConsistencyDistance, estimate_normal_consistency, refine_normal
+from .normal import ConsistencyDistance, IsotropicDistance, estimate_normal_consistency, refine_normal
 
 Array = NDArray[np.float64]
 
@@ -181,13 +181,20 @@ def usable_samples(slices: Slices) -> NDArray[np.bool_]:
     return ok
 
 
-def estimate_frame(slices: Slices, valid: NDArray[np.bool_], max_tilt_deg: float) -> Array:
-    """The sample frame of §5.4: the normal minimising the consistency distance.
+def estimate_frame(slices: Slices, valid: NDArray[np.bool_], max_tilt_deg: float, isotropic: bool = True) -> Array:
+    """The sample frame of §5.4: the normal in which the slices are most consistent.
 
-    ``S`` for the distance comes from an isotropic fit in the device frame; once a
-    normal is found, ``S`` is derived again in its frame and the normal refined from
-    there (a first ``S`` off by the tilt blurs the distance's minimum).
+    For a material that may be isotropic the distance is the misfit of the isotropic
+    fit in the candidate frame (:class:`.normal.IsotropicDistance`: every ring of half
+    vectors must see one NDF); otherwise HLHZ08's symmetry criterion with the full
+    model (:class:`.normal.ConsistencyDistance`: partial NDFs at ``h`` and ``τh``), with
+    ``S`` from an isotropic fit in the device frame. Both are searched on a grid of
+    tilts, their local minima refined (:func:`.normal.estimate_normal_consistency`).
     """
+    if isotropic:
+        coarse, fine = IsotropicDistance(slices, valid, stride=3), IsotropicDistance(slices, valid, stride=1)
+        normal, _ = estimate_normal_consistency(coarse, fine, max_tilt_deg)
+        return geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
     shadow = fit_isotropic(slices, valid).model.shadowing
     coarse = ConsistencyDistance(slices, valid, shadow, n=32, stride=3)
     fine = ConsistencyDistance(slices, valid, shadow, n=64, stride=1)
@@ -245,7 +252,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     opt = options or Options()
     t0 = time.perf_counter()
     valid = usable_samples(slices)
-    frame = estimate_frame(slices, valid, opt.max_tilt_deg) if opt.estimate_normal else np.eye(3)
+    frame = estimate_frame(slices, valid, opt.max_tilt_deg, opt.isotropic != "no") if opt.estimate_normal else np.eye(3)
     sl = slices.reframe(frame) if opt.estimate_normal else slices
     ok = valid & sl.valid
     iso = fit_isotropic(sl, ok, opt.fixed_eta)
@@ -255,7 +262,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     if not isotropic:
         fit = fit_hemicube(sl, ok, fixed_eta=opt.fixed_eta, work_resolution=opt.work_resolution,
                            resolution=opt.resolution, kd_bound_max_deg=opt.kd_bound_max_deg)
-    motion = detect_motion(slices, sl, ok, isotropic) if opt.detect_shake else MotionReport()
+    motion = detect_motion(slices, sl, ok, isotropic, opt.estimate_normal) if opt.detect_shake else MotionReport()
     if isinstance(fit, HemicubeFit):
         motion.excluded_leds = fit.excluded_leds
     model, scale, albedo = limit_energy(fit.model, opt.energy_clamp)

@@ -79,6 +79,13 @@ def _significance(total: Array, spread: Array) -> Array:
     return np.where(total == 0, 0.0, np.where(spread > 0, z, np.inf))
 
 
+def _lit(y: Array) -> bool:
+    """Whether a slice holds light: ``Σ y > MIN_Z √(Σ (y − ȳ)²)``, its mean :data:`MIN_Z`
+    standard errors above 0, so that the camera noise of an LED below the horizon
+    (values scattered about 0) reads as dark, not as lit in one firing only."""
+    return len(y) > 1 and float(y.sum()) > MIN_Z * math.sqrt(float(np.sum((y - y.mean()) ** 2)))
+
+
 def repeat_checks(slices: Slices) -> list[RepeatCheck]:
     """Compare each check slice with its LED's slice; empty when the capture has none."""
     if slices.check_values is None or slices.check_valid is None or not slices.check_leds:
@@ -94,10 +101,11 @@ def repeat_checks(slices: Slices) -> list[RepeatCheck]:
         yb = (slices.check_values[c] @ LUM)[both]
         blk = block[both]
         sa, sb = float(ya.sum()), float(yb.sum())
-        if sa <= 0 and sb <= 0:  # dark in both firings (or no pixel valid in both): no evidence
+        lit_a, lit_b = _lit(ya), _lit(yb)
+        if not lit_a and not lit_b:  # dark in both firings (or no pixel valid in both): no evidence
             out.append(RepeatCheck(int(k), 0.0, 0.0, 0, 0, False))
             continue
-        if sa <= 0 or sb <= 0:  # lit in one firing only: the LED sank below the horizon
+        if not (lit_a and lit_b):  # lit in one firing only: the LED sank below the horizon
             out.append(RepeatCheck(int(k), math.inf, math.inf, 0, 0, True))
             continue
         delta = yb - ya
