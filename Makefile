@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 OUT ?= out/demo
 SHARED ?= ../shared/data
 
-.PHONY: all demo test test-slow bench sysdeps clean
+.PHONY: all demo test test-slow fuzz bench sysdeps clean
 
 all: demo
 
@@ -70,6 +70,14 @@ test: $(STAMP)
 
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
+
+# Fuzz campaign over every loader and file-reading command (issue 23): prints the
+# input kind × outcome table; exits 1 on any traceback, crash, hang, memory blow-up,
+# corrupt input accepted or message that does not name the file. ~2-4 min on 2 cores.
+FUZZ_CASES ?= 600
+FUZZ_SEED ?= 1
+fuzz: $(STAMP)
+	$(BIN)/python tests/test_fuzz.py --cases $(FUZZ_CASES) --seed $(FUZZ_SEED) --work out/fuzz
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_model.py

@@ -49,3 +49,124 @@ def test_bad_input_exits_nonzero_and_writes_nothing(tmp_path, capsys):
 def test_console_script_runs():
     r = subprocess.run([sys.executable, "-m", "reflecto.cli", "--version"], capture_output=True, text=True)
     assert r.returncode == 0 and "reflecto" in r.stdout
+
+
+# ------------------------------------------------------------ issue 25: ergonomics
+import argparse  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+
+from reflecto.cli import build_parser  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+PLASTIC = ROOT / "examples" / "ggx-plastic.json"
+
+
+def _json_out(capsys) -> dict:
+    """stdout of the last command: exactly one JSON document, nothing around it."""
+    out = capsys.readouterr().out
+    doc, end = json.JSONDecoder().raw_decode(out)
+    assert out[end:].strip() == "", out[end:]
+    return doc
+
+
+def _subparsers():
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices
+
+
+def test_every_option_has_help_and_defaults_are_shown():
+    for name, parser in _subparsers().items():
+        if name == "render":  # its options are owned elsewhere (render's --seed/--resolution lack help)
+            continue
+        for action in parser._actions:
+            if action.option_strings and action.dest != "help":
+                assert action.help, f"{name} {action.option_strings} has no help"
+    def text(name):
+        return " ".join(_subparsers()[name].format_help().split())
+
+    assert "(default: ideal)" in text("sweep") and "worker processes (0: all cores) (default: 0)" in text("sweep")
+    assert "samples per pixel of the renders (default: 64)" in text("report")
+    assert "shake (default: 0)" in text("simulate")  # --seed
+
+
+def test_json_on_every_result_command(tmp_path, capsys):
+    """--json prints exactly one JSON document on stdout (no text line after it)."""
+    results = {}
+    runs = {
+        "simulate": ["simulate", str(PLASTIC), "-o", str(tmp_path / "cap")],
+        "reconstruct": ["reconstruct", str(tmp_path / "cap"), "--eta", "1.5", "-o", str(tmp_path / "m.reflecto")],
+        "export": ["export", str(tmp_path / "m.reflecto"), "-o", str(tmp_path / "m.binary"), "--isotropic", "yes"],
+        "tabulate": ["tabulate", str(PLASTIC), "-o", str(tmp_path / "p.binary")],
+        "info": ["info", str(tmp_path / "m.binary")],
+        "compare": ["compare", str(PLASTIC), str(tmp_path / "m.binary")],
+        "layout": ["layout"],
+    }
+    for name, argv in runs.items():
+        assert main([*argv, "--json"]) == 0, name
+        results[name] = _json_out(capsys)
+    assert results["simulate"]["leds"] == 6 and results["simulate"]["check_frames"] == 2
+    assert results["reconstruct"]["failed"] == [] and results["reconstruct"]["models"][0]["summary"]["eta"] == [1.5] * 3
+    assert results["export"]["format"] == "merl" and results["export"]["bytes"] == merl.FILE_BYTES
+    assert results["tabulate"]["output"] == str(tmp_path / "p.binary")
+    assert results["info"]["kind"] == "merl" and "reference" in results["compare"]
+
+
+def test_json_of_calibration_and_report_commands(tmp_path, capsys):
+    assert main(["simulate-calibration", "--device", "as-built", "-o", str(tmp_path / "calib"), "--json"]) == 0
+    assert "calibration.json" in _json_out(capsys)["files"]
+    assert main(["calibrate", str(tmp_path / "calib"), "-o", str(tmp_path / "cal.npz"), "--json"]) == 0
+    assert _json_out(capsys)["report"]["reprojection_rms_px"] < 0.1
+    from reflecto.model import MicrofacetBRDF
+    from reflecto.sources import load_source
+
+    MicrofacetBRDF.from_ndf_function(load_source(PLASTIC).ndf, resolution=16, kd=0.1, ks=0.5).save(tmp_path / "m.reflecto")
+    assert main(["report", str(tmp_path / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep"), "--json"]) == 0
+    assert _json_out(capsys)["output"] == str(tmp_path / "rep" / "index.html")
+
+
+def test_reconstruct_without_the_calibration_its_device_needs(tmp_path, capsys):
+    """Issue 25, acceptance 4: as-built captures need --calibration (or --nominal); ideal ones do not."""
+    assert main(["simulate", str(PLASTIC), "--device", "as-built", "-o", str(tmp_path / "ab"), "-q"]) == 0
+    assert main(["reconstruct", str(tmp_path / "ab"), "-o", str(tmp_path / "m.reflecto")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"reflecto: error: {tmp_path / 'ab'}: captured with device 'as-built'")
+    assert "--calibration" in err and "--nominal" in err and "\n" not in err
+    assert not list(tmp_path.glob("m*"))
+    assert main(["reconstruct", str(tmp_path / "ab"), "--nominal", "--eta", "1.5", "-o", str(tmp_path / "m.reflecto"),
+                 "--json"]) == 0
+    assert _json_out(capsys)["models"][0]["summary"]["calibration"] == "nominal (--nominal)"
+    with pytest.raises(SystemExit):  # one or the other
+        main(["reconstruct", str(tmp_path / "ab"), "--nominal", "--calibration", "x.npz", "-o", "y.reflecto"])
+
+
+def test_progress_lines_off_a_terminal_and_a_bar_on_one(monkeypatch, capsys):
+    from reflecto.evaluate.sweep import Progress, interactive
+
+    monkeypatch.setenv("CI", "true")
+    bar = Progress(3, "sweep")
+    bar.update("pvc", True, 8.1)
+    bar.update("bad", False, 0.2)
+    bar.close()
+    assert bar.bar is None
+    assert capsys.readouterr().err.splitlines() == ["sweep: 1/3 done (pvc, 8.1 s)", "sweep: 2/3 failed (bad)"]
+
+    class Tty:
+        def isatty(self):
+            return True
+
+        def write(self, s):
+            return len(s)
+
+        def flush(self):
+            pass
+
+    monkeypatch.setattr(sys, "stderr", Tty())
+    assert not interactive()  # CI set: plain lines even on a terminal
+    monkeypatch.delenv("CI")
+    assert interactive()
+    bar = Progress(3, "sweep")
+    assert bar.bar is not None  # tqdm
+    bar.close()
+    assert Progress(3, "sweep", enabled=False).bar is None

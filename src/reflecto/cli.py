@@ -1,17 +1,34 @@
-"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|export|render|compare|report|fit-ct|sweep``."""
+"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|export|render|compare|report|fit-ct|sweep``.
+
+Every failure prints one line, ``reflecto: error: FILE: problem``, on stderr and
+exits with status 1, leaving no output file and no folder it created; ``--json``
+makes stdout exactly one JSON document. Batches (several captures, ``sweep``)
+finish every item they can, report each failed one, and exit 1 if any failed.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from . import __version__
-from .errors import ReflectoError
+from .errors import BatchError, OutputError, ReflectoError, ReflectoWarning, one_line
+from .io import check_output
+
+_SHOW_WARNING = warnings.showwarning
+
+
+def _interactive() -> bool:
+    from .evaluate.sweep import interactive
+
+    return interactive()
 
 
 def _progress(total: int, desc: str, enabled: bool):  # type: ignore[no-untyped-def]
@@ -21,9 +38,28 @@ def _progress(total: int, desc: str, enabled: bool):  # type: ignore[no-untyped-
 
 
 def _emit(args: argparse.Namespace, info: dict, lines: list[str]) -> int:
-    """Print ``info`` as JSON with ``--json``, else the human-readable ``lines``."""
-    print(json.dumps(info, indent=1) if args.json else "\n".join(lines))
+    """Print ``info`` as JSON with ``--json``, else the human-readable ``lines`` (none with ``-q``)."""
+    if args.json:
+        print(json.dumps(info, indent=1))
+    elif lines and not getattr(args, "quiet", False):
+        print("\n".join(lines))
     return 0
+
+
+#: What reflecto reads a file of each suffix as (``load_source`` goes by suffix first).
+_SUFFIX_KINDS = {".binary": "merl", ".bsdf": "rgl", ".reflecto": "model", ".h5": "nbrdf", ".json": "description",
+                 ".toml": "description"}
+_KIND_WORDS = {"merl": "a MERL table (.binary)", "rgl": "an RGL tensor file (.bsdf)", "model": "a model file (.reflecto)",
+               "nbrdf": "an NBRDF fit (.h5)", "description": "a JSON/TOML description"}
+
+
+def _check_suffix(output: str | Path, kind: str, hint: str = "") -> None:
+    """Refuse an output whose suffix reflecto would read as another kind of file than ``kind``."""
+    suffix = Path(output).suffix.lower()
+    other = _SUFFIX_KINDS.get(suffix)
+    if other is not None and other != kind:
+        raise OutputError(output, f"this writes {_KIND_WORDS[kind]}, but a {suffix} file is read as {_KIND_WORDS[other]}"
+                          + (f": {hint}" if hint else ""))
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -54,14 +90,16 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
     from .sources import load_source
     from .sources import merl
 
-    src = load_source(args.source)
     out = Path(args.output)
-    with _progress(merl.N_BINS, f"tabulating {src.name}", not args.quiet and sys.stderr.isatty()) as bar:
+    _check_suffix(out, "merl", f"use -o {out.with_suffix('.binary')}")
+    check_output(out)
+    src = load_source(args.source)
+    with _progress(merl.N_BINS, f"tabulating {src.name}", not args.quiet and not args.json and _interactive()) as bar:
         table = merl.tabulate(src, progress=bar.update)
     merl.write_merl_table(out, table)
-    if not args.quiet:
-        print(f"wrote {out} ({out.stat().st_size} bytes, MERL 90x90x180, bin centres)")
-    return 0
+    size = out.stat().st_size
+    return _emit(args, {"source": str(args.source), "output": str(out), "format": "merl", "bytes": size},
+                 [f"wrote {out} ({size} bytes, MERL 90x90x180, bin centres)"])
 
 
 def cmd_layout(args: argparse.Namespace) -> int:
@@ -102,97 +140,175 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .instrument.simulate import simulate_capture
     from .sources import load_source
 
+    check_output(args.output, folder=True)
     src = load_source(args.source)
     dev = load_device(args.device)
     cap = simulate_capture(src, dev, tilt_deg=args.tilt, tilt_azimuth_deg=args.tilt_azimuth,
                            rotation_deg=args.rotation, shake=args.shake, seed=args.seed,
                            source_name=str(args.source))
     write_capture(cap, args.output)
-    if not args.quiet:
-        print(f"wrote {args.output}: {cap.raw.shape[0]} LEDs × {cap.raw.shape[1]} exposures, device {dev.name}")
-    return 0
+    info = {"source": str(args.source), "output": str(args.output), "device": dev.name, "leds": int(cap.raw.shape[0]),
+            "exposures_ms": [float(t) for t in cap.exposures_ms],
+            "check_frames": 0 if cap.check is None else int(cap.check.shape[0] * cap.check.shape[1]),
+            "simulation": cap.extra.get("simulation", {})}
+    return _emit(args, info, [f"wrote {args.output}: {cap.raw.shape[0]} LEDs × {cap.raw.shape[1]} exposures, device {dev.name}"])
 
 
 def cmd_simulate_calibration(args: argparse.Namespace) -> int:
     from .instrument.device import load_device
     from .instrument.simulate import simulate_calibration
 
+    check_output(args.output, folder=True)
     dev = load_device(args.device)
-    simulate_calibration(dev, args.output, seed=args.seed)
-    if not args.quiet:
-        print(f"wrote calibration captures of device {dev.name} to {args.output}")
-    return 0
+    out = simulate_calibration(dev, args.output, seed=args.seed)
+    files = sorted(str(p.relative_to(out)) for p in Path(out).rglob("*") if p.is_file())
+    return _emit(args, {"device": dev.name, "output": str(args.output), "seed": args.seed, "files": files},
+                 [f"wrote calibration captures of device {dev.name} to {args.output}"])
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from .instrument.calibrate import calibrate
 
+    check_output(args.output)
     cal = calibrate(args.calib_dir)
     cal.save(args.output)
-    if not args.quiet:
-        r = cal.report
-        print(f"wrote {args.output}: {r['spots_used']} grid spots, reprojection RMS {r['reprojection_rms_px']:.3f} px; "
-              f"LEDs moved by {r['led_offset_from_nominal_deg']}° from nominal")
-    return 0
+    r = cal.report
+    return _emit(args, {"calibration_folder": str(args.calib_dir), "output": str(args.output), "device": cal.device.name,
+                        "report": r},
+                 [f"wrote {args.output}: {r['spots_used']} grid spots, reprojection RMS {r['reprojection_rms_px']:.3f} px; "
+                  f"LEDs moved by {r['led_offset_from_nominal_deg']}° from nominal"])
 
 
-def _reconstruct_one(job: tuple[str, str | None, str, bool, float | None, str]) -> dict:
-    from .instrument.calibrate import load_calibration
-    from .instrument.capture import read_capture
+def _reconstruct_one(cap_dir: str, cal_path: str | None, out: str, normal: bool, eta: float | None,
+                     isotropic: str, nominal: bool) -> dict:
+    """Reconstruct one capture into ``out`` (+ its ``.json`` summary); returns the summary
+    with the motion cues described (``motion``)."""
+    import os
+
+    from .instrument.calibrate import load_calibration, needs_calibration
+    from .instrument.capture import CaptureError, read_capture
     from .instrument.slices import extract_slices
     from .io import atomic_write
     from .reconstruct import Options, reconstruct
 
-    cap_dir, cal_path, out, normal, eta, isotropic = job
     cap = read_capture(cap_dir)
+    if cal_path is None and not nominal and needs_calibration(cap.device):
+        raise CaptureError(cap_dir, f"captured with device {cap.device.name!r}, whose optics, LEDs and vignetting "
+                           "differ from its nominal design: pass --calibration FILE (from `reflecto calibrate`), "
+                           "or --nominal to use the nominal calibration anyway")
     cal = load_calibration(cal_path, cap.device)
-    res = reconstruct(extract_slices(cap, cal), Options(estimate_normal=normal, fixed_eta=eta, isotropic=isotropic))
+    options = Options(estimate_normal=normal, fixed_eta=eta, isotropic=isotropic)
+    try:
+        res = reconstruct(extract_slices(cap, cal), options)
+    except CaptureError:
+        raise
+    except ReflectoError as e:  # the reconstruction's own errors do not know the capture's folder
+        problem = str(e).removeprefix("capture: ")
+        raise CaptureError(cap_dir, problem + (f" (calibration {cal_path})" if cal_path else "")) from None
     summary = {"capture": str(cap_dir), **res.summary()}
-    res.model.metadata.update({"capture": str(cap_dir), "model_error": summary["model_error"]})
+    if cal_path is None and nominal:
+        summary["calibration"] = "nominal (--nominal)"
+    # the model names its capture relative to its own folder, where readers look for it
+    rel = os.path.relpath(Path(cap_dir).resolve(), Path(out).resolve().parent)
+    res.model.metadata.update({"capture": rel, "model_error": summary["model_error"]})
     res.model.save(out)
     with atomic_write(Path(out).with_suffix(".json"), "w") as fh:
         fh.write(json.dumps(summary, indent=1))
     return {**summary, "motion": res.motion.describe()}
 
 
-def cmd_reconstruct(args: argparse.Namespace) -> int:
-    from concurrent.futures import ProcessPoolExecutor
+def _report_failures(failures: list[tuple[str, str]]) -> None:
+    for _, msg in failures:
+        print(f"reflecto: error: {one_line(msg)}", file=sys.stderr)
 
-    from tqdm import tqdm
+
+def cmd_reconstruct(args: argparse.Namespace) -> int:
+    import os
+    import time
+
+    from .evaluate.sweep import Progress, run_batch
 
     caps = list(args.captures)
     if len(caps) > 1 and not Path(args.output).suffix == "":
-        raise ReflectoError(f"{args.output}: with several captures, -o must be a folder")
+        raise OutputError(args.output, "with several captures, -o must be a folder")
     if len(caps) == 1 and Path(args.output).suffix:
+        _check_suffix(args.output, "model", f"use -o {Path(args.output).with_suffix('.reflecto')}")
+        check_output(args.output)
         outs = [args.output]
     else:
-        Path(args.output).mkdir(parents=True, exist_ok=True)
         outs = [str(Path(args.output) / (Path(c).name + ".reflecto")) for c in caps]
-    jobs = [(c, args.calibration, o, args.estimate_normal, args.eta, args.isotropic) for c, o in zip(caps, outs)]
-    show = args.progress or (len(jobs) > 1 and sys.stderr.isatty())
-    if len(jobs) == 1:
-        results = [_reconstruct_one(jobs[0])]
-    else:
-        import os
+        seen: dict[str, str] = {}
+        for c, o in zip(caps, outs):
+            if o in seen:
+                raise OutputError(o, f"captures {seen[o]} and {c} have the same name; their models would overwrite each other")
+            seen[o] = c
+        from .io import make_parents
 
-        with ProcessPoolExecutor(max_workers=args.jobs or os.cpu_count()) as ex:
-            results = list(tqdm(ex.map(_reconstruct_one, jobs), total=len(jobs), disable=not show, desc="reconstruct"))
-    for out, r in zip(outs, results):
+        make_parents(Path(args.output))
+    jobs = [(c, args.calibration, o, args.estimate_normal, args.eta, args.isotropic, args.nominal)
+            for c, o in zip(caps, outs)]
+    results: dict[int, dict] = {}
+    failures: list[tuple[str, str]] = []
+    bar = Progress(len(jobs), "reconstruct", (len(jobs) > 1 or args.progress) and not args.quiet)
+
+    def finished(k: int, ok: bool, value: object, seconds: float) -> None:
+        if ok:
+            results[k] = value  # type: ignore[assignment]
+        else:
+            failures.append((caps[k], str(value)))
+        bar.update(Path(caps[k]).name, ok, seconds)
+
+    try:
+        if len(jobs) == 1:
+            # one capture: its error is the command's error (nothing else to finish)
+            t0 = time.perf_counter()
+            summary = _reconstruct_one(*jobs[0])
+            finished(0, True, summary, time.perf_counter() - t0)
+        else:
+            run_batch(_reconstruct_one, jobs, caps, args.jobs or os.cpu_count() or 1, finished)
+    finally:
+        bar.close()
+    models = [{"capture": caps[k], "output": outs[k], "summary": results[k]} for k in sorted(results)]
+    info = {"models": models, "failed": [{"capture": c, "error": m} for c, m in failures]}
+    lines = []
+    for k, r in sorted(results.items()):
         flag = f"  SHAKE DETECTED ({r['motion']})" if r["shake_detected"] else ""
         kind = "isotropic" if r["isotropic"] else "anisotropic"
-        print(f"{out}: {kind}, eta {r['eta'][0]:.3f}, kd {np.round(r['kd'], 3).tolist()}, "
-              f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, {r['seconds'] * 1000:.0f} ms{flag}")
-        for note in r["notes"]:
-            print(f"  note: {note}")
+        lines.append(f"{outs[k]}: {kind}, eta {r['eta'][0]:.3f}, kd {np.round(r['kd'], 3).tolist()}, "
+                     f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, {r['seconds'] * 1000:.0f} ms{flag}")
+        lines += [f"  note: {note}" for note in r["notes"]]
+    if args.json:
+        print(json.dumps(info, indent=1))
+    elif lines:
+        print("\n".join(lines))
+    if failures:
+        _report_failures(failures)
+        return 1
     return 0
+
+
+def _export_format(args: argparse.Namespace) -> str:
+    """``--format``, or the one the ``-o`` suffix names; the two must agree."""
+    suffix = Path(args.output).suffix.lower()
+    by_suffix = {".bsdf": "rgl", ".binary": "merl"}.get(suffix)
+    fmt = args.format or by_suffix or "rgl"
+    if args.format is None and by_suffix is None and suffix in _SUFFIX_KINDS:
+        raise OutputError(args.output, f"a {suffix} file is read as {_KIND_WORDS[_SUFFIX_KINDS[suffix]]}: "
+                          "use -o NAME.bsdf (RGL) or NAME.binary (MERL)")
+    right = {"rgl": ".bsdf", "merl": ".binary"}[fmt]
+    _check_suffix(args.output, fmt, f"use -o {Path(args.output).with_suffix(right)}, or --format "
+                  f"{by_suffix or ('merl' if fmt == 'rgl' else 'rgl')}")
+    return fmt
 
 
 def cmd_export(args: argparse.Namespace) -> int:
     from .sources import load_source
 
-    src = load_source(args.source)
     out = Path(args.output)
-    if args.format == "rgl":
+    fmt = _export_format(args)
+    check_output(out)
+    src = load_source(args.source)
+    if fmt == "rgl":
         from .export.rgl import export_rgl
 
         iso = {"auto": None, "yes": True, "no": False}[args.isotropic]
@@ -200,11 +316,11 @@ def cmd_export(args: argparse.Namespace) -> int:
     else:
         from .export.merl import export_merl
 
-        with _progress(merl_bins(), f"tabulating {src.name}", not args.quiet and sys.stderr.isatty()) as bar:
+        with _progress(merl_bins(), f"tabulating {src.name}", not args.quiet and not args.json and _interactive()) as bar:
             export_merl(src, out, allow_anisotropic=args.isotropic == "yes", progress=bar.update)
-    if not args.quiet:
-        print(f"wrote {out} ({out.stat().st_size} bytes, {args.format})")
-    return 0
+    size = out.stat().st_size
+    return _emit(args, {"source": str(args.source), "output": str(out), "format": fmt, "bytes": size},
+                 [f"wrote {out} ({size} bytes, {fmt})"])
 
 
 def merl_bins() -> int:
@@ -257,10 +373,17 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_report(args: argparse.Namespace) -> int:
     from .evaluate.report import write_report
+    from .io import read_json
 
+    summary = Path(args.model).with_suffix(".json")
+    if summary.exists() or summary.is_symlink():
+        # the report reads the reconstruction summary beside the model: refuse a bad one here
+        if not isinstance(read_json(summary), dict):
+            from .errors import FileFormatError
+
+            raise FileFormatError(summary, "a reconstruction summary must be a JSON object")
     page = write_report(args.model, args.output, reference=args.ref, spp=args.spp, render=not args.no_render)
-    print(f"wrote {page}")
-    return 0
+    return _emit(args, {"model": str(args.model), "output": str(page), "folder": str(args.output)}, [f"wrote {page}"])
 
 
 def cmd_fit_ct(args: argparse.Namespace) -> int:
@@ -283,15 +406,62 @@ def cmd_fit_ct(args: argparse.Namespace) -> int:
 def cmd_sweep(args: argparse.Namespace) -> int:
     from .evaluate.sweep import summarize, sweep
 
-    recs = sweep(args.folders, args.output, device=args.device, jobs=args.jobs, progress=not args.quiet and sys.stderr.isatty())
+    failures: list[tuple[str, str]] = []
+    try:
+        recs = sweep(args.folders, args.output, device=args.device, jobs=args.jobs, progress=not args.quiet)
+    except BatchError as e:
+        recs, failures = getattr(e, "records", []), e.failures
     s = summarize(recs)
-    print(json.dumps(s, indent=1))
-    print(f"wrote {Path(args.output) / 'results.csv'}, fig5_errors.png, fig4_spheres.png")
+    a = s["all"]
+    out = Path(args.output)
+    files = [str(out / f) for f in ("results.csv", "fig5_errors.png", "fig4_spheres.png", "failures.json")
+             if (out / f).is_file()]
+    info = {**s, "output": str(out), "files": files, "failed": [{"file": f, "error": m} for f, m in failures]}
+    if args.json:
+        print(json.dumps(info, indent=1))
+    elif not args.quiet:
+        lines = [f"{a['materials']} materials in {out}" + (f", {len(failures)} failed" if failures else "")]
+        n = a["materials"]
+        if n:
+            lines += [f"  ours < Cook–Torrance            {a['ours_better_than_ct']}/{n}",
+                      f"  ours < same-data Cook–Torrance  {a['ours_better_than_same_data_ct']}/{n}",
+                      f"  ours < earlier device           {a['ours_better_than_earlier']}/{n}",
+                      f"  median ours / CT                {a['median_ratio_ours_over_ct']:.3g}",
+                      "  median error                    ours {ours:.4g} · CT {cook_torrance:.4g} · same-data CT "
+                      "{same_data_ct:.4g} · earlier {earlier:.4g}".format(**a["median_error"]),
+                      f"  all finite: {a['all_finite']}, max albedo {a['max_albedo']:.4g}"]
+        lines.append("wrote " + ", ".join(files))
+        print("\n".join(lines))
+    if failures:
+        _report_failures(failures)
+        return 1
     return 0
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows "(default: …)" after every option's help that has a default worth stating."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        d = action.default
+        if "%(default)" in text or d is None or d is argparse.SUPPRESS or isinstance(d, bool) or not action.option_strings:
+            return text
+        return text + " (default: %(default)s)"
+
+
+class _Parser(argparse.ArgumentParser):
+    """The parser of reflecto and of each subcommand: defaults shown in ``--help``."""
+
+    def __init__(self, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
+
+
+_JSON_HELP = "print one JSON document on stdout instead of text"
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="reflecto",
         description="Condenser-based instant reflectometry (Lan et al. 2010): BRDF model, sources and tools.",
     )
@@ -300,23 +470,24 @@ def build_parser() -> argparse.ArgumentParser:
 
     q = sub.add_parser("info", help="kind, parameters and albedo range of a BRDF file")
     q.add_argument("source", help="BRDF file: .binary, .bsdf, .h5, .json/.toml, .reflecto")
-    q.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_info)
 
     q = sub.add_parser("tabulate", help="write a MERL-format table of any BRDF source")
     q.add_argument("source", help="BRDF file")
     q.add_argument("-o", "--output", required=True, help="output .binary file")
     q.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_tabulate)
 
     q = sub.add_parser("layout", help="coverage of a device's LED layout (paper §4.1); optionally re-optimise it")
     q.add_argument("--device", default="ideal", help="ideal | as-built | device file (JSON/TOML)")
     q.add_argument("--optimize", action="store_true", help="run the layout optimizer instead of using the device's LEDs")
-    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--seed", type=int, default=0, help="random seed of the layout optimizer")
     q.add_argument("--resolution", type=int, default=64, help="hemicube resolution of the analysis")
     q.add_argument("--theta-max", type=float, default=80.0, help="NDF cap θ_h ≤ this (degrees)")
     q.add_argument("--plot", type=Path, help="write the Fig. 2(c)(d) analogue to this PNG")
-    q.add_argument("--json", action="store_true")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_layout)
 
     q = sub.add_parser("simulate", help="raw frames of a virtual capture of a BRDF source")
@@ -326,45 +497,59 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--tilt-azimuth", type=float, default=None, help="azimuth of the tilt (default: from the seed)")
     q.add_argument("--rotation", type=float, default=0.0, help="rotation of the sample about its normal, degrees")
     q.add_argument("--shake", action="store_true", help="move the sample between two LEDs' frames")
-    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--seed", type=int, default=0, help="random seed of the camera noise, tilt azimuth and shake")
     q.add_argument("-o", "--output", required=True, help="capture folder to write")
-    q.add_argument("-q", "--quiet", action="store_true")
+    q.add_argument("-q", "--quiet", action="store_true", help="no summary line")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_simulate)
 
     q = sub.add_parser("simulate-calibration", help="virtual calibration captures (white target, pinhole grid, mirror)")
-    q.add_argument("--device", default="as-built")
-    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--device", default="as-built", help="ideal | as-built | device file (JSON/TOML)")
+    q.add_argument("--seed", type=int, default=0, help="random seed of the camera noise")
     q.add_argument("-o", "--output", required=True, help="calibration folder to write")
-    q.add_argument("-q", "--quiet", action="store_true")
+    q.add_argument("-q", "--quiet", action="store_true", help="no summary line")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_simulate_calibration)
 
     q = sub.add_parser("calibrate", help="geometric, LED and radiometric calibration from calibration captures")
     q.add_argument("calib_dir", help="calibration folder")
     q.add_argument("-o", "--output", required=True, help="calibration file to write (.npz)")
-    q.add_argument("-q", "--quiet", action="store_true")
+    q.add_argument("-q", "--quiet", action="store_true", help="no summary line")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_calibrate)
 
     q = sub.add_parser("reconstruct", help="captures → microfacet BRDF model files (paper §5)")
     q.add_argument("captures", nargs="+", help="capture folder(s)")
-    q.add_argument("--calibration", help="calibration file from `reflecto calibrate` (default: the nominal device)")
+    how = q.add_mutually_exclusive_group()
+    how.add_argument("--calibration", help="calibration file from `reflecto calibrate`; needed for captures of any "
+                     "device but the built-in ideal and earlier ones")
+    how.add_argument("--nominal", action="store_true",
+                     help="use the device's nominal calibration even where it needs a measured one")
     q.add_argument("-o", "--output", required=True, help="model file (.reflecto) or, for several captures, a folder")
     q.add_argument("--estimate-normal", action="store_true", help="estimate the altered normal (§5.4; experimental)")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="reconstruct a 1-D isotropic NDF (yes), a hemicube NDF for an anisotropic material (no), "
                         "or decide from the capture (auto)")
-    q.add_argument("--jobs", type=int, default=0, help="worker processes for several captures (default: all cores)")
-    q.add_argument("--progress", action="store_true", help="progress bar")
+    q.add_argument("--jobs", type=int, default=0, help="worker processes for several captures (0: all cores)")
+    q.add_argument("--progress", action="store_true",
+                   help="show progress also for one capture (several captures show it unless -q): "
+                        "a bar on a terminal, plain lines on stderr otherwise or under CI=true")
+    q.add_argument("-q", "--quiet", action="store_true", help="no progress")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_reconstruct)
 
     q = sub.add_parser("export", help="write a BRDF as an RGL .bsdf (Mitsuba 3, pbrt-v4) or MERL .binary file")
     q.add_argument("source", help="model (.reflecto) or any BRDF file")
-    q.add_argument("--format", choices=("rgl", "merl"), default="rgl")
+    q.add_argument("--format", choices=("rgl", "merl"),
+                   help="file format (default: from the -o suffix, .bsdf or .binary; rgl for other suffixes); "
+                        "must agree with the suffix")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="write an isotropic file (RGL: one φ_i; MERL: the φ_h = 0 slice of an anisotropic "
-                        "source) or an anisotropic RGL file (default: detect from the NDF)")
+                        "source) or an anisotropic RGL file (auto: detect from the NDF)")
     q.add_argument("-o", "--output", required=True, help="output file")
-    q.add_argument("-q", "--quiet", action="store_true")
+    q.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_export)
 
     from .render.mitsuba import SCENES
@@ -383,43 +568,107 @@ def build_parser() -> argparse.ArgumentParser:
     q = sub.add_parser("compare", help="error of TEST against REFERENCE (Ngan et al. metric, eq. 10)")
     q.add_argument("reference", help="reference BRDF file")
     q.add_argument("test", help="BRDF file to evaluate")
-    q.add_argument("--json", action="store_true")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_compare)
 
     q = sub.add_parser("report", help="static HTML report of a model: renders, NDF, coverage, slices, numbers")
     q.add_argument("model", help="model file (.reflecto)")
     q.add_argument("--ref", help="reference BRDF file to compare with")
-    q.add_argument("--spp", type=int, default=64)
+    q.add_argument("--spp", type=int, default=64, help="samples per pixel of the renders")
     q.add_argument("--no-render", action="store_true", help="skip the Mitsuba renders")
     q.add_argument("-o", "--output", required=True, help="folder to write index.html and images into")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_report)
 
     q = sub.add_parser("fit-ct", help="fit the Cook–Torrance baseline to a dense BRDF (as Ngan et al. 2005)")
     q.add_argument("source", help="BRDF file")
-    q.add_argument("--json", action="store_true")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_fit_ct)
 
     q = sub.add_parser("sweep", help="validation (paper §6): simulate → reconstruct → evaluate, ours vs baselines")
     q.add_argument("folders", nargs="+", help="folders (or files) of materials: .binary .bsdf .h5 .json .toml")
     q.add_argument("-o", "--output", required=True, help="results folder (resumable: finished materials are skipped)")
     q.add_argument("--device", default="ideal", help="our device: ideal | as-built | device file")
-    q.add_argument("--jobs", type=int, default=0, help="worker processes (default: all cores)")
-    q.add_argument("-q", "--quiet", action="store_true")
+    q.add_argument("--jobs", type=int, default=0, help="worker processes (0: all cores)")
+    q.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress (else a bar on a terminal, plain lines on stderr otherwise or under CI=true) "
+                        "and no summary")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_sweep)
     return p
+
+
+def _new_paths(path: str | Path | None) -> list[Path]:
+    """``path`` and those of its parents that do not exist yet, outermost first."""
+    if path is None:
+        return []
+    out: list[Path] = []
+    p = Path(path)
+    while not p.exists() and not p.is_symlink() and p != p.parent:
+        out.append(p)
+        p = p.parent
+    return out[::-1]
+
+
+def _clean_up(new: list[Path], command: str) -> None:
+    """After a failed command: remove what it created of its output's path.
+
+    A report folder that did not exist is removed with its partial contents (a
+    report is all or nothing); any other folder created for the output only if it
+    is empty (a batch keeps what its finished items wrote).
+    """
+    if not new:
+        return
+    if command == "report" and new[-1].is_dir() and not new[-1].is_symlink():
+        shutil.rmtree(new[-1], ignore_errors=True)
+    for d in reversed(new):
+        try:
+            d.rmdir()
+        except OSError:
+            pass
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):  # type: ignore[no-untyped-def]
+    if issubclass(category, ReflectoWarning):
+        print(f"reflecto: warning: {one_line(message)}", file=sys.stderr)
+    else:
+        _SHOW_WARNING(message, category, filename, lineno, file, line)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return int(args.func(args))
-    except ReflectoError as e:
-        print(f"reflecto: error: {e}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("reflecto: interrupted", file=sys.stderr)
-        return 130
+    new = _new_paths(getattr(args, "output", None))
+    rc = 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", ReflectoWarning)
+        # numpy's floating-point warnings (overflow in a hostile file's numbers, ...) are not
+        # messages for the user: the loaders check every value and name the file at fault
+        warnings.simplefilter("ignore", RuntimeWarning)
+        warnings.showwarning = _show_warning
+        try:
+            rc = int(args.func(args))
+            sys.stdout.flush()
+        except BrokenPipeError:
+            # the reader of stdout went away (`| head`): the work is done, say nothing more
+            import os
+
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            rc = 141
+        except ReflectoError as e:
+            print(f"reflecto: error: {one_line(e)}", file=sys.stderr)
+        except OSError as e:
+            where = f"{e.filename}: " if e.filename else ""
+            print(f"reflecto: error: {where}{one_line(e.strerror or e)}", file=sys.stderr)
+        except MemoryError:
+            print("reflecto: error: out of memory (see docs/limits.md for the input limits)", file=sys.stderr)
+        except KeyboardInterrupt:
+            print("reflecto: interrupted", file=sys.stderr)
+            rc = 130
+        finally:
+            if rc in (1, 130):
+                _clean_up(new, args.command)
+    return rc
 
 
 if __name__ == "__main__":  # pragma: no cover

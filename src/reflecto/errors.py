@@ -1,34 +1,106 @@
-"""Exception types of reflecto.
+"""Exception and warning types of reflecto.
 
 Every error raised on bad input names the offending file (when there is one) and
-the problem, so that the CLI can print it and exit non-zero.
+the problem on one line, so that the CLI can print ``reflecto: error: FILE: problem``
+and exit non-zero. Every error pickles and unpickles to an equal error, so that a
+worker process of a batch can report it to its parent.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
+
+
+def one_line(text: object, max_chars: int = 600) -> str:
+    """``text`` as one line (newlines and runs of blanks become one space), cut to ``max_chars``."""
+    s = " ".join(str(text).split())
+    return s if len(s) <= max_chars else s[: max_chars - 1] + "…"
+
+
+def short_repr(value: Any, max_chars: int = 60) -> str:
+    """``repr(value)`` cut to ``max_chars`` characters, for quoting a bad value in a message."""
+    try:
+        r = repr(value)
+    except Exception:  # noqa: BLE001 — a message must not fail on a strange value
+        r = f"<{type(value).__name__}>"
+    return one_line(r, max_chars)
+
+
+def _rebuild(cls: type, args: tuple[Any, ...], state: dict[str, Any]) -> BaseException:
+    # BaseException.__new__ takes any arguments and does not call __init__, so
+    # subclasses with their own signatures unpickle without knowing it
+    err = cls.__new__(cls, *args)
+    err.args = args
+    err.__dict__.update(state)
+    return err
 
 
 class ReflectoError(Exception):
     """Base class of all errors reflecto raises on purpose."""
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        return _rebuild, (type(self), self.args, dict(self.__dict__))
+
 
 class FileFormatError(ReflectoError):
-    """A file is truncated, of the wrong format, or damaged.
+    """A file is missing, truncated, of the wrong format, damaged or implausible.
 
     Parameters
     ----------
     path
         The file that could not be read.
     problem
-        What is wrong with it, in words.
+        What is wrong with it, in words (made one line).
     """
 
     def __init__(self, path: str | Path, problem: str) -> None:
         self.path = Path(path)
-        self.problem = problem
-        super().__init__(f"{self.path}: {problem}")
+        self.problem = one_line(problem)
+        super().__init__(f"{self.path}: {self.problem}")
+
+
+class OutputError(ReflectoError):
+    """An output cannot be written where asked (a file in the way, no permission, ...).
+
+    Parameters
+    ----------
+    path
+        The output (file or folder) that could not be written.
+    problem
+        What went wrong, in words (made one line).
+    """
+
+    def __init__(self, path: str | Path, problem: str) -> None:
+        self.path = Path(path)
+        self.problem = one_line(problem)
+        super().__init__(f"{self.path}: {self.problem}")
+
+
+class LimitError(FileFormatError):
+    """A file exceeds one of the documented input limits (docs/limits.md)."""
 
 
 class ParameterError(ReflectoError, ValueError):
     """A parameter is impossible (negative roughness, NaN, energy gain, ...)."""
+
+
+class BatchError(ReflectoError):
+    """Some items of a batch failed; the others finished.
+
+    Parameters
+    ----------
+    failures
+        ``(item, message)`` per failed item; each message names its file.
+    total
+        Number of items in the batch.
+    """
+
+    def __init__(self, failures: list[tuple[str, str]], total: int) -> None:
+        self.failures = list(failures)
+        self.total = total
+        super().__init__(f"{len(self.failures)} of {total} items failed")
+
+
+class ReflectoWarning(UserWarning):
+    """Something was read but deserves attention (an older file format, a redone result)."""

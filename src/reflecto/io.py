@@ -1,39 +1,473 @@
-"""Atomic file output: write to a temporary name beside the target, then rename.
+"""Safe file input and atomic file output.
 
-An interrupted or failed write therefore never leaves a partial or corrupted file
-under the requested name.
+**Input.** Every file reflecto reads goes through :func:`read_input` (or
+:func:`read_head`): it refuses anything but a regular file (a FIFO, a device or a
+socket would block or never end) and files larger than the limit of their kind,
+before reading a byte. Structured inputs then go through one checker per container:
+:func:`parse_json` (nesting depth), :func:`zip_members` (member count and unpacked
+bytes, from the central directory, before inflating anything) and :func:`npy_array`
+(the ``.npy`` header's dtype and shape against the bytes present, before allocating).
+Files named inside other files resolve only inside their folder (:func:`inside`).
+The limits are in ``docs/limits.md``; each failure is a
+:class:`~reflecto.errors.FileFormatError` naming the file.
+
+**Output.** Files are written to a temporary name beside the target and renamed
+(:func:`atomic_write`, :func:`atomic_path`, :func:`atomic_folder`), so an interrupted
+or failed write never leaves a partial file under the requested name. Outputs get the
+permissions of an ordinary file or folder under the process's umask
+(``0o666 & ~umask``, ``0o777 & ~umask``), and folders created for an output that then
+failed are removed again.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import io
+import json
+import math
 import os
+import shutil
+import stat
 import tempfile
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from .errors import FileFormatError
+import numpy as np
+
+from .errors import FileFormatError, LimitError, OutputError
+
+MiB = 1 << 20
+#: Largest JSON/TOML description (analytic BRDF, device, capture manifest,
+#: calibration.json, NBRDF architecture, sweep record, reconstruction summary).
+MAX_DESCRIPTION_BYTES = 16 * MiB
+#: Deepest nesting of arrays/objects in a JSON or TOML description.
+MAX_JSON_DEPTH = 64
+#: Largest zip archive (``.reflecto`` model, ``.npz`` calibration) on disk.
+MAX_ARCHIVE_BYTES = 512 * MiB
+#: Most bytes all members of one archive may unpack to, and most members.
+MAX_UNPACKED_BYTES = 512 * MiB
+MAX_ARCHIVE_MEMBERS = 64
+#: Largest BRDF file of a kind without a fixed size (RGL ``.bsdf``, NBRDF ``.h5``).
+MAX_BRDF_BYTES = 128 * MiB
+
+
+# ---------------------------------------------------------------------- input
+def _open_regular(path: Path, missing: str) -> tuple[int, os.stat_result]:
+    """An open descriptor of ``path`` (following links) and its status; regular files only.
+
+    The file is opened without blocking (a FIFO would otherwise wait for a writer)
+    and checked on the descriptor, so what is checked is what is read.
+    """
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags)
+    except FileNotFoundError:
+        raise FileFormatError(path, missing) from None
+    except OSError as e:
+        raise FileFormatError(path, f"cannot read: {e.strerror or e}") from None
+    try:
+        st = os.fstat(fd)
+    except OSError as e:
+        os.close(fd)
+        raise FileFormatError(path, f"cannot read: {e.strerror or e}") from None
+    if not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        kind = ("a directory" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode)
+                else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else "a special file")
+        raise FileFormatError(path, f"is {kind}, not a regular file")
+    return fd, st
+
+
+def read_input(path: str | Path, limit: int, what: str = "this kind of file", missing: str = "no such file") -> bytes:
+    """The whole contents of a regular file of at most ``limit`` bytes.
+
+    Raises
+    ------
+    FileFormatError
+        Missing (message ``missing``), unreadable, not a regular file.
+    LimitError
+        Larger than ``limit`` (checked before reading, and again while reading).
+    """
+    path = Path(path)
+    fd, st = _open_regular(path, missing)
+    try:
+        if st.st_size > limit:
+            raise LimitError(path, f"{st.st_size} bytes, more than the {limit} bytes allowed for {what} (docs/limits.md)")
+        chunks, total = [], 0
+        while True:
+            chunk = os.read(fd, min(1 << 24, limit + 1 - total))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            total += len(chunk)
+            if total > limit:
+                raise LimitError(path, f"more than the {limit} bytes allowed for {what} (docs/limits.md)")
+        return b"".join(chunks)
+    except OSError as e:
+        raise FileFormatError(path, f"cannot read: {e.strerror or e}") from None
+    finally:
+        os.close(fd)
+
+
+def read_head(path: str | Path, n: int, missing: str = "no such file") -> bytes:
+    """The first ``n`` bytes of a regular file (fewer if it is shorter)."""
+    path = Path(path)
+    fd, _ = _open_regular(path, missing)
+    try:
+        return os.read(fd, n)
+    except OSError as e:
+        raise FileFormatError(path, f"cannot read: {e.strerror or e}") from None
+    finally:
+        os.close(fd)
+
+
+def check_regular(path: str | Path, missing: str = "no such file") -> int:
+    """Refuse ``path`` unless it is a regular file (following links); returns its size."""
+    path = Path(path)
+    fd, st = _open_regular(path, missing)
+    os.close(fd)
+    return int(st.st_size)
+
+
+def _depth_at_most(obj: Any, limit: int) -> bool:
+    """Whether no array/object in ``obj`` is nested deeper than ``limit`` (iterative)."""
+    stack = [(obj, 1)]
+    while stack:
+        o, d = stack.pop()
+        if isinstance(o, dict):
+            vals = o.values()
+        elif isinstance(o, list):
+            vals = o
+        else:
+            continue
+        if d > limit:
+            return False
+        stack.extend((v, d + 1) for v in vals if isinstance(v, (dict, list)))
+    return True
+
+
+def parse_json(raw: bytes | str, path: str | Path, kind: str = "JSON") -> Any:
+    """Parse JSON (or TOML with ``kind="TOML"``) text read from ``path``.
+
+    Refuses invalid UTF-8 and syntax, numbers Python will not convert (integers of
+    more than 4300 digits) and nesting deeper than :data:`MAX_JSON_DEPTH`.
+    """
+    import tomllib
+
+    try:
+        text = raw.decode("utf-8") if isinstance(raw, bytes) else raw
+        d = tomllib.loads(text) if kind == "TOML" else json.loads(text)
+    except RecursionError:
+        d = None
+        deep = True
+    except (UnicodeDecodeError, ValueError, tomllib.TOMLDecodeError) as e:  # JSONDecodeError is a ValueError
+        raise FileFormatError(path, f"not valid {kind}: {e}") from None
+    else:
+        deep = not _depth_at_most(d, MAX_JSON_DEPTH)
+    if deep:
+        raise LimitError(path, f"{kind} nested deeper than {MAX_JSON_DEPTH} levels (docs/limits.md)")
+    return d
+
+
+def read_json(path: str | Path, limit: int = MAX_DESCRIPTION_BYTES, missing: str = "no such file") -> Any:
+    """A JSON file (size- and depth-limited) as Python objects."""
+    return parse_json(read_input(path, limit, "a JSON file", missing), path)
+
+
+def read_description(path: str | Path, missing: str = "no such file") -> dict[str, Any]:
+    """A JSON or TOML description file (by suffix) as a dict.
+
+    Raises :class:`FileFormatError` naming the file if it is missing (with ``missing``
+    as the message), unreadable, not a regular file, larger than
+    :data:`MAX_DESCRIPTION_BYTES`, not valid JSON/TOML, nested too deep, or not a
+    table at the top level.
+    """
+    path = Path(path)
+    kind = "TOML" if path.suffix.lower() == ".toml" else "JSON"
+    d = parse_json(read_input(path, MAX_DESCRIPTION_BYTES, f"a {kind} description", missing), path, kind)
+    if not isinstance(d, dict):
+        raise FileFormatError(path, "top level must be a table/object")
+    return d
+
+
+def inside(folder: str | Path, name: Any, where: str | Path, what: str = "file") -> Path:
+    """The path of ``name``, a file named inside ``where``, which must lie in ``folder``.
+
+    ``name`` must be a relative path without ``..``; after following symbolic links
+    it must still lie inside ``folder`` (a link within the folder is fine, one that
+    leads out of it is not).
+
+    Raises
+    ------
+    FileFormatError
+        Naming ``where`` (the file that names ``name``).
+    """
+    folder = Path(folder)
+    if not isinstance(name, str) or not name or "\x00" in name:
+        raise FileFormatError(where, f"{what} name must be a non-empty string, got {_short(name)}")
+    rel = Path(name)
+    if rel.is_absolute() or ".." in rel.parts:
+        raise FileFormatError(where, f"{what} {name!r} must be a relative name inside {folder}")
+    target = folder / rel
+    try:
+        real_folder = os.path.realpath(folder)
+        real = os.path.realpath(target)
+    except (OSError, ValueError) as e:
+        raise FileFormatError(where, f"{what} {name!r}: cannot resolve ({e})") from None
+    if os.path.commonpath([real_folder, real]) != real_folder:
+        raise FileFormatError(where, f"{what} {name!r} leads outside {folder} (to {real})")
+    return target
+
+
+def _short(v: Any) -> str:
+    from .errors import short_repr
+
+    return short_repr(v)
+
+
+# ------------------------------------------------------------------- archives
+def zip_members(raw: bytes, path: str | Path, max_unpacked: int = MAX_UNPACKED_BYTES,
+                max_members: int = MAX_ARCHIVE_MEMBERS) -> dict[str, bytes]:
+    """Every member of a zip archive (its bytes ``raw``), checked before inflating.
+
+    The member count and the unpacked sizes of the central directory are checked
+    against the limits before anything is inflated; a member whose data inflates to
+    more than its recorded size, or fails its CRC, is refused by ``zipfile`` itself.
+    Duplicate names, encryption and compression other than stored/deflate are refused.
+    """
+    try:
+        z = zipfile.ZipFile(io.BytesIO(raw))
+    except MemoryError:
+        raise
+    except Exception as e:  # noqa: BLE001 — zipfile raises many types on damaged data
+        raise FileFormatError(path, f"not a zip archive or damaged ({type(e).__name__}: {e})") from None
+    with z:
+        infos = z.infolist()
+        if len(infos) > max_members:
+            raise LimitError(path, f"{len(infos)} archive members, more than {max_members} (docs/limits.md)")
+        names = [i.filename for i in infos]
+        if len(set(names)) != len(names):
+            raise FileFormatError(path, "archive lists a member twice")
+        total = sum(i.file_size for i in infos)
+        if total > max_unpacked:
+            raise LimitError(path, f"archive unpacks to {total} bytes, more than {max_unpacked} (docs/limits.md)")
+        out = {}
+        for i in infos:
+            if i.flag_bits & 0x1:
+                raise FileFormatError(path, f"archive member {i.filename!r} is encrypted")
+            if i.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+                raise FileFormatError(path, f"archive member {i.filename!r} uses unsupported compression {i.compress_type}")
+            try:
+                data = z.read(i)
+            except MemoryError:
+                raise
+            except Exception as e:  # noqa: BLE001 — BadZipFile, zlib.error, EOFError, ...
+                raise FileFormatError(path, f"damaged archive member {i.filename!r} ({type(e).__name__}: {e})") from None
+            if len(data) != i.file_size:
+                raise FileFormatError(path, f"damaged archive member {i.filename!r} (size differs from the directory's)")
+            out[i.filename] = data
+    return out
+
+
+def npy_bytes(array: np.ndarray) -> bytes:
+    """``array`` in ``.npy`` format (no pickles)."""
+    buf = io.BytesIO()
+    np.save(buf, np.ascontiguousarray(array), allow_pickle=False)
+    return buf.getvalue()
+
+
+def npy_array(raw: bytes, path: str | Path, member: str, dtype: Any = None, shape: tuple[int, ...] | None = None) -> np.ndarray:
+    """The numeric array in ``.npy`` bytes ``raw``; its header is checked before allocating.
+
+    ``dtype`` and ``shape``, when given, are required exactly; in any case the bytes
+    after the header must be exactly what the header's dtype and shape need.
+    """
+    fmt = np.lib.format
+    bio = io.BytesIO(raw)
+    try:
+        version = fmt.read_magic(bio)
+        if version == (1, 0):
+            shp, fortran, dt = fmt.read_array_header_1_0(bio)
+        elif version == (2, 0):
+            shp, fortran, dt = fmt.read_array_header_2_0(bio)
+        else:
+            raise ValueError(f"unsupported .npy version {version}")
+    except MemoryError:
+        raise
+    except Exception as e:  # noqa: BLE001 — ValueError, SyntaxError, TypeError on damaged headers
+        raise FileFormatError(path, f"{member}: damaged .npy header ({type(e).__name__}: {e})") from None
+    if dt.hasobject or dt.kind not in "biuf" or dt.subdtype is not None:
+        raise FileFormatError(path, f"{member}: not a plain numeric array (dtype {dt})")
+    if dtype is not None and dt != np.dtype(dtype):
+        raise FileFormatError(path, f"{member}: dtype {dt}, expected {np.dtype(dtype)}")
+    if shape is not None and tuple(shp) != tuple(shape):
+        raise FileFormatError(path, f"{member}: shape {tuple(shp)}, expected {tuple(shape)}")
+    count = math.prod(int(s) for s in shp)  # exact: no overflow on a hostile shape
+    need = count * dt.itemsize
+    have = len(raw) - bio.tell()
+    if need != have:
+        raise FileFormatError(path, f"{member}: header says {tuple(shp)} {dt} ({need} bytes), the data has {have} bytes")
+    arr = np.frombuffer(raw, dtype=dt, count=count, offset=bio.tell())
+    return np.array(arr.reshape(shp, order="F" if fortran else "C"), order="C")
+
+
+def canonical_json(obj: Any) -> bytes:
+    """The one text of ``obj`` that checksums are taken over (sorted keys, no blanks)."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=True).encode()
+
+
+def content_digest(meta: dict[str, Any]) -> str:
+    """SHA-256 of the canonical JSON of ``meta`` without its ``sha256`` entry."""
+    return hashlib.sha256(canonical_json({k: v for k, v in meta.items() if k != "sha256"})).hexdigest()
+
+
+def sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+# --------------------------------------------------------------------- output
+def _umask() -> int:
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    old = os.umask(0o022)  # no /proc: read it by setting it (and back at once)
+    os.umask(old)
+    return old
+
+
+def file_mode() -> int:
+    """Mode of a new output file: ``0o666 & ~umask`` (what ``open()`` would give)."""
+    return 0o666 & ~_umask()
+
+
+def folder_mode() -> int:
+    """Mode of a new output folder: ``0o777 & ~umask`` (what ``mkdir`` would give)."""
+    return 0o777 & ~_umask()
+
+
+def make_parents(folder: Path) -> list[Path]:
+    """Create ``folder`` and its missing parents; returns the ones created, outermost first.
+
+    Raises
+    ------
+    OutputError
+        A file is in the way, or no permission.
+    """
+    missing = []
+    p = folder
+    while not p.exists() and not p.is_symlink():
+        missing.append(p)
+        if p.parent == p:
+            break
+        p = p.parent
+    if p.exists() and not p.is_dir():
+        raise OutputError(p, "cannot create the folder: a file of that name is in the way")
+    created = []
+    for d in reversed(missing):
+        try:
+            d.mkdir()
+        except FileExistsError:
+            if not d.is_dir():
+                remove_empty(created)
+                raise OutputError(d, "cannot create the folder: a file of that name is in the way") from None
+            continue
+        except OSError as e:
+            remove_empty(created)
+            problem = "a file is in the way" if isinstance(e, NotADirectoryError) else (e.strerror or str(e))
+            raise OutputError(d, f"cannot create the folder: {problem}") from None
+        created.append(d)
+    if not folder.is_dir():
+        raise OutputError(folder, "cannot create the folder: a file of that name is in the way")
+    return created
+
+
+def remove_empty(folders: list[Path]) -> None:
+    """Remove those of ``folders`` (outermost first) that are empty, innermost first."""
+    for d in reversed(folders):
+        with contextlib.suppress(OSError):
+            d.rmdir()
+
+
+def _replaceable(path: Path, folder: bool = False) -> None:
+    """Refuse an output path that holds something a rename must not replace (a device, a FIFO, ...)."""
+    try:
+        st = os.lstat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        return  # a missing parent, or a file in its place: make_parents says which
+    except OSError as e:
+        raise OutputError(path, f"cannot write: {e.strerror or e}") from None
+    if stat.S_ISLNK(st.st_mode) or (stat.S_ISDIR(st.st_mode) if folder else stat.S_ISREG(st.st_mode)):
+        return
+    if stat.S_ISDIR(st.st_mode):
+        raise OutputError(path, "is a folder; cannot write a file there")
+    if folder and stat.S_ISREG(st.st_mode):
+        raise OutputError(path, "a file of that name is in the way")
+    raise OutputError(path, "is a device, FIFO or socket; refusing to replace it with an output")
+
+
+def check_output(path: str | Path, folder: bool = False) -> None:
+    """Refuse at once an output that cannot be written (before the work that makes it).
+
+    The path must not hold something a rename must not replace, nor a file where a
+    folder goes (or the reverse), and its nearest existing parent must be a folder.
+    Nothing is created.
+    """
+    path = Path(path)
+    _replaceable(path, folder)
+    p = path.parent
+    while not p.exists() and not p.is_symlink() and p != p.parent:
+        p = p.parent
+    if p.exists() and not p.is_dir():
+        raise OutputError(p, "cannot create the folder: a file of that name is in the way")
+
+
+def _temp_file(path: Path, suffix: str) -> tuple[int, str, list[Path]]:
+    _replaceable(path)
+    created = make_parents(path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    except OSError as e:
+        remove_empty(created)
+        raise OutputError(path, f"cannot write: {e.strerror or e}") from None
+    os.fchmod(fd, file_mode())  # mkstemp makes 0600 whatever the umask
+    return fd, tmp, created
+
+
+def _rename(tmp: str, path: Path) -> None:
+    try:
+        os.replace(tmp, path)
+    except IsADirectoryError:
+        raise OutputError(path, "is a folder; cannot write a file there") from None
+    except OSError as e:
+        raise OutputError(path, f"cannot write: {e.strerror or e}") from None
 
 
 @contextlib.contextmanager
 def atomic_write(path: str | Path, mode: str = "wb") -> Iterator[BinaryIO]:
     """Open a temporary file next to ``path``; rename it onto ``path`` on success.
 
-    On any exception the temporary file is removed and ``path`` is untouched.
+    On any exception the temporary file (and any folder created for it) is removed
+    and ``path`` is untouched. The file gets mode ``0o666 & ~umask``.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    fd, tmp, created = _temp_file(path, ".part")
     try:
         with os.fdopen(fd, mode) as fh:
             yield fh  # type: ignore[misc]
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        _rename(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        remove_empty(created)
         raise
 
 
@@ -42,43 +476,52 @@ def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path next to ``path`` for libraries that want a filename.
 
     The caller writes to the yielded path; it is renamed onto ``path`` on success
-    and removed on failure.
+    and removed on failure (with any folder created for it).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or ".part", dir=path.parent)
+    fd, tmp, created = _temp_file(path, suffix or ".part")
     os.close(fd)
     try:
         yield Path(tmp)
-        os.replace(tmp, path)
+        with contextlib.suppress(OSError):
+            os.chmod(tmp, file_mode())  # a library may have replaced the file
+        _rename(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        remove_empty(created)
         raise
 
 
-def read_description(path: str | Path, missing: str = "no such file") -> dict[str, Any]:
-    """A JSON or TOML description file (by suffix) as a dict.
+@contextlib.contextmanager
+def atomic_folder(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary folder beside ``path``; it replaces ``path`` on success.
 
-    Raises :class:`FileFormatError` naming the file if it is missing (with ``missing``
-    as the message), unreadable, not valid JSON/TOML, or not a table at the top level.
+    The folder gets mode ``0o777 & ~umask``; on failure it is removed, with any
+    parent created for it.
     """
-    import json
-    import tomllib
-
     path = Path(path)
+    _replaceable(path, folder=True)
+    created = make_parents(path.parent)
     try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise FileFormatError(path, missing) from None
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent))
     except OSError as e:
-        raise FileFormatError(path, f"cannot read: {e.strerror}") from None
-    kind = "TOML" if path.suffix.lower() == ".toml" else "JSON"
+        remove_empty(created)
+        raise OutputError(path, f"cannot write: {e.strerror or e}") from None
+    os.chmod(tmp, folder_mode())  # mkdtemp makes 0700 whatever the umask
     try:
-        text = raw.decode("utf-8")
-        d = tomllib.loads(text) if kind == "TOML" else json.loads(text)
-    except (UnicodeDecodeError, json.JSONDecodeError, tomllib.TOMLDecodeError) as e:
-        raise FileFormatError(path, f"not valid {kind}: {e}") from None
-    if not isinstance(d, dict):
-        raise FileFormatError(path, "top level must be a table/object")
-    return d
+        yield tmp
+        if path.is_symlink() or (path.exists() and not path.is_dir()):
+            raise OutputError(path, "a file of that name is in the way")
+        if path.exists():
+            old = path.with_name(f".{path.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            os.replace(path, old)
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        remove_empty(created)
+        raise

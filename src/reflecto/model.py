@@ -21,7 +21,6 @@ paper's "4π" constant is *not* used (algorithm-reference §3.2–§3.3).
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import math
 import zipfile
@@ -32,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _kernels
-from .errors import FileFormatError, ParameterError
+from .errors import FileFormatError, ParameterError, short_repr
 from .fresnel import FresnelTable, fresnel
 from .hemicube import Hemicube, hemicube
 from .io import atomic_write
@@ -45,7 +44,7 @@ Array = NDArray[np.float64]
 
 #: Format identifier and version of reflecto model files.
 MODEL_FORMAT = "reflecto-model"
-MODEL_VERSION = 2
+MODEL_VERSION = 3
 MODEL_SUFFIX = ".reflecto"
 
 __all__ = ["MicrofacetBRDF", "IsotropicMicrofacetBRDF", "load_model", "MODEL_SUFFIX"]
@@ -217,15 +216,16 @@ class MicrofacetBRDF(BRDFSource):
 
     # ------------------------------------------------------------------- files
     def save(self, path: str | Path) -> Path:
-        """Write the model file atomically (a zip of ``meta.json`` and ``ndf.npy``).
+        """Write the model file atomically: a zip of ``meta.json`` and one ``.npy`` per array.
 
-        ``meta.json`` holds the format name and version, the scalars, and the SHA-256
-        of the NDF bytes, so that damaged files are refused on load.
+        ``meta.json`` holds the format name and version, the scalars, the metadata,
+        each array's file, dtype, shape and SHA-256 (``arrays``), and the SHA-256 of
+        its own canonical JSON without that entry (``sha256``): a damaged byte in any
+        array or any metadata is refused on load. A model that :meth:`load` would
+        refuse (parameters out of range, NDF not normalized, albedo above
+        :data:`MODEL_ALBEDO_MAX`) is refused here with :class:`ParameterError`.
         """
         path = Path(path)
-        ndf32 = self.ndf_values.astype("<f4")
-        buf = io.BytesIO()
-        np.save(buf, ndf32, allow_pickle=False)
         meta = {
             "format": MODEL_FORMAT,
             "version": MODEL_VERSION,
@@ -235,67 +235,220 @@ class MicrofacetBRDF(BRDFSource):
             "ks": self.ks.tolist(),
             "eta": self.eta.tolist(),
             "correlated": self.correlated,
-            "ndf_sha256": hashlib.sha256(ndf32.tobytes()).hexdigest(),
             "metadata": self.metadata,
         }
-        with atomic_write(path) as fh:
-            with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED) as z:
-                z.writestr("meta.json", json.dumps(meta, indent=1))
-                z.writestr("ndf.npy", buf.getvalue())
+        arrays = {"ndf": self.ndf_values.astype("<f4")}
+        try:
+            _check_model(path, self)
+        except FileFormatError as e:
+            raise ParameterError(f"{path}: not saved, the model is invalid: {e.problem}") from None
+        _write_model_file(path, meta, arrays)
         return path
 
     @classmethod
     def load(cls, path: str | Path) -> MicrofacetBRDF:
-        """Read a model file written by :meth:`save`; refuse foreign or damaged files."""
+        """Read a model file written by :meth:`save`; refuse foreign, damaged or implausible files.
+
+        Checks, in this order: the file (regular, at most
+        :data:`~reflecto.io.MAX_ARCHIVE_BYTES`), the archive (members and unpacked
+        sizes before inflating), the format and version, the checksums of the
+        metadata and of every array, each array's header against its bytes, the
+        parameters' types and ranges, the NDF's normalization and the albedo.
+        Files of format versions 1 and 2 (only the NDF checksummed) are read with a
+        :class:`~reflecto.errors.ReflectoWarning`. A capture folder named in the
+        metadata (``capture``) is kept only if it lies inside the model's folder.
+        Returns an :class:`IsotropicMicrofacetBRDF` for a file of ``ndf_kind``
+        ``"isotropic"``.
+        """
         path = Path(path)
-        try:
-            with zipfile.ZipFile(path) as z:
-                names = set(z.namelist())
-                if "meta.json" not in names or "ndf.npy" not in names:
-                    raise FileFormatError(path, "not a reflecto model file (meta.json or ndf.npy missing)")
-                meta = json.loads(z.read("meta.json").decode("utf-8"))
-                raw = z.read("ndf.npy")
-                theta_raw = z.read("ndf_theta.npy") if "ndf_theta.npy" in names else None
-        except FileNotFoundError:
-            raise FileFormatError(path, "no such file") from None
-        except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError) as e:
-            raise FileFormatError(path, f"not a reflecto model file or damaged ({e})") from None
-        except (UnicodeDecodeError, json.JSONDecodeError) as e:
-            raise FileFormatError(path, f"damaged model metadata ({e})") from None
-        if not isinstance(meta, dict) or meta.get("format") != MODEL_FORMAT:
-            raise FileFormatError(path, f"not a reflecto model file (format is {meta.get('format')!r})")
-        version = meta.get("version")
-        if not isinstance(version, int) or version < 1:
-            raise FileFormatError(path, f"invalid model format version {version!r}")
-        if version > MODEL_VERSION:
-            raise FileFormatError(
-                path,
-                f"written by a newer reflecto (model format version {version}; this version reads <= {MODEL_VERSION})",
-            )
-        if meta.get("ndf_kind", "hemicube") == "isotropic":
-            return IsotropicMicrofacetBRDF._from_file(path, meta, raw, theta_raw)
-        try:
-            ndf = np.load(io.BytesIO(raw), allow_pickle=False)
-        except ValueError as e:
-            raise FileFormatError(path, f"damaged NDF array ({e})") from None
-        if hashlib.sha256(np.ascontiguousarray(ndf, dtype="<f4").tobytes()).hexdigest() != meta.get("ndf_sha256"):
-            raise FileFormatError(path, "NDF checksum mismatch: the file is damaged")
+        meta, arrays = _read_model_file(path)
+        kd, ks, eta, correlated, metadata = _model_parameters(path, meta)
+        metadata = _local_metadata(path, metadata)
+        kind = meta.get("ndf_kind", "hemicube")
+        if kind == "isotropic":
+            return IsotropicMicrofacetBRDF._from_file(path, meta, arrays, (kd, ks, eta, correlated, metadata))
+        if kind != "hemicube":
+            raise FileFormatError(path, f"unknown NDF kind {short_repr(kind)} (expected 'hemicube' or 'isotropic')")
         n = meta.get("resolution")
-        if not isinstance(n, int) or ndf.shape != (3 * n * n,):
-            raise FileFormatError(path, f"NDF has shape {ndf.shape}, expected (3·{n}²,)")
+        if not isinstance(n, int) or isinstance(n, bool) or n < 4 or n % 2 or n > MAX_MODEL_RESOLUTION:
+            raise FileFormatError(path, f"invalid NDF resolution {short_repr(n)} (an even number in [4, {MAX_MODEL_RESOLUTION}])")
+        ndf = arrays.get("ndf")
+        if ndf is None or ndf.dtype != np.dtype("<f4") or ndf.shape != (3 * n * n,):
+            got = None if ndf is None else f"{ndf.shape} {ndf.dtype}"
+            raise FileFormatError(path, f"NDF array is {got}, expected (3·{n}²,) float32")
         try:
-            return cls(
-                ndf,
-                meta["kd"],
-                meta["ks"],
-                meta["eta"],
-                normalize=False,
-                correlated=bool(meta.get("correlated", False)),
-                metadata=meta.get("metadata") or {},
-                path=path,
-            )
-        except (KeyError, ParameterError) as e:
+            model = cls(ndf, kd, ks, eta, normalize=False, correlated=correlated, metadata=metadata, path=path)
+        except ParameterError as e:
             raise FileFormatError(path, f"invalid model parameters ({e})") from None
+        _check_model(path, model)
+        return model
+
+
+#: Limits and ranges of model files (docs/limits.md).
+MAX_MODEL_RESOLUTION = 2048
+MAX_POLAR_NODES = 1 << 16
+MAX_MODEL_META_BYTES = 16 << 20
+ETA_RANGE = (1.0, 100.0)
+#: Largest directional albedo of a model file: the reconstruction clamps it to 1
+#: (on its own quadrature, which this one may differ from by a percent or so).
+MODEL_ALBEDO_MAX = 1.05
+#: How far ``∫ D cos θ dω`` of a stored NDF may be from 1 (float32 rounding: 1e-7).
+NDF_NORM_TOLERANCE = 1e-4
+
+
+def _write_model_file(path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> None:
+    """Zip ``meta`` (plus array specs and checksums) and ``arrays`` atomically."""
+    from .io import content_digest, npy_bytes, sha256
+
+    members = {f"{name}.npy": npy_bytes(a) for name, a in arrays.items()}
+    meta = json.loads(json.dumps(meta))  # what load() will see: string keys, lists, no tuples
+    meta["arrays"] = {name: {"file": f"{name}.npy", "dtype": a.dtype.str, "shape": list(a.shape),
+                             "sha256": sha256(members[f"{name}.npy"])} for name, a in arrays.items()}
+    meta["sha256"] = content_digest(meta)
+    with atomic_write(path) as fh:
+        with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED) as z:
+            z.writestr("meta.json", json.dumps(meta, indent=1))
+            for name, data in members.items():
+                z.writestr(name, data)
+
+
+def _read_model_file(path: Path) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
+    """Metadata and arrays of a model file, with every check up to the arrays' headers."""
+    from .io import MAX_ARCHIVE_BYTES, parse_json, read_input, zip_members
+
+    members = zip_members(read_input(path, MAX_ARCHIVE_BYTES, "a model file"), path)
+    if "meta.json" not in members or "ndf.npy" not in members:
+        raise FileFormatError(path, "not a reflecto model file (meta.json or ndf.npy missing)")
+    if len(members["meta.json"]) > MAX_MODEL_META_BYTES:
+        raise FileFormatError(path, f"meta.json is {len(members['meta.json'])} bytes, more than {MAX_MODEL_META_BYTES}")
+    meta = parse_json(members["meta.json"], path)
+    if not isinstance(meta, dict) or meta.get("format") != MODEL_FORMAT:
+        got = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
+        raise FileFormatError(path, f"not a reflecto model file (format is {short_repr(got)})")
+    version = meta.get("version")
+    if not isinstance(version, int) or isinstance(version, bool) or version < 1:
+        raise FileFormatError(path, f"invalid model format version {short_repr(version)}")
+    if version > MODEL_VERSION:
+        raise FileFormatError(
+            path,
+            f"written by a newer reflecto (model format version {version}; this version reads <= {MODEL_VERSION})",
+        )
+    if version < 3:
+        return meta, _legacy_arrays(path, meta, members)
+    return meta, _checked_arrays(path, meta, members)
+
+
+def _checked_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes]) -> dict[str, NDArray[Any]]:
+    """The arrays of a version-2 file, after its metadata and array checksums (any array names)."""
+    from .io import content_digest, npy_array, sha256
+
+    if meta.get("sha256") != content_digest(meta):
+        raise FileFormatError(path, "metadata checksum mismatch: the file is damaged")
+    spec = meta.get("arrays")
+    if not isinstance(spec, dict) or not all(isinstance(v, dict) for v in spec.values()):
+        raise FileFormatError(path, "metadata lacks a valid 'arrays' table")
+    files = {v.get("file") for v in spec.values()}
+    extra = sorted(set(members) - files - {"meta.json"})
+    if extra or len(files) != len(spec):
+        raise FileFormatError(path, f"archive members {extra or sorted(map(str, files))} do not match the metadata")
+    arrays = {}
+    for name, v in spec.items():
+        f, dtype, shape = v.get("file"), v.get("dtype"), v.get("shape")
+        if f not in members:
+            raise FileFormatError(path, f"array {name!r}: member {short_repr(f)} is missing")
+        if sha256(members[f]) != v.get("sha256"):
+            raise FileFormatError(path, f"array {name!r} checksum mismatch: the file is damaged")
+        if not isinstance(shape, list) or not all(isinstance(k, int) and not isinstance(k, bool) and k >= 0 for k in shape):
+            raise FileFormatError(path, f"array {name!r}: invalid shape {short_repr(shape)}")
+        try:
+            dt = np.dtype(dtype)
+        except TypeError:
+            raise FileFormatError(path, f"array {name!r}: invalid dtype {short_repr(dtype)}") from None
+        arrays[name] = npy_array(members[f], path, f, dtype=dt, shape=tuple(shape))
+    return arrays
+
+
+def _legacy_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes]) -> dict[str, NDArray[Any]]:
+    """The NDF (and polar nodes) of a version-1 or -2 file, whose checksum covers only
+    those, with a warning."""
+    import warnings
+
+    from .errors import ReflectoWarning
+    from .io import npy_array
+
+    arrays = {"ndf": npy_array(members["ndf.npy"], path, "ndf.npy", dtype="<f4")}
+    covered = arrays["ndf"].tobytes()
+    if "ndf_theta.npy" in members:
+        arrays["ndf_theta"] = npy_array(members["ndf_theta.npy"], path, "ndf_theta.npy", dtype="<f8")
+        covered += arrays["ndf_theta"].tobytes()
+    if hashlib.sha256(covered).hexdigest() != meta.get("ndf_sha256"):
+        raise FileFormatError(path, "NDF checksum mismatch: the file is damaged")
+    warnings.warn(f"{path}: model format version {meta['version']} checksums only the NDF; its parameters are "
+                  "range-checked but not verified (save it again to get version 3)", ReflectoWarning, stacklevel=3)
+    return arrays
+
+
+def _model_parameters(path: Path, meta: dict[str, Any]) -> tuple[Array, Array, Array, bool, dict[str, Any]]:
+    """k_d, k_s, η, correlated and metadata of a model file, types and ranges checked."""
+    def triple(key: str, lo: float, hi: float) -> Array:
+        v = meta.get(key)
+        ok = isinstance(v, list) and len(v) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+        arr = np.asarray(v, dtype=np.float64) if ok else np.zeros(0)
+        if not ok or not np.all(np.isfinite(arr)) or np.any(arr < lo) or np.any(arr > hi):
+            raise FileFormatError(path, f"invalid model parameters ({key} must be three finite numbers in "
+                                  f"[{lo:g}, {hi:g}], got {short_repr(v)})")
+        return arr
+
+    kd = triple("kd", 0.0, 1.0)
+    ks = triple("ks", 0.0, math.inf)
+    eta = triple("eta", *ETA_RANGE)
+    correlated = meta.get("correlated", False)
+    if not isinstance(correlated, bool):
+        raise FileFormatError(path, f"invalid model parameters ('correlated' must be true or false, got {short_repr(correlated)})")
+    metadata = meta.get("metadata") or {}
+    if not isinstance(metadata, dict):
+        raise FileFormatError(path, f"'metadata' must be an object, got {short_repr(metadata)}")
+    return kd, ks, eta, correlated, metadata
+
+
+def _local_metadata(path: Path, metadata: dict[str, Any]) -> dict[str, Any]:
+    """``metadata`` with its ``capture`` folder resolved against the model's folder.
+
+    The folder is kept (as that path) only if it exists and lies inside the model's
+    folder; a model file cannot make a reader open files elsewhere.
+    """
+    import os
+
+    out = dict(metadata)
+    cap = out.get("capture")
+    if cap is None:
+        return out
+    out.pop("capture")
+    if not isinstance(cap, str) or not cap or "\x00" in cap or Path(cap).is_absolute() or ".." in Path(cap).parts:
+        return out
+    folder = path.parent
+    target = folder / cap
+    real_folder, real = os.path.realpath(folder), os.path.realpath(target)
+    if os.path.commonpath([real_folder, real]) == real_folder and os.path.isdir(real):
+        out["capture"] = str(target)
+    return out
+
+
+def _check_model(path: Path, model: MicrofacetBRDF | IsotropicMicrofacetBRDF) -> None:
+    """Ranges, NDF normalization (eq. 1.2) and albedo of a model (as loaded or about to be saved)."""
+    from .sources.base import check_plausible
+
+    if not (np.all(model.kd >= 0) and np.all(model.kd <= 1)):
+        raise FileFormatError(path, f"k_d {model.kd.tolist()} outside [0, 1]")
+    if not (np.all(model.eta >= ETA_RANGE[0]) and np.all(model.eta <= ETA_RANGE[1])):
+        raise FileFormatError(path, f"η {model.eta.tolist()} outside [{ETA_RANGE[0]:g}, {ETA_RANGE[1]:g}]")
+    if isinstance(model, IsotropicMicrofacetBRDF):
+        total = model.ndf_table.normalization
+    else:
+        total = float(model.ndf_values @ model.cube.projected_solid_angles)
+    if not abs(total - 1.0) <= NDF_NORM_TOLERANCE:
+        raise FileFormatError(path, f"the NDF is not normalized (∫ D cos θ dω = {total:.6g}, eq. 1.2 needs 1)")
+    check_plausible(model, path, albedo_range=(0.0, MODEL_ALBEDO_MAX))
 
 
 def load_model(path: str | Path) -> MicrofacetBRDF | IsotropicMicrofacetBRDF:
@@ -415,50 +568,47 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         }
 
     def save(self, path: str | Path) -> Path:
-        """Write the model file atomically (a zip of ``meta.json``, ``ndf.npy``, ``ndf_theta.npy``)."""
+        """Write the model file atomically: ``meta.json``, ``ndf.npy`` (D at the nodes,
+        float32) and ``ndf_theta.npy`` (the nodes, radians), checksummed as
+        :meth:`MicrofacetBRDF.save` describes; a model that :meth:`MicrofacetBRDF.load`
+        would refuse is refused here with :class:`ParameterError`."""
         path = Path(path)
-        values = self.ndf_table.values.astype("<f4")
-        nodes = self.ndf_table.nodes.astype("<f8")
-        arrays = {}
-        for name, a in (("ndf.npy", values), ("ndf_theta.npy", nodes)):
-            buf = io.BytesIO()
-            np.save(buf, a, allow_pickle=False)
-            arrays[name] = buf.getvalue()
         meta = {
             "format": MODEL_FORMAT,
             "version": MODEL_VERSION,
             "ndf_kind": "isotropic",
-            "resolution": len(nodes),
+            "resolution": self.resolution,
             "kd": self.kd.tolist(),
             "ks": self.ks.tolist(),
             "eta": self.eta.tolist(),
             "correlated": self.correlated,
-            "ndf_sha256": hashlib.sha256(values.tobytes() + nodes.tobytes()).hexdigest(),
             "metadata": self.metadata,
         }
-        with atomic_write(path) as fh:
-            with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED) as z:
-                z.writestr("meta.json", json.dumps(meta, indent=1))
-                for name, raw in arrays.items():
-                    z.writestr(name, raw)
+        arrays = {"ndf": self.ndf_table.values.astype("<f4"), "ndf_theta": self.ndf_table.nodes.astype("<f8")}
+        try:
+            _check_model(path, self)
+        except FileFormatError as e:
+            raise ParameterError(f"{path}: not saved, the model is invalid: {e.problem}") from None
+        _write_model_file(path, meta, arrays)
         return path
 
     @classmethod
-    def _from_file(cls, path: Path, meta: dict[str, Any], raw: bytes, theta_raw: bytes | None) -> IsotropicMicrofacetBRDF:
-        if theta_raw is None:
+    def _from_file(cls, path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[Any]],
+                   params: tuple[Array, Array, Array, bool, dict[str, Any]]) -> IsotropicMicrofacetBRDF:
+        """The model of an isotropic file whose arrays and parameters :meth:`MicrofacetBRDF.load` checked."""
+        values, nodes = arrays.get("ndf"), arrays.get("ndf_theta")
+        if nodes is None:
             raise FileFormatError(path, "isotropic model without its polar nodes (ndf_theta.npy)")
-        try:
-            values = np.load(io.BytesIO(raw), allow_pickle=False)
-            nodes = np.load(io.BytesIO(theta_raw), allow_pickle=False)
-        except ValueError as e:
-            raise FileFormatError(path, f"damaged NDF array ({e})") from None
-        values = np.ascontiguousarray(values, dtype="<f4")
-        nodes = np.ascontiguousarray(nodes, dtype="<f8")
-        if hashlib.sha256(values.tobytes() + nodes.tobytes()).hexdigest() != meta.get("ndf_sha256"):
-            raise FileFormatError(path, "NDF checksum mismatch: the file is damaged")
+        n = meta.get("resolution", len(nodes))
+        if (values is None or values.dtype != np.dtype("<f4") or nodes.dtype != np.dtype("<f8") or values.ndim != 1
+                or values.shape != nodes.shape or n != len(nodes) or not 3 <= len(nodes) <= MAX_POLAR_NODES):
+            raise FileFormatError(path, f"isotropic NDF arrays must be 3 to {MAX_POLAR_NODES} float32 values on as "
+                                  "many float64 nodes, as the resolution says")
+        kd, ks, eta, correlated, metadata = params
         try:
             ndf = IsotropicNDF(nodes, values.astype(np.float64), normalize=False)
-            return cls(ndf, meta["kd"], meta["ks"], meta["eta"], correlated=bool(meta.get("correlated", False)),
-                       metadata=meta.get("metadata") or {}, path=path)
-        except (KeyError, ParameterError) as e:
+            model = cls(ndf, kd, ks, eta, correlated=correlated, metadata=metadata, path=path)
+        except ParameterError as e:
             raise FileFormatError(path, f"invalid model parameters ({e})") from None
+        _check_model(path, model)
+        return model

@@ -21,23 +21,36 @@ nothing and a restarted one ends with identical results (every seed derives from
 material's name). Work is spread over processes; at the end the CSV table
 (``results.csv``) and the figures (``fig5_errors.png``, ``fig4_spheres.png``) are
 written.
+
+A material that fails (a damaged file, an error in its evaluation, a worker process
+that dies) is recorded in ``failures.json`` with its message, and the others finish;
+:func:`sweep` then raises :class:`~reflecto.errors.BatchError`. A rerun tries the
+failed ones again. A finished record that cannot be read back or lacks a field is
+done again (with a warning). Workers end when the parent process dies, even by
+SIGKILL (:func:`run_batch`).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
+import signal
+import sys
+import threading
 import time
+import warnings
 import zlib
-from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import FileFormatError, ReflectoError
-from ..io import atomic_write, read_description
+from ..errors import BatchError, FileFormatError, ReflectoError, ReflectoWarning, one_line
+from ..io import atomic_write, make_parents, read_description, read_json, remove_empty
 
 MATERIAL_SUFFIXES = (".binary", ".bsdf", ".h5", ".json", ".toml")
 #: Resolution of the sphere renders kept per material (Fig. 4).
@@ -55,7 +68,7 @@ def find_materials(folders: Sequence[str | Path]) -> list[Path]:
             out.append(folder)
             continue
         if not folder.is_dir():
-            raise FileFormatError(folder, "no such folder")
+            raise FileFormatError(folder, "not a folder or material file" if folder.exists() else "no such folder")
         for p in sorted(folder.iterdir()):
             if p.suffix.lower() not in MATERIAL_SUFFIXES or p.name.startswith("."):
                 continue
@@ -163,65 +176,280 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
     return rec
 
 
+def record_problem(rec: Any, name: str) -> str | None:
+    """What a material record lacks for the table, the summary and the figures (None if complete)."""
+    def number(v: Any) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    if not isinstance(rec, dict):
+        return "not a record (a JSON object)"
+    if rec.get("name") != name or not isinstance(rec.get("device"), str):
+        return "name or device missing or wrong"
+    tm = rec.get("timings")
+    if not isinstance(tm, dict) or not all(number(tm.get(k)) for k in ("total_s", "ours_reconstruct_s", "cook_torrance_fit_s")):
+        return "timings missing or invalid"
+    for key in ("ours", "earlier", "cook_torrance", "same_data_ct"):
+        r = rec.get(key)
+        if not isinstance(r, dict) or not number(r.get("error")) or r["error"] < 0 or not number(r.get("log_rmse")):
+            return f"{key}: error or log_rmse missing or invalid"
+    ours = rec["ours"]
+
+    def triple(v: Any) -> bool:
+        return isinstance(v, list) and len(v) == 3 and all(number(e) for e in v)
+
+    if not triple(ours.get("eta")) or not triple(ours.get("ks")) or not number(ours.get("albedo_max")) \
+            or not isinstance(ours.get("finite"), bool):
+        return "ours: eta, ks, albedo_max or finite missing or invalid"
+    renders = rec.get("renders")
+    if not isinstance(renders, dict):
+        return "renders missing"
+    for key in ("reference", "ours", "earlier", "cook_torrance"):
+        try:
+            img = np.asarray(renders.get(key))  # as the figures read it: no object arrays
+        except (TypeError, ValueError):
+            return f"render {key!r} invalid"
+        if img.shape != (SPHERE_RES, SPHERE_RES, 3) or img.dtype.kind not in "fiu" or not np.all(np.isfinite(img)):
+            return f"render {key!r} missing or invalid"
+    return None
+
+
 def _done(out_dir: Path, name: str) -> dict[str, Any] | None:
+    """The finished record of ``name``, or None (to do it again) if absent or unusable."""
     p = out_dir / "materials" / f"{name}.json"
-    if not p.is_file():
+    if not p.exists() and not p.is_symlink():
         return None
     try:
-        return json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None  # damaged (cannot happen with atomic writes, but be safe): redo
+        rec = read_json(p)
+    except ReflectoError as e:
+        warnings.warn(f"{e}; the material is evaluated again", ReflectoWarning, stacklevel=2)
+        return None
+    problem = record_problem(rec, name)
+    if problem:
+        warnings.warn(f"{p}: damaged result record ({problem}); the material is evaluated again", ReflectoWarning,
+                      stacklevel=2)
+        return None
+    return rec
 
 
 def prepare_calibration(out_dir: Path, device: str) -> str | None:
-    """For ``as-built``: run the virtual calibration once (kept in ``out_dir``)."""
+    """For ``as-built``: run the virtual calibration once (kept in ``out_dir``).
+
+    A kept calibration file that does not load is made again (with a warning).
+    """
     if device == "ideal":
         return None
-    from ..instrument.calibrate import calibrate
+    from ..instrument.calibrate import Calibration, calibrate
     from ..instrument.device import load_device
     from ..instrument.simulate import simulate_calibration
 
+    dev = load_device(device)
     cal_path = out_dir / f"calibration-{Path(device).stem}.npz"
+    if cal_path.exists():
+        try:
+            Calibration.load(cal_path)
+        except ReflectoError as e:
+            warnings.warn(f"{e}; calibrating again", ReflectoWarning, stacklevel=2)
+            cal_path.unlink()
     if not cal_path.is_file():
         folder = out_dir / f"calibration-{Path(device).stem}"
         if not folder.is_dir():
-            simulate_calibration(load_device(device), folder, seed=1)
+            simulate_calibration(dev, folder, seed=1)
         calibrate(folder).save(cal_path)
     return str(cal_path)
 
 
+# ------------------------------------------------------------------ batches
+def interactive() -> bool:
+    """Whether progress may be drawn as a bar: stderr is a terminal and ``CI`` is not set."""
+    ci = os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")
+    try:
+        return sys.stderr.isatty() and not ci
+    except (AttributeError, ValueError):
+        return False
+
+
+class Progress:
+    """Progress of a batch on stderr: a tqdm bar on a terminal, else one plain line per item.
+
+    A line reads ``sweep: 12/50 done (pvc, 8.1 s)`` or ``sweep: 13/50 failed (pvc)``.
+    """
+
+    def __init__(self, total: int, desc: str, enabled: bool = True, initial: int = 0) -> None:
+        self.total, self.desc, self.enabled, self.done = total, desc, enabled, initial
+        self.bar = None
+        if enabled and interactive():
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, initial=initial, desc=desc, unit="item", leave=False)
+
+    def update(self, name: str, ok: bool, seconds: float) -> None:
+        self.done += 1
+        if self.bar is not None:
+            self.bar.update()
+        elif self.enabled:
+            what = f"done ({name}, {seconds:.1f} s)" if ok else f"failed ({name})"
+            print(f"{self.desc}: {self.done}/{self.total} {what}", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _watch_parent(parent: int) -> None:
+    """Pool initializer: end this worker as soon as its parent process is gone.
+
+    Linux kills the worker when its parent dies (``PR_SET_PDEATHSIG``, SIGKILL, set
+    by ``prctl``); elsewhere, and as a fallback, a thread polls ``os.getppid()``
+    twice a second. Without this a SIGKILLed parent leaves its workers waiting on
+    their task queue for ever.
+    """
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != parent:  # the parent died before prctl took effect
+        os._exit(1)
+
+    def poll() -> None:
+        while True:
+            time.sleep(0.5)
+            if os.getppid() != parent:
+                os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=poll, name="reflecto-parent-watch", daemon=True).start()
+
+
+def _guarded(fn: Callable[..., Any], args: tuple[Any, ...], label: str) -> tuple[bool, Any, float]:
+    """``(True, fn(*args), seconds)``, or ``(False, message, seconds)`` if it raised.
+
+    The message is one line naming the item: a ReflectoError's own, anything else as
+    an internal error with its type (no exception object crosses the process boundary).
+    """
+    t0 = time.perf_counter()
+    try:
+        return True, fn(*args), time.perf_counter() - t0
+    except ReflectoError as e:
+        msg = one_line(e)
+    except MemoryError:
+        msg = f"{label}: out of memory"
+    except Exception as e:  # noqa: BLE001 — one item's bug must not end the batch
+        msg = f"{label}: internal error ({type(e).__name__}: {one_line(e, 300)})"
+    return False, msg, time.perf_counter() - t0
+
+
+def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: Sequence[str], jobs: int,
+              on_result: Callable[[int, bool, Any, float], None]) -> None:
+    """Run ``fn(*items[k])`` for every ``k``, in ``jobs`` worker processes (1: in this one).
+
+    ``on_result(k, ok, value_or_message, seconds)`` is called in this process as each
+    item ends, in completion order; a failed item never stops the others. Workers
+    die with this process (:func:`_watch_parent`). If a worker process itself dies
+    (a signal, the out-of-memory killer), the pool is lost: every item that had not
+    finished is run again, each in a process of its own, so that only the item that
+    kills its process is reported failed ("worker process died").
+    """
+    if jobs <= 1 or len(items) <= 1:
+        for k, args in enumerate(items):
+            on_result(k, *_guarded(fn, args, labels[k]))
+        return
+    unfinished: list[int] = []
+    with ProcessPoolExecutor(max_workers=min(jobs, len(items)), initializer=_watch_parent,
+                             initargs=(os.getpid(),)) as ex:
+        futs = {ex.submit(_guarded, fn, args, labels[k]): k for k, args in enumerate(items)}
+        pending = set(futs)
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for f in done:
+                try:
+                    res = f.result()
+                except BrokenProcessPool:
+                    unfinished.append(futs[f])
+                    continue
+                on_result(futs[f], *res)
+    _run_isolated(fn, items, labels, sorted(unfinished), jobs, on_result)
+
+
+def _run_isolated(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: Sequence[str], which: list[int],
+                  jobs: int, on_result: Callable[[int, bool, Any, float], None]) -> None:
+    """Run the items ``which`` each in a worker process of its own, ``jobs`` at a time."""
+    queue = list(which)
+    active: dict[Any, tuple[int, ProcessPoolExecutor, float]] = {}
+    while queue or active:
+        while queue and len(active) < jobs:
+            k = queue.pop(0)
+            ex = ProcessPoolExecutor(max_workers=1, initializer=_watch_parent, initargs=(os.getpid(),))
+            active[ex.submit(_guarded, fn, items[k], labels[k])] = (k, ex, time.perf_counter())
+        done, _ = wait(set(active), return_when=FIRST_COMPLETED)
+        for f in done:
+            k, ex, t0 = active.pop(f)
+            try:
+                res = f.result()
+            except BrokenProcessPool:
+                res = (False, f"{labels[k]}: worker process died (killed by a signal, or out of memory)",
+                       time.perf_counter() - t0)
+            ex.shutdown(wait=False)
+            on_result(k, *res)
+
+
 def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ideal", jobs: int = 0,
           progress: bool = True) -> list[dict[str, Any]]:
-    """Run the sweep (resumable); returns every material's record, sorted by name."""
-    from tqdm import tqdm
+    """Run the sweep (resumable); returns every material's record, sorted by name.
 
+    Raises
+    ------
+    BatchError
+        After writing the results of the others, if some materials failed; its
+        ``failures`` list ``(file, message)``, its ``records`` the finished records.
+    """
     out = Path(out_dir)
-    (out / "materials").mkdir(parents=True, exist_ok=True)
     mats = find_materials(folders)
     if not mats:
         raise ReflectoError(f"no material files in {', '.join(map(str, folders))}")
+    make_parents(out / "materials")
     cal = prepare_calibration(out, device)
     records = {p.stem: r for p in mats if (r := _done(out, p.stem)) is not None and r.get("device") == device}
     todo = [p for p in mats if p.stem not in records]
-    jobs = jobs or os.cpu_count() or 1
-    with tqdm(total=len(mats), initial=len(mats) - len(todo), desc="sweep", unit="material", disable=not progress) as bar:
-        if jobs == 1:
-            for p in todo:
-                records[p.stem] = run_material(str(p), str(out), device, cal)
-                bar.update()
-        else:
-            with ProcessPoolExecutor(max_workers=jobs) as ex:
-                futs = {ex.submit(run_material, str(p), str(out), device, cal): p for p in todo}
-                for f in as_completed(futs):
-                    records[futs[f].stem] = f.result()
-                    bar.update()
-    recs = [records[k] for k in sorted(records)]
-    write_table(recs, out / "results.csv")
-    from .plots import plot_errors, plot_spheres
+    failures: list[tuple[str, str]] = []
+    bar = Progress(len(mats), "sweep", progress, initial=len(mats) - len(todo))
 
-    plot_errors(recs, out / "fig5_errors.png")
-    plot_spheres(recs, out / "fig4_spheres.png")
+    def finished(k: int, ok: bool, value: Any, seconds: float) -> None:
+        if ok:
+            records[todo[k].stem] = value
+        else:
+            failures.append((str(todo[k]), value))
+        bar.update(todo[k].stem, ok, seconds)
+
+    try:
+        run_batch(run_material, [(str(p), str(out), device, cal) for p in todo], [str(p) for p in todo],
+                  jobs or os.cpu_count() or 1, finished)
+    finally:
+        bar.close()
+    recs = [records[k] for k in sorted(records)]
+    remove_empty([out / "materials"])  # nothing finished, ever: no empty folder left behind
+    write_failures(out / "failures.json", failures)
+    write_table(recs, out / "results.csv")
+    if recs:
+        from .plots import plot_errors, plot_spheres
+
+        plot_errors(recs, out / "fig5_errors.png")
+        plot_spheres(recs, out / "fig4_spheres.png")
+    if failures:
+        err = BatchError(sorted(failures), len(mats))
+        err.records = recs
+        raise err
     return recs
+
+
+def write_failures(path: Path, failures: list[tuple[str, str]]) -> None:
+    """``failures.json``: ``[{"file", "error"}, ...]`` of the last run; removed when none failed."""
+    if failures:
+        with atomic_write(path, "w") as fh:
+            fh.write(json.dumps([{"file": f, "error": m} for f, m in sorted(failures)], indent=1))
+    elif path.exists():
+        path.unlink()
 
 
 COLUMNS = ("name", "half", "device", "ours", "earlier", "cook_torrance", "same_data_ct", "ours_over_ct",
@@ -252,7 +480,10 @@ def write_table(records: list[dict[str, Any]], path: Path) -> Path:
 
 
 def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
-    """The validation numbers: over all materials and per half of the protocol (:mod:`.split`)."""
+    """The validation numbers: over all materials and per half of the protocol (:mod:`.split`);
+    ``{"all": {"materials": 0}}`` for no records (every material failed)."""
+    if not records:
+        return {"all": {"materials": 0}, "seconds_total_cpu": 0.0}
     def numbers(recs: list[dict[str, Any]]) -> dict[str, Any]:
         ours = np.array([r["ours"]["error"] for r in recs])
         ct = np.array([r["cook_torrance"]["error"] for r in recs])

@@ -25,6 +25,7 @@ import dataclasses
 import io
 import json
 import math
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -35,17 +36,17 @@ from scipy import ndimage
 from scipy.optimize import least_squares
 
 from .. import geometry
-from ..errors import FileFormatError
+from ..errors import FileFormatError, ParameterError, ReflectoWarning, short_repr
 from ..io import atomic_write
 from .capture import CaptureError, read_capture, read_image
-from .device import Device
+from .device import Device, validate_optics_dict
 from .hdr import merge_debevec, merge_linear, recover_response
 from .optics import Optics
 
 Array = NDArray[np.float64]
 
 CALIBRATION_FORMAT = "reflecto-calibration"
-CALIBRATION_VERSION = 1
+CALIBRATION_VERSION = 2
 #: σ (pixels) of the smoothing applied to the radiometric field.
 FIELD_SMOOTHING_PX = 3.0
 
@@ -89,52 +90,188 @@ class Calibration:
         return cached
 
     def save(self, path: str | Path) -> Path:
-        """Write an ``.npz`` calibration file atomically."""
-        meta = {
+        """Write an ``.npz`` calibration file atomically (readable by ``numpy.load``).
+
+        Members ``meta.npy`` (the JSON below, as uint8), ``scale.npy`` and, for gamma
+        cameras, ``response.npy``. The JSON holds the format and version, the device,
+        the calibrated optics and LED directions, the report, each array's dtype,
+        shape and SHA-256 (``arrays``) and the SHA-256 of its own canonical form
+        without that entry (``sha256``): a damaged byte anywhere is refused on load.
+        """
+        from ..io import content_digest, npy_bytes, sha256
+
+        arrays = {"scale": self.scale.astype(np.float32)}
+        if self.response is not None:
+            arrays["response"] = np.asarray(self.response, dtype=np.float64)
+        members = {f"{k}.npy": npy_bytes(a) for k, a in arrays.items()}
+        meta = json.loads(json.dumps({
             "format": CALIBRATION_FORMAT,
             "version": CALIBRATION_VERSION,
             "device": self.device.to_dict(),
             "optics": self.optics.to_dict(),
             "leds": self.leds.tolist(),
             "report": self.report,
-        }
-        arrays = {"scale": self.scale.astype(np.float32), "meta": np.frombuffer(json.dumps(meta).encode(), np.uint8)}
-        if self.response is not None:
-            arrays["response"] = self.response
+        }))
+        meta["arrays"] = {k: {"dtype": a.dtype.str, "shape": list(a.shape), "sha256": sha256(members[f"{k}.npy"])}
+                          for k, a in arrays.items()}
+        meta["sha256"] = content_digest(meta)
+        members["meta.npy"] = npy_bytes(np.frombuffer(json.dumps(meta).encode(), np.uint8))
         buf = io.BytesIO()
-        np.savez_compressed(buf, **arrays)
+        with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as z:
+            for name, data in members.items():
+                z.writestr(name, data)
         with atomic_write(path) as fh:
             fh.write(buf.getvalue())
         return Path(path)
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:
+        """Read a calibration file; refuse foreign, damaged or implausible ones.
+
+        Checks the file and archive limits, the format and version, the checksums
+        (version 2; version 1 is read with a warning), the device and optics
+        descriptions, the LED directions (finite unit vectors above the horizon,
+        within :data:`MAX_LED_OFFSET_DEG` of the nominal design), and the scale and
+        response arrays' headers, shapes and values.
+        """
+        from ..io import MAX_ARCHIVE_BYTES, npy_array, parse_json, read_input, zip_members
+
         path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                meta = json.loads(bytes(z["meta"]).decode("utf-8"))
-                scale = z["scale"]
-                response = z["response"] if "response" in z.files else None
-        except FileNotFoundError:
-            raise FileFormatError(path, "no such calibration file") from None
-        except (OSError, ValueError, KeyError, UnicodeDecodeError, EOFError) as e:
-            raise FileFormatError(path, f"not a reflecto calibration file or damaged ({e})") from None
-        if meta.get("format") != CALIBRATION_FORMAT:
+        members = zip_members(read_input(path, MAX_ARCHIVE_BYTES, "a calibration file",
+                                         missing="no such calibration file"), path)
+        if "meta.npy" not in members or "scale.npy" not in members:
+            raise FileFormatError(path, "not a reflecto calibration file (meta or scale missing)")
+        meta_raw = npy_array(members["meta.npy"], path, "meta.npy", dtype=np.uint8)
+        meta = parse_json(meta_raw.tobytes(), path)
+        if not isinstance(meta, dict) or meta.get("format") != CALIBRATION_FORMAT:
             raise FileFormatError(path, "not a reflecto calibration file")
-        if not isinstance(meta.get("version"), int) or meta["version"] > CALIBRATION_VERSION:
-            raise FileFormatError(path, f"calibration format version {meta.get('version')!r} not supported")
+        version = meta.get("version")
+        if not isinstance(version, int) or isinstance(version, bool) or not 1 <= version <= CALIBRATION_VERSION:
+            raise FileFormatError(path, f"calibration format version {short_repr(version)} not supported "
+                                  f"(1 to {CALIBRATION_VERSION})")
+        if version >= 2:
+            _verify_checksums(path, meta, members)
+        else:
+            import warnings
+
+            warnings.warn(f"{path}: calibration format version 1 has no checksum; its contents are range-checked "
+                          "only (calibrate again to get version 2)", ReflectoWarning, stacklevel=2)
         try:
-            device = Device.from_dict(meta["device"])
-            optics = Optics(**meta["optics"])
-            leds = np.asarray(meta["leds"], dtype=np.float64)
-        except Exception as e:  # noqa: BLE001 — any inconsistency is a damaged file
+            device = Device.from_dict(meta["device"], where="device")
+            optics = validate_optics_dict(meta["optics"], "optics")
+        except KeyError as e:
+            raise FileFormatError(path, f"invalid calibration contents (missing {e})") from None
+        except ParameterError as e:
             raise FileFormatError(path, f"invalid calibration contents ({e})") from None
+        if (optics.width, optics.height) != (device.optics.width, device.optics.height):
+            raise FileFormatError(path, "calibrated optics and device have different sensor sizes")
+        leds = _checked_leds(path, meta.get("leds"), device)
         expect = (device.n_leds, optics.height, optics.width, 3)
-        if scale.shape != expect or leds.shape != (device.n_leds, 3):
-            raise FileFormatError(path, f"scale field has shape {scale.shape}, expected {expect}")
+        scale = npy_array(members["scale.npy"], path, "scale.npy", dtype="<f4", shape=expect)
         if not np.all(np.isfinite(scale)):
             raise FileFormatError(path, "scale field contains NaN or infinity")
-        return cls(device, optics, leds, scale, response, meta.get("report", {}))
+        if np.any(scale < 0):
+            raise FileFormatError(path, "scale field has negative values")
+        dark = _dark_led(device, optics, scale)
+        if dark is not None:
+            raise FileFormatError(path, f"LED {dark[0]}: the scale field is zero on {100 * (1 - dark[1]):.0f} % of "
+                                  "the view disc (a calibration has it on at least half)")
+        response = None
+        if "response.npy" in members:
+            response = npy_array(members["response.npy"], path, "response.npy", dtype="<f8", shape=(256, 3))
+            if not np.all(np.isfinite(response)):
+                raise FileFormatError(path, "response curve contains NaN or infinity")
+        extra = sorted(set(members) - {"meta.npy", "scale.npy", "response.npy"})
+        if extra:
+            raise FileFormatError(path, f"unexpected archive members {extra}")
+        report = meta.get("report", {})
+        if not isinstance(report, dict):
+            raise FileFormatError(path, "'report' must be an object")
+        return cls(device, optics, leds, scale, response, report)
+
+
+#: Calibrated LED directions may differ from the nominal design by at most this angle
+#: (degrees): the as-built device's errors are ±0.5°; more means a wrong mirror normal
+#: or spot. docs/limits.md.
+MAX_LED_OFFSET_DEG = 5.0
+
+
+def _dark_led(device: Device, optics: Optics, scale: NDArray[np.float32]) -> tuple[int, float] | None:
+    """The first LED whose scale is positive on less than half of the unblocked view disc,
+    with that fraction (None if every LED is calibrated over most of it)."""
+    dirs, mask = optics.pixel_directions()
+    view = mask & ~device.occluded(dirs)
+    if not view.any():
+        return 0, 0.0
+    for k in range(len(scale)):
+        lit = float(np.all(scale[k][view] > 0, axis=-1).mean())
+        if lit < 0.5:
+            return k, lit
+    return None
+
+
+def _verify_checksums(path: Path, meta: dict[str, Any], members: dict[str, bytes]) -> None:
+    from ..io import content_digest, sha256
+
+    if meta.get("sha256") != content_digest(meta):
+        raise FileFormatError(path, "metadata checksum mismatch: the file is damaged")
+    spec = meta.get("arrays")
+    if not isinstance(spec, dict):
+        raise FileFormatError(path, "metadata lacks a valid 'arrays' table")
+    listed = {f"{k}.npy" for k in spec}
+    if listed != set(members) - {"meta.npy"}:
+        raise FileFormatError(path, f"archive members {sorted(members)} do not match the metadata's {sorted(listed)}")
+    for k, v in spec.items():
+        if not isinstance(v, dict) or sha256(members[f"{k}.npy"]) != v.get("sha256"):
+            raise FileFormatError(path, f"array {k!r} checksum mismatch: the file is damaged")
+
+
+def _checked_leds(path: Path, value: Any, device: Device) -> Array:
+    """Calibrated LED directions: ``(L, 3)`` finite unit vectors above the horizon, near nominal."""
+    try:
+        leds = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        leds = np.zeros(0)
+    if leds.shape != (device.n_leds, 3):
+        raise FileFormatError(path, f"LED directions must be {device.n_leds} [x, y, z] vectors, got {short_repr(value)}")
+    problem = led_problem(leds, device.leds)
+    if problem:
+        raise FileFormatError(path, problem)
+    return leds
+
+
+def led_problem(leds: Array, nominal: Array, index: list[int] | None = None) -> str | None:
+    """Why calibrated LED directions ``(K, 3)`` cannot be right (None if they can).
+
+    ``nominal`` are the design's directions of the same LEDs, ``index`` their numbers.
+    """
+    index = list(range(len(leds))) if index is None else index
+    if not np.all(np.isfinite(leds)):
+        return "LED directions contain NaN or infinity"
+    if np.any(np.abs(leds) > 1.0 + 1e-5):
+        return "LED directions must be unit vectors"
+    if np.any(np.abs(np.linalg.norm(leds, axis=1) - 1.0) > 1e-5):
+        return "LED directions must be unit vectors"
+    if np.any(leds[:, 2] <= 0):
+        return "an LED direction lies at or below the sample's horizon"
+    off = np.degrees(np.arccos(np.clip(np.sum(leds * nominal, axis=1), -1.0, 1.0)))
+    if off.max() > MAX_LED_OFFSET_DEG:
+        k = int(np.argmax(off))
+        return (f"LED {index[k]} lies {off[k]:.1f}° from its nominal direction, more than {MAX_LED_OFFSET_DEG:g}° "
+                "(wrong mirror normal or spot?)")
+    return None
+
+
+def needs_calibration(device: Device) -> bool:
+    """Whether captures of ``device`` need a measured calibration to be read correctly.
+
+    Only the built-in simulated devices whose nominal description is exactly what
+    they are (``ideal``, ``earlier``) can use the nominal calibration; ``as-built``,
+    device files and real devices differ from their nominal optics, LEDs and
+    vignetting in ways only a calibration recovers.
+    """
+    nominal = device.nominal()
+    return all(nominal != Device.builtin(name).nominal() for name in ("ideal", "earlier"))
 
 
 def nominal_calibration(device: Device) -> Calibration:
@@ -226,18 +363,102 @@ def fit_optics(nominal: Optics, directions: Array, spots: list[Array]) -> tuple[
 
 
 # --------------------------------------------------------------- the whole job
+#: calibration.json limits (docs/limits.md): grid images, rays per image, sweep frames.
+MAX_GRID_IMAGES = 64
+MAX_GRID_RAYS = 10000
+MAX_RESPONSE_FRAMES = 64
+#: A geometric fit worse than this (RMS, pixels) is refused: the spots do not fit the optics model.
+MAX_REPROJECTION_RMS_PX = 2.0
+
+
+def _unit_vectors(value: Any, where: Path, what: str, max_count: int) -> Array:
+    try:
+        v = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        v = np.zeros(0)
+    if v.ndim == 1 and v.shape == (3,) and max_count == 1:
+        v = v[None]
+    if v.ndim != 2 or v.shape[1] != 3 or not 1 <= len(v) <= max_count:
+        raise FileFormatError(where, f"{what} must be {'an [x, y, z] vector' if max_count == 1 else f'1 to {max_count} [x, y, z] vectors'}, "
+                              f"got {short_repr(value)}")
+    if not np.all(np.abs(v) <= 1.0 + 1e-6) or np.any(np.abs(np.linalg.norm(v, axis=1) - 1.0) > 1e-6):
+        raise FileFormatError(where, f"{what} must be finite unit vectors, got {short_repr(value)}")
+    if np.any(v[:, 2] <= 0):
+        raise FileFormatError(where, f"{what} must point above the sample plane (z > 0)")
+    return v
+
+
+def _entries(meta: dict[str, Any], key: str, mpath: Path, lo: int, hi: int) -> list[dict[str, Any]]:
+    v = meta.get(key)
+    if not isinstance(v, list) or not lo <= len(v) <= hi or not all(isinstance(e, dict) for e in v):
+        raise FileFormatError(mpath, f"'{key}' must be a list of {lo} to {hi} objects, got {short_repr(v)}")
+    for e in v:
+        t = e.get("exposure_ms", 1.0)
+        if not isinstance(t, (int, float)) or isinstance(t, bool) or not (math.isfinite(t) and t > 0):
+            raise FileFormatError(mpath, f"'{key}' entry {short_repr(e)}: exposure_ms must be a positive number")
+    return v
+
+
+def read_calibration_manifest(calib_dir: Path) -> tuple[dict[str, Any], Device]:
+    """calibration.json of a calibration folder and its device, every entry checked.
+
+    Files named in it must be plain names inside the folder (also after following
+    links); ray and mirror-normal directions finite unit vectors above the sample
+    plane; mirror LED indices distinct and within the device's LEDs.
+    """
+    from ..io import inside, read_json
+
+    mpath = calib_dir / "calibration.json"
+    if not calib_dir.is_dir() or (not mpath.exists() and not mpath.is_symlink()):
+        raise CaptureError(mpath, "calibration.json is missing (not a calibration folder)")
+    meta = read_json(inside(calib_dir, "calibration.json", calib_dir, "manifest"))
+    if not isinstance(meta, dict) or meta.get("format", "reflecto-calibration-capture") != "reflecto-calibration-capture":
+        raise FileFormatError(mpath, "not a reflecto calibration manifest (format 'reflecto-calibration-capture')")
+    v = meta.get("version", 1)
+    if not isinstance(v, int) or isinstance(v, bool) or v != 1:
+        raise FileFormatError(mpath, f"calibration manifest version {short_repr(v)} is not supported (1)")
+    if "device" not in meta:
+        raise FileFormatError(mpath, "invalid calibration manifest (missing 'device')")
+    try:
+        device = Device.from_dict(meta["device"], where=f"{mpath}: device")
+    except (ParameterError, TypeError, ValueError) as e:
+        raise FileFormatError(mpath, str(e)) from None
+    grid = _entries(meta, "grid", mpath, 1, MAX_GRID_IMAGES)
+    mirror = _entries(meta, "mirror", mpath, 0, device.n_leds)
+    for g in grid:
+        g["_path"] = inside(calib_dir, g.get("file"), mpath, "grid image")
+        g["_dirs"] = _unit_vectors(g.get("directions"), mpath, f"directions of {g.get('file')!r}", MAX_GRID_RAYS)
+    seen = set()
+    for m in mirror:
+        m["_path"] = inside(calib_dir, m.get("file"), mpath, "mirror image")
+        led = m.get("led")
+        if not isinstance(led, int) or isinstance(led, bool) or not 0 <= led < device.n_leds or led in seen:
+            raise FileFormatError(mpath, f"mirror entry {short_repr(m.get('file'))}: led must be a distinct LED index "
+                                  f"in [0, {device.n_leds}), got {short_repr(led)}")
+        seen.add(led)
+        m["_normal"] = _unit_vectors(m.get("mirror_normal"), mpath, f"mirror_normal of {m.get('file')!r}", 1)[0]
+    if device.camera.response == "gamma":
+        if len(meta.get("response") or []) < 3:
+            raise FileFormatError(mpath, "a gamma camera needs an exposure sweep ('response', >= 3 frames)")
+        for f in _entries(meta, "response", mpath, 3, MAX_RESPONSE_FRAMES):
+            f["_path"] = inside(calib_dir, f.get("file"), mpath, "response frame")
+    inside(calib_dir, "white", mpath, "white capture folder")
+    return meta, device
+
+
 def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
-    """Run geometric, LED and radiometric calibration on a calibration folder."""
+    """Run geometric, LED and radiometric calibration on a calibration folder.
+
+    Refuses (naming the file) a folder whose manifest, images or white capture are
+    invalid, and a result that cannot be right: a geometric fit worse than
+    :data:`MAX_REPROJECTION_RMS_PX`, an LED moved more than :data:`MAX_LED_OFFSET_DEG`
+    from its nominal direction, a white standard that reads no signal over most of
+    the view disc under some LED.
+    """
     calib_dir = Path(calib_dir)
     mpath = calib_dir / "calibration.json"
-    if not mpath.exists():
-        raise CaptureError(mpath, "calibration.json is missing (not a calibration folder)")
-    try:
-        meta = json.loads(mpath.read_text(encoding="utf-8"))
-        device = Device.from_dict(meta["device"], where=str(mpath))
-        grid, mirror = list(meta["grid"]), list(meta["mirror"])
-    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as e:
-        raise FileFormatError(mpath, f"invalid calibration manifest ({e})") from None
+    meta, device = read_calibration_manifest(calib_dir)
+    grid, mirror = meta["grid"], meta["mirror"]
     cam, nominal = device.camera, device.optics
     shape = (nominal.height, nominal.width)
     dtype = np.uint8 if cam.bits == 8 else np.uint16
@@ -246,34 +467,45 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
     # geometry
     dirs, spots = [], []
     for g in grid:
-        img = read_image(calib_dir / g["file"], shape, dtype)
-        dirs.append(np.asarray(g["directions"], dtype=np.float64))
+        img = read_image(g["_path"], shape, dtype)
+        dirs.append(g["_dirs"])
         spots.append(detect_spots(img, black, min_peak))
-    optics, geo_report = fit_optics(nominal, dirs, spots)
+    try:
+        optics, geo_report = fit_optics(nominal, dirs, spots)
+    except (CaptureError, ParameterError) as e:
+        raise CaptureError(mpath, f"geometric calibration failed: {getattr(e, 'problem', e)}") from None
+    if not geo_report["reprojection_rms_px"] <= MAX_REPROJECTION_RMS_PX:
+        raise CaptureError(mpath, f"geometric calibration failed: the grid spots fit the optics to "
+                           f"{geo_report['reprojection_rms_px']:.3g} px RMS (at most {MAX_REPROJECTION_RMS_PX:g})")
     # LED directions from the mirror
     leds = device.leds.copy()
     for m in mirror:
-        img = read_image(calib_dir / m["file"], shape, dtype)
+        img = read_image(m["_path"], shape, dtype)
         s = detect_spots(img, black, min_peak)
         if len(s) != 1:
-            raise CaptureError(calib_dir / m["file"], f"expected one mirror spot, found {len(s)}")
+            raise CaptureError(m["_path"], f"expected one mirror spot, found {len(s)}")
         o = optics.pixel_to_direction(s[0])
-        leds[int(m["led"])] = geometry.reflect(o, np.asarray(m["mirror_normal"], dtype=np.float64))
+        leds[m["led"]] = geometry.reflect(o, m["_normal"])
+        problem = led_problem(leds[m["led"]][None], device.leds[m["led"]][None], [m["led"]])
+        if problem:
+            raise CaptureError(m["_path"], problem)
     # radiometry
     white = read_capture(calib_dir / "white")
-    albedo = float(white.extra.get("white", {}).get("albedo", 0.0))
-    if not 0 < albedo <= 1:
+    wmeta = white.extra.get("white")
+    albedo = wmeta.get("albedo", 0.0) if isinstance(wmeta, dict) else 0.0
+    if not isinstance(albedo, (int, float)) or isinstance(albedo, bool) or not 0 < albedo <= 1:
         raise FileFormatError(calib_dir / "white" / "manifest.json", "white target albedo missing or not in (0, 1]")
+    albedo = float(albedo)
     response = None
     if cam.response == "gamma":
-        sweep = meta.get("response") or []
-        if len(sweep) < 3:
-            raise FileFormatError(mpath, "a gamma camera needs an exposure sweep ('response', >= 3 frames)")
-        frames = np.stack([read_image(calib_dir / f["file"], shape, dtype) for f in sweep])[None]
+        sweep = meta["response"]
+        frames = np.stack([read_image(f["_path"], shape, dtype) for f in sweep])[None]
         cx, cy = optics.principal_point
         half = int(0.7 * optics.f * np.sin(np.radians(optics.cone_half_angle_deg)))
         win = (slice(max(int(cy) - half, 0), int(cy) + half), slice(max(int(cx) - half, 0), int(cx) + half))
-        response = recover_response(frames, np.array([f["exposure_ms"] for f in sweep]), window=win)
+        response = recover_response(frames, np.array([f.get("exposure_ms", 1.0) for f in sweep], dtype=np.float64), window=win)
+        if not np.all(np.isfinite(response)):
+            raise CaptureError(mpath, "the exposure sweep gives no usable camera response curve")
         rad, valid = merge_debevec(white.raw, white.exposures_ms, response)
     else:
         rad, valid = merge_linear(white.raw, white.exposures_ms, cam)
@@ -286,6 +518,11 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
             sm = ndimage.gaussian_filter(rad[k, ..., c] * ok, FIELD_SMOOTHING_PX, mode="nearest")
             field = np.divide(sm, sm_w, out=np.zeros_like(sm), where=sm_w > 1e-3)
             scale[k, ..., c] = field / (albedo / math.pi)
+    dark = _dark_led(device, optics, scale)
+    if dark is not None or not np.all(np.isfinite(scale)):
+        k, lit = dark if dark is not None else (0, 0.0)
+        raise CaptureError(calib_dir / "white", f"LED {k}: the white standard reads a signal on only "
+                           f"{100 * lit:.0f} % of the view disc; no radiometric calibration")
     led_err = np.degrees(np.arccos(np.clip(np.sum(leds * device.leds, axis=1), -1, 1)))
     report = {"kind": "measured", **geo_report, "led_offset_from_nominal_deg": np.round(led_err, 3).tolist(),
               "white_albedo": albedo}

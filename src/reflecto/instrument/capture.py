@@ -20,12 +20,11 @@ no frame saturated everywhere.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
-import os
-import shutil
-import tempfile
+import math
+import struct
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -33,8 +32,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import FileFormatError, ReflectoError
-from .device import Device
+from ..errors import FileFormatError, LimitError, ReflectoError, short_repr
+from ..io import inside
+from .device import MAX_EXPOSURE_MS, Device
 
 CAPTURE_FORMAT = "reflecto-capture"
 CAPTURE_VERSION = 1
@@ -99,13 +99,94 @@ def _write_png(path: Path, img: NDArray[np.integer]) -> None:
         raise ReflectoError(f"{path}: could not write image")
 
 
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: Largest capture (all frames' pixels, as stored) that is read: docs/limits.md.
+MAX_CAPTURE_BYTES = 1 << 30
+
+
+def _check_png(data: bytes, path: Path, shape: tuple[int, int], depth_bits: int) -> None:
+    """Validate a PNG before decoding: header against ``shape`` and bit depth, every chunk's
+    length and CRC, the compressed image data inflating to exactly the pixel rows with valid
+    filter bytes (bounded inflation: no decompression bomb), and the end chunk.
+
+    A damaged frame is refused here, naming the file, instead of by the decoder (which
+    prints its own complaints).
+    """
+    if len(data) < 33 or data[:8] != PNG_SIGNATURE or data[12:16] != b"IHDR":
+        raise CaptureError(path, "not a readable image (frames are PNG files)")
+    width, height, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", data[16:29])
+    if (height, width) != shape:
+        raise CaptureError(path, f"image is {width}×{height}, the manifest says {shape[1]}×{shape[0]}")
+    if colour != 2:
+        raise CaptureError(path, f"expected an RGB image, got PNG colour type {colour}")
+    if depth != depth_bits:
+        raise CaptureError(path, f"image has {depth}-bit pixels, expected {depth_bits}-bit")
+    pos, idat, end = 8, [], False
+    while pos + 12 <= len(data):
+        (length,) = struct.unpack_from(">I", data, pos)
+        kind = data[pos + 4 : pos + 8]
+        if length > len(data) - pos - 12:
+            break
+        body = data[pos + 8 : pos + 8 + length]
+        (crc,) = struct.unpack_from(">I", data, pos + 8 + length)
+        if zlib.crc32(kind + body) != crc:
+            raise CaptureError(path, f"damaged PNG: chunk {kind!r} at byte {pos} fails its CRC")
+        if kind == b"IDAT":
+            idat.append(body)
+        pos += 12 + length
+        if kind == b"IEND":
+            end = True
+            break
+    if not end:
+        raise CaptureError(path, "damaged PNG: truncated (no end chunk)")
+    if interlace != 0:
+        return  # Adam7 rows differ in length; the decoder checks them
+    row = 1 + width * 3 * depth // 8
+    need = row * height
+    z = zlib.decompressobj()
+    try:
+        rows = z.decompress(b"".join(idat), need + 1)
+    except zlib.error as e:
+        raise CaptureError(path, f"damaged PNG: image data does not inflate ({e})") from None
+    if len(rows) != need or not z.eof:
+        raise CaptureError(path, f"damaged PNG: image data holds {len(rows)}{'+' if not z.eof else ''} bytes, "
+                           f"{need} expected")
+    if max(rows[::row]) > 4:
+        raise CaptureError(path, "damaged PNG: invalid row filter type")
+
+
+def _decode_quietly(data: bytes) -> NDArray[np.integer] | None:
+    """``cv2.imdecode`` without OpenCV's own warnings on stderr (a damaged file is our error to report)."""
+    try:
+        from cv2.utils import logging as cv_log
+    except ImportError:  # older OpenCV builds
+        return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    level = cv_log.getLogLevel()
+    cv_log.setLogLevel(cv_log.LOG_LEVEL_SILENT)
+    try:
+        return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    finally:
+        cv_log.setLogLevel(level)
+
+
 def read_image(path: Path, shape: tuple[int, int], dtype: type) -> NDArray[np.integer]:
-    """Read a 16- or 8-bit RGB PNG/TIFF; refuse missing, unreadable or wrong-size files."""
-    if not path.exists():
+    """Read a 16- or 8-bit RGB PNG; refuse missing, unreadable, special or wrong-size files.
+
+    The PNG header (size, bit depth, colour type) is checked against ``shape`` and
+    ``dtype`` before the image is decoded, so a header claiming a huge image costs
+    nothing; the file itself may be at most twice the size of its pixels plus 1 MiB.
+    """
+    from ..io import read_input
+
+    if not path.exists() and not path.is_symlink():
         raise CaptureError(path, "frame is missing")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    itemsize = np.dtype(dtype).itemsize
+    limit = 2 * shape[0] * shape[1] * 3 * itemsize + (1 << 20)
+    data = read_input(path, limit, "a frame of this size", missing="frame is missing")
+    _check_png(data, path, shape, 8 * itemsize)
+    img = _decode_quietly(data)
     if img is None:
-        raise CaptureError(path, "not a readable image")
+        raise CaptureError(path, "not a readable image (damaged PNG)")
     if img.ndim != 3 or img.shape[2] != 3:
         raise CaptureError(path, f"expected an RGB image, got shape {img.shape}")
     if img.shape[:2] != shape:
@@ -115,25 +196,12 @@ def read_image(path: Path, shape: tuple[int, int], dtype: type) -> NDArray[np.in
     return img[..., ::-1]
 
 
-@contextlib.contextmanager
 def atomic_dir(path: str | Path):  # type: ignore[no-untyped-def]
-    """Yield a temporary folder beside ``path``; it replaces ``path`` on success."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent))
-    try:
-        yield tmp
-        if path.exists():
-            old = path.with_name(f".{path.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    """Yield a temporary folder beside ``path``; it replaces ``path`` on success
+    (see :func:`reflecto.io.atomic_folder`: umask permissions, no folder left on failure)."""
+    from ..io import atomic_folder
+
+    return atomic_folder(path)
 
 
 def write_capture(capture: Capture, out_dir: str | Path) -> Path:
@@ -174,66 +242,92 @@ def write_capture(capture: Capture, out_dir: str | Path) -> Path:
 
 
 def read_manifest(cap_dir: Path) -> dict[str, Any]:
+    from ..io import read_json
+
     mpath = cap_dir / MANIFEST
     if not cap_dir.is_dir():
         raise CaptureError(cap_dir, "not a capture folder (no such directory)")
-    if not mpath.exists():
+    if not mpath.exists() and not mpath.is_symlink():
         raise CaptureError(mpath, "manifest is missing")
-    try:
-        m = json.loads(mpath.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise FileFormatError(mpath, f"not valid JSON ({e})") from None
+    m = read_json(inside(cap_dir, MANIFEST, cap_dir, "manifest"), missing="manifest is missing")
     if not isinstance(m, dict) or m.get("format") != CAPTURE_FORMAT:
         raise FileFormatError(mpath, "not a reflecto capture manifest")
-    if not isinstance(m.get("version"), int) or m["version"] > CAPTURE_VERSION:
-        raise FileFormatError(mpath, f"capture format version {m.get('version')!r} is not supported (<= {CAPTURE_VERSION})")
+    v = m.get("version")
+    if not isinstance(v, int) or isinstance(v, bool) or not 1 <= v <= CAPTURE_VERSION:
+        raise FileFormatError(mpath, f"capture format version {short_repr(v)} is not supported (1 to {CAPTURE_VERSION})")
     return m
 
 
+def _frame_key(f: Any, mpath: Path) -> tuple[tuple[int, float, bool], str]:
+    """(LED, exposure, check) and file name of one manifest frame entry, types checked."""
+    ok = (isinstance(f, dict) and isinstance(f.get("led"), int) and not isinstance(f.get("led"), bool)
+          and isinstance(f.get("exposure_ms"), (int, float)) and not isinstance(f.get("exposure_ms"), bool)
+          and math.isfinite(f["exposure_ms"]) and isinstance(f.get("check", False), bool)
+          and isinstance(f.get("file"), str))
+    if not ok:
+        raise FileFormatError(mpath, f"invalid frame entry {short_repr(f)} (needs file, led, exposure_ms; check true/false)")
+    return (f["led"], float(f["exposure_ms"]), f.get("check", False)), f["file"]
+
+
 def read_capture(cap_dir: str | Path) -> Capture:
-    """Read and validate a capture folder (see the module docstring)."""
+    """Read and validate a capture folder (see the module docstring).
+
+    Everything is checked before pixels are allocated: the manifest's types and
+    ranges, the device (:meth:`Device.from_dict`), the frame list against the
+    device, every frame name (a plain name inside the folder, also after following
+    links), the capture's size (:data:`MAX_CAPTURE_BYTES`) and each PNG header.
+    """
     cap_dir = Path(cap_dir)
     m = read_manifest(cap_dir)
     mpath = cap_dir / MANIFEST
     try:
         device = Device.from_dict(m["device"], where=f"{mpath}: device")
         img = m["image"]
-        width, height = int(img["width"]), int(img["height"])
-        frames = list(m["frames"])
-    except (KeyError, TypeError, ValueError) as e:
-        raise FileFormatError(mpath, f"manifest entry missing or invalid ({e})") from None
+        if not isinstance(img, dict):
+            raise TypeError("'image' must be an object")
+        width, height = img["width"], img["height"]
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in (width, height)):
+            raise TypeError(f"image width and height must be integers, got {short_repr([width, height])}")
+        frames = m["frames"]
+        if not isinstance(frames, list):
+            raise TypeError("'frames' must be a list")
+    except KeyError as e:
+        raise FileFormatError(mpath, f"manifest entry missing: {e}") from None
+    except (TypeError, ValueError) as e:
+        raise FileFormatError(mpath, f"manifest entry invalid ({e})") from None
     if (width, height) != (device.optics.width, device.optics.height):
         raise CaptureError(mpath, f"image size {width}×{height} does not match the device's sensor "
                            f"{device.optics.width}×{device.optics.height}")
+    if img.get("channels", 3) != 3:
+        raise CaptureError(mpath, f"image channels must be 3 (RGB), got {short_repr(img.get('channels'))}")
+    encoding = "png8" if device.camera.bits == 8 else "png16"
+    if img.get("encoding", encoding) != encoding:
+        raise CaptureError(mpath, f"image encoding {short_repr(img.get('encoding'))} does not fit a "
+                           f"{device.camera.bits}-bit camera ({encoding!r})")
+    entries = [_frame_key(f, mpath) for f in frames]
     times = np.array(device.camera.exposures_ms)
     if device.camera.auto_exposure:
         # the capture's own times (auto-exposure), as many as the camera takes
-        try:
-            own = sorted({float(f["exposure_ms"]) for f in frames})
-        except (KeyError, TypeError, ValueError):
-            raise FileFormatError(mpath, "invalid frame entry (exposure_ms)") from None
-        if len(own) != len(times) or any(not (t > 0 and np.isfinite(t)) for t in own):
-            raise CaptureError(mpath, f"expected {len(times)} positive exposure times per LED, found {own}")
+        own = sorted({t for (_, t, _), _ in entries})
+        if len(own) != len(times) or any(not (0 < t <= MAX_EXPOSURE_MS) for t in own):
+            raise CaptureError(mpath, f"expected {len(times)} positive exposure times per LED, found {own[:10]}")
         times = np.array(own)
-    kind = str(m.get("kind", "sample"))
+    kind = m.get("kind", "sample")
+    if not isinstance(kind, str):
+        raise FileFormatError(mpath, f"'kind' must be a string, got {short_repr(kind)}")
     check_leds = device.check_leds if expects_check_frames(device, kind) else ()
     expected = {(led, float(t), False) for led in range(device.n_leds) for t in times}
     expected |= {(led, float(t), True) for led in check_leds for t in times}
     got: dict[tuple[int, float, bool], str] = {}
-    for f in frames:
-        try:
-            key = (int(f["led"]), float(f["exposure_ms"]), bool(f.get("check", False)))
-            name = str(f["file"])
-        except (AttributeError, KeyError, TypeError, ValueError):
-            raise FileFormatError(mpath, f"invalid frame entry {f!r}") from None
+    for key, name in entries:
         what = f"{'check frame' if key[2] else 'frame'} for LED {key[0]} at {key[1]:g} ms"
         if key not in expected:
-            raise CaptureError(mpath, f"{name}: {what} is not part of the device "
+            raise CaptureError(mpath, f"{short_repr(name)}: {what} is not part of the device "
                                f"({device.n_leds} LEDs × exposures {list(times)}, check LEDs {list(check_leds)})")
         if key in got:
             raise CaptureError(mpath, f"{what} listed twice")
-        if Path(name).name != name:
-            raise CaptureError(mpath, f"frame file {name!r} must be a plain name inside the capture folder")
+        if Path(name).name != name or name in ("", ".", ".."):
+            raise CaptureError(mpath, f"frame file {short_repr(name)} must be a plain name inside the capture folder")
         got[key] = name
     missing = sorted(expected - set(got))
     if missing:
@@ -241,15 +335,19 @@ def read_capture(cap_dir: str | Path) -> Capture:
         raise CaptureError(mpath, f"{len(missing)} frame(s) missing from the manifest, e.g. "
                            f"{'the check frame of ' if chk else ''}LED {led} at {t:g} ms")
     dtype = np.uint8 if device.camera.bits == 8 else np.uint16
+    nbytes = len(got) * height * width * 3 * np.dtype(dtype).itemsize
+    if nbytes > MAX_CAPTURE_BYTES:
+        raise LimitError(mpath, f"the capture's frames hold {nbytes} bytes, more than {MAX_CAPTURE_BYTES} (docs/limits.md)")
+    paths = {key: inside(cap_dir, name, mpath, "frame file") for key, name in got.items()}
     raw = np.empty((device.n_leds, len(times), height, width, 3), dtype=dtype)
     check = np.empty((len(check_leds), len(times), height, width, 3), dtype=dtype) if check_leds else None
-    for (led, t, chk), name in got.items():
+    for (led, t, chk), fpath in paths.items():
         e = int(np.flatnonzero(times == t)[0])
-        img = read_image(cap_dir / name, (height, width), dtype)
+        img_ = read_image(fpath, (height, width), dtype)
         if chk:
-            check[check_leds.index(led), e] = img  # type: ignore[index]
+            check[check_leds.index(led), e] = img_  # type: ignore[index]
         else:
-            raw[led, e] = img
+            raw[led, e] = img_
     cap = Capture(device, raw, times, kind=kind,
                   extra={k: v for k, v in m.items() if k not in
                          {"format", "version", "kind", "device", "image", "frames"}}, path=cap_dir, check=check)

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import FileFormatError, ParameterError
+from ..errors import FileFormatError, ParameterError, short_repr
 from ..io import read_description
 from .layout import led_direction, layout_violations
 from .optics import Optics, optics_from_dict
@@ -65,22 +65,133 @@ DEFAULT_FIRING_ORDER = (0, 1, 3, 5, 4, 2)
 DEFAULT_CHECK_LEDS = (DEFAULT_FIRING_ORDER[0],)
 
 
-def _firing_order(value: Any, where: str) -> tuple[int, ...] | None:
+#: Limits of device descriptions (docs/limits.md): sensor size, LEDs, exposures.
+MAX_SENSOR_SIDE = 4096
+MAX_SENSOR_PIXELS = 1 << 22
+MAX_LEDS = 32
+MAX_EXPOSURES = 8
+MAX_EXPOSURE_MS = 1e6
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _number(v: Any, where: str, lo: float = -math.inf, hi: float = math.inf) -> float:
+    """``v`` as a float if it is a finite number in [lo, hi]; ParameterError naming ``where``."""
+    if not _is_number(v) or not math.isfinite(v) or not lo <= v <= hi:
+        rng = "" if (lo, hi) == (-math.inf, math.inf) else f" in [{lo:g}, {hi:g}]"
+        raise ParameterError(f"{where} must be a finite number{rng}, got {short_repr(v)}")
+    return float(v)
+
+
+def _integer(v: Any, where: str, lo: int, hi: int) -> int:
+    if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
+        raise ParameterError(f"{where} must be an integer in [{lo}, {hi}], got {short_repr(v)}")
+    return v
+
+
+def _index_list(value: Any, where: str, what: str) -> tuple[int, ...] | None:
     if value is None:
         return None
-    try:
-        return tuple(int(k) for k in value)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{where}: firing_order must be a list of LED indices") from None
+    if not isinstance(value, (list, tuple)) or len(value) > MAX_LEDS or not all(
+            isinstance(k, int) and not isinstance(k, bool) for k in value):
+        raise ParameterError(f"{where}: {what} must be a list of LED indices, got {short_repr(value)}")
+    return tuple(value)
+
+
+def _firing_order(value: Any, where: str) -> tuple[int, ...] | None:
+    return _index_list(value, where, "firing_order")
 
 
 def _check_leds(value: Any, where: str) -> tuple[int, ...]:
-    if value is None:
-        return ()
-    try:
-        return tuple(int(k) for k in value)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{where}: check_leds must be a list of LED indices") from None
+    return _index_list(value, where, "check_leds") or ()
+
+
+def _led_angles(value: Any, where: str) -> tuple[tuple[float, float], ...]:
+    if not isinstance(value, (list, tuple)) or not 2 <= len(value) <= MAX_LEDS:
+        raise ParameterError(f"{where} must be a list of 2 to {MAX_LEDS} [elevation, azimuth] pairs, got {short_repr(value)}")
+    out = []
+    for k, a in enumerate(value):
+        if not isinstance(a, (list, tuple)) or len(a) != 2:
+            raise ParameterError(f"{where}[{k}] must be an [elevation, azimuth] pair, got {short_repr(a)}")
+        out.append((_number(a[0], f"{where}[{k}] elevation", -90.0, 90.0), _number(a[1], f"{where}[{k}] azimuth", -720.0, 720.0)))
+    return tuple(out)
+
+
+#: Number-valued optics fields and their ranges (the dataclass checks the geometry).
+_OPTICS_NUMBERS = {"axis_tilt_deg": (-90.0, 90.0), "axis_azimuth_deg": (-720.0, 720.0),
+                   "cone_half_angle_deg": (0.0, 90.0), "disc_radius_px": (1e-3, 1e5), "k1": (-1.0, 1.0),
+                   "k2": (-1.0, 1.0), "roll_deg": (-720.0, 720.0)}
+
+
+def validate_optics_dict(d: Any, where: str) -> Optics:
+    """:class:`Optics` from a description dict, every value's type and range checked first.
+
+    Sensor sides must be integers in [8, :data:`MAX_SENSOR_SIDE`] with at most
+    :data:`MAX_SENSOR_PIXELS` pixels in all, so that no image allocation follows from
+    a hostile size.
+    """
+    if not isinstance(d, dict):
+        raise ParameterError(f"{where} must be a table/object, got {short_repr(d)}")
+    for key, (lo, hi) in _OPTICS_NUMBERS.items():
+        if key in d:
+            _number(d[key], f"{where}.{key}", lo, hi)
+    for key in ("focal_px", "cx", "cy"):
+        if d.get(key) is not None:
+            _number(d[key], f"{where}.{key}", -1e5, 1e5)
+    if "law" in d and not isinstance(d["law"], str):
+        raise ParameterError(f"{where}.law must be a string, got {short_repr(d['law'])}")
+    w = _integer(d.get("width", 320), f"{where}.width", 8, MAX_SENSOR_SIDE)
+    h = _integer(d.get("height", 240), f"{where}.height", 8, MAX_SENSOR_SIDE)
+    if w * h > MAX_SENSOR_PIXELS:
+        raise ParameterError(f"{where}: a {w}×{h} sensor has more than the {MAX_SENSOR_PIXELS} pixels allowed (docs/limits.md)")
+    return optics_from_dict(dict(d), where)
+
+
+def _camera(d: Any, where: str) -> Camera:
+    if not isinstance(d, dict):
+        raise ParameterError(f"{where} must be a table/object, got {short_repr(d)}")
+    cfields = {f.name for f in dataclasses.fields(Camera)}
+    if set(d) - cfields:
+        raise ParameterError(f"{where}: unknown keys {sorted(map(str, set(d) - cfields))}")
+    if "bits" in d:
+        _integer(d["bits"], f"{where}.bits", 8, 16)
+    for key in ("black_level", "full_well", "read_noise", "sensitivity", "gamma"):
+        if key in d:
+            _number(d[key], f"{where}.{key}", 0.0, 1e12)
+    for key in ("shot_noise", "auto_exposure"):
+        if key in d and not isinstance(d[key], bool):
+            raise ParameterError(f"{where}.{key} must be true or false, got {short_repr(d[key])}")
+    if "response" in d and not isinstance(d["response"], str):
+        raise ParameterError(f"{where}.response must be a string, got {short_repr(d['response'])}")
+    if "exposures_ms" in d:
+        t = d["exposures_ms"]
+        if not isinstance(t, (list, tuple)) or not 1 <= len(t) <= MAX_EXPOSURES:
+            raise ParameterError(f"{where}.exposures_ms must be a list of 1 to {MAX_EXPOSURES} times, got {short_repr(t)}")
+        for k, v in enumerate(t):
+            _number(v, f"{where}.exposures_ms[{k}]", 1e-9, MAX_EXPOSURE_MS)
+    if d.get("gamma", 1.0) <= 0:
+        raise ParameterError(f"{where}.gamma must be > 0")
+    return Camera(**d)
+
+
+def _truth(t: Any, where: str, n_leds: int) -> DeviceTruth:
+    if not isinstance(t, dict) or set(t) != {"optics", "led_angles", "led_intensity", "transmission"}:
+        raise ParameterError(f"{where} must have the keys optics, led_angles, led_intensity, transmission")
+    angles = _led_angles(t["led_angles"], f"{where}.led_angles")
+    inten = t["led_intensity"]
+    if not isinstance(inten, (list, tuple)) or len(inten) != n_leds:
+        raise ParameterError(f"{where}.led_intensity must list {n_leds} numbers, got {short_repr(inten)}")
+    trans = t["transmission"]
+    if not isinstance(trans, dict) or set(trans) != {"floor", "u0", "v0", "su", "sv"}:
+        raise ParameterError(f"{where}.transmission must have the keys floor, u0, v0, su, sv")
+    tr = {k: _number(v, f"{where}.transmission.{k}", -1e5, 1e5) for k, v in trans.items()}
+    if not 0 <= tr["floor"] <= 1 or tr["su"] == 0 or tr["sv"] == 0:
+        raise ParameterError(f"{where}.transmission: floor must be in [0, 1] and su, sv non-zero")
+    return DeviceTruth(optics=validate_optics_dict(t["optics"], f"{where}.optics"), led_angles=angles,
+                       led_intensity=tuple(_number(v, f"{where}.led_intensity", 1e-6, 1e6) for v in inten),
+                       transmission=tr)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -298,36 +409,27 @@ class Device:
     # ------------------------------------------------------------- factories
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "device") -> Device:
+        """A device from its description dict; every entry's type and range is checked
+        (see :func:`validate_optics_dict` and the limits in docs/limits.md)."""
         known = {"name", "optics", "leds", "camera", "truth", "occluder_deg", "firing_order", "check_leds"}
         if not isinstance(d, dict):
             raise ParameterError(f"{where}: expected a table/object")
         if set(d) - known:
-            raise ParameterError(f"{where}: unknown keys {sorted(set(d) - known)}")
-        optics = optics_from_dict(dict(d.get("optics", {})), f"{where}.optics")
-        cam = dict(d.get("camera", {}))
-        cfields = {f.name for f in dataclasses.fields(Camera)}
-        if set(cam) - cfields:
-            raise ParameterError(f"{where}.camera: unknown keys {sorted(set(cam) - cfields)}")
-        camera = Camera(**cam)
-        truth = None
-        if "truth" in d:
-            t = d["truth"]
-            try:
-                truth = DeviceTruth(
-                    optics=optics_from_dict(dict(t["optics"]), f"{where}.truth.optics"),
-                    led_angles=tuple(tuple(float(x) for x in a) for a in t["led_angles"]),
-                    led_intensity=tuple(float(x) for x in t["led_intensity"]),
-                    transmission={k: float(v) for k, v in t["transmission"].items()},
-                )
-            except (KeyError, TypeError) as e:
-                raise ParameterError(f"{where}.truth: missing or invalid entry ({e})") from None
+            raise ParameterError(f"{where}: unknown keys {sorted(map(str, set(d) - known))}")
+        name = d.get("name", "custom")
+        if not isinstance(name, str) or len(name) > 200:
+            raise ParameterError(f"{where}.name must be a string of at most 200 characters, got {short_repr(name)}")
+        optics = validate_optics_dict(d.get("optics", {}), f"{where}.optics")
+        camera = _camera(d.get("camera", {}), f"{where}.camera")
+        angles = _led_angles(d.get("leds", DEFAULT_LED_ANGLES), f"{where}.leds")
+        truth = _truth(d["truth"], f"{where}.truth", len(angles)) if "truth" in d else None
         return cls(
-            name=str(d.get("name", "custom")),
+            name=name,
             optics=optics,
-            led_angles=tuple(tuple(a) for a in d.get("leds", DEFAULT_LED_ANGLES)),
+            led_angles=angles,
             camera=camera,
             truth=truth,
-            occluder_deg=float(d.get("occluder_deg", 0.0)),
+            occluder_deg=_number(d.get("occluder_deg", 0.0), f"{where}.occluder_deg", 0.0, 90.0),
             firing_order=_firing_order(d.get("firing_order"), where),
             check_leds=_check_leds(d.get("check_leds"), where),
         )

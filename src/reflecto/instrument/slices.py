@@ -111,9 +111,34 @@ class Slices:
                       rescale(self.limit), self.check_leds, check_values, check_valid)
 
 
+def _check_inputs(capture: Capture, calibration: Calibration) -> None:
+    where = capture.path or "<capture>"
+    leds = np.asarray(calibration.leds, dtype=np.float64)
+    if leds.shape != (capture.device.n_leds, 3):
+        raise CaptureError(where, f"calibration has {leds.shape} LED directions, the capture {capture.device.n_leds} LEDs")
+    if (not np.all(np.abs(leds) <= 1.0 + 1e-5) or np.any(np.abs(np.linalg.norm(leds, axis=1) - 1.0) > 1e-5)
+            or np.any(leds[:, 2] <= 0)):
+        raise CaptureError(where, "the calibration's LED directions are not finite unit vectors above the horizon")
+    o = calibration.optics
+    scale = calibration.scale
+    if scale.shape != (capture.device.n_leds, o.height, o.width, 3):
+        raise CaptureError(where, f"the calibration's scale field has shape {scale.shape}")
+    if not np.all(np.isfinite(scale)) or np.any(scale < 0):
+        raise CaptureError(where, "the calibration's scale field has NaN, infinite or negative values")
+    t = np.asarray(capture.exposures_ms, dtype=np.float64)
+    if t.shape != (capture.raw.shape[1],) or not np.all(np.isfinite(t)) or np.any(t <= 0):
+        raise CaptureError(where, "exposure times must be positive and one per exposure slot")
+
+
 def extract_slices(capture: Capture, calibration: Calibration) -> Slices:
-    """HDR merge, radiometric correction and pixel directions (see the module docstring)."""
+    """HDR merge, radiometric correction and pixel directions (see the module docstring).
+
+    Refuses (before any compiled kernel sees them) LED directions that are not finite
+    unit vectors above the horizon, a radiometric scale of the wrong shape or with
+    NaN, infinite or negative values, and exposure times that are not positive.
+    """
     dev = capture.device
+    _check_inputs(capture, calibration)
     if calibration.device.n_leds != dev.n_leds:
         raise CaptureError(capture.path or "<capture>", "calibration and capture have different LED counts")
     if capture.raw.shape[2:4] != (calibration.optics.height, calibration.optics.width):

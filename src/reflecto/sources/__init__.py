@@ -18,6 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import FileFormatError
+from ..io import check_regular, read_head
 from .analytic import AnalyticBRDF, load_analytic
 from .base import BRDFSource, directional_albedo
 from .merl import MerlBRDF
@@ -36,13 +37,7 @@ __all__ = [
 
 
 def _sniff(path: Path) -> str:
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(16)
-    except FileNotFoundError:
-        raise FileFormatError(path, "no such file") from None
-    except OSError as e:
-        raise FileFormatError(path, f"cannot read: {e.strerror}") from None
+    head = read_head(path, 16)
     if head.startswith(b"tensor_file\x00"):
         return ".bsdf"
     if head.startswith(b"PK"):
@@ -59,17 +54,17 @@ def _sniff(path: Path) -> str:
 def load_source(path: str | Path) -> BRDFSource:
     """Open any supported BRDF file as a :class:`BRDFSource`.
 
+    Every loader checks sizes against the file before allocating, the type and range
+    of every field, and the plausibility of the BRDF it describes (docs/limits.md).
+
     Raises
     ------
     FileFormatError
-        Naming the file and the problem, for missing, truncated, damaged or
-        unrecognised files.
+        Naming the file and the problem, for missing, truncated, damaged,
+        implausible or unrecognised files, and for anything but a regular file.
     """
     path = Path(path)
-    if not path.exists():
-        raise FileFormatError(path, "no such file")
-    if path.is_dir():
-        raise FileFormatError(path, "is a directory, not a BRDF file")
+    check_regular(path)
     suffix = path.suffix.lower()
     if suffix not in (".binary", ".bsdf", ".h5", ".json", ".toml", ".reflecto"):
         suffix = _sniff(path)

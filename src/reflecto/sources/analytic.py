@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.special import erfc
 
 from .. import geometry
-from ..errors import FileFormatError, ParameterError
+from ..errors import FileFormatError, ParameterError, short_repr
 from ..io import read_description
 from ..fresnel import fresnel
 from .base import BRDFSource
@@ -43,6 +43,9 @@ from .base import rgb_triplet as _rgb
 Array = NDArray[np.float64]
 
 DISTRIBUTIONS = ("ggx", "beckmann")
+#: Roughness range. Below 10⁻³ (a 0.06° lobe, sharper than any texel of the
+#: reconstruction) the lobe's density overflows double precision at its peak.
+ALPHA_MIN, ALPHA_MAX = 1e-3, 4.0
 
 
 @dataclass(frozen=True)
@@ -97,8 +100,8 @@ class AnalyticBRDF(BRDFSource):
             raise ParameterError(f"distribution must be one of {DISTRIBUTIONS}, got {self.distribution!r}")
         a = np.asarray(self.alpha, dtype=np.float64)
         a = np.array([float(a), float(a)]) if a.ndim == 0 else a
-        if a.shape != (2,) or not np.all(np.isfinite(a)) or np.any(a <= 0) or np.any(a > 4):
-            raise ParameterError(f"alpha must be one or two numbers in (0, 4], got {self.alpha!r}")
+        if a.shape != (2,) or not np.all(np.isfinite(a)) or np.any(a < ALPHA_MIN) or np.any(a > ALPHA_MAX):
+            raise ParameterError(f"alpha must be one or two numbers in [{ALPHA_MIN:g}, {ALPHA_MAX:g}], got {self.alpha!r}")
         self.alpha_xy = a
         if not math.isfinite(float(self.rotation_deg)):
             raise ParameterError("rotation_deg must be finite")
@@ -218,27 +221,65 @@ class AnalyticBRDF(BRDFSource):
 _KEYS = {"type", "distribution", "alpha", "rotation_deg", "kd", "ks", "eta", "asymmetry", "name"}
 
 
+def _numbers(value: Any, key: str, counts: tuple[int, ...], where: str) -> Any:
+    """``value`` if it is a finite number (count 1 allowed) or a list of ``counts`` finite numbers."""
+    def number(v: Any) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    if 1 in counts and number(value):
+        return value
+    if isinstance(value, list) and len(value) in counts and all(number(v) for v in value):
+        return value
+    shapes = " or ".join("one number" if n == 1 else f"a list of {n} numbers" for n in counts)
+    raise FileFormatError(where, f"{key!r} must be {shapes} (finite), got {short_repr(value)}")
+
+
+def _asymmetry(value: Any, where: str) -> tuple[float, float, float] | None:
+    if value is None:
+        return None
+    if isinstance(value, dict):
+        unknown = set(value) - {"shift", "weight"}
+        if unknown:
+            raise FileFormatError(where, f"'asymmetry' has unknown keys {sorted(unknown)}; allowed: ['shift', 'weight']")
+        shift = _numbers(value.get("shift", [0.0, 0.0]), "asymmetry.shift", (2,), where)
+        weight = _numbers(value.get("weight", 0.5), "asymmetry.weight", (1,), where)
+        return float(shift[0]), float(shift[1]), float(weight)
+    sx, sy, w = _numbers(value, "asymmetry", (3,), where)
+    return float(sx), float(sy), float(w)
+
+
 def analytic_from_dict(d: dict[str, Any], path: Path | None = None) -> AnalyticBRDF:
-    """Build an :class:`AnalyticBRDF` from its description dictionary."""
+    """Build an :class:`AnalyticBRDF` from its description dictionary.
+
+    Every key is type-checked (numbers finite, lists of the right length) before the
+    parameters' ranges are (:class:`AnalyticBRDF`); errors name ``path``.
+    """
     where = str(path) if path else "analytic description"
-    if d.get("type") != "analytic":
+    if not isinstance(d, dict) or d.get("type") != "analytic":
         raise FileFormatError(where, "not an analytic BRDF description (needs \"type\": \"analytic\")")
     unknown = set(d) - _KEYS
     if unknown:
-        raise FileFormatError(where, f"unknown keys {sorted(unknown)}; allowed: {sorted(_KEYS)}")
-    asym = d.get("asymmetry")
-    if isinstance(asym, dict):
-        shift = asym.get("shift", [0.0, 0.0])
-        asym = (float(shift[0]), float(shift[1]), float(asym.get("weight", 0.5)))
+        raise FileFormatError(where, f"unknown keys {sorted(map(str, unknown))}; allowed: {sorted(_KEYS)}")
+    distribution = d.get("distribution", "ggx")
+    if not isinstance(distribution, str):
+        raise FileFormatError(where, f"'distribution' must be one of {DISTRIBUTIONS}, got {short_repr(distribution)}")
+    if "name" in d and not isinstance(d["name"], str):
+        raise FileFormatError(where, f"'name' must be a string, got {short_repr(d['name'])}")
+    alpha = _numbers(d.get("alpha", 0.2), "alpha", (1, 2), where)
+    rotation = _numbers(d.get("rotation_deg", 0.0), "rotation_deg", (1,), where)
+    kd = _numbers(d.get("kd", 0.0), "kd", (1, 3), where)
+    ks = _numbers(d.get("ks", 1.0), "ks", (1, 3), where)
+    eta = _numbers(d.get("eta", 1.5), "eta", (1, 3), where)
+    asym = _asymmetry(d.get("asymmetry"), where)
     try:
         return AnalyticBRDF(
-            distribution=str(d.get("distribution", "ggx")).lower(),
-            alpha=d.get("alpha", 0.2),
-            rotation_deg=float(d.get("rotation_deg", 0.0)),
-            kd=d.get("kd", 0.0),
-            ks=d.get("ks", 1.0),
-            eta=d.get("eta", 1.5),
-            asymmetry=tuple(asym) if asym is not None else None,  # type: ignore[arg-type]
+            distribution=distribution.lower(),
+            alpha=alpha,
+            rotation_deg=float(rotation),
+            kd=kd,
+            ks=ks,
+            eta=eta,
+            asymmetry=asym,
             path=path,
         )
     except (ParameterError, TypeError, ValueError) as e:

@@ -126,11 +126,55 @@ def rgb_triplet(value: Any, name: str) -> Array:
     return arr
 
 
-def read_file_bytes(path: Path) -> bytes:
-    """Whole file contents; FileFormatError naming the file if it cannot be read."""
-    try:
-        return path.read_bytes()
-    except FileNotFoundError:
-        raise FileFormatError(path, "no such file") from None
-    except OSError as e:
-        raise FileFormatError(path, f"cannot read: {e.strerror}") from None
+def read_file_bytes(path: Path, limit: int | None = None, what: str = "a BRDF file") -> bytes:
+    """Whole contents of a regular file of at most ``limit`` bytes (default
+    :data:`reflecto.io.MAX_BRDF_BYTES`); FileFormatError naming the file otherwise."""
+    from ..io import MAX_BRDF_BYTES, read_input
+
+    return read_input(path, MAX_BRDF_BYTES if limit is None else limit, what)
+
+
+#: Largest BRDF value (sr⁻¹) a measured or tabulated file may hold: a perfect
+#: mirror-like GGX lobe of α = 0.001 peaks at 8·10⁴ sr⁻¹.
+MAX_BRDF_VALUE = 1e6
+#: Directional albedo a loaded measured or tabulated BRDF may have at the incidence
+#: angles :data:`PLAUSIBILITY_ANGLES_DEG`. Below 0 by a little is measurement noise
+#: (RGL's chm_mint: −0.006 at grazing); above 1 is noise or calibration error up to a
+#: point; outside this range the file is damaged or not a BRDF in sr⁻¹.
+ALBEDO_RANGE = (-0.05, 1.5)
+PLAUSIBILITY_ANGLES_DEG = (0.0, 20.0, 40.0, 60.0, 75.0)
+
+
+def check_plausible(source: BRDFSource, path: Path, albedo_range: tuple[float, float] = ALBEDO_RANGE) -> None:
+    """Refuse a loaded BRDF whose values or directional albedo are impossible.
+
+    Evaluates the source at 4096 fixed direction pairs (values must be finite and
+    at most :data:`MAX_BRDF_VALUE` in magnitude) and its directional albedo at
+    :data:`PLAUSIBILITY_ANGLES_DEG` (a 48 × 64 half-vector quadrature; it must be
+    finite and lie in ``albedo_range``). Costs 5–60 ms.
+
+    Raises
+    ------
+    FileFormatError
+        Naming ``path``.
+    """
+    rng = np.random.default_rng(20100919)
+    ct = rng.uniform(0.0, 1.0, (2, 4096))
+    ph = rng.uniform(0.0, 2.0 * np.pi, (2, 4096))
+    st = np.sqrt(1.0 - ct * ct)
+    d = np.stack([st * np.cos(ph), st * np.sin(ph), ct], -1)
+    with np.errstate(all="ignore"):
+        f = source.eval(d[0], d[1])
+        if not np.all(np.isfinite(f)):
+            raise FileFormatError(path, "the BRDF evaluates to NaN or infinity: the file is damaged")
+        peak = float(np.max(np.abs(f)))
+        if peak > MAX_BRDF_VALUE:
+            raise FileFormatError(path, f"the BRDF reaches {peak:.3g} sr⁻¹, more than {MAX_BRDF_VALUE:g}: "
+                                  "damaged, or not in sr⁻¹")
+        a = directional_albedo(source, PLAUSIBILITY_ANGLES_DEG, n_u=48, n_phi=64)
+    if not np.all(np.isfinite(a)):
+        raise FileFormatError(path, "its directional albedo is NaN or infinite: the file is damaged")
+    lo, hi = albedo_range
+    if a.min() < lo or a.max() > hi:
+        raise FileFormatError(path, f"directional albedo {a.min():.4g} to {a.max():.4g}, outside the plausible "
+                              f"[{lo:g}, {hi:g}]: damaged, or not a BRDF in sr⁻¹")

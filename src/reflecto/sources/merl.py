@@ -17,6 +17,7 @@ Bin centres (tabulation): ``θ_h = ((k+½)/90)²·π/2``, ``θ_d = (k+½)°``, `
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -28,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import geometry
 from ..errors import FileFormatError
 from ..io import atomic_write
-from .base import BRDFSource, read_file_bytes
+from .base import ALBEDO_RANGE, MAX_BRDF_VALUE, BRDFSource, check_plausible, read_file_bytes
 
 Array = NDArray[np.float64]
 
@@ -103,10 +104,12 @@ def bin_directions() -> tuple[Array, Array]:
 def read_merl_table(path: str | Path) -> Array:
     """Read a MERL file; returns the stored values scaled to sr⁻¹, shape ``(90, 90, 180, 3)``.
 
-    Unmeasured bins keep their negative value (times the channel scale).
+    Unmeasured bins keep their negative value (times the channel scale). Refuses
+    files of the wrong size or dimensions, NaN or infinite values, values above
+    :data:`~reflecto.sources.base.MAX_BRDF_VALUE` and tables without a measured bin.
     """
     path = Path(path)
-    raw = read_file_bytes(path)
+    raw = read_file_bytes(path, FILE_BYTES, f"a MERL file ({FILE_BYTES} bytes)")
     if len(raw) < HEADER_BYTES:
         raise FileFormatError(path, f"truncated MERL file: {len(raw)} bytes, no complete header")
     dims = tuple(int(v) for v in np.frombuffer(raw[:HEADER_BYTES], dtype="<i4"))
@@ -119,7 +122,13 @@ def read_merl_table(path: str | Path) -> Array:
     if not np.all(np.isfinite(vals)):
         bad = int(np.count_nonzero(~np.isfinite(vals)))
         raise FileFormatError(path, f"{bad} values are NaN or infinite")
-    return (vals * SCALE[:, None]).T.reshape(SHAPE + (3,))
+    table = (vals * SCALE[:, None]).T.reshape(SHAPE + (3,))
+    peak = float(table.max())
+    if peak > MAX_BRDF_VALUE:
+        raise FileFormatError(path, f"values up to {peak:.3g} sr⁻¹, more than {MAX_BRDF_VALUE:g}: damaged, or not a BRDF")
+    if not np.any(np.all(table >= 0, axis=-1)):
+        raise FileFormatError(path, "no bin holds a measured value (all are negative, MERL's 'unmeasured')")
+    return table
 
 
 def write_merl_table(path: str | Path, table: ArrayLike) -> Path:
@@ -176,6 +185,38 @@ def tabulate(source: BRDFSource, chunk: int = 1 << 17, progress: Callable[[int],
     return out.reshape(SHAPE + (3,))
 
 
+@functools.lru_cache(maxsize=1)
+def _hh_weights() -> Array:
+    """Per-bin weights ``w`` of the hemispherical–hemispherical albedo, shape ``(90, 90, 180)``.
+
+    ``ρ_hh = (1/π) ∫∫ f cos θ_i cos θ_o dω_i dω_o = Σ_bins f w`` (1 for a white Lambertian
+    surface; the mean of the directional albedo over cosine-weighted incidence), with
+    ``dω_i dω_o = 4 cos θ_d dω_h dω_d``, ``φ_h`` over 2π and ``φ_d`` folded into [0, π)
+    (×2): every bin's measure is integrated exactly over its edges; ``cos θ_i cos θ_o =
+    (cos θ_h cos θ_d)² − (sin θ_h sin θ_d cos φ_d)²`` (both above the horizon) at its centre.
+    """
+    th_e = theta_h_edge(np.arange(N_THETA_H + 1))
+    td_e = np.radians(np.arange(N_THETA_D + 1.0))
+    th, td, pd = bin_centres()
+    measure = (4.0 * 2.0 * math.pi * 2.0 * (np.cos(th_e[:-1]) - np.cos(th_e[1:]))[:, None, None]
+               * (0.5 * (np.sin(td_e[1:]) ** 2 - np.sin(td_e[:-1]) ** 2))[None, :, None] * math.radians(1.0))
+    a = np.cos(th)[:, None, None] * np.cos(td)[None, :, None]
+    b = np.sin(th)[:, None, None] * np.sin(td)[None, :, None] * np.cos(pd)[None, None, :]
+    w = np.where(a > np.abs(b), measure * (a * a - b * b), 0.0) / math.pi
+    w.setflags(write=False)
+    return w
+
+
+def hemispherical_albedo(table: ArrayLike) -> Array:
+    """``ρ_hh`` per channel of a MERL table in sr⁻¹ (unmeasured bins count 0), shape ``(3,)``.
+
+    Every bin counts with its exact measure, so a damaged bin anywhere raises it (a
+    quadrature of the directional albedo can step over a spike between its nodes).
+    """
+    t = np.asarray(table, dtype=np.float64).reshape(N_BINS, 3)
+    return np.maximum(t, 0.0).T @ _hh_weights().ravel()
+
+
 class MerlBRDF(BRDFSource):
     """A MERL ``.binary`` BRDF, looked up bin by bin (no interpolation, as MERL's reader).
 
@@ -191,6 +232,11 @@ class MerlBRDF(BRDFSource):
         self._flat = self.table.reshape(N_BINS, 3)
         self.reciprocal = True  # φ_d folding makes lookups reciprocal by construction
         self.isotropic = True
+        rho = hemispherical_albedo(self.table)
+        if not np.all(np.isfinite(rho)) or rho.max() > ALBEDO_RANGE[1]:
+            raise FileFormatError(self.path, f"hemispherical albedo {np.round(rho, 4).tolist()} above the plausible "
+                                  f"{ALBEDO_RANGE[1]:g}: damaged, or not a BRDF in sr⁻¹")
+        check_plausible(self, self.path)
 
     @classmethod
     def from_table(cls, table: ArrayLike, name: str = "merl") -> MerlBRDF:

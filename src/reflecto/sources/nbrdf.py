@@ -12,7 +12,7 @@ this also makes the evaluation exactly reciprocal.
 
 from __future__ import annotations
 
-import json
+import io
 import math
 from pathlib import Path
 from typing import Any
@@ -21,56 +21,88 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import geometry
-from ..errors import FileFormatError
-from .base import BRDFSource
+from ..errors import FileFormatError, short_repr
+from .base import BRDFSource, check_plausible
 
 Array = NDArray[np.float64]
 
 LAYERS = (("dense_1", 6, 21), ("dense_2", 21, 21), ("dense_3", 21, 3))
 
 
+def _dataset(path: Path, f: Any, name: str, shape: tuple[int, ...]) -> Array:
+    """Dataset ``name`` of the open file ``f`` as float64, checked before it is read.
+
+    Only hard links to plain float datasets stored in the file itself: an external
+    or soft link, external raw storage or a virtual dataset would read other files,
+    and the shape is checked before reading, so that a huge (even lazily allocated)
+    dataset is refused without allocating it.
+    """
+    import h5py
+
+    link = f.get(name, getlink=True)
+    if link is None:
+        raise KeyError(name)
+    if not isinstance(link, h5py.HardLink):
+        raise FileFormatError(path, f"{name!r} is a {type(link).__name__}: only data stored in the file itself is read")
+    ds = f[name]
+    if not isinstance(ds, h5py.Dataset):
+        raise FileFormatError(path, f"{name!r} is not a dataset")
+    if ds.is_virtual or ds.id.get_create_plist().get_external_count() > 0:
+        raise FileFormatError(path, f"{name!r} refers to data in other files")
+    if ds.dtype.kind != "f":
+        raise FileFormatError(path, f"{name!r} holds {ds.dtype} values, expected floating point")
+    if ds.shape != shape:
+        raise FileFormatError(path, f"{name!r} has shape {ds.shape}, expected {shape}")
+    return np.asarray(ds[()], dtype=np.float64)
+
+
 def _read_weights(path: Path) -> list[tuple[Array, Array]]:
     import h5py
 
+    from ..io import MAX_BRDF_BYTES, read_input
+
+    raw = read_input(path, MAX_BRDF_BYTES, "an NBRDF weights file")
     try:
-        f = h5py.File(path, "r")
-    except FileNotFoundError:
-        raise FileFormatError(path, "no such file") from None
-    except OSError as e:
-        raise FileFormatError(path, f"not a readable HDF5 file ({e})") from None
+        f = h5py.File(io.BytesIO(raw), "r")
+    except MemoryError:
+        raise
+    except Exception as e:  # noqa: BLE001 — h5py raises OSError, ValueError, ... on damaged files
+        raise FileFormatError(path, f"not a readable HDF5 file ({type(e).__name__}: {e})") from None
     layers = []
-    with f:
-        for name, n_in, n_out in LAYERS:
-            grp = f.get(name)
-            if grp is None:
-                raise FileFormatError(path, f"missing layer {name!r} (expected layers {[n for n, _, _ in LAYERS]})")
-            sub = grp.get(name, grp)
-            try:
-                kernel = np.asarray(sub["kernel:0"], dtype=np.float64)
-                bias = np.asarray(sub["bias:0"], dtype=np.float64)
-            except KeyError:
-                raise FileFormatError(path, f"layer {name!r} lacks kernel:0 or bias:0") from None
-            if kernel.shape != (n_in, n_out) or bias.shape != (n_out,):
-                raise FileFormatError(
-                    path, f"layer {name!r} has kernel {kernel.shape} and bias {bias.shape}, expected ({n_in}, {n_out}) and ({n_out},)"
-                )
-            if not (np.all(np.isfinite(kernel)) and np.all(np.isfinite(bias))):
-                raise FileFormatError(path, f"layer {name!r} contains NaN or infinite weights")
-            layers.append((kernel, bias))
+    try:
+        with f:
+            for name, n_in, n_out in LAYERS:
+                if f.get(name, getlink=True) is None:
+                    raise FileFormatError(path, f"missing layer {name!r} (expected layers {[n for n, _, _ in LAYERS]})")
+                base = f"{name}/{name}" if f.get(f"{name}/{name}", getlink=True) is not None else name
+                try:
+                    kernel = _dataset(path, f, f"{base}/kernel:0", (n_in, n_out))
+                    bias = _dataset(path, f, f"{base}/bias:0", (n_out,))
+                except KeyError:
+                    raise FileFormatError(path, f"layer {name!r} lacks kernel:0 or bias:0") from None
+                if not (np.all(np.isfinite(kernel)) and np.all(np.isfinite(bias))):
+                    raise FileFormatError(path, f"layer {name!r} contains NaN or infinite weights")
+                layers.append((kernel, bias))
+    except (FileFormatError, MemoryError):
+        raise
+    except Exception as e:  # noqa: BLE001 — damaged object headers surface as many h5py error types
+        raise FileFormatError(path, f"damaged HDF5 file ({type(e).__name__}: {e})") from None
     return layers
 
 
 def _check_architecture(path: Path) -> None:
+    from ..io import MAX_DESCRIPTION_BYTES, parse_json, read_input
+
+    if not path.exists() and not path.is_symlink():
+        return
+    d = parse_json(read_input(path, MAX_DESCRIPTION_BYTES, "an NBRDF architecture file"), path)
     try:
-        d = json.loads(path.read_text(encoding="utf-8"))
         layers = d["config"]["layers"]
         dense = [(l["config"]["units"], l["config"]["activation"]) for l in layers if l["class_name"] == "Dense"]
-    except FileNotFoundError:
-        return
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as e:
-        raise FileFormatError(path, f"not a Keras architecture file ({e})") from None
+    except (KeyError, TypeError, AttributeError) as e:
+        raise FileFormatError(path, f"not a Keras architecture file (missing or invalid {e})") from None
     if dense != [(21, "relu"), (21, "relu"), (3, "linear")]:
-        raise FileFormatError(path, f"unexpected NBRDF architecture {dense}; expected 6→21 relu→21 relu→3 linear")
+        raise FileFormatError(path, f"unexpected NBRDF architecture {short_repr(dense)}; expected 6→21 relu→21 relu→3 linear")
 
 
 class NBRDF(BRDFSource):
@@ -84,6 +116,7 @@ class NBRDF(BRDFSource):
         self.layers = _read_weights(self.path)
         self.reciprocal = True
         self.isotropic = True
+        check_plausible(self, self.path)
 
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
         i = np.asarray(i, dtype=np.float64)

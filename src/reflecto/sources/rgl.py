@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import FileFormatError
-from .base import BRDFSource, read_file_bytes
+from .base import BRDFSource, check_plausible, read_file_bytes
 
 Array = NDArray[np.float64]
 
@@ -41,10 +41,21 @@ DTYPES = {
 }
 
 
+#: Limits of tensor files (docs/limits.md): fields, dimensions per field, name length.
+MAX_FIELDS = 64
+MAX_NDIM = 8
+MAX_NAME_BYTES = 256
+
+
 def read_tensor_file(path: str | Path) -> dict[str, np.ndarray]:
-    """Parse a tensor file into ``{name: array}``; clear errors for damaged files."""
+    """Parse a tensor file into ``{name: array}``; clear errors for damaged files.
+
+    Every field's byte range is checked against the file length with exact integer
+    arithmetic before an array is made (a hostile shape cannot overflow or allocate);
+    arrays are read-only views of the file's bytes.
+    """
     path = Path(path)
-    raw = read_file_bytes(path)
+    raw = read_file_bytes(path, what="an RGL tensor file")
     if raw[:12] != MAGIC:
         raise FileFormatError(path, "not an RGL tensor file (wrong magic; expected 'tensor_file\\0')")
     if len(raw) < 18:
@@ -53,25 +64,34 @@ def read_tensor_file(path: str | Path) -> dict[str, np.ndarray]:
     if (major, minor) != (1, 0):
         raise FileFormatError(path, f"unsupported tensor file version {major}.{minor} (expected 1.0)")
     (count,) = struct.unpack_from("<I", raw, 14)
+    if count > MAX_FIELDS:
+        raise FileFormatError(path, f"{count} fields, more than {MAX_FIELDS}: damaged field table")
     pos = 18
     fields: dict[str, np.ndarray] = {}
     try:
         for _ in range(count):
             (nlen,) = struct.unpack_from("<H", raw, pos)
             pos += 2
+            if nlen > MAX_NAME_BYTES or pos + nlen > len(raw):
+                raise FileFormatError(path, "truncated or damaged field table (field name)")
             name = raw[pos : pos + nlen].decode("utf-8")
             pos += nlen
             ndim, dtype_code, offset = struct.unpack_from("<HBQ", raw, pos)
             pos += 11
+            if ndim > MAX_NDIM:
+                raise FileFormatError(path, f"field {name!r} has {ndim} dimensions, more than {MAX_NDIM}")
             shape = struct.unpack_from(f"<{ndim}Q", raw, pos)
             pos += 8 * ndim
             if dtype_code not in DTYPES:
                 raise FileFormatError(path, f"field {name!r} has unknown dtype code {dtype_code}")
+            if name in fields:
+                raise FileFormatError(path, f"field {name!r} is listed twice")
             dt = np.dtype(DTYPES[dtype_code])
-            nbytes = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
+            count_items = math.prod(shape)  # Python integers: exact for any shape
+            nbytes = count_items * dt.itemsize
             if offset + nbytes > len(raw):
                 raise FileFormatError(path, f"truncated: field {name!r} needs bytes {offset}..{offset + nbytes}, file has {len(raw)}")
-            fields[name] = np.frombuffer(raw, dtype=dt, count=nbytes // dt.itemsize, offset=offset).reshape(shape)
+            fields[name] = np.frombuffer(raw, dtype=dt, count=count_items, offset=offset).reshape(shape)
     except (struct.error, UnicodeDecodeError):
         raise FileFormatError(path, "truncated or damaged field table") from None
     return fields
@@ -84,6 +104,33 @@ def _require(path: Path, f: dict[str, np.ndarray], name: str, ndim: int, dtype: 
     if a.ndim != ndim or a.dtype != np.dtype(dtype):
         raise FileFormatError(path, f"field {name!r} has shape {a.shape} and type {a.dtype}, expected {ndim}-D {np.dtype(dtype)}")
     return a
+
+
+def _check_tables(path: Path, theta_i: Array, phi_i: Array, ndf: np.ndarray, sigma: np.ndarray,
+                  vndf: np.ndarray, lum: np.ndarray, rgb: np.ndarray, jac: np.ndarray) -> None:
+    """Ranges of the tables that the evaluation divides by or integrates (see :class:`RGLBRDF`)."""
+    for name, arr in (("theta_i", theta_i), ("phi_i", phi_i), ("ndf", ndf), ("sigma", sigma), ("vndf", vndf),
+                      ("luminance", lum), ("rgb", rgb)):
+        if not np.all(np.isfinite(arr)):
+            raise FileFormatError(path, f"field {name!r} contains NaN or infinite values")
+    if len(theta_i) < 1 or len(phi_i) < 1:
+        raise FileFormatError(path, "theta_i and phi_i need at least one value each")
+    if np.any(np.diff(theta_i) <= 0) or theta_i[0] < 0 or theta_i[-1] > 0.5 * math.pi + 1e-4:
+        raise FileFormatError(path, "theta_i must increase strictly within [0, π/2]")
+    if np.any(np.diff(phi_i) <= 0) or phi_i[0] < -math.pi - 1e-4 or phi_i[-1] > math.pi + 1e-4:
+        raise FileFormatError(path, "phi_i must increase strictly within [−π, π]")
+    if np.any(ndf < 0) or not np.any(ndf > 0):
+        raise FileFormatError(path, "field 'ndf' must be non-negative and not zero everywhere")
+    if np.any(sigma <= 0):
+        raise FileFormatError(path, "field 'sigma' (projected area) must be positive everywhere")
+    if np.any(vndf < 0):
+        raise FileFormatError(path, "field 'vndf' must be non-negative")
+    empty = ~np.any(vndf.reshape(vndf.shape[0] * vndf.shape[1], -1) > 0, axis=1)
+    if np.any(empty):
+        raise FileFormatError(path, f"field 'vndf' is zero everywhere in {int(empty.sum())} incident slice(s): "
+                              "its warp is undefined")
+    if jac[0] not in (0, 1):
+        raise FileFormatError(path, f"field 'jacobian' must be 0 or 1, got {int(jac[0])}")
 
 
 def _param_weights(values: Array, p: Array) -> tuple[NDArray[np.intp], Array]:
@@ -246,15 +293,16 @@ class RGLBRDF(BRDFSource):
             raise FileFormatError(path, f"inconsistent shapes: vndf {vndf.shape}, luminance {lum.shape}, rgb {rgb.shape} for {nphi} φ_i × {nth} θ_i")
         if rgb.shape[3] != rgb.shape[4] or jac.shape != (1,):
             raise FileFormatError(path, f"rgb slices must be square and jacobian one byte; got rgb {rgb.shape}, jacobian {jac.shape}")
-        for name, arr in (("theta_i", theta_i), ("phi_i", phi_i), ("ndf", ndf), ("sigma", sigma), ("vndf", vndf), ("rgb", rgb)):
-            if not np.all(np.isfinite(arr)):
-                raise FileFormatError(path, f"field {name!r} contains NaN or infinite values")
-        if min(ndf.shape) < 2 or min(sigma.shape) < 2 or min(vndf.shape[2:]) < 2:
+        if min(ndf.shape) < 2 or min(sigma.shape) < 2 or min(vndf.shape[2:]) < 2 or min(rgb.shape[3:]) < 2:
             raise FileFormatError(path, "tables must be at least 2×2")
+        _check_tables(path, theta_i, phi_i, ndf, sigma, vndf, lum, rgb, jac)
         self.description = bytes(desc).decode("utf-8", "replace")
         self.theta_i, self.phi_i = theta_i, phi_i
         self.isotropic = nphi <= 2
         self.reduction = 0 if self.isotropic else int(round(2 * math.pi / (phi_i[-1] - phi_i[0])))
+        if self.reduction not in (0, 1, 2, 4):
+            raise FileFormatError(path, f"phi_i spans {np.degrees(phi_i[-1] - phi_i[0]):.4g}°: an anisotropic file must "
+                                  "cover 360°, 180° or 90° (symmetry reduction 1, 2 or 4)")
         self.jacobian = bool(jac[0])
         one = np.zeros(1)
         self._ndf = Marginal2D(ndf[None, None].astype(np.float64), one, one, build_cdf=False)
@@ -263,6 +311,7 @@ class RGLBRDF(BRDFSource):
         rgb64 = rgb.astype(np.float64)
         self._rgb = [Marginal2D(rgb64[:, :, c], phi_i, theta_i, build_cdf=False) for c in range(3)]
         self.reciprocal = False
+        check_plausible(self, path)
 
     def eval_cosine(self, i: ArrayLike, o: ArrayLike) -> Array:
         """The plugin's value ``f(i, o)·cos θ_o`` (what Mitsuba's ``eval`` returns), ``(N, 3)``."""
