@@ -201,22 +201,29 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    import time
+
     from .sources import load_source
 
     src = load_source(args.source)
     out = Path(args.output)
+    t0 = time.perf_counter()
     if args.format == "rgl":
         from .export.rgl import export_rgl
+        from .sources.rgl import read_tensor_file
 
         iso = {"auto": None, "yes": True, "no": False}[args.isotropic]
         export_rgl(src, out, isotropic=iso)
+        layout = "isotropic, one φ_i" if len(read_tensor_file(out)["phi_i"]) == 1 else "anisotropic"
+        what = f"rgl, {layout}"
     else:
         from .export.merl import export_merl
 
         with _progress(merl_bins(), f"tabulating {src.name}", not args.quiet and sys.stderr.isatty()) as bar:
             export_merl(src, out, allow_anisotropic=args.isotropic == "yes", progress=bar.update)
+        what = "merl"
     if not args.quiet:
-        print(f"wrote {out} ({out.stat().st_size} bytes, {args.format})")
+        print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB, {what}) in {time.perf_counter() - t0:.2f} s")
     return 0
 
 
@@ -369,12 +376,15 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--progress", action="store_true", help="progress bar")
     q.set_defaults(func=cmd_reconstruct)
 
-    q = sub.add_parser("export", help="write a BRDF as an RGL .bsdf (Mitsuba 3, pbrt-v4) or MERL .binary file")
+    q = sub.add_parser("export", help="write a BRDF as an RGL .bsdf (RGB, Mitsuba 3's measured plugin) or MERL .binary file",
+                       description="Write a BRDF as an RGL .bsdf tensor file in the RGB variant that Mitsuba 3's "
+                                   "`measured` plugin reads (see docs/mitsuba.md), or as a MERL .binary table.")
     q.add_argument("source", help="model (.reflecto) or any BRDF file")
     q.add_argument("--format", choices=("rgl", "merl"), default="rgl")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="write an isotropic file (RGL: one φ_i; MERL: the φ_h = 0 slice of an anisotropic "
-                        "source) or an anisotropic RGL file (default: detect from the NDF)")
+                        "source) or an anisotropic RGL file (default: as the source says it is, or isotropic if "
+                        "its NDF is within 2 %% of its mean around every ring)")
     q.add_argument("-o", "--output", required=True, help="output file")
     q.add_argument("-q", "--quiet", action="store_true")
     q.set_defaults(func=cmd_export)
