@@ -220,3 +220,35 @@ def test_rgl_description_names_material_capture_parameters_and_version(tmp_path)
     for part in (f"reflecto {reflecto.__version__}", "material ggx-plastic (simulated capture)", f"capture {cap}", "device ideal",
                  "k_d (R,G,B) " + " ".join(f"{v:.4g}" for v in m.kd), "eta (R,G,B) " + " ".join(f"{v:.4g}" for v in m.eta)):
         assert part in desc, (part, desc)
+
+
+@pytest.mark.parametrize("theta_deg", [30.0, 70.0, 85.0])
+def test_mitsuba_samples_the_export_by_its_value(theta_deg, tmp_path):
+    """Mitsuba's sampling of an exported file: the mean sample weight f cos θ_o / pdf is
+    the directional albedo (within 1 %), no weight above 10× it (no fireflies).
+
+    Measured for a GGX plastic and a Beckmann near-mirror: mean within 0.3 %, largest
+    weight 3-8× the albedo. An analytic source evaluated exactly at the horizon for
+    the 90° slice once gave mean weights of 30-2000 above θ_i = 88°.
+    """
+    try:
+        from reflecto.mitsuba_support import import_mitsuba
+
+        mi, variant = import_mitsuba("llvm_ad_rgb")
+    except ImportError as e:
+        pytest.skip(f"Mitsuba 3 unavailable: {e}")
+    if not variant.startswith("llvm"):
+        pytest.skip("needs a vectorised Mitsuba variant")
+    rng = np.random.default_rng(1)
+    n = 200_000
+    t = np.radians(theta_deg)
+    for src in (MODELS["plastic"], AnalyticBRDF(distribution="beckmann", alpha=0.01, kd=0.05, ks=0.9, eta=2.0)):
+        bsdf = mi.load_dict({"type": "measured", "filename": str(export_rgl(src, tmp_path / "s.bsdf"))})
+        si = mi.SurfaceInteraction3f()
+        si.wi = mi.Vector3f(np.full(n, np.sin(t)), np.zeros(n), np.full(n, np.cos(t)))
+        _, w = bsdf.sample(mi.BSDFContext(), si, mi.Float(rng.uniform(0, 1, n)),
+                           mi.Point2f(rng.uniform(0, 1, n), rng.uniform(0, 1, n)))
+        weight = np.array(w).reshape(3, -1).T @ np.array([0.2126, 0.7152, 0.0722])
+        albedo = float(src.albedo([theta_deg])[0] @ np.array([0.2126, 0.7152, 0.0722]))
+        assert abs(weight.mean() / albedo - 1.0) <= 0.01
+        assert weight.max() <= 10.0 * albedo

@@ -104,7 +104,7 @@ class RGLGrid:
     ndf: tuple[int, int] = (2048, 2048)
     sigma: int = 256
     warp: int = 256
-    rgb: int = 48
+    rgb: int = 64
     rgb_aniso: int = 32
     uniform: float = 0.2
     flank: float = 0.4
@@ -148,6 +148,20 @@ def _unit_dirs(u0: Array, u1: Array, phi_offset: Array | float = 0.0) -> Array:
     th, ph = np.broadcast_arrays(0.5 * math.pi * u0 * u0, (2.0 * u1 - 1.0) * math.pi + phi_offset)
     st = np.sin(th)
     return np.stack([st * np.cos(ph), st * np.sin(ph), np.cos(th)], axis=-1)
+
+
+def _grid_dirs(u0: Array, u1: Array) -> Array:
+    """Directions on the grid ``(len(u1) rows, len(u0) columns)`` of unit coordinates, ``(rows, cols, 3)``.
+
+    The trigonometry is done on the two axes only (the NDF table's grid has 4M nodes).
+    """
+    th = 0.5 * math.pi * u0 * u0
+    ph = (2.0 * u1 - 1.0) * math.pi
+    out = np.empty((len(u1), len(u0), 3))
+    np.multiply(np.cos(ph)[:, None], np.sin(th)[None, :], out=out[..., 0])
+    np.multiply(np.sin(ph)[:, None], np.sin(th)[None, :], out=out[..., 1])
+    out[..., 2] = np.cos(th)[None, :]
+    return out
 
 
 def _jacobian(u0: Array) -> Array:
@@ -195,7 +209,7 @@ def _looks_isotropic(d_fn: NDFFunction, tol: float = 0.02) -> bool:
     """Whether D varies by less than ``tol`` (relative) around every ring above 10⁻³ of its peak."""
     u0 = np.linspace(0.05, 0.95, 19)
     u1 = np.linspace(0.0, 1.0, 64, endpoint=False)
-    d = d_fn(_unit_dirs(u0[None, :], u1[:, None]))
+    d = d_fn(_grid_dirs(u0, u1))
     mean = d.mean(axis=0)
     ok = mean > 1e-3 * mean.max()
     return bool(np.all(np.abs(d[:, ok] / mean[ok] - 1.0) < tol))
@@ -204,7 +218,7 @@ def _looks_isotropic(d_fn: NDFFunction, tol: float = 0.02) -> bool:
 def _ring_means(d_fn: NDFFunction, u0: Array, n_az: int = 64) -> Array:
     """Azimuthal mean of ``max(D, 0)`` on the rings ``θ = π/2·u₀²`` (midpoint rule, ``n_az`` azimuths)."""
     az = (np.arange(n_az) + 0.5) / n_az
-    return np.maximum(d_fn(_unit_dirs(u0[None, :], az[:, None])), 0.0).mean(axis=0)
+    return np.maximum(d_fn(_grid_dirs(u0, az)), 0.0).mean(axis=0)
 
 
 def _trapezoid_weights(x: Array) -> Array:
@@ -215,25 +229,32 @@ def _trapezoid_weights(x: Array) -> Array:
     return w
 
 
-def _floor(source: BRDFSource, peak: float, scale: float, min_floor: float = 1e-6) -> float:
+def _floor(source: BRDFSource, ring: Array, u0: Array, scale: float, min_floor: float = 1e-6) -> float:
     """NDF floor ``c = scale · 4 k_d/(π k_s F(0))`` (luminance) of a source with those parameters.
 
     Where ``D = 4 k_d/(π k_s F(0))`` the diffuse term of a microfacet BRDF equals the
     specular one at normal incidence. Away from it the balance moves (at θ_d = 60° the
     specular term is ≈ 2–3× larger relative to the diffuse one), so the floor sits
     below it: ``scale = 0.5`` gave the lowest eq. 10 error over today's 50 shared
-    reconstructions (1.1 % worst, against 1.6 % with 1 and 1.3 % with 0.3). Sources
-    without ``kd``/``ks``/``eta`` get ``min_floor``·peak. Clipped to
-    ``[min_floor, 10]``·peak.
+    reconstructions (1.1 % worst, against 1.6 % with 1 and 1.3 % with 0.3).
+
+    A source without ``kd``/``ks``/``eta`` has the back-scattering estimate for D
+    (``ring``, normalized, at ``u0``), which already holds the diffuse term as
+    ``∝ cos²θ_m``; its level at the normal, ``min_θ D(θ)/cos²θ`` over θ ≤ 80°, stands
+    for the same balance. Clipped to ``[min_floor, 10]``·peak.
     """
+    peak = float(ring.max())
     kd, ks, eta = (getattr(source, k, None) for k in ("kd", "ks", "eta"))
-    c = 0.0
     if kd is not None and ks is not None and eta is not None:
         eta = np.asarray(eta, dtype=np.float64)
         f0 = float(((eta - 1) / (eta + 1)) ** 2 @ LUM)
         kdl, ksl = float(np.asarray(kd) @ LUM), float(np.asarray(ks) @ LUM)
-        c = scale * 4.0 * kdl / (math.pi * max(ksl * f0, 1e-6))
-    return float(np.clip(c, min_floor * peak, 10.0 * peak))
+        c = 4.0 * kdl / (math.pi * max(ksl * f0, 1e-6))
+    else:
+        th = 0.5 * math.pi * u0 * u0
+        keep = th <= math.radians(80.0)
+        c = float(np.min(ring[keep] / np.cos(th[keep]) ** 2))
+    return float(np.clip(scale * c, min_floor * peak, 10.0 * peak))
 
 
 # ------------------------------------------------------------------ σ
@@ -303,14 +324,14 @@ def _build_tables(source: BRDFSource, d_fn: NDFFunction, iso: bool, grid: RGLGri
     else:
         rows, cols = grid.ndf
         u0 = np.linspace(0.0, 1.0, cols)
-        d = np.maximum(d_fn(_unit_dirs(u0[None, :], np.linspace(0.0, 1.0, rows)[:, None])), 0.0)
+        d = np.maximum(d_fn(_grid_dirs(u0, np.linspace(0.0, 1.0, rows))), 0.0)
     th = 0.5 * math.pi * u0 * u0
     ring = d[:-1].mean(axis=0) if not iso else d[0]  # the last row repeats the first azimuth
     norm = float(np.sum(_trapezoid_weights(u0) * math.pi * u0 * np.sin(th) * np.cos(th) * ring) * 2 * math.pi)
     if not (norm > 0 and np.isfinite(norm)):
         raise ValueError(f"{source.name}: no positive NDF or back-scattering to build the tables from")
     d, ring = d / norm, ring / norm
-    c = _floor(source, float(d.max()), grid.floor_scale)
+    c = _floor(source, ring, u0, grid.floor_scale)
     n_vals = (d + c) / (1.0 + math.pi * c)  # ∫ N cos dω = 1
     ndf_tab = _f32(np.concatenate([n_vals, n_vals]) if iso else n_vals)
     # Σ from the azimuthal mean of D, also for anisotropic files: it only has to take
@@ -361,11 +382,20 @@ def _warp(ndf_tab: Array, floor: float, grid: RGLGrid) -> tuple[Array, Array]:
     return np.stack([dens, dens]), np.stack([g, g])
 
 
+#: The grazing slice (θ_i = 90°) is evaluated this far above the horizon: a source
+#: evaluated at cos θ_i ≈ 6·10⁻¹⁷ may return anything (an analytic GGX's Smith
+#: term, clipped at 10⁻¹², gave f·cos θ_o ≈ 2000 and fireflies in every render).
+GRAZING_EVAL = 1e-3
+
+
 def _incident_dirs(iso: bool, grid: RGLGrid) -> tuple[Array, Array, Array]:
-    """``(phi_i, theta_i, wi)`` of the incident grid; ``wi`` shape ``(n_phi, n_theta, 3)``."""
+    """``(phi_i, theta_i, wi)`` of the incident grid; ``wi`` shape ``(n_phi, n_theta, 3)``.
+
+    ``wi`` of the last elevation (90°) lies :data:`GRAZING_EVAL` above the horizon.
+    """
     theta_i = theta_i_nodes(grid.n_theta_i if iso else grid.n_theta_i_aniso, grid.theta_i_grazing)
     phi_i = np.zeros(1) if iso else np.linspace(-math.pi, math.pi, grid.n_phi_i)
-    th, ph = np.meshgrid(theta_i, phi_i)
+    th, ph = np.meshgrid(np.minimum(theta_i, 0.5 * math.pi - GRAZING_EVAL), phi_i)
     wi = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
     return phi_i, theta_i, wi
 
@@ -400,20 +430,35 @@ def _slices(source: BRDFSource, tabs: _Tables, iso: bool, wi: Array, phi_i: Arra
         val = fc * (4.0 * sig[:, None] / np.maximum(n_at, 1e-30)[None, :])[..., None]
         # sampling: density of ω_o ∝ f cos θ_o needs luminance ∝ f cos θ_o · 4(i·m) / g
         lv = (fc @ LUM) * np.maximum(im, 0.0) / np.maximum(g_at, 1e-30)[None, :]
-        for b in range(len(theta_i)):
-            v = val[b].reshape(n, n, 3)
-            ok = valid[b].reshape(n, n)
-            if not ok.any():
-                v = np.zeros_like(v)
-            elif not ok.all():
-                # nodes whose ω_o is below the horizon are never evaluated (Mitsuba masks
-                # them) but enter the interpolation: extend the nearest valid node's value
-                _, (ri, ci) = ndimage.distance_transform_edt(~ok, return_indices=True)
-                v = v[ri, ci]
-            rgb[a, b] = np.moveaxis(v, -1, 0)
-            lb = np.where(ok, lv[b].reshape(n, n), 0.0)
-            lum[a, b] = np.maximum(lb, 1e-5 * max(float(lb.max()), 1e-30))
+        val = _fill_invalid(val.reshape(len(theta_i), n, n, 3), valid.reshape(len(theta_i), n, n))
+        rgb[a] = np.moveaxis(val, -1, 1)
+        lv = np.where(valid, lv, 0.0).reshape(len(theta_i), n, n)
+        lum[a] = np.maximum(lv, 1e-5 * np.maximum(lv.max(axis=(1, 2), keepdims=True), 1e-30))
     return rgb, lum
+
+
+def _fill_invalid(val: Array, valid: NDArray[np.bool_]) -> Array:
+    """Nodes whose ω_o is below the horizon (or ``i·m ≤ 0``) get the mean of their valid 8-neighbours.
+
+    Mitsuba never evaluates such a node's own half vector (it masks ω_o below the
+    horizon) but interpolates it into the cells it shares with valid nodes; only the
+    nodes next to a valid one matter, and the rest stay 0. ``val`` ``(S, n, n, 3)``,
+    ``valid`` ``(S, n, n)``.
+    """
+    w = valid.astype(np.float64)
+    pv = np.pad(val * w[..., None], ((0, 0), (1, 1), (1, 1), (0, 0)))
+    pw = np.pad(w, ((0, 0), (1, 1), (1, 1)))
+    n = val.shape[1]
+    total = np.zeros_like(val)
+    count = np.zeros(w.shape)
+    for dy in (0, 1, 2):
+        for dx in (0, 1, 2):
+            if dy == dx == 1:
+                continue
+            total += pv[:, dy:dy + n, dx:dx + n]
+            count += pw[:, dy:dy + n, dx:dx + n]
+    fill = np.divide(total, count[..., None], out=np.zeros_like(total), where=count[..., None] > 0)
+    return np.where(valid[..., None], val, fill)
 
 
 def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | None = None,
