@@ -201,29 +201,22 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    import time
-
     from .sources import load_source
 
     src = load_source(args.source)
     out = Path(args.output)
-    t0 = time.perf_counter()
     if args.format == "rgl":
         from .export.rgl import export_rgl
-        from .sources.rgl import read_tensor_file
 
         iso = {"auto": None, "yes": True, "no": False}[args.isotropic]
         export_rgl(src, out, isotropic=iso)
-        layout = "isotropic, one φ_i" if len(read_tensor_file(out)["phi_i"]) == 1 else "anisotropic"
-        what = f"rgl, {layout}"
     else:
         from .export.merl import export_merl
 
         with _progress(merl_bins(), f"tabulating {src.name}", not args.quiet and sys.stderr.isatty()) as bar:
             export_merl(src, out, allow_anisotropic=args.isotropic == "yes", progress=bar.update)
-        what = "merl"
     if not args.quiet:
-        print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB, {what}) in {time.perf_counter() - t0:.2f} s")
+        print(f"wrote {out} ({out.stat().st_size} bytes, {args.format})")
     return 0
 
 
@@ -234,31 +227,35 @@ def merl_bins() -> int:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    import time
-
-    from .render.mitsuba import comparison_image, image_difference, render, save_image
+    from .render.mitsuba import compare, comparison_image, render, save_image
     from .sources import load_source
 
     src = load_source(args.source)
-    t0 = time.perf_counter()
-    img, variant = render(src, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
-    line = f"rendered {src.name} ({args.scene}, {args.resolution}², {args.spp} spp, {variant}) in {time.perf_counter() - t0:.1f} s"
-    if args.compare:
-        ref_img, _ = render(load_source(args.compare), args.scene, envmap=args.envmap, resolution=args.resolution,
-                            spp=args.spp, seed=args.seed)
-        from .io import atomic_path
+    out = Path(args.output)
+    if not args.compare:
+        r = render(src, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
+        # a linear EXR keeps the object's alpha; PNG and HDR get the grey background
+        save_image(np.dstack([r.radiance, r.alpha]) if out.suffix.lower() == ".exr" else r.image(), out)
+        print(f"rendered {src.name} ({args.scene}, {args.resolution}², {r.spp} spp, {r.variant}) in {r.seconds:.1f} s; "
+              f"wrote {out}")
+        return 0
+    if out.suffix.lower() != ".png":
+        raise ReflectoError(f"{out}: a comparison image must be .png")
+    ref = load_source(args.compare)
+    c = compare(src, ref, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
+    from .io import atomic_path
 
-        import imageio.v3 as iio
+    import imageio.v3 as iio
 
-        out = Path(args.output)
-        if out.suffix.lower() != ".png":
-            raise ReflectoError(f"{out}: a comparison image must be .png")
-        with atomic_path(out, suffix=".png") as tmp:
-            iio.imwrite(tmp, comparison_image(ref_img, img))
-        line += f"; mean image difference to {args.compare}: {100 * image_difference(ref_img, img):.2f} %"
-    else:
-        save_image(img, args.output)
-    print(line + f"; wrote {args.output}")
+    with atomic_path(out, suffix=".png") as tmp:
+        iio.imwrite(tmp, comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha,
+                                          alpha_test=c.test.alpha))
+    seconds = c.test.seconds + c.reference.seconds + c.reference_repeat.seconds
+    print(f"rendered {src.name} and {ref.name} twice ({args.scene}, {args.resolution}², {c.test.spp} spp, "
+          f"{c.test.variant}) in {seconds:.1f} s; {c.summary()}; wrote {out} (reference | {src.name} | difference)")
+    if not c.resolved:
+        print(f"note: the noise floor is more than a third of the difference; about --spp {c.spp_to_resolve()} "
+              "would bring it there")
     return 0
 
 
@@ -389,17 +386,23 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-q", "--quiet", action="store_true")
     q.set_defaults(func=cmd_export)
 
-    from .render.mitsuba import SCENES
+    from .render.mitsuba import DEFAULT_SPP, SCENES
 
-    q = sub.add_parser("render", help="render a BRDF with Mitsuba 3 (sphere or teapot, point light or envmap)")
+    q = sub.add_parser("render", help="render a BRDF with Mitsuba 3 (sphere or teapot, point lights or envmap)",
+                       description="Render a BRDF with Mitsuba 3. With --compare, render the source once and the "
+                                   "reference twice (three seeds) and print the mean image difference over the "
+                                   "object's pixels, the same number between the two reference renders (the noise "
+                                   "floor) and the difference corrected for it; see docs/mitsuba.md.")
     q.add_argument("source", help="model (.reflecto) or any BRDF file")
     q.add_argument("--scene", choices=SCENES, default="sphere-env")
     q.add_argument("--envmap", help="environment map (.hdr/.exr; default: the shared studio map)")
-    q.add_argument("--spp", type=int, default=64, help="samples per pixel")
+    q.add_argument("--spp", type=int, help="samples per pixel (default: per scene, "
+                   + ", ".join(f"{k} {v}" for k, v in DEFAULT_SPP.items()) + ")")
     q.add_argument("--resolution", type=int, default=256)
-    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--seed", type=int, default=0, help="seed of the source's render (the reference's: +1, +2)")
     q.add_argument("--compare", metavar="REFERENCE", help="also render REFERENCE; write reference | source | difference")
-    q.add_argument("-o", "--output", required=True, help="image: .png (sRGB), .exr or .hdr (linear)")
+    q.add_argument("-o", "--output", required=True,
+                   help="image: .png (sRGB, grey background), .exr (linear RGBA) or .hdr (linear, grey background)")
     q.set_defaults(func=cmd_render)
 
     q = sub.add_parser("compare", help="error of TEST against REFERENCE (Ngan et al. metric, eq. 10)")
