@@ -10,7 +10,8 @@ the sphere's pixels with the noise floor beside it. Also, for each reference tha
 to be exported (the NBRDFs), the difference between its Mitsuba render and the direct
 evaluation of the reference itself (:func:`reflecto.render.sphere.render_sphere`, same
 camera and lights): how much of the difference the reference's own export could
-explain. (An RGL file is rendered as it is; its direct evaluation would differ by its
+explain; and the same for the model's export against the model, which shows whether
+the export adds anything (a seam, rings) to what the model itself looks like. (An RGL file is rendered as it is; its direct evaluation would differ by its
 non-reciprocity, since Mitsuba looks its table up from the camera's side.)
 
 Prints one line per material and median / p90 / max of the difference (issue 26 asks
@@ -43,14 +44,12 @@ from reflecto.sources.rgl import RGLBRDF  # noqa: E402
 SHOW = ("chrome-steel", "irid_flake_paint1_rgb", "pvc", "paper_white_rgb")
 
 
-def _save_pair(c, path: Path) -> None:  # type: ignore[no-untyped-def]
-    import imageio.v3 as iio
-
+def _pair(c) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """reference | model | difference, at the exposure that puts the reference's 99th percentile at 0.9."""
     from reflecto.render.mitsuba import exposure_for
 
-    exp = exposure_for(c.reference.radiance)
-    iio.imwrite(path, comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha,
-                                       alpha_test=c.test.alpha, exposure=exp))
+    return comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha, alpha_test=c.test.alpha,
+                            exposure=exposure_for(c.reference.radiance))
 
 
 def main() -> None:
@@ -65,41 +64,52 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     show = set(args.show.split(",")) if args.show else set()
     rows = []
-    comparisons = {}
+    pairs: dict[str, np.ndarray] = {}
     print(f"{args.scene}: reconstruction's .bsdf against the reference, both through Mitsuba "
           f"(mean image difference over the sphere, Gaussian σ = {SMOOTHING_PX:g} px)")
     with tempfile.TemporaryDirectory() as tmp:
         for p, model_file in shared_models(args.names.split(",") if args.names else None):
             t0 = time.perf_counter()
-            test = RGLBRDF(export_rgl(load_model(model_file), Path(tmp) / f"{p.stem}.bsdf"))
+            model = load_model(model_file)
+            test = RGLBRDF(export_rgl(model, Path(tmp) / f"{p.stem}.bsdf"))
             ref = load_source(p)
             c = compare(test, ref, args.scene, spp=args.spp)
             line = (f"{p.stem:28s} difference {100 * c.difference:6.2f} %  floor {100 * c.noise_floor:5.2f} %  "
                     f"corrected {100 * c.corrected:6.2f} %")
-            ref_export = float("nan")
-            if args.scene == "sphere-point" and not isinstance(ref, RGLBRDF):
-                direct = render_sphere(ref, c.reference.radiance.shape[0])
-                ref_export = image_difference(direct, c.reference.radiance, object_mask(c.reference), SMOOTHING_PX)
-                line += f"  reference's export vs the reference {100 * ref_export:5.2f} %"
+            model_export = ref_export = float("nan")
+            if args.scene == "sphere-point":
+                res = c.reference.radiance.shape[0]
+                model_export = image_difference(render_sphere(model, res), c.test.radiance, object_mask(c.test),
+                                                SMOOTHING_PX)
+                line += f"  model's export vs the model {100 * model_export:5.2f} %"
+                if not isinstance(ref, RGLBRDF):
+                    ref_export = image_difference(render_sphere(ref, res), c.reference.radiance,
+                                                  object_mask(c.reference), SMOOTHING_PX)
+                    line += f"  reference's export vs the reference {100 * ref_export:5.2f} %"
             print(line + f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
-            rows.append((p.stem, c.difference, c.noise_floor, c.corrected, ref_export))
-            comparisons[p.stem] = c
-            if p.stem in show:
-                _save_pair(c, out / f"{args.scene}-{p.stem}.png")
-            # keep only what may still be written: the best, the worst and the median so far
-            keep = {r[0] for r in sorted(rows, key=lambda r: r[1])[:1] + sorted(rows, key=lambda r: r[1])[-2:]}
-            keep |= {sorted(rows, key=lambda r: r[1])[len(rows) // 2][0]}
-            comparisons = {k: v for k, v in comparisons.items() if k in keep}
+            rows.append((p.stem, c.difference, c.noise_floor, c.corrected, ref_export, model_export))
+            pairs[p.stem] = _pair(c)
+    import imageio.v3 as iio
+
     order = sorted(rows, key=lambda r: r[1])
-    for label, r in (("best", order[0]), ("median", order[len(order) // 2]), ("worst", order[-1]), ("second-worst", order[-2] if len(order) > 1 else order[-1])):
-        if r[0] in comparisons:
-            _save_pair(comparisons[r[0]], out / f"{args.scene}-{label}-{r[0]}.png")
+    chosen = {f"best-{order[0][0]}": order[0][0], f"median-{order[len(order) // 2][0]}": order[len(order) // 2][0],
+              f"worst-{order[-1][0]}": order[-1][0]}
+    if len(order) > 1:
+        chosen[f"second-worst-{order[-2][0]}"] = order[-2][0]
+    chosen.update({name: name for name in show if name in pairs})
+    for label, name in chosen.items():
+        iio.imwrite(out / f"{args.scene}-{label}.png", pairs[name])
     d = np.array([r[1] for r in rows])
     f = np.array([r[2] for r in rows])
     print(f"{len(rows)} materials, {args.scene}:")
     print(f"  mean image difference: median {100 * np.median(d):.2f} %, p90 {100 * np.percentile(d, 90):.2f} %, "
           f"max {100 * d.max():.2f} % ({order[-1][0]}); above 10 %: {int(np.sum(d > 0.10))}, above 25 %: {int(np.sum(d > 0.25))}")
     print(f"  noise floor:           median {100 * np.median(f):.2f} %, max {100 * f.max():.2f} %")
+    e = np.array([r[5] for r in rows])
+    if np.any(np.isfinite(e)):
+        k = int(np.nanargmax(e))
+        print(f"  the model's export vs the model (direct evaluation): median {100 * np.nanmedian(e):.2f} %, "
+              f"max {100 * e[k]:.2f} % ({rows[k][0]})")
     e = np.array([r[4] for r in rows])
     if np.any(np.isfinite(e)):
         k = int(np.nanargmax(e))

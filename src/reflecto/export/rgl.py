@@ -299,7 +299,7 @@ class _Tables:
 
     ndf: Array        # float32-exact values, (rows, cols)
     sigma: Array
-    warp: Array       # normalized warp density on its own grid
+    warp: Array       # warp density on its own grid (Mitsuba normalizes it)
     nodes_u: Array    # (n, n, 2) unit coordinates of the rgb nodes
     n_at_nodes: Array  # N interpolated at the nodes (as Mitsuba does)
     g_at_nodes: Array  # the warp's density over the Jacobian at the nodes (for the luminance)
@@ -400,8 +400,7 @@ def _incident_dirs(iso: bool, grid: RGLGrid) -> tuple[Array, Array, Array]:
     return phi_i, theta_i, wi
 
 
-def _slices(source: BRDFSource, tabs: _Tables, iso: bool, wi: Array, phi_i: Array,
-            theta_i: Array) -> tuple[Array, Array]:
+def _slices(source: BRDFSource, tabs: _Tables, wi: Array, phi_i: Array, theta_i: Array) -> tuple[Array, Array]:
     """``rgb`` ``(n_phi, n_theta, 3, n, n)`` and ``luminance`` ``(n_phi, n_theta, n, n)`` of every incident node."""
     n = tabs.nodes_u.shape[0]
     u = tabs.nodes_u.reshape(-1, 2)
@@ -411,13 +410,14 @@ def _slices(source: BRDFSource, tabs: _Tables, iso: bool, wi: Array, phi_i: Arra
     lum = np.empty((len(phi_i), len(theta_i), n, n), np.float32)
     n_at = tabs.n_at_nodes.reshape(-1)
     g_at = tabs.g_at_nodes.reshape(-1)
-    m_rel = _unit_dirs(u[:, 0], u[:, 1])
+    # the nodes' half vectors: relative to φ_i = 0 (the one slice) in an isotropic
+    # file, absolute in an anisotropic one; the same in every slice either way
+    m_nodes = _unit_dirs(u[:, 0], u[:, 1])
     for a, ph in enumerate(phi_i):
         u_wi[:, 1] = (ph + math.pi) / (2 * math.pi)
         sig = tabs.sigma_interp.eval(u_wi, zero, zero)  # (n_theta,)
         w = wi[a][:, None, :]  # (n_theta, 1, 3)
-        m = _unit_dirs(u[:, 0], u[:, 1], ph) if iso else m_rel
-        m = np.broadcast_to(m[None], (len(theta_i),) + m.shape)
+        m = np.broadcast_to(m_nodes[None], (len(theta_i),) + m_nodes.shape)
         im = np.sum(w * m, -1)
         wo = 2.0 * im[..., None] * m - w
         valid = (im > 1e-6) & (wo[..., 2] > 1e-6)
@@ -472,7 +472,7 @@ def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | 
     iso = iso_guess if isotropic is None else bool(isotropic)
     tabs = _build_tables(source, d_fn, iso, grid)
     phi_i, theta_i, wi = _incident_dirs(iso, grid)
-    rgb, lum = _slices(source, tabs, iso, wi, phi_i, theta_i)
+    rgb, lum = _slices(source, tabs, wi, phi_i, theta_i)
     if not (np.all(np.isfinite(rgb)) and np.all(np.isfinite(lum))):
         raise ValueError(f"{source.name}: non-finite values while building the RGL tables")
     vndf = np.broadcast_to(tabs.warp, (len(phi_i), len(theta_i)) + tabs.warp.shape)
