@@ -59,7 +59,7 @@ def test_self_comparison_sees_the_noise_of_different_seeds(mitsuba):
     c = compare(plastic, plastic, "sphere-env", spp=4, resolution=128)
     assert (c.test.seed, c.reference.seed, c.reference_repeat.seed) == (0, 1, 2)
     assert c.difference > 0.01 and 0.5 < c.noise_floor / c.difference < 2.0
-    assert not c.resolved and c.spp_to_resolve() > 4
+    assert not c.resolved and c.within_noise and c.spp_to_resolve() == 4
 
 
 def test_point_lit_self_comparison_at_the_default_settings(mitsuba):
@@ -86,6 +86,7 @@ def test_comparison_tells_brdfs_apart_beyond_the_floor(mitsuba):
     assert c.resolved and c.difference > 10 * c.noise_floor
     # the corrected value is the difference itself when the floor is negligible
     assert abs(c.corrected - c.difference) < 0.01 * c.difference
+    assert not c.within_noise and c.spp_to_resolve() == c.test.spp
 
 
 def test_ldsampler_counts():
@@ -129,3 +130,13 @@ def test_the_scene_in_docs_mitsuba_renders_an_export(mitsuba, shared, tmp_path):
     assert img.shape == (32, 32, 4)
     centre = img[12:20, 12:20, :3]
     assert np.all(np.isfinite(img)) and centre.min() > 0.01
+
+
+def test_spp_to_resolve_asks_for_a_floor_a_third_of_the_corrected_difference():
+    from reflecto.render.mitsuba import Comparison, Rendering
+
+    r = Rendering(np.zeros((2, 2, 3)), np.ones((2, 2)), "sphere-env", 64, 0, "scalar_rgb", 0.0)
+    c = Comparison(0.05, 0.03, 0.04, r, r, r)  # floor 0.03 must fall to 0.04/3: ×(9/4)² ≈ 5.1 the spp
+    assert not c.resolved and not c.within_noise
+    assert c.spp_to_resolve() == 1024  # 64 × 5.06 = 324, rounded up to the sampler's power of 4
+    assert Comparison(0.03, 0.03, 0.0, r, r, r).within_noise

@@ -253,7 +253,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     seconds = c.test.seconds + c.reference.seconds + c.reference_repeat.seconds
     print(f"rendered {src.name} and {ref.name} twice ({args.scene}, {args.resolution}², {c.test.spp} spp, "
           f"{c.test.variant}) in {seconds:.1f} s; {c.summary()}; wrote {out} (reference | {src.name} | difference)")
-    if not c.resolved:
+    if c.within_noise:
+        print("note: the difference is within the noise floor: at this spp the two render alike")
+    elif not c.resolved:
         print(f"note: the noise floor is more than a third of the difference; about --spp {c.spp_to_resolve()} "
               "would bring it there")
     return 0

@@ -194,7 +194,9 @@ def render_figures(model: MicrofacetBRDF, ref: BRDFSource | None, out: Path,
         c = comparisons[scene] = compare(model, ref, scene, spp=spp)
         items.append((_save_png(to_srgb8(c.test.image()), out / f"render_{scene}.png"),
                       f"{what} (Mitsuba 3, {c.test.variant}, {c.test.spp} spp)."))
-        note = "" if c.resolved else " The noise floor is more than a third of the difference: render with more samples to resolve it."
+        note = ("" if c.resolved else " The difference is within the noise floor: the two render alike at this spp."
+                if c.within_noise else " The noise floor is more than a third of the difference: render with more "
+                f"samples (about {c.spp_to_resolve()} spp) to resolve it.")
         items.append((_save_png(comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha,
                                                  alpha_test=c.test.alpha),
                                 out / f"compare_{scene}.png"),

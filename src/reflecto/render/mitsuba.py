@@ -295,12 +295,21 @@ class Comparison:
         """Whether the noise floor is below a third of the difference."""
         return self.noise_floor < self.difference / 3.0
 
+    @property
+    def within_noise(self) -> bool:
+        """Whether the difference is no larger than two independent noisy renders would give (``corrected < floor``)."""
+        return self.corrected < self.noise_floor
+
     def spp_to_resolve(self) -> int:
-        """The spp at which the floor would be a third of this difference (it falls as spp^-½ or faster)."""
-        if self.resolved or self.difference <= 0:
+        """The spp at which the floor would be a third of the corrected difference.
+
+        The floor falls at least as ``spp^-½``; the current spp if it is resolved or the
+        difference is within the noise (then no spp can be named).
+        """
+        if self.resolved or self.within_noise:
             return self.test.spp
-        ratio = 3.0 * self.noise_floor / self.difference
-        return int(2 ** math.ceil(math.log2(self.test.spp * ratio * ratio)))
+        ratio = 3.0 * self.noise_floor / self.corrected
+        return sample_count(int(math.ceil(self.test.spp * ratio * ratio)))
 
     def summary(self) -> str:
         """One line: the difference, the noise floor and the corrected estimate, in %."""
