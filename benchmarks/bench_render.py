@@ -16,7 +16,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from reflecto.render.mitsuba import SHARED, render
+from reflecto.render.mitsuba import SHARED, default_envmap, render
 from reflecto.sources import load_source
 
 
@@ -25,7 +25,7 @@ def main() -> None:
     maps = sorted((SHARED / "envmaps").glob("*.hdr"))
     if not maps:
         sys.exit(f"no environment maps under {SHARED / 'envmaps'}")
-    jobs = [("sphere-env", m) for m in maps] + [("sphere-point", None), ("teapot-env", maps[0])]
+    jobs = [("sphere-env", m) for m in maps] + [("sphere-point", None), ("teapot-env", default_envmap())]
     worst = 0.0
     for scene, envmap in jobs:
         r = render(src, scene, envmap=envmap, resolution=256)
