@@ -184,7 +184,7 @@ def test_rgl_export_of_a_one_dimensional_ndf_model(chrome_steel, tmp_path):
     """A source with only the public interface and a tabulated D(θ_h) (the isotropic
     reconstruction's form) is written in the isotropic layout and reproduces itself.
 
-    Measured 0.66 % of eq. 10 for chrome-steel's NDF averaged around each ring, 1.3 MB.
+    Measured 0.66 % of eq. 10 for chrome-steel's NDF averaged around each ring, 2.2 MB.
     """
     src = TabulatedIsotropic.ring_mean_of(chrome_steel)
     assert not hasattr(src, "cube") and not hasattr(src, "ndf_values")
