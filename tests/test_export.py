@@ -3,9 +3,11 @@
 import numpy as np
 import pytest
 
-from conftest import random_directions
+from conftest import ROOT, random_directions
+from isotropic_model import TabulatedIsotropic
 from reflecto.cli import main
 from reflecto.errors import FileFormatError
+from reflecto.evaluate.metrics import brdf_error
 from reflecto.export.merl import export_merl
 from reflecto.export.rgl import export_rgl
 from reflecto.model import MicrofacetBRDF
@@ -146,3 +148,107 @@ def test_rgl_export_of_a_reconstructed_metal(shared, tmp_path):
     i, o = random_directions(rng, 50_000, 80), random_directions(rng, 50_000, 80)
     rel = relative_difference(r.eval_cosine(i, o), m.eval(i, o) * o[:, 2:3])
     assert np.median(rel) <= 0.01 and np.percentile(rel, 95) <= 0.05, (np.median(rel), np.percentile(rel, 95))
+
+
+@pytest.mark.parametrize(("alpha", "limit"), [(0.01, 0.003), (0.1, 0.002)])
+def test_rgl_export_keeps_a_sharp_isotropic_lobe(alpha, limit, tmp_path):
+    """Eq. 10 of the file against the source: the peak at grazing θ_d dominates it.
+
+    Measured 0.12 % (α = 0.01) and 0.03 % (α = 0.1); with a warp per incident
+    direction, Σ with the floor in it and 24 uniform θ_i it was 26 % and 1.9 %.
+    """
+    src = AnalyticBRDF(distribution="beckmann", alpha=alpha, kd=0.05, ks=0.9, eta=2.0)
+    path = export_rgl(src, tmp_path / "sharp.bsdf")
+    r = RGLBRDF(path)
+    assert r.isotropic and len(r.phi_i) == 1
+    assert path.stat().st_size <= 3e6
+    assert brdf_error(src, r).normalized <= limit
+
+
+@pytest.fixture(scope="module")
+def chrome_steel(shared):
+    """Today's reconstruction of chrome-steel (ideal device), the sharpest of the 50 shared materials."""
+    from reflecto.instrument.calibrate import nominal_calibration
+    from reflecto.instrument.device import Device
+    from reflecto.instrument.simulate import simulate_capture
+    from reflecto.instrument.slices import extract_slices
+    from reflecto.reconstruct.pipeline import reconstruct
+    from reflecto.sources import load_source
+
+    dev = Device.builtin("ideal")
+    src = load_source(shared / "merl-nbrdf" / "chrome-steel.h5")
+    return reconstruct(extract_slices(simulate_capture(src, dev, seed=1), nominal_calibration(dev))).model
+
+
+def test_rgl_export_of_a_one_dimensional_ndf_model(chrome_steel, tmp_path):
+    """A source with only the public interface and a tabulated D(θ_h) (the isotropic
+    reconstruction's form) is written in the isotropic layout and reproduces itself.
+
+    Measured 0.66 % of eq. 10 for chrome-steel's NDF averaged around each ring, 2.2 MB.
+    """
+    src = TabulatedIsotropic.ring_mean_of(chrome_steel)
+    assert not hasattr(src, "cube") and not hasattr(src, "ndf_values")
+    path = export_rgl(src, tmp_path / "iso.bsdf")
+    r = RGLBRDF(path)
+    assert r.isotropic and path.stat().st_size <= 3e6
+    assert brdf_error(src, r).normalized <= 0.01
+
+
+def test_mitsuba_evaluates_the_export_as_the_model(chrome_steel, tmp_path):
+    """Issue 25's acceptance on its hardest case: Mitsuba's ``measured`` plugin on the
+    exported file against reflecto's model, eq. 10 (measured 1.15 %; it was 8.6 %).
+    """
+    try:
+        from reflecto.mitsuba_support import MitsubaMeasured
+
+        mts = MitsubaMeasured(export_rgl(chrome_steel, tmp_path / "cs.bsdf"))
+    except ImportError as e:
+        pytest.skip(f"Mitsuba 3 unavailable: {e}")
+    stride = 1 if mts.variant.startswith("llvm") else 15  # scalar_rgb evaluates pair by pair
+    assert brdf_error(chrome_steel, mts, stride=stride).normalized <= 0.02
+
+
+def test_rgl_description_names_material_capture_parameters_and_version(tmp_path):
+    import reflecto
+
+    cap, model, out = tmp_path / "cap", tmp_path / "m.reflecto", tmp_path / "m.bsdf"
+    assert main(["simulate", str(ROOT / "examples" / "ggx-plastic.json"), "--device", "ideal", "-o", str(cap), "-q"]) == 0
+    assert main(["reconstruct", str(cap), "-o", str(model)]) == 0
+    assert main(["export", str(model), "-o", str(out), "-q"]) == 0
+    desc = RGLBRDF(out).description
+    m = MicrofacetBRDF.load(model)
+    for part in (f"reflecto {reflecto.__version__}", "material ggx-plastic (simulated capture)", f"capture {cap}", "device ideal",
+                 "k_d (R,G,B) " + " ".join(f"{v:.4g}" for v in m.kd), "eta (R,G,B) " + " ".join(f"{v:.4g}" for v in m.eta)):
+        assert part in desc, (part, desc)
+
+
+@pytest.mark.parametrize("theta_deg", [30.0, 70.0, 85.0])
+def test_mitsuba_samples_the_export_by_its_value(theta_deg, tmp_path):
+    """Mitsuba's sampling of an exported file: the mean sample weight f cos θ_o / pdf is
+    the directional albedo (within 1 %), no weight above 10× it (no fireflies).
+
+    Measured for a GGX plastic and a Beckmann near-mirror: mean within 0.3 %, largest
+    weight 3-8× the albedo. An analytic source evaluated exactly at the horizon for
+    the 90° slice once gave mean weights of 30-2000 above θ_i = 88°.
+    """
+    try:
+        from reflecto.mitsuba_support import import_mitsuba
+
+        mi, variant = import_mitsuba("llvm_ad_rgb")
+    except ImportError as e:
+        pytest.skip(f"Mitsuba 3 unavailable: {e}")
+    if not variant.startswith("llvm"):
+        pytest.skip("needs a vectorised Mitsuba variant")
+    rng = np.random.default_rng(1)
+    n = 200_000
+    t = np.radians(theta_deg)
+    for src in (MODELS["plastic"], AnalyticBRDF(distribution="beckmann", alpha=0.01, kd=0.05, ks=0.9, eta=2.0)):
+        bsdf = mi.load_dict({"type": "measured", "filename": str(export_rgl(src, tmp_path / "s.bsdf"))})
+        si = mi.SurfaceInteraction3f()
+        si.wi = mi.Vector3f(np.full(n, np.sin(t)), np.zeros(n), np.full(n, np.cos(t)))
+        _, w = bsdf.sample(mi.BSDFContext(), si, mi.Float(rng.uniform(0, 1, n)),
+                           mi.Point2f(rng.uniform(0, 1, n), rng.uniform(0, 1, n)))
+        weight = np.array(w).reshape(3, -1).T @ np.array([0.2126, 0.7152, 0.0722])
+        albedo = float(src.albedo([theta_deg])[0] @ np.array([0.2126, 0.7152, 0.0722]))
+        assert abs(weight.mean() / albedo - 1.0) <= 0.01
+        assert weight.max() <= 10.0 * albedo

@@ -330,31 +330,37 @@ def merl_bins() -> int:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    import time
-
-    from .render.mitsuba import comparison_image, image_difference, render, save_image
+    from .render.mitsuba import compare, comparison_image, render, save_image
     from .sources import load_source
 
     src = load_source(args.source)
-    t0 = time.perf_counter()
-    img, variant = render(src, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
-    line = f"rendered {src.name} ({args.scene}, {args.resolution}², {args.spp} spp, {variant}) in {time.perf_counter() - t0:.1f} s"
-    if args.compare:
-        ref_img, _ = render(load_source(args.compare), args.scene, envmap=args.envmap, resolution=args.resolution,
-                            spp=args.spp, seed=args.seed)
-        from .io import atomic_path
+    out = Path(args.output)
+    if not args.compare:
+        r = render(src, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
+        # a linear EXR keeps the object's alpha; PNG and HDR get the grey background
+        save_image(np.dstack([r.radiance, r.alpha]) if out.suffix.lower() == ".exr" else r.image(), out)
+        print(f"rendered {src.name} ({args.scene}, {args.resolution}², {r.spp} spp, {r.variant}) in {r.seconds:.1f} s; "
+              f"wrote {out}")
+        return 0
+    if out.suffix.lower() != ".png":
+        raise ReflectoError(f"{out}: a comparison image must be .png")
+    ref = load_source(args.compare)
+    c = compare(src, ref, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
+    from .io import atomic_path
 
-        import imageio.v3 as iio
+    import imageio.v3 as iio
 
-        out = Path(args.output)
-        if out.suffix.lower() != ".png":
-            raise ReflectoError(f"{out}: a comparison image must be .png")
-        with atomic_path(out, suffix=".png") as tmp:
-            iio.imwrite(tmp, comparison_image(ref_img, img))
-        line += f"; mean image difference to {args.compare}: {100 * image_difference(ref_img, img):.2f} %"
-    else:
-        save_image(img, args.output)
-    print(line + f"; wrote {args.output}")
+    with atomic_path(out, suffix=".png") as tmp:
+        iio.imwrite(tmp, comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha,
+                                          alpha_test=c.test.alpha))
+    seconds = c.test.seconds + c.reference.seconds + c.reference_repeat.seconds
+    print(f"rendered {src.name} and {ref.name} twice ({args.scene}, {args.resolution}², {c.test.spp} spp, "
+          f"{c.test.variant}) in {seconds:.1f} s; {c.summary()}; wrote {out} (reference | {src.name} | difference)")
+    if c.within_noise:
+        print("note: the difference is within the noise floor: at this spp the two render alike")
+    elif not c.resolved:
+        print(f"note: the noise floor is more than a third of the difference; about --spp {c.spp_to_resolve()} "
+              "would bring it there")
     return 0
 
 
@@ -539,30 +545,39 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_reconstruct)
 
-    q = sub.add_parser("export", help="write a BRDF as an RGL .bsdf (Mitsuba 3, pbrt-v4) or MERL .binary file")
+    q = sub.add_parser("export", help="write a BRDF as an RGL .bsdf (RGB, Mitsuba 3's measured plugin) or MERL .binary file",
+                       description="Write a BRDF as an RGL .bsdf tensor file in the RGB variant that Mitsuba 3's "
+                                   "`measured` plugin reads (see docs/mitsuba.md), or as a MERL .binary table.")
     q.add_argument("source", help="model (.reflecto) or any BRDF file")
     q.add_argument("--format", choices=("rgl", "merl"),
                    help="file format (default: from the -o suffix, .bsdf or .binary; rgl for other suffixes); "
                         "must agree with the suffix")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="write an isotropic file (RGL: one φ_i; MERL: the φ_h = 0 slice of an anisotropic "
-                        "source) or an anisotropic RGL file (auto: detect from the NDF)")
+                        "source) or an anisotropic RGL file (auto: as the source says it is, or isotropic if "
+                        "its NDF is within 2 %% of its mean around every ring)")
     q.add_argument("-o", "--output", required=True, help="output file")
     q.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_export)
 
-    from .render.mitsuba import SCENES
+    from .render.mitsuba import DEFAULT_SPP, SCENES
 
-    q = sub.add_parser("render", help="render a BRDF with Mitsuba 3 (sphere or teapot, point light or envmap)")
+    q = sub.add_parser("render", help="render a BRDF with Mitsuba 3 (sphere or teapot, point lights or envmap)",
+                       description="Render a BRDF with Mitsuba 3. With --compare, render the source once and the "
+                                   "reference twice (three seeds) and print the mean image difference over the "
+                                   "object's pixels, the same number between the two reference renders (the noise "
+                                   "floor) and the difference corrected for it; see docs/mitsuba.md.")
     q.add_argument("source", help="model (.reflecto) or any BRDF file")
     q.add_argument("--scene", choices=SCENES, default="sphere-env")
     q.add_argument("--envmap", help="environment map (.hdr/.exr; default: the shared studio map)")
-    q.add_argument("--spp", type=int, default=64, help="samples per pixel")
+    q.add_argument("--spp", type=int, help="samples per pixel (default: per scene, "
+                   + ", ".join(f"{k} {v}" for k, v in DEFAULT_SPP.items()) + ")")
     q.add_argument("--resolution", type=int, default=256)
-    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--seed", type=int, default=0, help="seed of the source's render (the reference's: +1, +2)")
     q.add_argument("--compare", metavar="REFERENCE", help="also render REFERENCE; write reference | source | difference")
-    q.add_argument("-o", "--output", required=True, help="image: .png (sRGB), .exr or .hdr (linear)")
+    q.add_argument("-o", "--output", required=True,
+                   help="image: .png (sRGB, grey background), .exr (linear RGBA) or .hdr (linear, grey background)")
     q.set_defaults(func=cmd_render)
 
     q = sub.add_parser("compare", help="error of TEST against REFERENCE (Ngan et al. metric, eq. 10)")

@@ -32,12 +32,15 @@ def plot_errors(records: list[dict[str, Any]], path: str | Path) -> Path:
 
 
 def plot_spheres(records: list[dict[str, Any]], path: str | Path, n: int = 4) -> Path:
-    """Fig. 4 analogue: spheres under a point light — reference, ours, earlier device, CT.
+    """Fig. 4 analogue: spheres under point lights — reference, ours, earlier device, CT.
 
     Shows the ``n`` materials where ours gains most over the earlier device (the
     paper's choice of illustrating the difference), with each error in the title.
+    The renders are :func:`reflecto.render.sphere.render_sphere`'s (key and fill
+    light), shown at one exposure per row (the reference's) on the grey background.
     """
     from ..render.mitsuba import exposure_for, to_srgb8
+    from ..render.sphere import composite, sphere_coverage
 
     plt = _plt()
     recs = sorted(records, key=lambda r: r["ours"]["error"] / max(r["earlier"]["error"], 1e-300))[:n]
@@ -47,13 +50,14 @@ def plot_spheres(records: list[dict[str, Any]], path: str | Path, n: int = 4) ->
     for row, r in zip(axes, recs):
         ref = np.asarray(r["renders"]["reference"])
         exp = exposure_for(ref)
+        alpha = sphere_coverage(ref.shape[0])
         for ax, (key, label, err_key) in zip(row, cols):
-            ax.imshow(to_srgb8(np.asarray(r["renders"][key]), exp))
+            ax.imshow(to_srgb8(composite(np.asarray(r["renders"][key]), alpha, exp)))
             ax.set_xticks([])
             ax.set_yticks([])
             title = label if err_key is None else f"{label}\nerror {r[err_key]['error']:.4f}"
             ax.set_title(title, fontsize=7)
         row[0].set_ylabel(r["name"], fontsize=8)
-    fig.suptitle("Point-light spheres (direct evaluation of each BRDF)", fontsize=9)
+    fig.suptitle("Spheres under a key and a fill point light (direct evaluation of each BRDF)", fontsize=9)
     fig.tight_layout()
     return save_figure(fig, path, dpi=80)

@@ -3,8 +3,9 @@
 ``write_report(model_path, out_dir, reference=None)`` writes ``out_dir/index.html``
 and its PNGs:
 
-* renders: the model on a sphere under an environment map and under a point light
-  (Mitsuba 3), and — with a reference — reference | model | difference;
+* renders: the model on a sphere under an environment map and under point lights
+  (Mitsuba 3), and — with a reference — reference | model | difference for both, each
+  with its mean image difference, noise floor and noise-corrected difference;
 * the NDF: the hemicube unfolded (log scale) and a polar plot ``D(θ_h, φ_h)``;
 * the LED coverage of the capture's device (paper Fig. 2(c)(d));
 * the six slices of the capture, when the model's metadata names a capture folder
@@ -68,19 +69,25 @@ def _save_png(fig_or_array: Any, path: Path) -> str:
 
 
 
-def ndf_figures(model: MicrofacetBRDF, out: Path) -> list[tuple[str, str]]:
-    """Unfolded hemicube and polar plot of the NDF; returns ``[(file, caption)]``."""
+def ndf_figures(model: BRDFSource, out: Path) -> list[tuple[str, str]]:
+    """Plots of a model's NDF from ``model.ndf(h)``; returns ``[(file, caption)]``.
+
+    A polar plot ``D(θ_h, φ_h)`` and the profile ``D(θ_h)`` (azimuthal mean, min and
+    max) for any model; the unfolded hemicube as well where the model has one.
+    """
     plt = pyplot()
-    tab = model.to_hemicube(128) if hasattr(model, "to_hemicube") else model  # an isotropic model: tabulated
-    cube = tab.cube
-    d = np.maximum(tab.ndf_values, 1e-6 * tab.ndf_values.max())
-    fig, ax = plt.subplots(figsize=(5.2, 4.6))
-    im = ax.imshow(np.log10(cube.unfold(d)), origin="lower", cmap="magma")
-    fig.colorbar(im, ax=ax, label="log₁₀ D (sr⁻¹)")
-    ax.set_title("NDF, hemicube unfolded (top face in the middle)")
-    ax.set_xticks([])
-    ax.set_yticks([])
-    a = _save_png(fig, out / "ndf_unfolded.png")
+    items = []
+    cube = getattr(model, "cube", None)
+    values = getattr(model, "ndf_values", None)
+    if cube is not None and values is not None:
+        d = np.maximum(values, 1e-6 * values.max())
+        fig, ax = plt.subplots(figsize=(5.2, 4.6))
+        im = ax.imshow(np.log10(cube.unfold(d)), origin="lower", cmap="magma")
+        fig.colorbar(im, ax=ax, label="log₁₀ D (sr⁻¹)")
+        ax.set_title("NDF, hemicube unfolded (top face in the middle)")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        items.append((_save_png(fig, out / "ndf_unfolded.png"), "NDF on the hemicube, unfolded (log scale)."))
     th = np.radians(np.linspace(0, 89, 90))
     ph = np.radians(np.linspace(0, 360, 181))
     T, P = np.meshgrid(th, ph, indexing="ij")
@@ -91,8 +98,25 @@ def ndf_figures(model: MicrofacetBRDF, out: Path) -> list[tuple[str, str]]:
     pc = ax.pcolormesh(P, np.degrees(T), np.log10(np.maximum(dv, 1e-6 * dv.max())), cmap="magma", shading="auto")
     fig.colorbar(pc, ax=ax, label="log₁₀ D (sr⁻¹)")
     ax.set_title("NDF D(θ_h, φ_h); radius θ_h in degrees")
-    b = _save_png(fig, out / "ndf_polar.png")
-    return [(a, "NDF on the hemicube, unfolded (log scale)."), (b, "NDF in polar coordinates (log scale).")]
+    items.append((_save_png(fig, out / "ndf_polar.png"), "NDF in polar coordinates (log scale)."))
+    # the profile on rings dense near the pole, where sharp lobes are
+    th = 0.5 * math.pi * np.linspace(0.0, 1.0, 400) ** 2
+    az = np.radians(np.arange(0.0, 360.0, 5.0))
+    h = np.stack(np.broadcast_arrays(np.sin(th)[:, None] * np.cos(az), np.sin(th)[:, None] * np.sin(az),
+                                     np.cos(th)[:, None]), -1)
+    ring = model.ndf(h.reshape(-1, 3)).reshape(h.shape[:-1])
+    fig, ax = plt.subplots(figsize=(5, 3.6))
+    floor = 1e-6 * float(ring.max())
+    ax.fill_between(np.degrees(th), np.maximum(ring.min(axis=1), floor), np.maximum(ring.max(axis=1), floor),
+                    color="0.8", label="min–max over φ_h")
+    ax.semilogy(np.degrees(th), np.maximum(ring.mean(axis=1), floor), "k-", lw=1, label="mean over φ_h")
+    ax.set_xlabel("θ_h (deg)")
+    ax.set_ylabel("D (sr⁻¹)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    items.append((_save_png(fig, out / "ndf_profile.png"), "NDF against θ_h (log scale): mean, min and max over φ_h."))
+    return items
 
 
 def theta_h_theta_d_image(source: BRDFSource, out: Path, name: str = "thd.png", title: str = "") -> str:
@@ -147,8 +171,44 @@ def slice_figure(capture_dir: Path, out: Path):  # type: ignore[no-untyped-def]
     return _save_png(fig, out / "slices.png"), cap.device
 
 
+def render_figures(model: MicrofacetBRDF, ref: BRDFSource | None, out: Path,
+                   spp: int | None) -> tuple[list[tuple[str, str]], dict[str, Any]]:
+    """The model's renders and, with a reference, the two comparisons.
+
+    Returns ``[(file, caption)]`` and ``{scene: Comparison}``.
+
+    Each comparison renders the model once and the reference twice with different
+    seeds, and states the mean image difference beside the noise floor (the same
+    measure between the two reference renders) and the difference corrected for it
+    (:class:`reflecto.render.mitsuba.Comparison`).
+    """
+    from ..render.mitsuba import compare, comparison_image, render as mi_render, to_srgb8
+
+    items, comparisons = [], {}
+    for scene, what in (("sphere-env", "Sphere under the studio map"), ("sphere-point", "Sphere under a key and a fill point light")):
+        if ref is None:
+            r = mi_render(model, scene, spp=spp)
+            items.append((_save_png(to_srgb8(r.image()), out / f"render_{scene}.png"),
+                          f"{what} (Mitsuba 3, {r.variant}, {r.spp} spp)."))
+            continue
+        c = comparisons[scene] = compare(model, ref, scene, spp=spp)
+        items.append((_save_png(to_srgb8(c.test.image()), out / f"render_{scene}.png"),
+                      f"{what} (Mitsuba 3, {c.test.variant}, {c.test.spp} spp)."))
+        note = ("" if c.resolved else " The difference is within the noise floor: the two render alike at this spp."
+                if c.within_noise else " The noise floor is more than a third of the difference: render with more "
+                f"samples (about {c.spp_to_resolve()} spp) to resolve it.")
+        items.append((_save_png(comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha,
+                                                 alpha_test=c.test.alpha),
+                                out / f"compare_{scene}.png"),
+                      f"{what}: reference | model | relative difference (0–20 %). Mean image difference "
+                      f"{100 * c.difference:.2f} % over the object's pixels; noise floor {100 * c.noise_floor:.2f} % "
+                      f"(two renders of the reference with different seeds); corrected for it "
+                      f"{100 * c.corrected:.2f} %.{note}"))
+    return items, comparisons
+
+
 def write_report(model_path: str | Path, out_dir: str | Path, reference: str | Path | None = None,
-                 spp: int = 64, render: bool = True) -> Path:
+                 spp: int | None = None, render: bool = True) -> Path:
     """Write the HTML report of one model (see the module docstring); returns the page."""
     from ..instrument.device import load_device
     from ..instrument.plots import plot_coverage
@@ -164,7 +224,7 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
         "η (R, G, B)": np.round(model.eta, 4).tolist(),
         "k_d (R, G, B)": np.round(model.kd, 4).tolist(),
         "k_s (R, G, B)": np.round(model.ks, 4).tolist(),
-        "NDF": model.parameters()["resolution"],
+        "NDF": model.parameters().get("resolution", "isotropic" if model.isotropic else "anisotropic"),
         "max directional albedo": round(float(model.albedo(np.array([0.0, 30.0, 60.0, 80.0])).max()), 4),
     }
     summary_path = model_path.with_suffix(".json")
@@ -175,18 +235,11 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
             v = summary[key]
             numbers[label] = round(v, 4) if isinstance(v, float) else v
     if render:
-        from ..render.mitsuba import comparison_image, image_difference, render as mi_render, to_srgb8
-
-        img, variant = mi_render(model, "sphere-env", spp=spp)
-        pts, _ = mi_render(model, "sphere-point", spp=spp)
-        items = [(_save_png(to_srgb8(img), out / "render_env.png"), f"Sphere under the studio map (Mitsuba 3, {variant})."),
-                 (_save_png(to_srgb8(pts), out / "render_point.png"), "Sphere under a point light.")]
-        if ref is not None:
-            rimg, _ = mi_render(ref, "sphere-env", spp=spp)
-            items.append((_save_png(comparison_image(rimg, img), out / "render_compare.png"),
-                          f"Reference | model | relative difference (0–20 %); mean image difference "
-                          f"{100 * image_difference(rimg, img):.2f} %."))
+        items, comparisons = render_figures(model, ref, out, spp)
         figs.append(("Renders", items))
+        for scene, c in comparisons.items():
+            numbers[f"mean image difference, {scene} (noise floor; corrected)"] = (
+                f"{100 * c.difference:.2f} % ({100 * c.noise_floor:.2f} %; {100 * c.corrected:.2f} %)")
     figs.append(("Normal distribution", ndf_figures(model, out)))
     items = [(theta_h_theta_d_image(model, out, "thd_model.png", "model: θ_h–θ_d at φ_d = 90°"), "Model, BRDF Explorer's θ_h–θ_d view.")]
     if ref is not None:

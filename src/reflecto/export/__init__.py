@@ -1,1 +1,1 @@
-"""Exchange formats: RGL .bsdf (Mitsuba 3, pbrt-v4) and MERL .binary."""
+"""Exchange formats: RGL .bsdf (RGB, as Mitsuba 3's ``measured`` plugin reads it) and MERL .binary."""

@@ -1,13 +1,19 @@
-"""A direct NumPy renderer: a sphere under a point light, any BRDF evaluated exactly.
+"""A direct NumPy renderer: a sphere under point lights, any BRDF evaluated exactly.
 
-Same camera, light and sphere as Mitsuba's ``sphere-point`` scene
+Same camera, lights and sphere as Mitsuba's ``sphere-point`` scene
 (:mod:`reflecto.render.mitsuba`), so the two can be compared pixel by pixel: this one
 calls ``source.eval`` itself (no tables, no Monte Carlo), which makes it the reference
 for checking an exported ``.bsdf`` and a quick way to make the sphere figures of the
 validation (paper Fig. 4) without a renderer.
 
-Radiance of a visible point ``p`` with normal ``n``: ``L = f(ω_l, ω_v) (ω_l·n) I / r²``
-(point light of intensity ``I`` W/sr at distance ``r``, no shadowing on a convex
+Lighting: a key light up and to the left of the camera (:data:`LIGHT`) lights 87 % of the
+visible cap; a fill light at a quarter of its irradiance on the other side of the view
+axis (:data:`FILL`, 40° off the axis) lights the rest, so that no visible point of the
+sphere is black and its shape reads against the grey background (:data:`BACKGROUND`,
+composited by :func:`composite`, never part of the radiance).
+
+Radiance of a visible point ``p`` with normal ``n``: ``L = Σ_l f(ω_l, ω_v) (ω_l·n) I_l / r_l²``
+(point lights of intensity ``I_l`` W/sr at distance ``r_l``, no shadowing on a convex
 sphere). Pixels average ``supersample²`` stratified positions (a box filter).
 Shading frame as Mitsuba's sphere: ``n`` outward, ``t`` along ``∂p/∂φ`` about world z.
 """
@@ -27,8 +33,17 @@ CAMERA = (0.0, 0.8, 4.2)
 TARGET = (0.0, 0.0, 0.0)
 UP = (0.0, 1.0, 0.0)
 FOV_DEG = 30.0
+#: Key light: position and intensity (W/sr).
 LIGHT = (-3.0, 4.0, 4.0)
 INTENSITY = 80.0
+#: Fill light: 40° from the view axis, opposite the key; a quarter of the key's
+#: irradiance at the sphere's centre (80/41 · 35.4 / 4 ≈ 17 W/sr).
+FILL = (2.6, -1.9, 5.0)
+FILL_INTENSITY = 17.0
+#: ``((position, intensity), ...)`` of the point-lit scene.
+LIGHTS = ((LIGHT, INTENSITY), (FILL, FILL_INTENSITY))
+#: Display-space grey behind the object (linear; 0.18 is sRGB 118/255).
+BACKGROUND = 0.18
 
 
 def camera_rays(resolution: int, supersample: int = 3, origin=CAMERA, target=TARGET, up=UP,
@@ -53,9 +68,8 @@ def camera_rays(resolution: int, supersample: int = 3, origin=CAMERA, target=TAR
     return o, dirs.reshape(resolution, resolution, supersample * supersample, 3)
 
 
-def render_sphere(source: BRDFSource, resolution: int = 256, supersample: int = 3, light=LIGHT,
-                  intensity: float = INTENSITY) -> Array:
-    """Linear RGB image ``(res, res, 3)`` of a unit sphere at the origin (see module docstring)."""
+def _hits(resolution: int, supersample: int) -> tuple[Array, Array, NDArray[np.bool_]]:
+    """Camera rays, their first intersections with the unit sphere and which ones hit."""
     o, d = camera_rays(resolution, supersample)
     b = d @ o
     c = float(o @ o) - 1.0
@@ -63,24 +77,47 @@ def render_sphere(source: BRDFSource, resolution: int = 256, supersample: int = 
     hit = disc > 0
     tt = -b - np.sqrt(np.where(hit, disc, 0.0))
     hit &= tt > 0
-    p = o + tt[..., None] * d
+    return d, o + tt[..., None] * d, hit
+
+
+def sphere_coverage(resolution: int, supersample: int = 8) -> Array:
+    """Fraction of each pixel covered by the sphere, ``(res, res)`` (the renders' alpha)."""
+    _, _, hit = _hits(resolution, supersample)
+    return hit.mean(axis=2)
+
+
+def render_sphere(source: BRDFSource, resolution: int = 256, supersample: int = 3, lights=LIGHTS) -> Array:
+    """Linear RGB radiance ``(res, res, 3)`` of a unit sphere at the origin (see module docstring).
+
+    0 off the sphere; ``lights`` is ``((position, intensity W/sr), ...)``.
+    """
+    d, p, hit = _hits(resolution, supersample)
     n = p  # unit sphere
     tang = np.stack([-p[..., 1], p[..., 0], np.zeros(p.shape[:-1])], -1)
     tn = np.linalg.norm(tang, axis=-1, keepdims=True)
     tang = np.where(tn > 1e-9, tang / np.maximum(tn, 1e-12), np.array([1.0, 0.0, 0.0]))
     bit = np.cross(n, tang)
-    lvec = np.asarray(light, float) - p
-    r2 = np.sum(lvec * lvec, -1)
-    wl = lvec / np.sqrt(r2)[..., None]
-    wv = -d
 
     def local(v: Array) -> Array:
         return np.stack([np.sum(v * tang, -1), np.sum(v * bit, -1), np.sum(v * n, -1)], -1)
 
-    li, lo = local(wl), local(wv)
-    ok = hit & (li[..., 2] > 0) & (lo[..., 2] > 0)
+    lo = local(-d)
     rad = np.zeros(d.shape[:-1] + (3,))
-    if ok.any():
-        f = source.eval(li[ok], lo[ok])
-        rad[ok] = f * (li[ok][:, 2] * intensity / r2[ok])[:, None]
+    for position, intensity in lights:
+        lvec = np.asarray(position, float) - p
+        r2 = np.sum(lvec * lvec, -1)
+        li = local(lvec / np.sqrt(r2)[..., None])
+        ok = hit & (li[..., 2] > 0) & (lo[..., 2] > 0)
+        if ok.any():
+            f = source.eval(li[ok], lo[ok])
+            rad[ok] += f * (li[ok][:, 2] * intensity / r2[ok])[:, None]
     return rad.mean(axis=2)
+
+
+def composite(radiance: Array, alpha: Array, exposure: float = 1.0, background: float = BACKGROUND) -> Array:
+    """``exposure·radiance + (1 − α)·background``: the display image of a render (linear).
+
+    ``radiance`` is box-filtered with the background at 0, so an edge pixel already
+    holds ``α`` times the object's radiance; the grey does not depend on the exposure.
+    """
+    return exposure * np.asarray(radiance) + (1.0 - np.asarray(alpha))[..., None] * background

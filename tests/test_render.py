@@ -1,0 +1,142 @@
+"""Renders and render comparisons (issue 25): lighting, seeds, noise floor, the metric."""
+
+import numpy as np
+import pytest
+
+from reflecto.cli import main
+from reflecto.render.mitsuba import (DEFAULT_SPP, SMOOTHING_PX, compare, image_difference, object_mask, render,
+                                     sample_count)
+from reflecto.render.sphere import BACKGROUND, composite, render_sphere, sphere_coverage
+from reflecto.sources.analytic import AnalyticBRDF
+
+LAMBERT = AnalyticBRDF(distribution="ggx", alpha=0.5, kd=0.9, ks=0.0, eta=1.5)
+#: A near-mirror (its highlight is about a pixel wide at 256²): the hardest case for the noise floor.
+MIRROR = AnalyticBRDF(distribution="beckmann", alpha=0.01, kd=0.05, ks=0.9, eta=2.0)
+
+
+@pytest.fixture(scope="module")
+def mitsuba():
+    try:
+        from reflecto.mitsuba_support import import_mitsuba
+
+        return import_mitsuba("llvm_ad_rgb")
+    except ImportError as e:
+        pytest.skip(f"Mitsuba 3 unavailable: {e}")
+
+
+def test_every_visible_point_of_the_sphere_is_lit():
+    """Key and fill light: no pixel of the sphere is black (the key alone left 13 % unlit)."""
+    img = render_sphere(LAMBERT, 64, supersample=2)
+    inside = sphere_coverage(64, supersample=2) >= 1.0
+    lum = img[inside] @ np.array([0.2126, 0.7152, 0.0722])
+    assert lum.min() > 0.0
+    key_only = render_sphere(LAMBERT, 64, supersample=2, lights=((( -3.0, 4.0, 4.0), 80.0),))
+    assert np.mean(key_only[inside].sum(axis=1) == 0.0) > 0.10
+
+
+def test_composite_puts_grey_behind_the_object_at_any_exposure():
+    img = render_sphere(LAMBERT, 32, supersample=2)
+    alpha = sphere_coverage(32, supersample=2)
+    for exposure in (1.0, 7.0):
+        out = composite(img, alpha, exposure)
+        np.testing.assert_allclose(out[alpha == 0.0], BACKGROUND)
+        np.testing.assert_allclose(out[alpha == 1.0], exposure * img[alpha == 1.0])
+
+
+def test_mitsuba_sphere_point_matches_the_direct_renderer(mitsuba):
+    """Same camera, lights and sphere: a Lambertian through its export agrees within 0.5 % (measured 0.32 %)."""
+    r = render(LAMBERT, "sphere-point", resolution=128)
+    assert r.spp == DEFAULT_SPP["sphere-point"]
+    direct = render_sphere(LAMBERT, 128, supersample=4)
+    np.testing.assert_allclose(r.alpha, sphere_coverage(128, supersample=16), atol=0.1)  # 64 samples per pixel
+    assert image_difference(direct, r.radiance, object_mask(r), SMOOTHING_PX) <= 0.005
+
+
+def test_self_comparison_sees_the_noise_of_different_seeds(mitsuba):
+    """At 4 spp two seeds of one BRDF differ by several % (the same seed gave 0.00 %), and
+    the floor, measured between two other seeds, is of the same size."""
+    plastic = AnalyticBRDF(distribution="ggx", alpha=0.2, kd=(0.4, 0.2, 0.1), ks=0.5, eta=1.5)
+    c = compare(plastic, plastic, "sphere-env", spp=4, resolution=128)
+    assert (c.test.seed, c.reference.seed, c.reference_repeat.seed) == (0, 1, 2)
+    assert c.difference > 0.01 and 0.5 < c.noise_floor / c.difference < 2.0
+    assert not c.resolved and c.within_noise and c.spp_to_resolve() == 4
+
+
+def test_point_lit_self_comparison_at_the_default_settings(mitsuba):
+    """Issue 25's acceptance for sphere-point: ≤ 1.5 % between two seeds (measured 0.24 %)."""
+    c = compare(MIRROR, MIRROR, "sphere-point")
+    assert c.test.spp == DEFAULT_SPP["sphere-point"]
+    assert c.difference <= 0.015 and c.noise_floor <= 0.015
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", ["sphere-env", "teapot-env"])
+def test_environment_self_comparison_at_the_default_settings(mitsuba, scene):
+    """Issue 25's acceptance for the environment scenes (measured on a reconstructed
+    chrome: 0.58 % / 0.82 % floor under the studio map, 0.63 % / 1.10 % for the teapot)."""
+    c = compare(MIRROR, MIRROR, scene)
+    assert c.difference <= 0.015 and c.noise_floor <= 0.015
+
+
+def test_comparison_tells_brdfs_apart_beyond_the_floor(mitsuba):
+    """Two GGX plastics whose roughness differs by 20 %: the difference is many floors."""
+    a = AnalyticBRDF(distribution="ggx", alpha=0.2, kd=(0.4, 0.2, 0.1), ks=0.5, eta=1.5)
+    b = AnalyticBRDF(distribution="ggx", alpha=0.24, kd=(0.4, 0.2, 0.1), ks=0.5, eta=1.5)
+    c = compare(b, a, "sphere-point", resolution=128)
+    assert c.resolved and c.difference > 10 * c.noise_floor
+    # the corrected value is the difference itself when the floor is negligible
+    assert abs(c.corrected - c.difference) < 0.01 * c.difference
+    assert not c.within_noise and c.spp_to_resolve() == c.test.spp
+
+
+def test_ldsampler_counts():
+    assert [sample_count(n) for n in (1, 4, 5, 64, 100, 256, 1000)] == [4, 4, 16, 64, 256, 256, 1024]
+
+
+def test_cli_render_compare_reports_difference_and_floor(mitsuba, tmp_path, capsys):
+    src = tmp_path / "mirror.json"
+    import json
+
+    src.write_text(json.dumps(MIRROR.to_dict()))
+    out = tmp_path / "cmp.png"
+    assert main(["render", str(src), "--scene", "sphere-point", "--resolution", "64", "--compare", str(src),
+                 "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "mean image difference" in text and "noise floor" in text and "64 spp" in text
+    import imageio.v3 as iio
+
+    img = iio.imread(out)
+    assert img.shape == (64, 3 * 64 + 8, 3)
+    # the grey background (sRGB of 0.18) in the corner of both renders
+    assert abs(int(img[0, 0, 0]) - 118) <= 1 and abs(int(img[0, 68, 0]) - 118) <= 1
+
+
+def test_the_scene_in_docs_mitsuba_renders_an_export(mitsuba, shared, tmp_path):
+    """docs/mitsuba.md's XML scene, with its file names pointed at an export and the
+    shared studio map, renders a lit sphere (at 32², 16 spp)."""
+    import re
+    from pathlib import Path
+
+    from reflecto.export.rgl import export_rgl
+
+    mi, _ = mitsuba
+    text = (Path(__file__).resolve().parents[1] / "docs" / "mitsuba.md").read_text()
+    xml = re.search(r"```xml\n(.*?)```", text, re.S).group(1)
+    path = export_rgl(LAMBERT, tmp_path / "plastic.bsdf")
+    xml = (xml.replace('"plastic.bsdf"', f'"{path}"')
+              .replace('"../shared/data/envmaps/pmndrs_studio.hdr"', f'"{shared / "envmaps" / "pmndrs_studio.hdr"}"')
+              .replace('value="256"', 'value="32"').replace('name="sample_count" value="32"', 'name="sample_count" value="16"'))
+    img = np.array(mi.render(mi.load_string(xml)))
+    assert img.shape == (32, 32, 4)
+    centre = img[12:20, 12:20, :3]
+    assert np.all(np.isfinite(img)) and centre.min() > 0.01
+
+
+def test_spp_to_resolve_asks_for_a_floor_a_third_of_the_corrected_difference():
+    from reflecto.render.mitsuba import Comparison, Rendering
+
+    r = Rendering(np.zeros((2, 2, 3)), np.ones((2, 2)), "sphere-env", 64, 0, "scalar_rgb", 0.0)
+    c = Comparison(0.05, 0.03, 0.04, r, r, r)  # floor 0.03 must fall to 0.04/3: ×(9/4)² ≈ 5.1 the spp
+    assert not c.resolved and not c.within_noise
+    assert c.spp_to_resolve() == 1024  # 64 × 5.06 = 324, rounded up to the sampler's power of 4
+    assert Comparison(0.03, 0.03, 0.0, r, r, r).within_noise
