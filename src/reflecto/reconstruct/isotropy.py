@@ -139,18 +139,20 @@ PIXEL_STRIDE = 3
 
 def _log_ratios(slices: Slices, valid: NDArray[np.bool_], model) -> tuple[Array, Array, NDArray[np.intp]]:
     """Log ratio of each usable sample's specular part to the model's, its ``φ_h`` and ring."""
-    ok = valid & np.all(np.isfinite(slices.values), axis=-1)
+    px = np.arange(0, slices.view.shape[0], PIXEL_STRIDE)
+    values = slices.values[:, px]
+    lum = values @ LUM
+    ok = valid[:, px] & np.isfinite(lum)
     if slices.censored is not None:
-        ok = ok & ~slices.censored
-    ok[:, np.arange(ok.shape[1]) % PIXEL_STRIDE != 0] = False
+        ok &= ~slices.censored[:, px]
     diffuse = float(model.kd @ LUM) / math.pi
     # a sample whose specular part is at least MIN_SPECULAR_FRACTION of the model's value
     # reads at least diffuse / (1 − fraction) unless the model is far off: the others
     # need no model evaluation
-    ok &= (slices.values @ LUM) > diffuse / (1.0 + MIN_SPECULAR_FRACTION)
-    li, pi = np.nonzero(ok)
-    i, o = slices.light[li], slices.view[pi]
-    f = slices.values[li, pi] @ LUM
+    ok &= lum > diffuse / (1.0 + MIN_SPECULAR_FRACTION)
+    li, pj = np.nonzero(ok)
+    i, o = slices.light[li], slices.view[px[pj]]
+    f = lum[li, pj]
     pred = model.eval(i, o) @ LUM
     spec = pred - diffuse
     h = i + o
