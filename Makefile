@@ -75,7 +75,7 @@ test: $(STAMP)
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
 
-# Fuzz campaign over every loader and file-reading command (issue 23): prints the
+# Fuzz campaign over every loader and file-reading command: prints the
 # input kind × outcome table; exits 1 on any traceback, crash, hang, memory blow-up,
 # corrupt input accepted or message that does not name the file. ~2-4 min on 2 cores.
 FUZZ_CASES ?= 600

@@ -372,6 +372,8 @@ def test_compiled_binning_matches_numpy():
         v = np.stack([y, y[::-1], np.roll(y, 7)], axis=-1).reshape(4, 50_000, 3)
         ok = rng.random((4, 50_000)) > 0.05
         assert np.array_equal(kd_upper_bound(v, ok), np.percentile(v[ok], 0.2, axis=0) * np.pi)
+    with pytest.raises(ParameterError, match="no valid sample"):
+        kd_upper_bound(v, np.zeros_like(ok))
 
 
 def test_compiled_overlap_pairs_match_numpy():

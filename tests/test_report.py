@@ -73,3 +73,17 @@ def test_report_refuses_bad_model(tmp_path):
     bad.write_bytes(b"not a zip")
     assert main(["report", str(bad), "-o", str(tmp_path / "r")]) == 1
     assert not (tmp_path / "r" / "index.html").exists()
+
+
+def test_report_refuses_a_bad_model_summary(tmp_path):
+    """The model's summary (``m.json`` beside ``m.reflecto``) is read by the validating loader."""
+    from reflecto.errors import FileFormatError
+
+    a = AnalyticBRDF(distribution="ggx", alpha=0.3, kd=0.3, ks=0.5, eta=1.5)
+    path = MicrofacetBRDF.from_ndf_function(a.ndf, resolution=16, kd=a.kd, ks=a.ks, eta=a.eta).save(tmp_path / "m.reflecto")
+    summary = tmp_path / "m.json"
+    for text in ("{not json", "[1, 2]"):
+        summary.write_text(text)
+        with pytest.raises(FileFormatError) as e:
+            write_report(path, tmp_path / "r", render=False)
+        assert e.value.path == summary

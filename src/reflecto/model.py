@@ -339,7 +339,7 @@ def _read_model_file(path: Path) -> tuple[dict[str, Any], dict[str, NDArray[Any]
 
 
 def _checked_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes]) -> dict[str, NDArray[Any]]:
-    """The arrays of a version-2 file, after its metadata and array checksums (any array names)."""
+    """The arrays of a version-3 file, after its metadata and array checksums (any array names)."""
     from .io import content_digest, npy_array, sha256
 
     if meta.get("sha256") != content_digest(meta):

@@ -21,7 +21,6 @@ headless-Chromium test reads it (``tests/test_report.py``).
 from __future__ import annotations
 
 import html
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -30,7 +29,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..colour import LUM
-from ..io import atomic_path, atomic_write
+from ..errors import FileFormatError
+from ..io import atomic_path, atomic_write, read_json
 from ..model import MicrofacetBRDF, load_model
 from ..plotting import pyplot, save_figure
 from ..sources.base import BRDFSource
@@ -228,7 +228,9 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
         "max directional albedo": round(float(model.albedo(np.array([0.0, 30.0, 60.0, 80.0])).max()), 4),
     }
     summary_path = model_path.with_suffix(".json")
-    summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+    summary = read_json(summary_path) if summary_path.is_file() else {}
+    if not isinstance(summary, dict):
+        raise FileFormatError(summary_path, "a model summary must be a JSON object")
     for key, label in (("normal_tilt_deg", "normal tilt (deg)"), ("model_error", "relative model error ε of the fit"),
                        ("shake_detected", "shake detected"), ("isotropic", "isotropic")):
         if key in summary and summary[key] is not None:

@@ -45,7 +45,6 @@ used: ``eval``, and where present ``ndf``, ``isotropic``, ``kd``, ``ks``, ``eta`
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import struct
 from collections.abc import Callable
@@ -56,7 +55,8 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from ..colour import LUM
-from ..io import atomic_write
+from ..errors import ReflectoError
+from ..io import atomic_write, read_json
 from ..sources.base import BRDFSource
 from ..sources.rgl import MAGIC, Marginal2D
 
@@ -499,13 +499,13 @@ def _capture_info(source: BRDFSource) -> dict[str, str]:
     if cap:
         info["capture"] = str(cap)
         try:
-            manifest = json.loads((Path(cap) / "manifest.json").read_text())
+            manifest = read_json(Path(cap) / "manifest.json")
             sim = manifest.get("simulation") or {}
             if sim.get("source") and "material" not in info:
                 info["material"] = Path(str(sim["source"])).stem + " (simulated capture)"
             if (manifest.get("device") or {}).get("name") and "device" not in info:
                 info["device"] = str(manifest["device"]["name"])
-        except (OSError, ValueError, AttributeError):
+        except (ReflectoError, OSError, ValueError, AttributeError, TypeError):
             pass
     return info
 

@@ -42,7 +42,7 @@ from .optics import Optics
 
 Array = NDArray[np.float64]
 
-#: Largest hand tilt the simulator accepts (issue: hand-held use up to 15°).
+#: Largest hand tilt the simulator accepts (hand-held use reaches about 15°).
 MAX_TILT_DEG = 30.0
 
 

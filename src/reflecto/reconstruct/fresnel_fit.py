@@ -21,7 +21,7 @@ apart from the NDF's tail by the same consistency: a wrong ``k_d`` makes partial
 of different ``(i, o)`` disagree at the same ``h``.
 
 ``E(η)`` — the RMS relative residual — is what §5.1 uses to detect shaken captures:
-when the sample moves between two LEDs' frames, their slices no longer share ``D(h)``
+when the sample moves between two LEDs' frames, their slices do not share ``D(h)``
 at the same texel, and the ratios stop following any Fresnel curve.
 """
 

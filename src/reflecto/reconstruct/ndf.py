@@ -355,7 +355,7 @@ def smooth_tails(cube: Hemicube, d: Array, passes: int | None = None) -> Array:
 
     Away from the peak a texel's value rests on few, dim pixels from one or two LEDs,
     and neighbouring texels disagree by more than the NDF varies: texel-scale noise
-    that no renderer's table can follow (issue 6) and that no real surface has. So
+    that no renderer's table can follow and that no real surface has. So
     ``log D' = w log D + (1 − w) log(k S)``, where ``S`` is ``log D`` filtered by a
     binomial filter of σ ≈ 0.45° (:data:`TAIL_PASSES_512` passes at N = 512, scaled
     by ``(N/512)²``) and, below :data:`DEEP_FULL` … :data:`TAIL_FULL` of the peak, at

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import _kernels, geometry
+from ..errors import ParameterError
 from ..hemicube import Hemicube
 
 Array = NDArray[np.float64]
@@ -217,7 +218,7 @@ def kd_upper_bound(values: Array, valid: NDArray[np.bool_]) -> Array:
     ok = valid.ravel()
     n = int(np.count_nonzero(ok))
     if n == 0:
-        raise ValueError("kd_upper_bound: no valid sample")
+        raise ParameterError("kd_upper_bound: no valid sample")
     lo, hi, t = _percentile_ranks(n, KD_BOUND_PERCENTILE)
     thresholds = np.full(3, np.inf)
     sub = flat[::_SUBSAMPLE][ok[::_SUBSAMPLE]]
