@@ -76,10 +76,9 @@ def _subparsers():
     return sub.choices
 
 
-def test_every_option_has_help_and_defaults_are_shown():
+def test_every_option_has_help_and_defaults_are_shown(monkeypatch):
+    monkeypatch.setenv("COLUMNS", "200")  # no line breaks inside a default
     for name, parser in _subparsers().items():
-        if name == "render":  # its options are owned elsewhere (render's --seed/--resolution lack help)
-            continue
         for action in parser._actions:
             if action.option_strings and action.dest != "help":
                 assert action.help, f"{name} {action.option_strings} has no help"
@@ -89,6 +88,9 @@ def test_every_option_has_help_and_defaults_are_shown():
     assert "(default: ideal)" in text("sweep") and "worker processes (0: all cores) (default: 0)" in text("sweep")
     assert "samples per pixel of the renders (default: 64)" in text("report")
     assert "shake (default: 0)" in text("simulate")  # --seed
+    assert "(default: sphere-env)" in text("render") and "pixels (default: 256)" in text("render")
+    for name, parser in _subparsers().items():  # a None default is never shown as such
+        assert "(default: None)" not in text(name), name
 
 
 def test_json_on_every_result_command(tmp_path, capsys):

@@ -492,7 +492,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--seed", type=int, default=0, help="random seed of the layout optimizer")
     q.add_argument("--resolution", type=int, default=64, help="hemicube resolution of the analysis")
     q.add_argument("--theta-max", type=float, default=80.0, help="NDF cap θ_h ≤ this (degrees)")
-    q.add_argument("--plot", type=Path, help="write the Fig. 2(c)(d) analogue to this PNG")
+    q.add_argument("--plot", type=Path, help="write the Fig. 2(c)(d) analogue to this PNG (default: no plot)")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_layout)
 
@@ -528,12 +528,12 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("captures", nargs="+", help="capture folder(s)")
     how = q.add_mutually_exclusive_group()
     how.add_argument("--calibration", help="calibration file from `reflecto calibrate`; needed for captures of any "
-                     "device but the built-in ideal and earlier ones")
+                     "device but the built-in ideal and earlier ones (default: those two use their nominal calibration)")
     how.add_argument("--nominal", action="store_true",
                      help="use the device's nominal calibration even where it needs a measured one")
     q.add_argument("-o", "--output", required=True, help="model file (.reflecto) or, for several captures, a folder")
     q.add_argument("--estimate-normal", action="store_true", help="estimate the altered normal (§5.4; experimental)")
-    q.add_argument("--eta", type=float, help="use this η instead of fitting it")
+    q.add_argument("--eta", type=float, help="use this η instead of fitting it (default: fitted, eqs. 5–6)")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="reconstruct a 1-D isotropic NDF (yes), a hemicube NDF for an anisotropic material (no), "
                         "or decide from the capture (auto)")
@@ -569,11 +569,11 @@ def build_parser() -> argparse.ArgumentParser:
                                    "object's pixels, the same number between the two reference renders (the noise "
                                    "floor) and the difference corrected for it; see docs/mitsuba.md.")
     q.add_argument("source", help="model (.reflecto) or any BRDF file")
-    q.add_argument("--scene", choices=SCENES, default="sphere-env")
+    q.add_argument("--scene", choices=SCENES, default="sphere-env", help="scene to render (docs/mitsuba.md)")
     q.add_argument("--envmap", help="environment map (.hdr/.exr; default: the shared studio map)")
     q.add_argument("--spp", type=int, help="samples per pixel (default: per scene, "
                    + ", ".join(f"{k} {v}" for k, v in DEFAULT_SPP.items()) + ")")
-    q.add_argument("--resolution", type=int, default=256)
+    q.add_argument("--resolution", type=int, default=256, help="image width and height in pixels")
     q.add_argument("--seed", type=int, default=0, help="seed of the source's render (the reference's: +1, +2)")
     q.add_argument("--compare", metavar="REFERENCE", help="also render REFERENCE; write reference | source | difference")
     q.add_argument("-o", "--output", required=True,
@@ -588,7 +588,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     q = sub.add_parser("report", help="static HTML report of a model: renders, NDF, coverage, slices, numbers")
     q.add_argument("model", help="model file (.reflecto)")
-    q.add_argument("--ref", help="reference BRDF file to compare with")
+    q.add_argument("--ref", help="reference BRDF file to compare with (default: none, no comparison)")
     q.add_argument("--spp", type=int, default=64, help="samples per pixel of the renders")
     q.add_argument("--no-render", action="store_true", help="skip the Mitsuba renders")
     q.add_argument("-o", "--output", required=True, help="folder to write index.html and images into")
