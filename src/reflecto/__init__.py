@@ -1,8 +1,9 @@
 """reflecto — condenser-based instant reflectometry (Lan, Dong, Wang, Tong, Guo 2010).
 
 The BRDF model of §3.1 (generalized microfacet BRDF with a tabulated hemicube NDF),
-the BRDF sources it is validated against, and (in later modules) the virtual
-instrument, the §5 reconstruction and the §6 validation.
+the BRDF sources it is validated against, and, in the subpackages, the virtual
+instrument (:mod:`.instrument`), the §5 reconstruction (:mod:`.reconstruct`), the §6
+validation (:mod:`.evaluate`), exports (:mod:`.export`) and renders (:mod:`.render`).
 
 Units: BRDF values in sr⁻¹; angles in radians unless a name ends in ``_deg``.
 Directions: unit vectors away from the surface, local frame ``x = t, y = b, z = n``.

@@ -63,6 +63,19 @@ def _check_suffix(output: str | Path, kind: str, hint: str = "") -> None:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    """``reflecto info SOURCE``: kind, parameters and directional albedo (0–80°) of a BRDF file.
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     from .sources import load_source
 
     src = load_source(args.source)
@@ -87,6 +100,19 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_tabulate(args: argparse.Namespace) -> int:
+    """``reflecto tabulate SOURCE -o F.binary``: a MERL table of any source, evaluated at the bin centres.
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     from .sources import load_source
     from .sources import merl
 
@@ -103,6 +129,19 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
 
 
 def cmd_layout(args: argparse.Namespace) -> int:
+    """``reflecto layout``: coverage of a device's LED layout (§4.1, Fig. 2), optionally re-optimised and plotted.
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     from .instrument import layout
     from .instrument.device import load_device
 
@@ -135,6 +174,20 @@ def cmd_layout(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    """``reflecto simulate SOURCE -o CAP``: write the raw frames and manifest of a virtual capture
+    (tilt, rotation, shake, camera noise).
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     from .instrument.capture import write_capture
     from .instrument.device import load_device
     from .instrument.simulate import simulate_capture
@@ -155,6 +208,20 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate_calibration(args: argparse.Namespace) -> int:
+    """``reflecto simulate-calibration -o DIR``: virtual calibration captures (white standard,
+    pinhole grid, mirror) of a device.
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     from .instrument.device import load_device
     from .instrument.simulate import simulate_calibration
 
@@ -167,6 +234,20 @@ def cmd_simulate_calibration(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    """``reflecto calibrate DIR -o CAL.npz``: geometric, LED and radiometric calibration from a
+    calibration folder.
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     from .instrument.calibrate import calibrate
 
     check_output(args.output)
@@ -223,6 +304,20 @@ def _report_failures(failures: list[tuple[str, str]]) -> None:
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
+    """``reflecto reconstruct CAP... -o OUT``: the §5 reconstruction of one capture, or of several
+    in parallel worker processes (a model file and its ``.json`` summary each).
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     import os
     import time
 
@@ -302,6 +397,20 @@ def _export_format(args: argparse.Namespace) -> str:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    """``reflecto export MODEL -o F.bsdf|F.binary``: an RGL tensor file or a MERL table (the suffix
+    or ``--format`` chooses).
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     from .sources import load_source
 
     out = Path(args.output)
@@ -324,12 +433,27 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def merl_bins() -> int:
+    """Number of bins of a MERL table (90 × 90 × 180), the length of a tabulation's progress bar."""
     from .sources import merl
 
     return merl.N_BINS
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    """``reflecto render SOURCE -o IMG``: a Mitsuba 3 render; with ``--compare``, the mean image
+    difference against a reference and its noise floor (docs/mitsuba.md).
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     from .render.mitsuba import compare, comparison_image, render, save_image
     from .sources import load_source
 
@@ -365,6 +489,20 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
+    """``reflecto compare REF TEST``: eq. 10 error (normalized by the reference's albedo) and
+    log-RMSE of TEST against REF.
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     from .evaluate.metrics import brdf_error
     from .sources import load_source
 
@@ -378,6 +516,19 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    """``reflecto report MODEL -o DIR``: the HTML report of a model (renders, NDF, slices, numbers).
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     from .evaluate.report import write_report
     from .io import read_json
 
@@ -393,6 +544,19 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_fit_ct(args: argparse.Namespace) -> int:
+    """``reflecto fit-ct SOURCE``: the dense Cook–Torrance baseline fit (AR 6.3) and its eq. 10 error.
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     from .evaluate.cooktorrance import fit_cook_torrance
     from .evaluate.metrics import brdf_error
     from .sources import load_source
@@ -410,6 +574,19 @@ def cmd_fit_ct(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
+    """``reflecto sweep DIR... -o RESULTS``: the §6 validation over materials, resumable, in parallel.
+
+    Parameters
+    ----------
+    args
+        The parsed arguments of the subcommand (:func:`build_parser`).
+
+    Returns
+    -------
+    int
+        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
+        :func:`main` prints as one line.
+    """
     from .evaluate.sweep import summarize, sweep
 
     failures: list[tuple[str, str]] = []
@@ -467,6 +644,13 @@ _JSON_HELP = "print one JSON document on stdout instead of text"
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``reflecto`` and its subcommands (``--help`` shows defaults).
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        The parser; each subcommand's namespace carries its handler as ``func``.
+    """
     p = _Parser(
         prog="reflecto",
         description="Condenser-based instant reflectometry (Lan et al. 2010): BRDF model, sources and tools.",
@@ -651,6 +835,20 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):  #
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``reflecto`` with ``argv`` (default: ``sys.argv[1:]``).
+
+    Parameters
+    ----------
+    argv
+        Command-line arguments without the program name.
+
+    Returns
+    -------
+    int
+        Exit status: 0 on success; 1 on an error (one line ``reflecto: error: FILE: problem``
+        on stderr; outputs and folders the command created are removed); 130 when
+        interrupted; 141 when stdout's reader went away.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     new = _new_paths(getattr(args, "output", None))

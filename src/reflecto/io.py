@@ -325,6 +325,7 @@ def content_digest(meta: dict[str, Any]) -> str:
 
 
 def sha256(data: bytes) -> str:
+    """SHA-256 of ``data`` as 64 lowercase hex digits (the checksums of model and calibration files)."""
     return hashlib.sha256(data).hexdigest()
 
 

@@ -196,6 +196,9 @@ class MicrofacetBRDF(BRDFSource):
         return f
 
     def parameters(self) -> dict[str, Any]:
+        """Hemicube resolution, ``kd``, ``ks``, ``eta`` (RGB lists), the shadowing (eq. 8 or
+        height-correlated Smith) and any metadata, for ``reflecto info``.
+        """
         return {
             "resolution": f"{self.cube.n}x{self.cube.n} top, {self.cube.n}x{self.cube.half} sides",
             "kd": self.kd.tolist(),
@@ -558,6 +561,9 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         return self._hemicube[resolution]
 
     def parameters(self) -> dict[str, Any]:
+        """Number of polar nodes, ``kd``, ``ks``, ``eta`` (RGB lists), the shadowing (eq. 8 or
+        height-correlated Smith) and any metadata, for ``reflecto info``.
+        """
         return {
             "resolution": f"isotropic, {self.resolution} polar nodes",
             "kd": self.kd.tolist(),

@@ -48,10 +48,12 @@ class SigmaTable:
 
     @property
     def n_theta(self) -> int:
+        """Number of θ nodes (first axis of ``sigma``)."""
         return self.sigma.shape[0]
 
     @property
     def n_phi(self) -> int:
+        """Number of φ nodes (second axis of ``sigma``)."""
         return self.sigma.shape[1]
 
     def grid_directions(self) -> Array:

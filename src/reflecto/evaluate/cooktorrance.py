@@ -61,6 +61,18 @@ class CookTorrance(BRDFSource):
         return _lobe(i, o, self.f0, self.m)
 
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
+        """Cook–Torrance BRDF ``f = ρ_d/π + ρ_s D G F / (π cos θ_i cos θ_o)`` (AR 6.3), sr⁻¹.
+
+        Parameters
+        ----------
+        i, o
+            Unit directions in the local frame, shape ``(N, 3)`` (or broadcastable ``(..., 3)``).
+
+        Returns
+        -------
+        ndarray, shape ``(N, 3)``
+            Linear RGB BRDF; 0 where either direction is below the horizon.
+        """
         i = np.asarray(i, float)
         o = np.asarray(o, float)
         ok = (i[..., 2] > 0) & (o[..., 2] > 0)
@@ -69,10 +81,12 @@ class CookTorrance(BRDFSource):
         return np.where(ok[..., None], f, 0.0)
 
     def parameters(self) -> dict[str, Any]:
+        """``rho_d``, ``rho_s`` (RGB lists), ``F0`` and ``m`` (floats), for ``reflecto info`` and ``fit-ct``."""
         return {"rho_d": self.rho_d.tolist(), "rho_s": self.rho_s.tolist(), "F0": self.f0, "m": self.m}
 
     @property
     def name(self) -> str:
+        """``"cook-torrance"``."""
         return "cook-torrance"
 
 

@@ -89,6 +89,9 @@ class Error:
     albedo_ref: float
 
     def to_dict(self) -> dict[str, float | list[float]]:
+        """The error as JSON-ready numbers: ``rmse`` (3 values, sr⁻¹), ``normalized``, ``log_rmse``,
+        ``albedo_ref``.
+        """
         return {"rmse": self.rmse.tolist(), "normalized": self.normalized, "log_rmse": self.log_rmse,
                 "albedo_ref": self.albedo_ref}
 

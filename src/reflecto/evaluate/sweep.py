@@ -89,6 +89,18 @@ def find_materials(folders: Sequence[str | Path]) -> list[Path]:
 
 
 def material_seed(name: str) -> int:
+    """The simulation seed of a material: ``crc32(name) mod 2³¹``, the same on every run and machine.
+
+    Parameters
+    ----------
+    name
+        The material's name (its file's stem).
+
+    Returns
+    -------
+    int
+        A seed in ``[0, 2³¹)``.
+    """
     return zlib.crc32(name.encode()) % (2**31)
 
 
@@ -283,6 +295,18 @@ class Progress:
             self.bar = tqdm(total=total, initial=initial, desc=desc, unit="item", leave=False)
 
     def update(self, name: str, ok: bool, seconds: float) -> None:
+        """Count one finished item: advance the bar, or print ``desc: k/n done (name, s)`` /
+        ``desc: k/n failed (name)``.
+
+        Parameters
+        ----------
+        name
+            The item's name.
+        ok
+            Whether it succeeded.
+        seconds
+            Its wall time (s).
+        """
         self.done += 1
         if self.bar is not None:
             self.bar.update()
@@ -291,6 +315,7 @@ class Progress:
             print(f"{self.desc}: {self.done}/{self.total} {what}", file=sys.stderr, flush=True)
 
     def close(self) -> None:
+        """Remove the bar (nothing to do for plain lines)."""
         if self.bar is not None:
             self.bar.close()
 

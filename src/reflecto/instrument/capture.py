@@ -81,10 +81,27 @@ class Capture:
 
     @property
     def n_leds(self) -> int:
+        """Number of LEDs ``L`` (first axis of ``raw``)."""
         return self.raw.shape[0]
 
 
 def frame_name(led: int, exposure_ms: float, check: bool = False) -> str:
+    """File name a capture gives a frame: ``led{led}_t{exposure}ms[_check].png``.
+
+    Parameters
+    ----------
+    led
+        LED index.
+    exposure_ms
+        Exposure time (ms), written with ``%g``.
+    check
+        Whether it is a check frame (the LED fired again after the sequence).
+
+    Returns
+    -------
+    str
+        E.g. ``"led0_t8ms.png"``, ``"led2_t1ms_check.png"``.
+    """
     return f"led{led}_t{exposure_ms:g}ms{'_check' if check else ''}.png"
 
 
@@ -242,6 +259,25 @@ def write_capture(capture: Capture, out_dir: str | Path) -> Path:
 
 
 def read_manifest(cap_dir: Path) -> dict[str, Any]:
+    """The manifest of a capture folder, read by the validating JSON loader (docs/capture-format.md).
+
+    Parameters
+    ----------
+    cap_dir
+        The capture folder.
+
+    Returns
+    -------
+    dict
+        The manifest, its ``format`` and ``version`` checked (the rest is checked by
+        :func:`read_capture`).
+
+    Raises
+    ------
+    CaptureError, FileFormatError
+        Naming the folder or ``manifest.json``: no folder, no manifest, not a reflecto
+        capture manifest, an unsupported version.
+    """
     from ..io import read_json
 
     mpath = cap_dir / MANIFEST

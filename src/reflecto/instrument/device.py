@@ -255,6 +255,7 @@ class Camera:
 
     @property
     def max_value(self) -> int:
+        """Largest raw value, ``2^bits − 1`` (DN)."""
         return (1 << self.bits) - 1
 
     @property
@@ -264,6 +265,7 @@ class Camera:
 
     @property
     def noiseless(self) -> bool:
+        """Whether the camera adds no noise (no shot noise and zero read noise)."""
         return not self.shot_noise and self.read_noise == 0
 
 
@@ -298,9 +300,11 @@ class DeviceTruth:
 
     @property
     def leds(self) -> Array:
+        """Real LED directions (unit vectors, device frame), shape ``(L, 3)``."""
         return led_direction(*np.asarray(self.led_angles, dtype=np.float64).T)
 
     def to_dict(self) -> dict[str, Any]:
+        """The truth as JSON-ready data (keys ``optics``, ``led_angles``, ``led_intensity``, ``transmission``)."""
         return {
             "optics": self.optics.to_dict(),
             "led_angles": [list(a) for a in self.led_angles],
@@ -366,6 +370,7 @@ class Device:
 
     @property
     def n_leds(self) -> int:
+        """Number of LEDs ``L``."""
         return len(self.led_angles)
 
     @property
@@ -389,6 +394,20 @@ class Device:
         return dataclasses.replace(self, truth=None)
 
     def to_dict(self, with_truth: bool = False) -> dict[str, Any]:
+        """The device description as JSON-ready data (the keys of a device file; docs/instrument.md).
+
+        Parameters
+        ----------
+        with_truth
+            Also write the hidden imperfections (``truth``) of an as-built device.
+
+        Returns
+        -------
+        dict
+            ``name``, ``optics``, ``leds`` ([elevation, azimuth] in degrees), ``camera``, and
+            ``occluder_deg``, ``firing_order``, ``check_leds`` where set; what
+            ``Device.from_dict`` reads back.
+        """
         d: dict[str, Any] = {
             "name": self.name,
             "optics": self.optics.to_dict(),
@@ -449,6 +468,18 @@ class Device:
         raise ParameterError(f"unknown built-in device {name!r} (expected 'ideal', 'as-built' or 'earlier', or a file)")
 
     def with_camera(self, **changes: Any) -> Device:
+        """The same device with some camera fields replaced.
+
+        Parameters
+        ----------
+        **changes
+            :class:`Camera` fields and their new values (e.g. ``read_noise=0``).
+
+        Returns
+        -------
+        Device
+            A new device; this one is unchanged.
+        """
         return dataclasses.replace(self, camera=dataclasses.replace(self.camera, **changes))
 
 

@@ -123,11 +123,13 @@ class Coverage:
 
     @property
     def every_led_overlaps(self) -> bool:
+        """Whether every LED's slice shares some half vectors with another LED's (needed for η, §5.1)."""
         off = self.overlap.copy()
         np.fill_diagonal(off, 0.0)
         return bool(np.all(off.max(axis=1) > 0))
 
     def to_dict(self) -> dict[str, Any]:
+        """The coverage numbers as JSON-ready data (fractions rounded to 4 digits, the overlap matrix)."""
         return {
             "theta_max_deg": self.theta_max_deg,
             "per_led": [round(float(x), 4) for x in self.per_led],

@@ -121,6 +121,7 @@ class Optics:
 
     @property
     def principal_point(self) -> tuple[float, float]:
+        """Principal point ``(c_x, c_y)`` in pixels; the image centre where ``cx``/``cy`` are unset."""
         cx = (self.width - 1) / 2 if self.cx is None else float(self.cx)
         cy = (self.height - 1) / 2 if self.cy is None else float(self.cy)
         return cx, cy
@@ -143,9 +144,22 @@ class Optics:
         return self.axis_frame[2]
 
     def to_dict(self) -> dict[str, Any]:
+        """The optics' fields as a dict (what a device file's ``optics`` table holds)."""
         return dataclasses.asdict(self)
 
     def replace(self, **changes: Any) -> Optics:
+        """The same optics with some fields replaced (``dataclasses.replace``).
+
+        Parameters
+        ----------
+        **changes
+            Field names and their new values.
+
+        Returns
+        -------
+        Optics
+            A new instance; this one is unchanged.
+        """
         return dataclasses.replace(self, **changes)
 
     # -------------------------------------------------------------- mappings

@@ -70,9 +70,22 @@ class Pose:
 
     @property
     def normal(self) -> Array:
+        """The sample normal ``n`` in the device frame (third row of ``frame``), shape ``(3,)``."""
         return self.frame[2]
 
     def to_local(self, v: ArrayLike) -> Array:
+        """Device-frame vectors in the sample frame: ``(v·t, v·b, v·n)``.
+
+        Parameters
+        ----------
+        v
+            Vectors in device coordinates, shape ``(..., 3)``.
+
+        Returns
+        -------
+        ndarray, shape ``(..., 3)``
+            The same vectors in the sample's ``(t, b, n)`` frame.
+        """
         return geometry.to_local(v, self.frame)
 
 

@@ -84,6 +84,7 @@ class Slices:
 
     @property
     def n_leds(self) -> int:
+        """Number of LEDs ``L`` (first axis of ``light``)."""
         return self.light.shape[0]
 
     def reframe(self, frame: Array) -> Slices:

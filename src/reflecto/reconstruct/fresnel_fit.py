@@ -67,6 +67,7 @@ class Pairs:
         return len(self.p)
 
     def select(self, mask: NDArray[np.bool_] | NDArray[np.intp] | slice) -> Pairs:
+        """The pairs at ``mask`` (boolean mask, indices or slice over the ``K`` pairs)."""
         return Pairs(self.p[mask], self.q[mask], self.symmetric[mask], self.u[mask])
 
 

@@ -118,6 +118,7 @@ class PolarBins:
 
     @property
     def luminance(self) -> Array:
+        """Mean BRDF luminance of each bin, ``f · LUM`` (sr⁻¹), shape ``(B,)``."""
         return self.f @ LUM
 
 
@@ -206,6 +207,7 @@ class LuminanceState:
     eta: float
 
     def copy(self) -> LuminanceState:
+        """A copy with its own ``z`` array."""
         return LuminanceState(self.z.copy(), self.kd, self.g, self.eta)
 
 
@@ -576,6 +578,7 @@ class LuminanceFit:
 
     @property
     def ks(self) -> float:
+        """The specular albedo ``k_s = g ∫ e^z cos θ dω`` of the fitted state (luminance)."""
         return self.state.g * normalization(self.problem.nodes, self.state.z)[0]
 
 

@@ -104,6 +104,7 @@ class IsotropyTest:
 
     @property
     def decided(self) -> bool:
+        """Whether enough rings entered for a verdict (at least :data:`MIN_RINGS`)."""
         return self.rings >= MIN_RINGS
 
     @property
@@ -123,6 +124,7 @@ class IsotropyTest:
         return not self.decided or self.asymmetry < ASYMMETRY_EXPLAINED
 
     def to_dict(self) -> dict[str, float | int | bool]:
+        """The test's fractions, ring count and verdicts (``isotropic``, ``symmetric``) as JSON-ready data."""
         return {"anisotropy": self.anisotropy, "asymmetry": self.asymmetry, "amplitude": self.amplitude,
                 "rings": self.rings, "conditional": self.conditional, "isotropic": self.isotropic, "symmetric": self.symmetric}
 

@@ -61,18 +61,24 @@ class MotionReport:
 
     @property
     def moved_leds(self) -> list[int]:
+        """Check LEDs whose repeated frame says the sample moved (:class:`.repeat.RepeatCheck`)."""
         return [r.led for r in self.repeat_checks if r.moved]
 
     @property
     def tilted_planes(self) -> list[int]:
+        """LEDs whose slice's mirror plane is off the normal by more than :data:`PLANE_THRESHOLD_DEG`."""
         return [k for k, x in enumerate(self.plane_offsets_deg) if x is not None and abs(x) > PLANE_THRESHOLD_DEG]
 
     @property
     def inconsistent_pairs(self) -> list[PairCheck]:
+        """The isotropy and reciprocity comparisons that failed."""
         return [c for c in self.pair_checks if c.inconsistent]
 
     @property
     def shake_detected(self) -> bool:
+        """Whether any cue fired: a moved check LED, a tilted mirror plane, an inconsistent
+        pair, or an LED excluded from the fit.
+        """
         return bool(self.moved_leds or self.tilted_planes or self.inconsistent_pairs or self.excluded_leds)
 
     def describe(self) -> str:
@@ -87,6 +93,7 @@ class MotionReport:
         return "; ".join(parts)
 
     def to_dict(self) -> dict[str, Any]:
+        """The cues and the verdict as JSON-ready data (non-finite numbers as ``None``)."""
         def finite(d: dict[str, Any]) -> dict[str, Any]:
             return {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in d.items()}
 

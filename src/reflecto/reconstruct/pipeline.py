@@ -152,14 +152,17 @@ class Reconstruction:
 
     @property
     def isotropic(self) -> bool:
+        """Whether the model is the isotropic one (1-D NDF ``D(θ_h)``) rather than a hemicube."""
         return isinstance(self.model, IsotropicMicrofacetBRDF)
 
     @property
     def shake_detected(self) -> bool:
+        """Whether the motion checks found a shaken capture (:attr:`MotionReport.shake_detected`)."""
         return self.motion.shake_detected
 
     @property
     def normal_tilt_deg(self) -> float:
+        """Angle between the estimated sample normal and the device axis, ``acos(n_z)`` (degrees)."""
         return math.degrees(math.acos(min(1.0, float(self.frame[2, 2]))))
 
     def summary(self) -> dict[str, Any]:

@@ -57,6 +57,9 @@ SHARED = Path(os.environ.get("REFLECTO_SHARED", Path(__file__).resolve().parents
 
 
 def default_envmap() -> Path:
+    """The shared studio environment map, ``SHARED/envmaps/pmndrs_studio.hdr`` (``SHARED``: the
+    ``REFLECTO_SHARED`` environment variable, else ``../shared/data`` beside the project).
+    """
     return SHARED / "envmaps" / "pmndrs_studio.hdr"
 
 

@@ -32,6 +32,7 @@ __all__ = [
     "NBRDF",
     "RGLBRDF",
     "directional_albedo",
+    "load_analytic",
     "load_source",
 ]
 

@@ -188,6 +188,19 @@ class AnalyticBRDF(BRDFSource):
 
     # -------------------------------------------------------------------- eval
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
+        """Microfacet BRDF ``f = k_d/π + k_s D(h) F(i·h; η) / (4 σ(i) σ(o))`` (eqs. 1–2 in the
+        form of AR 1.6, ``σ`` the projected area of eq. 8), sr⁻¹.
+
+        Parameters
+        ----------
+        i, o
+            Unit directions in the local frame, shape ``(N, 3)`` (or broadcastable ``(..., 3)``).
+
+        Returns
+        -------
+        ndarray, shape ``(N, 3)``
+            Linear RGB BRDF; 0 where either direction is below the horizon.
+        """
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)
         ok = (i[..., 2] > 0) & (o[..., 2] > 0)
@@ -201,6 +214,9 @@ class AnalyticBRDF(BRDFSource):
         return np.where(ok[..., None], f, 0.0)
 
     def parameters(self) -> dict[str, Any]:
+        """``distribution``, ``alpha`` (α_x, α_y), ``rotation_deg``, ``kd``, ``ks``, ``eta`` (RGB)
+        and ``asymmetry`` where set, for ``reflecto info``.
+        """
         p: dict[str, Any] = {
             "distribution": self.distribution,
             "alpha": self.alpha_xy.tolist(),

@@ -52,6 +52,7 @@ class BRDFSource(abc.ABC):
 
     @property
     def name(self) -> str:
+        """Short name: the file's stem, or the kind for a source not read from a file."""
         return self.path.stem if self.path is not None else self.kind
 
     def albedo(self, theta_i_deg: ArrayLike, phi_i_deg: float = 0.0, **kw: Any) -> Array:

@@ -251,6 +251,18 @@ class MerlBRDF(BRDFSource):
         return obj
 
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
+        """The table's value in the MERL bin of ``(i, o)`` (MERL's bin lookup, no interpolation), sr⁻¹.
+
+        Parameters
+        ----------
+        i, o
+            Unit directions in the local frame, shape ``(N, 3)`` (or broadcastable ``(..., 3)``).
+
+        Returns
+        -------
+        ndarray, shape ``(N, 3)``
+            Linear RGB BRDF; 0 below the horizon and in unmeasured (negative) bins.
+        """
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)
         vals = self._flat[bin_index(i, o)]
@@ -262,6 +274,7 @@ class MerlBRDF(BRDFSource):
         return np.all(self._flat[bin_index(i, o)] >= 0, axis=-1)
 
     def parameters(self) -> dict[str, Any]:
+        """Bin grid, counts of valid and unmeasured bins and the largest value (sr⁻¹), for ``reflecto info``."""
         valid = np.all(self._flat >= 0, axis=1)
         return {
             "bins": f"{N_THETA_H} x {N_THETA_D} x {N_PHI_D}",

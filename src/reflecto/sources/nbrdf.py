@@ -119,6 +119,19 @@ class NBRDF(BRDFSource):
         check_plausible(self, self.path)
 
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
+        """The neural BRDF: a 6-21-21-3 ReLU network of ``(h, d)`` (Rusinkiewicz half and
+        difference vectors, ``φ_d`` mod π), output ``max(0, exp(y) − 1)``, sr⁻¹.
+
+        Parameters
+        ----------
+        i, o
+            Unit directions in the local frame, shape ``(N, 3)`` (or broadcastable ``(..., 3)``).
+
+        Returns
+        -------
+        ndarray, shape ``(N, 3)``
+            Linear RGB BRDF; 0 where either direction is below the horizon.
+        """
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)
         th, _, td, pd = geometry.io_to_hd(i, o)
@@ -133,4 +146,5 @@ class NBRDF(BRDFSource):
         return np.where(ok[..., None], np.maximum(y, 0.0), 0.0)
 
     def parameters(self) -> dict[str, Any]:
+        """The network's shape and number of weights, for ``reflecto info``."""
         return {"network": "6-21-21-3 (ReLU, exp(x)-1)", "weights": sum(k.size + b.size for k, b in self.layers)}

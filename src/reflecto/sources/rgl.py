@@ -354,12 +354,26 @@ class RGLBRDF(BRDFSource):
         return np.where(active[..., None], spec, 0.0)
 
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
+        """The BRDF ``f = eval_cosine(i, o) / cos θ_o`` of the tensor file, evaluated like Mitsuba 3's
+        ``measured`` plugin, sr⁻¹.
+
+        Parameters
+        ----------
+        i, o
+            Unit directions in the local frame, shape ``(N, 3)`` (or broadcastable ``(..., 3)``).
+
+        Returns
+        -------
+        ndarray, shape ``(N, 3)``
+            Linear RGB BRDF; 0 where either direction is below the horizon.
+        """
         o = np.asarray(o, dtype=np.float64)
         v = self.eval_cosine(i, o)
         cos_o = o[..., 2]
         return np.divide(v, cos_o[..., None], out=np.zeros_like(v), where=cos_o[..., None] > 0)
 
     def parameters(self) -> dict[str, Any]:
+        """The file's description, incidence angles θ_i (degrees), isotropy and table size, for ``reflecto info``."""
         return {
             "description": self.description,
             "theta_i_deg": np.degrees(self.theta_i).round(2).tolist(),
