@@ -1,6 +1,6 @@
 """Benchmark of ``reflecto render``: each scene at its default samples per pixel, 256×256.
 
-Issue 6 target: ≤ 60 s per image on this 2-core machine (all cores allowed: Mitsuba's
+Target: ≤ 60 s per image on this 2-core machine (all cores allowed: Mitsuba's
 LLVM backend is multi-threaded). The sphere is rendered under each shared environment
 map (``sphere-env``), under the point lights (``sphere-point``) and the teapot under the
 studio map (``teapot-env``), each including the export of the analytic source to

@@ -1,4 +1,4 @@
-"""How low can the paper's model go on a material? Issue 5, item 2's ceiling.
+"""How low can the paper's model go on a material? Its error ceiling.
 
 The dense Cook–Torrance baseline is fitted to the *whole* reference on the very metric
 it is judged by (eq. 10). This script gives the paper's own model class the same

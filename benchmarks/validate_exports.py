@@ -1,4 +1,4 @@
-"""Issue 25 (and 6): exported ``.bsdf`` files, evaluated by Mitsuba 3, against reflecto's model.
+"""Exported ``.bsdf`` files, evaluated by Mitsuba 3, against reflecto's model.
 
 Default: every one of the 50 shared reconstructions (ideal device, cached by
 ``_shared_models.py``) is exported with :func:`reflecto.export.rgl.export_rgl` on one
@@ -12,7 +12,7 @@ of each. Target: error ≤ 0.02 on all 50, ≤ 1 s per export.
 ``--isotropic-proxy``: the same for the models' 1-D versions (the NDF averaged around
 each ring, :class:`isotropic_model.TabulatedIsotropic`), the form the reconstruction
 gives isotropic materials: isotropic files. ``--analytic``: also analytic models
-(one anisotropic), with the per-pair relative difference of issue 6 (median, p95).
+(one anisotropic), with the per-pair relative difference (median, p95).
 ``--names a,b``: only those materials. ``--reader numpy``: evaluate with reflecto's
 reader of the format instead (the same interpolation, float64; Mitsuba agrees to
 ≤ 2·10⁻⁵).

@@ -1,4 +1,4 @@
-"""Issue 26: the point-lit sphere of each shared reconstruction against its reference.
+"""The point-lit sphere of each shared reconstruction against its reference.
 
 For each of the 50 shared materials, the reconstruction (ideal device, cached by
 ``_shared_models.py``) is exported to ``.bsdf`` and compared with the reference file as
@@ -14,8 +14,8 @@ explain; and the same for the model's export against the model, which shows whet
 the export adds anything (a seam, rings) to what the model itself looks like. (An RGL file is rendered as it is; its direct evaluation would differ by its
 non-reciprocity, since Mitsuba looks its table up from the camera's side.)
 
-Prints one line per material and median / p90 / max of the difference (issue 26 asks
-for median ≤ 10 %, none above 25 %) and of the noise floor, and writes
+Prints one line per material and median / p90 / max of the difference (target:
+median ≤ 10 %, none above 25 %) and of the noise floor, and writes
 reference | model | difference images of the best, the median, the worst materials and
 of ``--show`` ones to ``--out`` (default ``out/validate-renders``), to look for seams
 at the parameterization's pole (the highlight's centre) or rings.

@@ -1,4 +1,4 @@
-"""Issue 4, acceptance 4: shake detection on the shared materials (ideal device by default).
+"""Shake detection on the shared materials (ideal device by default).
 
 For every shared material (10 RGL, 40 MERL/NBRDF; material k uses seed k) one
 shaken capture (``simulate_capture(..., shake=True)``: from a random LED on, in the

@@ -1,4 +1,4 @@
-"""Issue 4, acceptance 3: tilted samples (hand tilt 0–15°) on the ideal device.
+"""Tilted samples (hand tilt 0–15°) on the ideal device.
 
 Four analytic materials, tilts 5°, 10° and 15° (azimuth drawn from the seed), two
 seeds each, reconstructed with ``Options(estimate_normal=True)``. Prints per capture

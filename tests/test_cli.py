@@ -51,7 +51,7 @@ def test_console_script_runs():
     assert r.returncode == 0 and "reflecto" in r.stdout
 
 
-# ------------------------------------------------------------ issue 25: ergonomics
+# ------------------------------------------------------------ ergonomics
 import argparse  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -129,7 +129,7 @@ def test_json_of_calibration_and_report_commands(tmp_path, capsys):
 
 
 def test_reconstruct_without_the_calibration_its_device_needs(tmp_path, capsys):
-    """Issue 25, acceptance 4: as-built captures need --calibration (or --nominal); ideal ones do not."""
+    """As-built captures need --calibration (or --nominal); ideal ones do not."""
     assert main(["simulate", str(PLASTIC), "--device", "as-built", "-o", str(tmp_path / "ab"), "-q"]) == 0
     assert main(["reconstruct", str(tmp_path / "ab"), "-o", str(tmp_path / "m.reflecto")]) == 1
     err = capsys.readouterr().err.strip()

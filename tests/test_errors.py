@@ -1,5 +1,5 @@
-"""Issue 23: every bad input is a clean error naming the file — one regression test per
-case the issue lists (loaders, calibration, captures, paths, permissions, outputs)."""
+"""Every bad input is a clean error naming the file — one test per kind of case
+(loaders, calibration, captures, paths, permissions, outputs)."""
 
 from __future__ import annotations
 

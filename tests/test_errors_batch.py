@@ -1,4 +1,4 @@
-"""Issue 23, batches: a bad item is reported and the others finish; no worker outlives its parent."""
+"""Batches: a bad item is reported and the others finish; no worker outlives its parent."""
 
 from __future__ import annotations
 

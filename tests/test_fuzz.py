@@ -1,4 +1,4 @@
-"""Fuzzing every loader and every file-reading command with malformed inputs (issue 23).
+"""Fuzzing every loader and every file-reading command with malformed inputs.
 
 Each case copies valid inputs into a folder of its own, damages one of them (bytes,
 JSON fields, format-aware edits, special files, paths) with a seeded generator, and

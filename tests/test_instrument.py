@@ -1,4 +1,4 @@
-"""The virtual instrument: optics, layout, simulation, calibration, HDR, slices (issue 3)."""
+"""The virtual instrument: optics, layout, simulation, calibration, HDR, slices."""
 
 import dataclasses
 import json
@@ -297,8 +297,8 @@ def test_check_frames_round_trip_and_older_captures_without_them(tmp_path):
     back = read_capture(write_capture(cap, tmp_path / "cap"))
     assert np.array_equal(back.check, cap.check) and np.array_equal(back.raw, cap.raw)
     assert back.device.check_leds == (0,)
-    # a capture written by a device without check frames (as before they existed) reads
-    # as it did, and gives the same slices as the same sequence with them
+    # a capture written by a device without check frames reads, and gives the same
+    # slices as the same sequence with them
     plain = dataclasses.replace(dev, check_leds=())
     old = simulate_capture(SRC, plain, seed=4, shake=True)
     assert old.check is None and np.array_equal(old.raw, cap.raw)  # the check frames draw their noise last

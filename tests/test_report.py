@@ -1,4 +1,4 @@
-"""HTML report (issue 6): written atomically, loads in a real headless Chromium.
+"""HTML report: written atomically, loads in a real headless Chromium.
 
 The page records how many of its images decoded in ``<body data-images="k/n">``;
 Chromium's ``--dump-dom`` gives the DOM after the load event, and

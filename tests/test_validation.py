@@ -1,4 +1,4 @@
-"""Validation (issue 5): the eq. 10 metric, the Cook–Torrance baseline, the resumable sweep."""
+"""Validation: the eq. 10 metric, the Cook–Torrance baseline, the resumable sweep."""
 
 import json
 import math
