@@ -544,7 +544,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_fit_ct(args: argparse.Namespace) -> int:
-    """``reflecto fit-ct SOURCE``: the dense Cook–Torrance baseline fit (AR 6.3) and its eq. 10 error.
+    """``reflecto fit-ct SOURCE``: the dense Cook–Torrance baseline fit (algorithm reference
+    §6.3) and its eq. 10 error.
 
     Parameters
     ----------

@@ -61,7 +61,8 @@ class CookTorrance(BRDFSource):
         return _lobe(i, o, self.f0, self.m)
 
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
-        """Cook–Torrance BRDF ``f = ρ_d/π + ρ_s D G F / (π cos θ_i cos θ_o)`` (AR 6.3), sr⁻¹.
+        """Cook–Torrance BRDF ``f = ρ_d/π + ρ_s D G F / (π cos θ_i cos θ_o)`` (sr⁻¹; algorithm
+        reference §6.3).
 
         Parameters
         ----------
