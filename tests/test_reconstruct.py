@@ -152,6 +152,20 @@ def test_tilt_that_sinks_leds_below_the_horizon():
     assert not res.shake_detected, res.motion.describe()
 
 
+def test_a_normal_whose_fit_underflows_the_ndf_is_rejected_not_a_crash():
+    """15° tilt, three LEDs below the horizon: on the way the normal search tries
+    normals whose LM steps drive ``e^z`` to 0 everywhere (no normalizable NDF); such a
+    step is rejected, and the tilt, η and the BRDF are still found."""
+    src = AnalyticBRDF(distribution="beckmann", alpha=0.2, kd=0.0, ks=0.8, eta=1.5)
+    dev = Device.builtin("ideal")
+    cap = simulate_capture(src, dev, tilt_deg=15.0, seed=1)
+    res = reconstruct(extract_slices(cap, nominal_calibration(dev)), Options(estimate_normal=True))
+    true_n = np.array(cap.extra["simulation"]["normal"])
+    assert np.degrees(np.arccos(min(1.0, float(np.dot(res.frame[2], true_n))))) < 0.5
+    assert abs(res.eta / 1.5 - 1) < 0.01, res.eta
+    assert brdf_error(src, res.model, stride=3).normalized < 0.005
+
+
 def test_anisotropic_lobe_is_detected_and_reconstructed_on_the_hemicube():
     """An anisotropic GGX (α 0.1 × 0.4, tangent at 30°): the second azimuthal harmonic
     explains nearly all of the isotropic fit's ring-wise misfit, so ``auto`` takes the

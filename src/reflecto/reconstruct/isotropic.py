@@ -382,6 +382,8 @@ def normalization(nodes: Array, z: Array) -> tuple[float, Array]:
     d = np.exp(np.minimum((1.0 - q.t) * z[q.cells] + q.t * z[q.cells + 1], 700.0))
     wd = q.norm_weights * d
     n = float(wd.sum())
+    if not (math.isfinite(n) and n > 0):  # no normalizable NDF: the caller rejects the state
+        return n, np.zeros(len(nodes))
     grad = (np.bincount(q.cells, wd * (1.0 - q.t), len(nodes)) + np.bincount(q.cells + 1, wd * q.t, len(nodes))) / n
     return n, grad
 
@@ -426,7 +428,7 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
                 mu *= 8.0
                 continue
             trial = _apply(problem, s, step, tie_ks)
-            c = problem.cost(trial)
+            c = problem.cost(trial) if trial is not None else math.inf
             if np.isfinite(c) and c < cost:
                 improved, rel = True, (cost - c) / cost
                 s, cost = trial, c
@@ -438,15 +440,18 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
     return s, cost
 
 
-def _apply(problem: LuminanceProblem, s: LuminanceState, step: Array, tie_ks: bool) -> LuminanceState:
+def _apply(problem: LuminanceProblem, s: LuminanceState, step: Array, tie_ks: bool) -> LuminanceState | None:
     """The state after an LM step, renormalized: ``z`` shifted so that ``∫ e^z cos = 1``
     and ``g`` scaled inversely (the model is unchanged: the shift is the gauge of the
-    ``(z level, g)`` pair), so ``g`` is ``k_s`` and the level cannot drift."""
+    ``(z level, g)`` pair), so ``g`` is ``k_s`` and the level cannot drift. ``None`` when
+    the step leaves no normalizable NDF (``e^z`` underflows or overflows everywhere):
+    such a state would evaluate to the diffuse term alone, whose cost can be finite and
+    lower, so it must be rejected here, not by its cost."""
     k = len(problem.nodes)
     z = s.z + step[:k]
     n = normalization(problem.nodes, z)[0]
     if not (math.isfinite(n) and n > 0):
-        return LuminanceState(z, s.kd, s.g, s.eta)  # rejected by its cost (inf)
+        return None
     z = z - math.log(n)
     eta = 1.0 + (s.eta - 1.0) * math.exp(float(np.clip(step[k + 2], -2.0, 2.0)))
     g = 1.0 if tie_ks else s.g * n * math.exp(float(np.clip(step[k + 1], -3.0, 3.0)))
