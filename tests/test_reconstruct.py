@@ -166,6 +166,35 @@ def test_a_normal_whose_fit_underflows_the_ndf_is_rejected_not_a_crash():
     assert brdf_error(src, res.model, stride=3).normalized < 0.005
 
 
+def test_a_metal_keeps_its_dark_diffuse_floor(shared):
+    """tungsten-carbide's peak wants k_s > 1 in a channel; with k_s held at 1 the rest of
+    the peak must not go into k_d: k_d stays under the floor the samples measure
+    (:func:`reflecto.reconstruct.samples.kd_bound`; the dense CT fit's ρ_d ≤ 0.035)."""
+    from reflecto.evaluate.sweep import material_seed
+    from reflecto.reconstruct.samples import kd_bound
+    from reflecto.sources import load_source
+
+    src = load_source(shared / "merl-nbrdf" / "tungsten-carbide.h5")
+    dev = Device.builtin("ideal")
+    sl = extract_slices(simulate_capture(src, dev, seed=material_seed("tungsten-carbide")), nominal_calibration(dev))
+    res = reconstruct(sl)
+    bound = kd_bound(sl.light, sl.view, sl.values, sl.valid, sl.pixels, 75.0)
+    assert np.all(res.model.kd <= bound + 1e-12) and np.all(res.model.kd < 0.04), (res.model.kd, bound)
+    assert np.all(res.model.ks <= 1.0)
+
+
+def test_box_least_squares_picks_the_best_edge():
+    from reflecto.reconstruct.isotropic import _box_least_squares
+
+    m = np.array([[2.0, 0.5], [0.5, 1.0]])
+    x_free = np.array([0.3, 1.6])  # the unconstrained minimum: y beyond its bound 1
+    x, y = _box_least_squares(m, m @ x_free, (0.0, 0.2), (0.0, 1.0))
+    grid = [(a, b) for a in np.linspace(0, 0.2, 201) for b in np.linspace(0, 1, 201)]
+    cost = lambda q: float(np.array(q) @ m @ np.array(q) - 2 * (m @ x_free) @ np.array(q))
+    assert cost((x, y)) <= min(cost(q) for q in grid) + 1e-9
+    assert _box_least_squares(m, m @ np.array([0.1, 0.5]), (0.0, 0.2), (0.0, 1.0)) == pytest.approx((0.1, 0.5))
+
+
 def test_anisotropic_lobe_is_detected_and_reconstructed_on_the_hemicube():
     """An anisotropic GGX (α 0.1 × 0.4, tangent at 30°): the second azimuthal harmonic
     explains nearly all of the isotropic fit's ring-wise misfit, so ``auto`` takes the

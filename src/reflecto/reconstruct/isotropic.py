@@ -49,6 +49,7 @@ from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF
 from ..polar import IsotropicNDF, polar_nodes
 from . import _polar_kernels
+from .samples import kd_bound
 
 Array = NDArray[np.float64]
 
@@ -606,12 +607,16 @@ def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
     return LuminanceFit(s, eps, cost, tie, problem)
 
 
-def channel_scalars(fit: LuminanceFit) -> tuple[Array, Array]:
-    """``k_d ≥ 0`` and ``0 ≤ k_s ≤ 1`` per channel with the fitted ``D``, ``S`` and ``η``.
+def channel_scalars(fit: LuminanceFit, kd_max: Array | None = None) -> tuple[Array, Array]:
+    """``0 ≤ k_d ≤ k_d,max`` and ``0 ≤ k_s ≤ 1`` per channel with the fitted ``D``, ``S`` and ``η``.
 
     Linear least squares of ``f_c = k_{d,c}/π + k_{s,c} F D S/(4 cos cos)`` over the
-    measured bins with the luminance fit's weights; a bound that binds fixes that
-    scalar and the other is solved again.
+    measured bins with the luminance fit's weights, on the box of the physical bounds:
+    ``k_s ≤ 1`` (a microfacet reflects at most F) and ``k_d ≤ k_d,max`` (shape ``(3,)``,
+    :func:`.samples.kd_bound`: the specular term is ≥ 0, so ``k_d/π`` cannot exceed the
+    lowest values measured). Without the second bound a channel whose peak wants
+    ``k_s > 1`` pushes the rest of the peak into ``k_d``, a diffuse floor hundreds of
+    times the measured one (a metal rendered as a coloured plastic).
     """
     p = fit.problem
     s = fit.state
@@ -622,18 +627,34 @@ def channel_scalars(fit: LuminanceFit) -> tuple[Array, Array]:
     a = np.stack([np.full(int(me.sum()), 1.0 / math.pi), base[me]], axis=1)
     w = p.w[me]
     m = a.T @ (a * w[:, None])
+    m = m + 1e-12 * np.trace(m) * np.eye(2)
+    upper = np.full(3, np.inf) if kd_max is None else np.asarray(kd_max, dtype=np.float64)
     kd, ks = np.zeros(3), np.zeros(3)
     for c in range(3):
         v = a.T @ (w * p.bins.f[me, c])
-        x = np.linalg.solve(m + 1e-12 * np.trace(m) * np.eye(2), v)
-        if not 0.0 <= x[1] <= 1.0:
-            x[1] = min(max(x[1], 0.0), 1.0)
-            x[0] = (v[0] - m[0, 1] * x[1]) / m[0, 0]
-        if x[0] < 0.0:
-            x[0] = 0.0
-            x[1] = min(max(v[1] / m[1, 1], 0.0), 1.0)
-        kd[c], ks[c] = x
+        kd[c], ks[c] = _box_least_squares(m, v, (0.0, float(upper[c])), (0.0, 1.0))
     return kd, ks
+
+
+def _box_least_squares(m: Array, v: Array, xb: tuple[float, float], yb: tuple[float, float]) -> tuple[float, float]:
+    """``argmin xᵀMx − 2vᵀx`` over the box ``xb × yb`` (2 × 2 SPD ``M``): the interior
+    minimum if it lies in the box, else the best of the four edges' minima."""
+    def cost(x: float, y: float) -> float:
+        q = np.array([x, y])
+        return float(q @ m @ q - 2.0 * v @ q)
+
+    x = np.linalg.solve(m, v)
+    if xb[0] <= x[0] <= xb[1] and yb[0] <= x[1] <= yb[1]:
+        return float(x[0]), float(x[1])
+    best = None
+    for fixed in (xb[0], xb[1]):  # x on an edge: y free within its bounds
+        if math.isfinite(fixed):
+            y = min(max((v[1] - m[0, 1] * fixed) / m[1, 1], yb[0]), yb[1])
+            best = min(best or (math.inf, 0.0, 0.0), (cost(fixed, y), fixed, y))
+    for fixed in (yb[0], yb[1]):
+        x0 = min(max((v[0] - m[0, 1] * fixed) / m[0, 0], xb[0]), xb[1])
+        best = min(best or (math.inf, 0.0, 0.0), (cost(x0, fixed), x0, fixed))
+    return best[1], best[2]
 
 
 @dataclasses.dataclass
@@ -661,12 +682,15 @@ class IsotropicFit:
     bins: tuple[int, int]
 
 
-def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | None = None) -> IsotropicFit:
-    """Reconstruct an isotropic material from its slices (see the module docstring)."""
+def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | None = None,
+                  kd_bound_max_deg: float = 75.0) -> IsotropicFit:
+    """Reconstruct an isotropic material from its slices (see the module docstring);
+    ``k_d`` is bounded by the samples with θ_i, θ_o ≤ ``kd_bound_max_deg``
+    (:func:`.samples.kd_bound`)."""
     nodes = polar_nodes()
     bins = bin_polar(slices, nodes, valid)
     lum = fit_luminance(bins, nodes, fixed_eta)
-    kd, ks = channel_scalars(lum)
+    kd, ks = channel_scalars(lum, kd_bound(slices.light, slices.view, slices.values, valid, slices.pixels, kd_bound_max_deg))
     d = np.exp(lum.state.z - lum.state.z.max())
     model = IsotropicMicrofacetBRDF((nodes, d), kd, ks, lum.state.eta)
     return IsotropicFit(model, lum.state.eta, lum.eps, lum.ks_bound,

@@ -259,7 +259,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     frame = estimate_frame(slices, valid, opt.max_tilt_deg, opt.isotropic != "no") if opt.estimate_normal else np.eye(3)
     sl = slices.reframe(frame) if opt.estimate_normal else slices
     ok = valid & sl.valid
-    iso = fit_isotropic(sl, ok, opt.fixed_eta)
+    iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
     test = azimuthal_test(sl, ok, iso.model)
     isotropic = _choose_isotropic(opt.isotropic, test)
     fit: IsotropicFit | HemicubeFit = iso
