@@ -8,8 +8,10 @@ equalities that need no microfacet model:
   once the view is turned about the normal by the difference of their azimuths.
 - **Reciprocity.** LED ``b``'s sample viewed from ``u = (θ_a, φ_b + Δ)`` equals LED
   ``a``'s sample viewed from ``u* = (θ_b, φ_a − Δ)`` for every Δ (rotate the reciprocal
-  pair about the normal), which pairs two LEDs whose polar angles both lie within the
-  view cone's range of polar angles, along a curve.
+  pair about the normal), which pairs two steep LEDs
+  (:data:`~reflecto.instrument.device.STEEP_ELEVATION_DEG`) whose polar angles both lie
+  within the view cone's range of polar angles, along a curve. A grazing LED would put
+  its partner's view at grazing exitance, where measured data are not reciprocal.
 
 Which LEDs pair up is derived from the capture, not from an LED numbering: the LED
 directions in the sample frame (equal elevation within :data:`ISOTROPY_MAX_DEG`) and
@@ -37,6 +39,7 @@ from numpy.typing import NDArray
 
 from ..colour import LUM
 from ..hemicube import hemicube
+from ..instrument.device import STEEP_ELEVATION_DEG
 
 Array = NDArray[np.float64]
 
@@ -168,6 +171,10 @@ def pair_checks(light: Array, view: Array, values: Array, valid: NDArray[np.bool
     # the polar angles the view cone spans: reciprocity needs both LEDs' polar angles within
     theta_views = np.arccos(np.clip(view[above, 2], -1.0, 1.0))
     theta_lo, theta_view = (float(theta_views.min()), float(theta_views.max())) if len(theta_views) else (0.0, 0.0)
+    # reciprocity pairs only steep LEDs: a grazing one puts its partner's view at grazing
+    # exitance, where measured data are not reciprocal (RGL: |log ratio| 0.47–0.54 on
+    # clean captures through a 60° cone)
+    steep = math.radians(90.0 - STEEP_ELEVATION_DEG)
     out: list[PairCheck] = []
     for a in range(n_led):
         for b in range(a + 1, n_led):
@@ -181,7 +188,7 @@ def pair_checks(light: Array, view: Array, values: Array, valid: NDArray[np.bool
                 r, n = _median_log_ratio(fa, fb, ha & hb & (dirs_b[:, 2] > 1e-6), "isotropy")
                 if n:
                     out.append(PairCheck(a, b, "isotropy", r, n))
-            elif theta_lo < min(theta[a], theta[b]) and max(theta[a], theta[b]) < theta_view:
+            elif theta_lo < min(theta[a], theta[b]) and max(theta[a], theta[b]) < min(theta_view, steep):
                 delta = np.radians(np.arange(0.0, 360.0, RECIPROCITY_STEP_DEG))
                 u = _spherical(theta[a], phi[b] + delta)  # LED b's view
                 u_star = _spherical(theta[b], phi[a] - delta)  # LED a's view
