@@ -113,7 +113,7 @@ def test_design_study_is_resumable_and_its_paper_row_is_the_sweeps_device(tmp_pa
     _seed_layout(out, d)
     rows = ds.design_study([mats], out, cones=[d.cone_half_angle_deg, 70.0], tilts=[d.axis_tilt_deg],
                            led_counts=[d.n_leds], jobs=1, progress=False)
-    assert [r["key"] for r in rows] == ["paper", d.key, "c70.0-t20.0-l6"]
+    assert [r["key"] for r in rows] == ["paper", d.key, f"c70.0-t20.0-l{d.n_leds}"]
     paper, wide, impossible = rows
     assert impossible["limit"] == "the view cone reaches below the sample plane" and not impossible["realisable"]
     assert paper["materials"] == wide["materials"] == 1

@@ -523,17 +523,23 @@ def _as_built_truth(led_angles: Sequence[Sequence[float]] = DEFAULT_LED_ANGLES,
 EARLIER_LED_ANGLES = ((90.0, 0.0), (35.0, 0.0), (35.0, 72.0), (35.0, 144.0), (35.0, 216.0), (35.0, 288.0))
 EARLIER_OCCLUDER_DEG = 8.0
 #: The ``wide`` device: the best realisable design of the condenser design study
-#: (docs/design-study.md, ``reflecto design``): a wider cone whose views reach θ_o = 80°,
-#: so that the specular peak is seen up to eq. 10's grazing cut; the LEDs placed by
-#: :func:`reflecto.instrument.layout.optimize_layout` with the study's weights.
+#: (docs/design-study.md, ``reflecto design``; chosen on the tuning half, the design
+#: ``c60.0-t20.0-l10``): a 60° cone (NA 0.87) about an axis tilted 20°, whose views reach
+#: θ_o = 80°, so that the specular peak is seen up to θ_d = 79° (eq. 10's grazing cut is
+#: 80°); ten LEDs placed by :func:`reflecto.instrument.layout.optimize_layout` with the
+#: study's weights (22 frames, 0.18 s per capture).
 WIDE_OPTICS = Optics(cone_half_angle_deg=60.0, axis_tilt_deg=20.0)
 WIDE_LED_ANGLES = (
     (5.0, 0.0),
-    (9.1536, 281.9376),
-    (7.8716, 246.5019),
-    (11.6179, 169.2035),
-    (39.7739, 146.2875),
-    (6.348, 70.2603),
+    (6.7657, 87.142),
+    (32.9653, 212.9443),
+    (10.7112, 173.0997),
+    (7.2392, 308.7996),
+    (42.8177, 202.2664),
+    (13.6589, 217.2527),
+    (10.8129, 297.0548),
+    (19.3728, 146.0542),
+    (29.0568, 131.7786),
 )
 BUILTINS = ("ideal", "as-built", "earlier", "wide", "wide-as-built")
 
