@@ -592,7 +592,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     failures: list[tuple[str, str]] = []
     try:
-        recs = sweep(args.folders, args.output, device=args.device, jobs=args.jobs, progress=not args.quiet)
+        recs = sweep(args.folders, args.output, device=args.device, jobs=args.jobs, progress=not args.quiet,
+                     scheduler=args.scheduler)
     except BatchError as e:
         recs, failures = getattr(e, "records", []), e.failures
     s = summarize(recs)
@@ -622,6 +623,48 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_design(args: argparse.Namespace) -> int:
+    from .evaluate.design import best_design, design_study
+
+    failures: list[tuple[str, str]] = []
+    for flag, values, lo, hi in (("--cones", args.cones, 1.0, 88.0), ("--tilts", args.tilts, 0.0, 59.0),
+                                 ("--leds", args.leds, 3, 32)):
+        if not values or any(not lo <= v <= hi for v in values):
+            raise ReflectoError(f"{flag}: each value must be in [{lo:g}, {hi:g}], got {values}")
+    try:
+        rows = design_study(args.folders, args.output, cones=args.cones, tilts=args.tilts, led_counts=args.leds,
+                            jobs=args.jobs, scheduler=args.scheduler, progress=not args.quiet,
+                            materials=not args.layout_only)
+    except BatchError as e:
+        rows, failures = getattr(e, "records", []), e.failures
+    out = Path(args.output)
+    best = best_design(rows)
+    info = {"output": str(out), "files": [str(out / "design.csv"), str(out / "design.png")], "designs": rows,
+            "best_realisable": best["key"] if best else None,
+            "failed": [{"item": f, "error": m} for f, m in failures]}
+    if args.json:
+        print(json.dumps(info, indent=1))
+    elif not args.quiet:
+        lines = [f"{'design':18s} {'NA':>5s} {'cover':>6s} {'reach':>6s} {'time':>6s} {'< CT':>8s} {'ratio':>6s}"]
+        for r in rows:
+            if "coverage_after_tau" not in r:
+                lines.append(f"{r['key']:18s} not possible: {r.get('limit', '')}")
+                continue
+            fid = (f"{r['ours_below_ct']:>3d}/{r['materials']:<4d} {r['median_ratio']:6.3f}" if r.get("materials")
+                   else "")
+            lines.append(f"{r['key']:18s} {r['na']:5.3f} {100 * r['coverage_after_tau']:5.1f}% "
+                         f"{r['theta_d_reach_deg']:5.1f}° {1000 * r['capture_s']:4.0f}ms {fid}"
+                         + ("" if r["realisable"] else f"  (not realisable: {r['limit']})"))
+        if best:
+            lines.append(f"best realisable design: {best['key']}")
+        lines.append("wrote " + ", ".join(info["files"]))
+        print("\n".join(lines))
+    if failures:
+        _report_failures(failures)
+        return 1
+    return 0
+
+
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     """Shows "(default: …)" after every option's help that has a default worth stating."""
 
@@ -642,6 +685,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 _JSON_HELP = "print one JSON document on stdout instead of text"
+_SCHEDULER_HELP = ("run the work on the Dask cluster of this scheduler (tcp://host:8786; needs reflecto[dask]) "
+                   "instead of local processes; the output folder must be a path every worker sees")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -790,11 +835,31 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-o", "--output", required=True, help="results folder (resumable: finished materials are skipped)")
     q.add_argument("--device", default="ideal", help="our device: ideal | as-built | device file")
     q.add_argument("--jobs", type=int, default=0, help="worker processes (0: all cores)")
+    q.add_argument("--scheduler", metavar="ADDRESS", help=_SCHEDULER_HELP)
     q.add_argument("-q", "--quiet", action="store_true",
                    help="no progress (else a bar on a terminal, plain lines on stderr otherwise or under CI=true) "
                         "and no summary")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_sweep)
+
+    from .evaluate.design import DEFAULT_CONES, DEFAULT_LED_COUNTS, DEFAULT_TILTS
+
+    q = sub.add_parser("design", help="condenser design study: cone, tilt and LED count against coverage and fidelity",
+                       description="For every design of the grid, place the LEDs (layout optimizer, §4.1 rules), "
+                                   "measure coverage, θ_d reach at the peak and capture time, and run the sweep's "
+                                   "pipeline on the design's ideal device against the dense Cook–Torrance fit. "
+                                   "Writes design.csv and design.png; resumable. See docs/design-study.md.")
+    q.add_argument("folders", nargs="+", help="folders (or files) of materials")
+    q.add_argument("-o", "--output", required=True, help="results folder (resumable: finished work is skipped)")
+    q.add_argument("--cones", type=float, nargs="+", default=list(DEFAULT_CONES), help="cone half-angles (degrees)")
+    q.add_argument("--tilts", type=float, nargs="+", default=list(DEFAULT_TILTS), help="axis tilts (degrees)")
+    q.add_argument("--leds", type=int, nargs="+", default=list(DEFAULT_LED_COUNTS), help="LED counts")
+    q.add_argument("--layout-only", action="store_true", help="lay out the designs only (no materials)")
+    q.add_argument("--jobs", type=int, default=0, help="worker processes (0: all cores)")
+    q.add_argument("--scheduler", metavar="ADDRESS", help=_SCHEDULER_HELP)
+    q.add_argument("-q", "--quiet", action="store_true", help="no progress and no summary")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
+    q.set_defaults(func=cmd_design)
     return p
 
 
