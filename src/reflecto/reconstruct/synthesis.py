@@ -35,7 +35,9 @@ synthesis never raises a hole above its measured neighbours' level.
   :data:`MAX_ROUNDS` times.
 
 Texels on rings of half vectors that no capture saw at any azimuth (the grazing rim
-beyond the LEDs' reach) cannot be reached by a rotation; they keep the plain fill.
+beyond the LEDs' reach) cannot be reached by a rotation; they keep the plain fill
+(but for a band of one search texel at the measured rim: a rotated direction's
+nearest texel lies up to 2° off its ring, so a rim texel can land on a measured one).
 """
 
 from __future__ import annotations
@@ -76,11 +78,24 @@ MAX_ROUNDS = 24
 SYNTHESIS_RESOLUTION = 32
 #: ε of the blending weights (log units squared: a distance of 0.01 is a 10 % misfit).
 BLEND_EPS = 1e-4
+#: Measured texels below this fraction of the peak are no candidates and no known region,
+#: and holes where the lobe is below it keep the plain fill. Below ≈ 1 % of the peak a
+#: measured partial NDF carries the diffuse term's error (on the ideal device ±30 % at
+#: 10⁻³–10⁻², far more below): copying it spreads that error into the holes. At 3·10⁻³
+#: the synthesized texels came out better than the lobe-guided fill on more cases (in
+#: mass, 11 of 13 against 6 of 8 at 10⁻² and 5 of 11 at 10⁻³; docs/design/asymmetric.md).
+SYNTHESIS_FLOOR = 3e-3
+
+
+#: How the §5.5 path completes the holes in its last passes: synthesis (the default), or
+#: for comparison the plain fills — lobe-guided (:func:`.ndf.fill_holes_and_lobe`, the
+#: symmetric path's) or plain push–pull (:func:`.ndf.push_pull`).
+FILL_MODES = ("synthesis", "lobe", "push-pull")
 
 
 @dataclasses.dataclass(frozen=True)
 class SynthesisOptions:
-    """The synthesis parameters (module docstring); ``enabled=False`` gives the plain fill."""
+    """The synthesis parameters (module docstring) and the fill ``mode`` (:data:`FILL_MODES`)."""
 
     rotation_step_deg: float = ROTATION_STEP_DEG
     window_deg: float = WINDOW_DEG
@@ -89,7 +104,18 @@ class SynthesisOptions:
     blend: int = BLEND
     max_rounds: int = MAX_ROUNDS
     resolution: int = SYNTHESIS_RESOLUTION
-    enabled: bool = True
+    floor: float = SYNTHESIS_FLOOR
+    validate: bool = True
+    mode: str = "synthesis"
+
+    def __post_init__(self) -> None:
+        from ..errors import ParameterError
+
+        if self.mode not in FILL_MODES:
+            raise ParameterError(f"synthesis mode must be one of {FILL_MODES}, got {self.mode!r}")
+        if not (0.0 < self.rotation_step_deg <= 90.0 and 0.0 < self.window_deg <= 45.0 and 0.0 < self.min_overlap <= 1.0
+                and self.blend >= 1 and self.max_rounds >= 1 and self.resolution >= 8 and 0.0 < self.floor < 1.0):
+            raise ParameterError(f"synthesis options out of range: {self}")
 
 
 @dataclasses.dataclass
@@ -221,6 +247,50 @@ def synthesize_ratio(cube: Hemicube, known: NDArray[np.bool_], ratio: Array,
     return Synthesis(np.where(k_now, r, 0.0), synth, rounds, best_rot[synth])
 
 
+@dataclasses.dataclass(frozen=True)
+class HeldOut:
+    """How well synthesis predicts measured texels it did not see (:func:`held_out_weight`).
+
+    ``weight`` of the synthesized ratio against the plain fill's, ``rms_synthesis`` and
+    ``rms_plain`` the two predictions' Ω-weighted RMS log errors on the held-out texels,
+    ``texels`` how many there were.
+    """
+
+    weight: float
+    rms_synthesis: float
+    rms_plain: float
+    texels: int
+
+
+def held_out_weight(cube: Hemicube, known: NDArray[np.bool_], ratio: Array, synthesized: NDArray[np.bool_],
+                    options: SynthesisOptions) -> HeldOut:
+    """Blend weight of synthesis from the measured texels next to what it filled.
+
+    The known texels within one window of a synthesized texel are held out; synthesis
+    from the remaining known texels (:func:`synthesize_ratio`) and push–pull of their
+    ratio (the plain fill's interpolation) both predict them, with errors ``e_s`` and
+    ``e_p``; the weight ``w ∈ [0, 1]`` minimizes ``Σ Ω (w e_s + (1 − w) e_p)²``. It is 1
+    where the rotated copies continue the measured NDF better than interpolation does,
+    0 where interpolation is better, and between where both err. Shapes ``(size,)``.
+    """
+    win = window_matrix(cube.n, float(options.window_deg))
+    band = known & (win @ synthesized.astype(np.float64) > 0)
+    rest = known & ~band
+    if np.count_nonzero(band) < 4 or not rest.any():
+        return HeldOut(1.0, math.nan, math.nan, 0)
+    syn = synthesize_ratio(cube, rest, ratio, options)
+    test = band & syn.synthesized
+    if np.count_nonzero(test) < 4:
+        return HeldOut(1.0, math.nan, math.nan, int(np.count_nonzero(test)))
+    plain = ndf_mod.push_pull(cube, rest.astype(np.float64), np.where(rest, ratio, 0.0))
+    om = cube.solid_angles[test]
+    e_s, e_p = syn.ratio[test] - ratio[test], plain[test] - ratio[test]
+    den = float(np.sum(om * (e_s - e_p) ** 2))
+    w = float(np.clip(np.sum(om * e_p * (e_p - e_s)) / den, 0.0, 1.0)) if den > 0 else 1.0
+    rms = (lambda e: math.sqrt(float(np.sum(om * e * e) / np.sum(om))))
+    return HeldOut(w, rms(e_s), rms(e_p), int(np.count_nonzero(test)))
+
+
 @dataclasses.dataclass
 class SynthesisFill:
     """The hole fill of the §5.5 path (a :data:`.hemicube_fit.HoleFill`).
@@ -231,23 +301,28 @@ class SynthesisFill:
     instead (:meth:`complete`). The search runs in the first of those passes; the
     next pass, whose measured NDF differs only by the updated S, reuses its
     synthesized ratio (it costs as much as the rest of the pass). ``last_synthesis``
-    keeps what the synthesis did, for the summary and the validation.
+    keeps what the synthesis did, ``synthesized_work`` and ``holes_work`` the texels
+    of the working hemicube ``cube`` it filled and that no capture covered, for the
+    summary and the validation.
     """
 
     options: SynthesisOptions = dataclasses.field(default_factory=SynthesisOptions)
     last_synthesis: Synthesis | None = None
     synthesized_work: NDArray[np.bool_] | None = None
     holes_work: NDArray[np.bool_] | None = None
+    cube: Hemicube | None = None
+    held_out: HeldOut | None = None
 
     def __call__(self, work: Hemicube, wsum: Array, wv: Array, last: bool, inner_holes: bool
                  ) -> tuple[Array, Array | None]:
         d, log_lobe = ndf_mod.fill_holes_and_lobe(work, wsum, wv)
         if not last or log_lobe is None:
             return d, log_lobe
-        self.holes_work = wsum <= 1e-12
-        if not self.options.enabled:
-            self.synthesized_work = np.zeros(work.size, dtype=bool)
+        self.holes_work, self.cube = wsum <= 1e-12, work
+        if self.options.mode == "lobe":
             return d, log_lobe
+        if self.options.mode == "push-pull":
+            return ndf_mod.push_pull(work, wsum, wv), log_lobe
         return self.complete(work, wsum, wv, d, log_lobe), log_lobe
 
     def complete(self, work: Hemicube, wsum: Array, wv: Array, d_plain: Array, log_lobe: Array) -> Array:
@@ -255,7 +330,7 @@ class SynthesisFill:
         obs = wsum > 1e-12
         v = np.where(obs, wv / np.maximum(wsum, 1e-300), 0.0)
         peak = max(float(v.max()), 1e-300)
-        pos = obs & (v > ndf_mod.LOBE_FLOOR * peak)
+        pos = obs & (v > self.options.floor * peak)
         ratio = np.where(pos, np.log(np.maximum(v, 1e-300)) - log_lobe, 0.0)
         n_s = min(work.n, self.options.resolution)
         f = work.n // n_s
@@ -270,9 +345,10 @@ class SynthesisFill:
         if syn is None or len(syn.ratio) != coarse.size:
             syn = synthesize_ratio(coarse, known, r_coarse, self.options)
             self.last_synthesis = syn
+            self.held_out = held_out_weight(coarse, known, r_coarse, syn.synthesized, self.options)
         # the working holes whose (nearest) search texel was synthesized take its ratio, interpolated
-        # the deep tail (below the lobe fit's floor) has no ratio to match against: plain fill
-        hole = ~obs & (log_lobe >= math.log(ndf_mod.LOBE_FLOOR * peak))
+        # the deep tail (below the floor) has no reliable ratio to match against: plain fill
+        hole = ~obs & (log_lobe >= math.log(self.options.floor * peak))
         at = coarse.index(work.directions)
         target = hole & syn.synthesized[at]
         self.synthesized_work = target
@@ -282,6 +358,9 @@ class SynthesisFill:
                                    np.where(known | syn.synthesized, syn.ratio, 0.0))
         r_t = coarse.lookup(filled, work.directions[target])
         plain_cap = ndf_mod.push_pull(work, wsum, wv)
+        w = self.held_out.weight if self.held_out is not None and self.options.validate else 1.0
+        if w < 1.0:  # blended with the plain fill's ratio, as the held-out texels say
+            r_t = w * r_t + (1.0 - w) * (np.log(np.maximum(d_plain[target], 1e-300)) - log_lobe[target])
         out = d_plain.copy()
         out[target] = np.minimum(np.exp(np.minimum(log_lobe[target] + r_t, 700.0)), plain_cap[target])
         return out
