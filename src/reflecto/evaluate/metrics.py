@@ -24,7 +24,9 @@ grid turned about ``n`` by ``φ_h = 2πk/K`` (every :data:`AZIMUTH_STRIDE`-th θ
 ``E² = Σ_k Σ w (R cos θ_i − M cos θ_i)² / (K Σ w)``
 
 — eq. 10 with ``φ_h`` integrated too (the measure ``dω_i dω_o`` is uniform in
-``φ_h``, eq. 6.2). On isotropic sources both forms estimate the same integral.
+``φ_h``, eq. 6.2). On isotropic sources both forms estimate the same integral. Its
+normalization takes the largest albedo over :data:`ALBEDO_AZIMUTHS` incidence
+azimuths as well, so that turning both sources about ``n`` leaves the number as it is.
 """
 
 from __future__ import annotations
@@ -122,10 +124,11 @@ class Error:
                 f"{360 / self.azimuths:g}° apart; an anisotropic source), θ ≤ 80°")
 
 
-def max_albedo(source: BRDFSource, theta_max_deg: float = THETA_MAX_DEG) -> float:
-    """Largest channel-mean directional albedo over ``θ_i ∈ [0, θ_max]`` (5° steps)."""
+def max_albedo(source: BRDFSource, theta_max_deg: float = THETA_MAX_DEG, azimuths: int = 1) -> float:
+    """Largest channel-mean directional albedo over ``θ_i ∈ [0, θ_max]`` (5° steps) and
+    ``φ_i = 2πk/azimuths`` (the incidence plane ``φ_i = 0`` alone by default)."""
     theta = np.arange(0.0, theta_max_deg + 1e-9, 5.0)
-    return float(np.max(source.albedo(theta).mean(axis=1)))
+    return max(float(np.max(source.albedo(theta, 360.0 * k / azimuths).mean(axis=1))) for k in range(azimuths))
 
 
 def evaluate_on_grid(source: BRDFSource, grid: Grid, chunk: int = 1 << 18) -> Array:
@@ -162,10 +165,21 @@ def _accumulate(sums: _Sums, grid: Grid, r: Array, m: Array, name: str) -> None:
     sums.log_sq += np.sum(w * (np.log1p(rc) - np.log1p(np.maximum(mc, 0.0))) ** 2, axis=0)
 
 
+#: Incidence azimuths of the all-azimuths form's albedo normalization (30° apart): the
+#: albedo of an anisotropic lobe varies with φ_i, so that the φ_i = 0 plane alone would
+#: make the normalized error depend on how the reference is turned about n.
+ALBEDO_AZIMUTHS = 12
+
+
 def _error(sums: _Sums, reference: BRDFSource, albedo_ref: float | None, form: str, azimuths: int) -> Error:
     rmse = np.sqrt(sums.sq / sums.w)
     log_rmse = np.sqrt(sums.log_sq / sums.w)
-    a = max_albedo(reference) if albedo_ref is None else albedo_ref
+    if albedo_ref is not None:
+        a = albedo_ref
+    elif azimuths > 1 and not getattr(reference, "isotropic", True):
+        a = max_albedo(reference, azimuths=ALBEDO_AZIMUTHS)
+    else:
+        a = max_albedo(reference)
     return Error(rmse, float(rmse.mean() / max(a, 1e-12)), float(log_rmse.mean()), a, form, azimuths)
 
 
