@@ -60,7 +60,11 @@ demo: $(STAMP)
 	$(BIN)/reflecto calibrate $(OUT)/calib -o $(OUT)/as-built.npz
 	$(BIN)/reflecto reconstruct $(OUT)/capture --calibration $(OUT)/as-built.npz --estimate-normal -o $(OUT)/ggx-plastic.reflecto
 	$(BIN)/reflecto info $(OUT)/ggx-plastic.reflecto
-	$(BIN)/reflecto export $(OUT)/ggx-plastic.reflecto --isotropic yes -o $(OUT)/ggx-plastic.bsdf
+	$(BIN)/reflecto simulate examples/brushed-asymmetric.toml -o $(OUT)/brushed -q
+	$(BIN)/reflecto reconstruct $(OUT)/brushed -o $(OUT)/brushed.reflecto
+	$(BIN)/reflecto simulate examples/ggx-plastic.json -o $(OUT)/flat -q
+	$(BIN)/reflecto reconstruct $(OUT)/flat -o $(OUT)/flat.reflecto
+	$(BIN)/reflecto export $(OUT)/ggx-plastic.reflecto -o $(OUT)/ggx-plastic.bsdf
 	$(BIN)/reflecto render $(OUT)/ggx-plastic.bsdf --scene teapot-env -o $(OUT)/ggx-plastic-teapot.png
 	$(BIN)/reflecto report $(OUT)/ggx-plastic.reflecto --ref examples/ggx-plastic.json -o $(OUT)/report
 	@echo "demo done: open $(OUT)/report/index.html"

@@ -15,7 +15,8 @@ import pytest
 
 from reflecto.cli import main
 from reflecto.errors import BatchError, ReflectoWarning
-from reflecto.evaluate import sweep as sweep_mod
+import importlib
+sweep_mod = importlib.import_module("reflecto.evaluate.sweep")  # the module, not the re-exported function
 from reflecto.evaluate.split import half as sw_half
 from reflecto.io import atomic_write
 

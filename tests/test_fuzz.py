@@ -65,7 +65,8 @@ OUTCOMES = ("refused", "accepted-same", "accepted-changed", "recovered") + FAILU
 # ------------------------------------------------------------------ base inputs
 def fake_run_material(path: str, out_dir: str, device: str = "ideal", calibration: str | None = None) -> dict:
     """The sweep's per-material evaluation, stood in: the real loader, a synthetic record."""
-    from reflecto.evaluate import sweep as sw
+    import importlib
+    sw = importlib.import_module("reflecto.evaluate.sweep")
     from reflecto.evaluate.split import half as sw_half
     from reflecto.io import atomic_write
     from reflecto.sources import load_source
@@ -89,7 +90,8 @@ def fake_run_material(path: str, out_dir: str, device: str = "ideal", calibratio
 def build_base(folder: Path) -> Path:
     """Valid inputs of every kind, in ``folder`` (about 60 MB; 10–20 s)."""
     from reflecto.cli import main
-    from reflecto.evaluate import sweep as sw
+    import importlib
+    sw = importlib.import_module("reflecto.evaluate.sweep")
     from reflecto.model import MicrofacetBRDF
     from reflecto.sources import load_source
 
@@ -841,7 +843,8 @@ def _run_child(case: Case, base: Path, d: Path, result_file: Path) -> None:
         from reflecto.cli import main
 
         if case.command in ("sweep",) or case.kind == "special file":
-            from reflecto.evaluate import sweep as sw
+            import importlib
+            sw = importlib.import_module("reflecto.evaluate.sweep")
 
             sw.run_material = fake_run_material
         try:

@@ -379,7 +379,7 @@ def splat(n, dirs, values, weights, wsum, wvsum):
 
 @njit(**_OPTS)
 def model_eval(i, o, padded, pad_offsets, n, sig_flat, nt, nphi, ftable, kd, ks, correlated, out):
-    """:meth:`MicrofacetBRDF.eval` fused per pair (eqs. 1–2 in the form of eq. 1.6).
+    """:meth:`MicrofacetBRDF.eval` fused per pair (eqs. 1–2 in the form of AR 1.6).
 
     ``ftable`` is :class:`FresnelTable`'s table (rows uniform in √c, one guard row).
     """
@@ -594,7 +594,7 @@ def expose(signal, t_ms, z, pois, full_well, read_noise, shot, gauss_above, gamm
 
 @njit(**_OPTS)
 def quantize_ndf(d, psa, normalize, out):
-    """:class:`reflecto.model.MicrofacetBRDF`'s NDF: float32-rounded, normalized by eq. 1.2.
+    """:class:`reflecto.model.MicrofacetBRDF`'s NDF: float32-rounded, normalized by AR 1.2.
 
     ``out[k] = f32(d[k])`` and ``total = Σ out[k] psa[k]``; with ``normalize`` (and
     ``total > 0``) then ``out[k] = f32(out[k] / total)``. Returns ``total``, or −1 if

@@ -31,7 +31,7 @@ FACE_NAMES = ("top", "+x", "-x", "+y", "-y")
 def _face_antiderivative(u: Array, v: Array) -> Array:
     """``A(u, v) = atan2(uv, √(1 + u² + v²))``, antiderivative of ``(1+u²+v²)^−3/2``.
 
-    (algorithm-reference eq. 9.2)
+    (AR 9.2)
     """
     return np.arctan2(u * v, np.sqrt(1.0 + u * u + v * v))
 

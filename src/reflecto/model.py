@@ -3,7 +3,7 @@
 ``f(i, o) = k_d/π + k_s · D(h) S(i) S(o) F(i·h; η) / (4 (i·n)(o·n))``          (eqs. 1–2)
 
 * ``D`` — tabulated on a hemicube (§9 of algorithm-reference), normalized so that
-  ``∫ D(h)(h·n) dω_h = 1`` (eq. 1.2); one NDF shared by the three colour channels;
+  ``∫ D(h)(h·n) dω_h = 1`` (AR 1.2); one NDF shared by the three colour channels;
 * ``S`` — APS shadowing derived from D (eq. 8), tabulated as σ and clamped so S ≤ 1;
 * ``F`` — Cook–Torrance Fresnel (eq. 4) with a per-channel real index η;
 * ``k_d`` (diffuse albedo ρ_d), ``k_s`` — per channel.
@@ -14,7 +14,7 @@ Two tabulations of ``D``: :class:`MicrofacetBRDF` holds any NDF on a hemicube
 material's reconstruction determines, at a fraction of the storage and cost.
 
 Evaluation uses the cancelled form ``k_s D F / (4 σ(i) σ(o))`` (algorithm-reference
-eq. 1.6), which is finite at grazing angles. The physical unit is sr⁻¹ throughout; the
+AR 1.6), which is finite at grazing angles. The physical unit is sr⁻¹ throughout; the
 paper's "4π" constant is *not* used (algorithm-reference §3.2–§3.3).
 """
 
@@ -57,7 +57,7 @@ class MicrofacetBRDF(BRDFSource):
     ----------
     ndf
         D on the hemicube texels, shape ``(3 N²,)``; non-negative, finite. It is
-        normalized here (eq. 1.2) unless ``normalize=False``; the scale removed is
+        normalized here (AR 1.2) unless ``normalize=False``; the scale removed is
         *not* moved into ``ks`` — pass ``ks`` for the intended level.
     kd, ks, eta
         Per-channel diffuse albedo, specular scale and relative index (3 numbers or one).
@@ -159,7 +159,7 @@ class MicrofacetBRDF(BRDFSource):
             # G2 = 1/(1 + Λi + Λo), Λ = σ/cos − 1  ⇒  D G2/(4 cos cos) = D/(4(σi cos_o + σo cos_i − cos_i cos_o))
             denom = 4.0 * (si * co + so * ci - ci * co)
         else:
-            denom = 4.0 * si * so  # eq. 1.6
+            denom = 4.0 * si * so  # AR 1.6
         spec = np.divide(d, denom, out=np.zeros_like(d), where=ok & (denom > 0))
         return spec, c
 
@@ -435,7 +435,7 @@ def _local_metadata(path: Path, metadata: dict[str, Any]) -> dict[str, Any]:
 
 
 def _check_model(path: Path, model: MicrofacetBRDF | IsotropicMicrofacetBRDF) -> None:
-    """Ranges, NDF normalization (eq. 1.2) and albedo of a model (as loaded or about to be saved)."""
+    """Ranges, NDF normalization (AR 1.2) and albedo of a model (as loaded or about to be saved)."""
     from .sources.base import check_plausible
 
     if not (np.all(model.kd >= 0) and np.all(model.kd <= 1)):
@@ -447,7 +447,7 @@ def _check_model(path: Path, model: MicrofacetBRDF | IsotropicMicrofacetBRDF) ->
     else:
         total = float(model.ndf_values @ model.cube.projected_solid_angles)
     if not abs(total - 1.0) <= NDF_NORM_TOLERANCE:
-        raise FileFormatError(path, f"the NDF is not normalized (∫ D cos θ dω = {total:.6g}, eq. 1.2 needs 1)")
+        raise FileFormatError(path, f"the NDF is not normalized (∫ D cos θ dω = {total:.6g}, AR 1.2 needs 1)")
     check_plausible(model, path, albedo_range=(0.0, MODEL_ALBEDO_MAX))
 
 
@@ -460,7 +460,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
     """Generalized microfacet BRDF (eqs. 1–2) with an isotropic NDF ``D(θ_h)``.
 
     ``f(i, o) = k_d/π + k_s D(θ_h) F(i·h; η) / (4 σ(i) σ(o))`` (the cancelled form of
-    eq. 1.6), with ``D`` and ``σ`` from :class:`reflecto.polar.IsotropicNDF`.
+    AR 1.6), with ``D`` and ``σ`` from :class:`reflecto.polar.IsotropicNDF`.
 
     Parameters
     ----------

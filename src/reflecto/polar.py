@@ -9,8 +9,8 @@ positive and smooth.
 Two integrals of ``D`` follow from its azimuthal symmetry in closed form over the
 azimuth (algorithm-reference §1.2, §1.4):
 
-* the normalization of eq. 1.2, ``∫ D(h)(h·n) dω_h = 2π ∫ D(θ) cos θ sin θ dθ = 1``;
-* the projected area of eq. 1.3 (the denominator of eq. 8),
+* the normalization of AR 1.2, ``∫ D(h)(h·n) dω_h = 2π ∫ D(θ) cos θ sin θ dθ = 1``;
+* the projected area of AR 1.3 (the denominator of eq. 8),
   ``σ(θ_k) = ∫ ⟨k, h⟩ D(h) dω_h = ∫ D(θ) A(θ_k, θ) sin θ dθ`` with
   ``A(θ_k, θ) = ∫₀^{2π} max(0, cos θ_k cos θ + sin θ_k sin θ cos φ) dφ``
   (:func:`azimuthal_kernel`), so ``S(k) = cos θ_k / max(σ(k), cos θ_k)`` (eq. 8).
@@ -120,7 +120,7 @@ class IsotropicNDF:
         Increasing polar angles (radians) from 0 to π/2, shape ``(K,)``.
     values
         ``D`` at the nodes (sr⁻¹), finite and ≥ 0, not all 0, shape ``(K,)``. Normalized
-        here (eq. 1.2) unless ``normalize=False``. Zeros are kept as a floor of
+        here (AR 1.2) unless ``normalize=False``. Zeros are kept as a floor of
         ``1e-300`` relative to the peak so that ``log D`` interpolates.
     """
 

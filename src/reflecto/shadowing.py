@@ -238,7 +238,7 @@ def sigma_table(
     cube
         Geometry of ``ndf``.
     ndf
-        D on the hemicube texels, shape ``(cube.size,)`` (sr⁻¹), normalized by eq. 1.2.
+        D on the hemicube texels, shape ``(cube.size,)`` (sr⁻¹), normalized by AR 1.2.
     n_theta, n_phi
         Output grid: θ in [0°, 90°] with ``n_theta`` nodes, ``n_phi`` azimuths
         (``n_phi`` must divide the quadrature's 256 azimuths).

@@ -15,7 +15,7 @@ From a calibration folder (written by a device, or by
 * **radiometric** — a Lambertian standard of albedo ρ under every LED gives the
   per-LED, per-pixel, per-channel scale ``s = L_ref / (ρ/π)`` (DN/ms per sr⁻¹), which
   contains LED intensity, LED cosine, transmission/vignetting and camera gain; a
-  sample's BRDF is then ``f = L / s`` (algorithm-reference eq. 7.3). The field is
+  sample's BRDF is then ``f = L / s`` (AR 7.3). The field is
   smoothed by normalized convolution to average out photon noise.
 """
 

@@ -584,7 +584,6 @@ def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
     """The luminance fit at its fixed point with ``S`` (module docstring, stage 3)."""
     problem = LuminanceProblem(bins, nodes)
     s = initial_state(problem, 1.5 if fixed_eta is None else fixed_eta)
-    eps = 0.05
     tie = False
     cost = math.inf
     set_weights(problem)
@@ -594,8 +593,8 @@ def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
         if not tie and s.g > 1.0:
             tie = True  # the physical bound binds: continue on it
             s, cost = solve(problem, s, fix_eta=fixed_eta is not None, tie_ks=True)
-        eps = model_error(problem, s)
         update_shadowing(problem, s)
+    eps = model_error(problem, s)
     return LuminanceFit(s, eps, cost, tie, problem)
 
 

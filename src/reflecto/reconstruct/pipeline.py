@@ -235,7 +235,8 @@ def _notes(fit: IsotropicFit | HemicubeFit, model, isotropic: bool, test: Isotro
     notes = []
     if not isotropic:
         notes.append(f"anisotropic: a second azimuthal harmonic explains {100 * test.anisotropy:.0f} % of the "
-                     "partial NDF's ring-wise variance; hemicube NDF")
+                     f"partial NDF's ring-wise variance ({100 * test.conditional:.0f} % of what θ_d and φ_d "
+                     "leave); hemicube NDF")
     if fit.ks_at_bound:
         notes.append("k_s at its physical bound 1 (a microfacet reflects at most F): the specular level fixes η")
     if fit.eta >= ETA_MAX * (1 - 1e-6):

@@ -18,7 +18,7 @@ at ``c = 0`` is the usual model. The *asymmetric* variant has two lobes,
 valid height-field NDF, ∫ h D dω = n and S(n) = 1), but ``D(τh) ≠ D(h)`` — it violates
 the symmetry of eq. 3 on purpose. Smith's Λ of a mixture is exact and closed-form:
 ``Λ(k) = Σ_j w_j E[(q_j − μ)⁺]/μ`` with ``μ = cot θ_k`` and ``q_j`` the slope along
-k's azimuth (algorithm-reference §1.2, eq. 1.4).
+k's azimuth (algorithm-reference §1.2, AR 1.4).
 """
 
 from __future__ import annotations
@@ -152,7 +152,7 @@ class AnalyticBRDF(BRDFSource):
         return np.where(pos, d / cos4, 0.0)
 
     def smith_lambda(self, k: ArrayLike) -> Array:
-        """Smith ``Λ(k)`` of the NDF (eq. 1.4), shape ``k.shape[:-1]``."""
+        """Smith ``Λ(k)`` of the NDF (AR 1.4), shape ``k.shape[:-1]``."""
         k = self._to_lobe_frame(np.asarray(k, dtype=np.float64))
         z = np.clip(k[..., 2], 1e-12, 1.0)
         sxy = np.hypot(k[..., 0], k[..., 1])
@@ -182,7 +182,7 @@ class AnalyticBRDF(BRDFSource):
         return np.where(k[..., 2] > 0, 1.0 / (1.0 + self.smith_lambda(k)), 0.0)
 
     def sigma(self, k: ArrayLike) -> Array:
-        """Projected area ``σ(k) = cos θ_k (1 + Λ(k))`` (eq. 1.3)."""
+        """Projected area ``σ(k) = cos θ_k (1 + Λ(k))`` (AR 1.3)."""
         k = np.asarray(k, dtype=np.float64)
         return np.maximum(k[..., 2], 0.0) * (1.0 + self.smith_lambda(k))
 
@@ -194,7 +194,7 @@ class AnalyticBRDF(BRDFSource):
         h = geometry.half_vector(i, o)
         c = np.sum(i * h, axis=-1)
         d = self.ndf(h)
-        # eq. 1.6: D F / (4 σ(i) σ(o)) equals D G1 G1 F / (4 cos cos)
+        # AR 1.6: D F / (4 σ(i) σ(o)) equals D G1 G1 F / (4 cos cos)
         denom = 4.0 * self.sigma(i) * self.sigma(o)
         spec = np.divide(d, denom, out=np.zeros_like(d), where=ok & (denom > 0))
         f = self.kd / math.pi + self.ks * spec[..., None] * fresnel(c[..., None], self.eta)
