@@ -1,12 +1,12 @@
-"""Error metrics between two BRDFs (paper §6, eq. 10; algorithm-reference §6.2).
+"""Error metrics between two BRDFs (paper §6, eq. 10; AR 6.2).
 
 The Ngan–Durand–Matusik error is a cosine-weighted RMS over the MERL bin grid
-(``φ_h = 0``, bin centres, algorithm-reference §6.1):
+(``φ_h = 0``, bin centres, AR 6.1):
 
-``E = √( Σ w (R cos θ_i − M cos θ_i)² / Σ w )``                    (eq. 10 / 6.1)
+``E = √( Σ w (R cos θ_i − M cos θ_i)² / Σ w )``                    (eq. 10 / AR 6.1)
 
 with the 4-D solid-angle weight of a bin ``w ∝ cos θ_d sin θ_d sin θ_h · u_h``
-(eq. 6.3, ``u_h = (k + ½)/90``), over bins with ``θ_i, θ_o ≤ 80°`` where the
+(AR 6.3, ``u_h = (k + ½)/90``), over bins with ``θ_i, θ_o ≤ 80°`` where the
 reference is valid (≥ 0). Reported per channel, and as their mean divided by the
 reference's largest directional albedo over ``θ_i ≤ 80°`` (*normalized error*), so
 that dark and bright materials are comparable. Also the log-RMSE
@@ -24,7 +24,7 @@ grid turned about ``n`` by ``φ_h = 2πk/K`` (every :data:`AZIMUTH_STRIDE`-th θ
 ``E² = Σ_k Σ w (R cos θ_i − M cos θ_i)² / (K Σ w)``
 
 — eq. 10 with ``φ_h`` integrated too (the measure ``dω_i dω_o`` is uniform in
-``φ_h``, eq. 6.2). On isotropic sources both forms estimate the same integral. Its
+``φ_h``, AR 6.2). On isotropic sources both forms estimate the same integral. Its
 normalization takes the largest albedo over :data:`ALBEDO_AZIMUTHS` incidence
 azimuths as well, so that turning both sources about ``n`` leaves the number as it is.
 """
@@ -51,7 +51,7 @@ THETA_MAX_DEG = 80.0
 class Grid:
     """MERL bin-centre directions kept by the metric, with their weights.
 
-    ``i, o`` shape ``(K, 3)``; ``w`` shape ``(K,)`` (eq. 6.3); ``flat`` the MERL linear
+    ``i, o`` shape ``(K, 3)``; ``w`` shape ``(K,)`` (AR 6.3); ``flat`` the MERL linear
     index of each kept bin (to skip a MERL reference's invalid bins).
     """
 

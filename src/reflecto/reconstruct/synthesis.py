@@ -1,4 +1,4 @@
-"""Example-based microfacet synthesis (paper §5.5 after Wang et al. 2008; algorithm-reference §4.4).
+"""Example-based microfacet synthesis (paper §5.5 after Wang et al. 2008; AR 4.4).
 
 The captures at several rotations measure the NDF where some rotation's slices
 reached; what none reached is completed from the measured NDF itself, turned about
