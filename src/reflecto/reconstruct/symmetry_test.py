@@ -51,7 +51,8 @@ LEVEL = 0.02
 #: … and the specular part is at least this fraction of the measured BRDF (where the
 #: partial NDF is measured, not the diffuse floor and the model's account of it).
 MIN_SPECULAR_FRACTION = 0.5
-#: τ pairs needed for a verdict.
+#: τ pairs, and direct pairs, needed for a verdict: without direct pairs nothing says how
+#: far two partial NDFs of one NDF differ there (a sharp lobe that only τ pairs reach).
 MIN_PAIRS = 30
 #: Ratio of the τ pairs' RMS log ratio to the direct pairs' at and above which the data break eq. 3.
 THRESHOLD = 2.0
@@ -87,7 +88,7 @@ class SymmetryTest:
 
     @property
     def decided(self) -> bool:
-        return self.tau_pairs >= MIN_PAIRS
+        return self.tau_pairs >= MIN_PAIRS and self.direct_pairs >= MIN_PAIRS
 
     @property
     def ratio(self) -> float:
@@ -96,7 +97,7 @@ class SymmetryTest:
 
     @property
     def symmetric(self) -> bool:
-        """The data keep eq. 3 (or hold too few τ pairs to tell)."""
+        """The data keep eq. 3 (or hold too few τ or direct pairs to tell)."""
         return not self.decided or self.ratio < THRESHOLD
 
     def to_dict(self) -> dict[str, float | int | bool]:
@@ -107,7 +108,8 @@ class SymmetryTest:
     def describe(self) -> str:
         """One line: the statistic and the verdict."""
         if not self.decided:
-            return f"symmetry of eq. 3 not tested ({self.tau_pairs} τ-paired texels in the lobe, {MIN_PAIRS} needed)"
+            return (f"symmetry of eq. 3 not tested ({self.tau_pairs} τ pairs and {self.direct_pairs} direct pairs "
+                    f"of texels in the lobe, {MIN_PAIRS} of each needed)")
         verdict = "kept" if self.symmetric else "BROKEN"
         return (f"symmetry of eq. 3 {verdict}: partial NDFs at h and τh differ by {self.tau_rms:.3f} (log RMS, "
                 f"{self.tau_pairs} pairs), {self.ratio:.1f}× what two LEDs at one texel differ by "
