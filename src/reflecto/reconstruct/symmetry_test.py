@@ -22,8 +22,9 @@ the data break eq. 3 when
 ``D(h)`` and ``D(τh)`` beyond what equal NDFs show). A ratio rather than an absolute
 level: on measured materials the model's ``S`` and ``F`` miss the data by 20–60 %
 (log RMS) in both kinds of pair alike, while an asymmetric lobe adds to the τ pairs
-only. On the shared materials and analytic symmetric lobes the ratio stays ≤ 1.3, on
-analytic asymmetric lobes it is ≥ 4 (docs/design/asymmetric.md). For several
+only. On the 50 shared materials and four analytic symmetric lobes (one capture, ideal
+device) the decided ratios stay ≤ 1.93, on the eight analytic asymmetric lobes they are
+≥ 3.2 (3.1 on the as-built device; docs/design/asymmetric.md). For several
 captures (§5.5) the bins of all captures, each in the sample frame, enter together:
 the direct pairs then include those of two captures.
 """

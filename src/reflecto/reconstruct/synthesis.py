@@ -29,7 +29,9 @@ synthesis never raises a hole above its measured neighbours' level.
   (a log MSE after removing the mean offset ``μ``), plus :data:`GAIN_PENALTY` · μ²
   so that of two equal shapes the one at the right level wins;
 * *blending*: the :data:`BLEND` best candidates, each shifted by its ``μ``, averaged
-  with weights ``1 / (distance + ε)``;
+  with weights ``1 / (distance + ε)``; the result blended with the lobe-guided fill's
+  ratio by the weight that predicts held-out measured texels best
+  (:func:`held_out_weight`);
 * *iteration*: the hole texels reached are filled at once, then the search repeats
   with them known (they are matched against, never copied from), at most
   :data:`MAX_ROUNDS` times.
