@@ -83,9 +83,9 @@ BLEND_EPS = 1e-4
 #: Measured texels below this fraction of the peak are no candidates and no known region,
 #: and holes where the lobe is below it keep the plain fill. Below ≈ 1 % of the peak a
 #: measured partial NDF carries the diffuse term's error (on the ideal device ±30 % at
-#: 10⁻³–10⁻², far more below): copying it spreads that error into the holes. At 3·10⁻³
-#: the synthesized texels came out better than the lobe-guided fill on more cases (in
-#: mass, 11 of 13 against 6 of 8 at 10⁻² and 5 of 11 at 10⁻³; docs/design/asymmetric.md).
+#: 10⁻³–10⁻², far more below): copying it spreads that error into the holes, while
+#: 10⁻² would leave the tail, where most holes lie, without candidates
+#: (docs/design/asymmetric.md).
 SYNTHESIS_FLOOR = 3e-3
 
 
