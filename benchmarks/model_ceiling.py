@@ -231,8 +231,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--shadowing", choices=("separable", "correlated"), default="separable")
     ap.add_argument("--max-theta-d", type=float, default=90.0,
                     help="fit only bins with θ_d ≤ this (degrees); the error is still on the whole grid")
-    ap.add_argument("--coverage", choices=("ideal", "earlier"),
-                    help="fit only the (θ_h, θ_d) bins this device's capture samples (any φ_d)")
+    ap.add_argument("--coverage", metavar="DEVICE",
+                    help="fit only the (θ_h, θ_d) bins this device's capture samples (any φ_d): a built-in "
+                         "(ideal, earlier, wide) or a device file")
     ap.add_argument("--eta-oracle", action="store_true",
                     help="pick the common η (12 values, 1.03–31) by the error on the whole grid")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)

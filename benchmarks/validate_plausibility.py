@@ -13,8 +13,9 @@ also tilted by 5°, 10° and 15° (as-built, ``--estimate-normal``). Checked per
 
 Prints one line per capture with any violation, then the counts.
 
-Run: ``.venv/bin/python benchmarks/validate_plausibility.py [--jobs 2] [--no-tilt]``
-(≈ 5 minutes on 2 cores).
+Run: ``.venv/bin/python benchmarks/validate_plausibility.py [--jobs 2] [--no-tilt] [--device wide]``
+(≈ 5 minutes on 2 cores). ``--device NAME`` checks the built-in pair NAME (ideal) and
+NAME-as-built (``wide``, ``wide-as-built``) instead of ``ideal`` and ``as-built``.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ ANGLES = np.array([0.0, 30.0, 60.0, 75.0, 85.0, 89.0])
 def one(job: tuple[str, str, str | None, float]) -> dict:
     from reflecto.evaluate.sweep import material_seed
     from reflecto.instrument.calibrate import load_calibration, nominal_calibration
-    from reflecto.instrument.device import Device
+    from reflecto.instrument.device import load_device
     from reflecto.instrument.simulate import simulate_capture
     from reflecto.instrument.slices import extract_slices
     from reflecto.reconstruct import Options, reconstruct
@@ -42,7 +43,7 @@ def one(job: tuple[str, str, str | None, float]) -> dict:
     from reflecto.sources import load_source
 
     path, device, cal_path, tilt = job
-    dev = Device.builtin(device)
+    dev = load_device(device)
     cal = load_calibration(cal_path, dev.nominal()) if cal_path else nominal_calibration(dev)
     name = Path(path).stem
     cap = simulate_capture(load_source(path), dev, seed=material_seed(name), tilt_deg=tilt)
@@ -72,23 +73,26 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--no-tilt", action="store_true", help="skip the tilted captures")
+    ap.add_argument("--device", default="ideal", help="ideal device (its as-built twin is NAME-as-built, or as-built)")
     args = ap.parse_args()
+    ideal = args.device
+    built = "as-built" if ideal == "ideal" else f"{ideal}-as-built"
     from reflecto.evaluate.sweep import find_materials, prepare_calibration
 
     files = find_materials([SHARED / "rgl", SHARED / "merl-nbrdf"])
     with tempfile.TemporaryDirectory() as tmp:
-        cal = prepare_calibration(Path(tmp), "as-built")
-        jobs = [(str(p), d, cal if d == "as-built" else None, 0.0) for d in ("ideal", "as-built") for p in files]
+        cal = prepare_calibration(Path(tmp), built)
+        jobs = [(str(p), d, cal if d == built else None, 0.0) for d in (ideal, built) for p in files]
         if not args.no_tilt:
-            jobs += [(str(p), "as-built", cal, t) for p in files[::5] for t in TILTS]
+            jobs += [(str(p), built, cal, t) for p in files[::5] for t in TILTS]
         with ProcessPoolExecutor(args.jobs) as ex:
             rows = list(ex.map(one, jobs))
     for r in rows:
         if r["bad"]:
             print(f"{r['name']:28s} {r['device']:8s} tilt {r['tilt']:4.1f}°: " + "; ".join(r["bad"]))
-    for label, sel in (("ideal", lambda r: r["device"] == "ideal"),
-                       ("as-built", lambda r: r["device"] == "as-built" and r["tilt"] == 0),
-                       ("as-built tilted", lambda r: r["tilt"] > 0)):
+    for label, sel in ((ideal, lambda r: r["device"] == ideal),
+                       (built, lambda r: r["device"] == built and r["tilt"] == 0),
+                       (f"{built} tilted", lambda r: r["tilt"] > 0)):
         group = [r for r in rows if sel(r)]
         if not group:
             continue

@@ -1,4 +1,4 @@
-"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|export|render|compare|report|fit-ct|sweep``.
+"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|export|render|compare|report|fit-ct|sweep|gallery``.
 
 Every failure prints one line, ``reflecto: error: FILE: problem``, on stderr and
 exits with status 1, leaving no output file and no folder it created; ``--json``
@@ -280,13 +280,14 @@ def _reconstruct_one(cap_dir: str, cal_path: str | None, out: str, normal: bool,
     cal = load_calibration(cal_path, cap.device)
     options = Options(estimate_normal=normal, fixed_eta=eta, isotropic=isotropic)
     try:
-        res = reconstruct(extract_slices(cap, cal), options)
+        slices = extract_slices(cap, cal)
+        res = reconstruct(slices, options)
     except CaptureError:
         raise
     except ReflectoError as e:  # the reconstruction's own errors do not know the capture's folder
         problem = str(e).removeprefix("capture: ")
         raise CaptureError(cap_dir, problem + (f" (calibration {cal_path})" if cal_path else "")) from None
-    summary = {"capture": str(cap_dir), **res.summary()}
+    summary = {"capture": str(cap_dir), **res.summary(), "symmetry_test": _symmetry_of(slices, res).to_dict()}
     if cal_path is None and nominal:
         summary["calibration"] = "nominal (--nominal)"
     # the model names its capture relative to its own folder, where readers look for it
@@ -296,6 +297,82 @@ def _reconstruct_one(cap_dir: str, cal_path: str | None, out: str, normal: bool,
     with atomic_write(Path(out).with_suffix(".json"), "w") as fh:
         fh.write(json.dumps(summary, indent=1))
     return {**summary, "motion": res.motion.describe()}
+
+
+def _symmetry_of(slices, res):  # type: ignore[no-untyped-def]
+    """The eq. 3 test (:mod:`reflecto.reconstruct.symmetry_test`) of one capture against its reconstruction."""
+    from .reconstruct.symmetry_test import symmetry_test_slices
+
+    sl = slices if np.array_equal(res.frame, np.eye(3)) else slices.reframe(res.frame)
+    return symmetry_test_slices(sl, slices.valid & sl.valid, res.model)
+
+
+def _load_rotated(cap_dirs: list[str], cal_path: str | None, nominal: bool) -> list:
+    """The captures of a §5.5 set as :class:`~reflecto.reconstruct.asymmetric.RotatedCapture`:
+    one device for all (its manifest's nominal description), one calibration."""
+    from .instrument.calibrate import load_calibration, needs_calibration
+    from .instrument.capture import CaptureError, read_capture
+    from .instrument.slices import extract_slices
+    from .reconstruct.asymmetric import RotatedCapture
+
+    caps = [read_capture(c) for c in cap_dirs]
+    first = caps[0]
+    for c, path in zip(caps[1:], cap_dirs[1:]):
+        if c.device.to_dict() != first.device.to_dict():
+            raise CaptureError(path, f"captured with device {c.device.name!r}, {cap_dirs[0]} with "
+                               f"{first.device.name!r} (or the same name with other optics, LEDs or camera): the "
+                               "captures of one §5.5 set must come from one device")
+    if cal_path is None and not nominal and needs_calibration(first.device):
+        raise CaptureError(cap_dirs[0], f"captured with device {first.device.name!r}, whose optics, LEDs and "
+                           "vignetting differ from its nominal design: pass --calibration FILE (from `reflecto "
+                           "calibrate`), or --nominal to use the nominal calibration anyway")
+    cal = load_calibration(cal_path, first.device)
+    return [RotatedCapture(extract_slices(c, cal), c.rotation_deg, path) for c, path in zip(caps, cap_dirs)]
+
+
+def _reconstruct_asymmetric(args: argparse.Namespace) -> int:
+    """``reconstruct CAP... --asymmetric -o MODEL``: one model from captures at several rotations (§5.5)."""
+    import os
+
+    from .io import atomic_write
+    from .reconstruct import Options
+    from .reconstruct.asymmetric import MIN_CAPTURES, reconstruct_rotations
+
+    caps = list(args.captures)
+    if len(caps) < MIN_CAPTURES:
+        raise ReflectoError(f"{caps[0]}: --asymmetric reconstructs one model from captures of the same point at "
+                            f"{MIN_CAPTURES} or more rotations (paper §5.5); got one capture — reconstruct it "
+                            "without --asymmetric")
+    out = Path(args.output)
+    _check_suffix(out, "model", f"use -o {out.with_suffix('.reflecto')}")
+    if out.suffix.lower() != ".reflecto":
+        raise OutputError(out, "with --asymmetric the captures make one model: -o must name a .reflecto file")
+    check_output(out)
+    rotated = _load_rotated(caps, args.calibration, args.nominal)
+    options = Options(estimate_normal=args.estimate_normal, fixed_eta=args.eta, isotropic=args.isotropic)
+    res = reconstruct_rotations(rotated, options)
+    summary = {"captures": caps, **res.summary()}
+    if args.calibration is None and args.nominal:
+        summary["calibration"] = "nominal (--nominal)"
+    res.model.metadata.update({"captures": [os.path.relpath(Path(c).resolve(), out.resolve().parent) for c in caps],
+                               "rotations_deg": res.rotations_deg, "asymmetric": True})
+    res.model.save(out)
+    with atomic_write(out.with_suffix(".json"), "w") as fh:
+        fh.write(json.dumps(summary, indent=1))
+    info = {"models": [{"captures": caps, "output": str(out), "summary": summary}], "failed": []}
+    kind = "isotropic (1-D, all captures)" if res.isotropic else "hemicube, §5.5 merge and synthesis"
+    rots = "/".join(f"{r:g}" for r in res.rotations_deg)
+    lines = [f"{out}: {kind} from {len(caps)} captures at {rots}°, eta {res.eta:.3f}, "
+             f"kd {np.round(res.model.kd, 3).tolist()}, ks {np.round(res.model.ks, 3).tolist()}, "
+             f"tilt {res.normal_tilt_deg:.2f}°, {res.seconds * 1000:.0f} ms"
+             + ("  SHAKE DETECTED" if res.shake_detected else ""),
+             f"  {res.symmetry.describe()}"]
+    lines += [f"  note: {note}" for note in res.notes]
+    if args.json:
+        print(json.dumps(info, indent=1))
+    elif not args.quiet:
+        print("\n".join(lines))
+    return 0
 
 
 def _report_failures(failures: list[tuple[str, str]]) -> None:
@@ -323,6 +400,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
 
     from .evaluate.sweep import Progress, run_batch
 
+    if args.asymmetric:
+        return _reconstruct_asymmetric(args)
     caps = list(args.captures)
     if len(caps) > 1 and not Path(args.output).suffix == "":
         raise OutputError(args.output, "with several captures, -o must be a folder")
@@ -372,6 +451,12 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         lines.append(f"{outs[k]}: {kind}, eta {r['eta'][0]:.3f}, kd {np.round(r['kd'], 3).tolist()}, "
                      f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, {r['seconds'] * 1000:.0f} ms{flag}")
         lines += [f"  note: {note}" for note in r["notes"]]
+        sym = r.get("symmetry_test", {})
+        if sym.get("decided") and not sym.get("symmetric"):
+            from .reconstruct.symmetry_test import SymmetryTest
+
+            test = SymmetryTest(*(sym[k] for k in ("asymmetry", "tau_rms", "direct_rms", "tau_pairs", "direct_pairs")))
+            lines += [f"  {test.describe()}", f"  hint: {test.hint()}"]
     if args.json:
         print(json.dumps(info, indent=1))
     elif lines:
@@ -490,7 +575,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """``reflecto compare REF TEST``: eq. 10 error (normalized by the reference's albedo) and
-    log-RMSE of TEST against REF.
+    log-RMSE of TEST against REF (over every φ_h when either source is anisotropic).
 
     Parameters
     ----------
@@ -503,13 +588,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
         Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
         :func:`main` prints as one line.
     """
-    from .evaluate.metrics import brdf_error
+    from .evaluate.metrics import comparison_error
     from .sources import load_source
 
     ref, test = load_source(args.reference), load_source(args.test)
-    err = brdf_error(ref, test)
+    err = comparison_error(ref, test)
     return _emit(args, {"reference": str(args.reference), "test": str(args.test), **err.to_dict()}, [
-        f"{args.test} against {args.reference} (Ngan et al. eq. 10, MERL bins, θ ≤ 80°):",
+        f"{args.test} against {args.reference} ({err.describe()}):",
         f"  RMSE (R, G, B)      {err.rmse[0]:.5f} {err.rmse[1]:.5f} {err.rmse[2]:.5f} sr⁻¹",
         f"  normalized error    {err.normalized:.5f}  (channel mean / max albedo {err.albedo_ref:.4f})",
         f"  log-RMSE            {err.log_rmse:.5f}"])
@@ -592,7 +677,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     failures: list[tuple[str, str]] = []
     try:
-        recs = sweep(args.folders, args.output, device=args.device, jobs=args.jobs, progress=not args.quiet)
+        recs = sweep(args.folders, args.output, device=args.device, jobs=args.jobs, progress=not args.quiet,
+                     scheduler=args.scheduler)
     except BatchError as e:
         recs, failures = getattr(e, "records", []), e.failures
     s = summarize(recs)
@@ -622,6 +708,48 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_design(args: argparse.Namespace) -> int:
+    from .evaluate.design import best_design, design_study
+
+    failures: list[tuple[str, str]] = []
+    for flag, values, lo, hi in (("--cones", args.cones, 1.0, 88.0), ("--tilts", args.tilts, 0.0, 59.0),
+                                 ("--leds", args.leds, 3, 32)):
+        if not values or any(not lo <= v <= hi for v in values):
+            raise ReflectoError(f"{flag}: each value must be in [{lo:g}, {hi:g}], got {values}")
+    try:
+        rows = design_study(args.folders, args.output, cones=args.cones, tilts=args.tilts, led_counts=args.leds,
+                            jobs=args.jobs, scheduler=args.scheduler, progress=not args.quiet,
+                            materials=not args.layout_only)
+    except BatchError as e:
+        rows, failures = getattr(e, "records", []), e.failures
+    out = Path(args.output)
+    best = best_design(rows)
+    info = {"output": str(out), "files": [str(out / "design.csv"), str(out / "design.png")], "designs": rows,
+            "best_realisable": best["key"] if best else None,
+            "failed": [{"item": f, "error": m} for f, m in failures]}
+    if args.json:
+        print(json.dumps(info, indent=1))
+    elif not args.quiet:
+        lines = [f"{'design':18s} {'NA':>5s} {'cover':>6s} {'reach':>6s} {'time':>6s} {'< CT':>8s} {'ratio':>6s}"]
+        for r in rows:
+            if "coverage_after_tau" not in r:
+                lines.append(f"{r['key']:18s} not possible: {r.get('limit', '')}")
+                continue
+            fid = (f"{r['ours_below_ct']:>3d}/{r['materials']:<4d} {r['median_ratio']:6.3f}" if r.get("materials")
+                   else "")
+            lines.append(f"{r['key']:18s} {r['na']:5.3f} {100 * r['coverage_after_tau']:5.1f}% "
+                         f"{r['theta_d_reach_deg']:5.1f}° {1000 * r['capture_s']:4.0f}ms {fid}"
+                         + ("" if r["realisable"] else f"  (not realisable: {r['limit']})"))
+        if best:
+            lines.append(f"best realisable design: {best['key']}")
+        lines.append("wrote " + ", ".join(info["files"]))
+        print("\n".join(lines))
+    if failures:
+        _report_failures(failures)
+        return 1
+    return 0
+
+
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     """Shows "(default: …)" after every option's help that has a default worth stating."""
 
@@ -642,6 +770,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 _JSON_HELP = "print one JSON document on stdout instead of text"
+_SCHEDULER_HELP = ("run the work on the Dask cluster of this scheduler (tcp://host:8786; needs reflecto[dask]) "
+                   "instead of local processes; the output folder must be a path every worker sees")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -722,6 +852,10 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="reconstruct a 1-D isotropic NDF (yes), a hemicube NDF for an anisotropic material (no), "
                         "or decide from the capture (auto)")
+    q.add_argument("--asymmetric", action="store_true",
+                   help="the captures are of one point at several rotations (their manifests' rotation_deg): "
+                        "reconstruct one model without the symmetry of eq. 3, completed by microfacet synthesis "
+                        "(paper §5.5); -o names the model file")
     q.add_argument("--jobs", type=int, default=0, help="worker processes for several captures (0: all cores)")
     q.add_argument("--progress", action="store_true",
                    help="show progress also for one capture (several captures show it unless -q): "
@@ -765,7 +899,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="image: .png (sRGB, grey background), .exr (linear RGBA) or .hdr (linear, grey background)")
     q.set_defaults(func=cmd_render)
 
-    q = sub.add_parser("compare", help="error of TEST against REFERENCE (Ngan et al. metric, eq. 10)")
+    q = sub.add_parser("compare", help="error of TEST against REFERENCE (Ngan et al. metric, eq. 10; every half-vector "
+                       "azimuth when either is anisotropic)")
     q.add_argument("reference", help="reference BRDF file")
     q.add_argument("test", help="BRDF file to evaluate")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
@@ -785,17 +920,77 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_fit_ct)
 
+    q = sub.add_parser("gallery", help="the paper's Fig. 6 analogue: teapots of anisotropic/asymmetric materials, "
+                       "reference | symmetric path | §5.5 path, with errors (HTML)",
+                       description="For every material: simulated captures at the given rotations, the symmetric "
+                                   "path (the first capture, eq. 3 mirror) and the §5.5 path (all captures), their "
+                                   "BRDF errors, and Mitsuba teapot renders under the environment map; writes "
+                                   "index.html into the output folder.")
+    q.add_argument("materials", nargs="+", help="material files (.json/.toml analytic descriptions or any BRDF file)")
+    q.add_argument("-o", "--output", required=True, help="folder to write index.html and the renders into")
+    q.add_argument("--device", default="ideal", help="ideal | as-built | device file")
+    q.add_argument("--calibration", help="calibration file for a device that needs one (default: simulated)")
+    q.add_argument("--rotations", default="0,90,180,270", help="rotations of the §5.5 captures, degrees")
+    q.add_argument("--spp", type=int, default=64, help="samples per pixel of the renders")
+    q.add_argument("--resolution", type=int, default=256, help="render resolution")
+    q.add_argument("--seed", type=int, default=1, help="seed of the first capture and render")
+    q.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
+    q.set_defaults(func=cmd_gallery)
+
     q = sub.add_parser("sweep", help="validation (paper §6): simulate → reconstruct → evaluate, ours vs baselines")
     q.add_argument("folders", nargs="+", help="folders (or files) of materials: .binary .bsdf .h5 .json .toml")
     q.add_argument("-o", "--output", required=True, help="results folder (resumable: finished materials are skipped)")
     q.add_argument("--device", default="ideal", help="our device: ideal | as-built | device file")
     q.add_argument("--jobs", type=int, default=0, help="worker processes (0: all cores)")
+    q.add_argument("--scheduler", metavar="ADDRESS", help=_SCHEDULER_HELP)
     q.add_argument("-q", "--quiet", action="store_true",
                    help="no progress (else a bar on a terminal, plain lines on stderr otherwise or under CI=true) "
                         "and no summary")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_sweep)
+
+    from .evaluate.design import DEFAULT_CONES, DEFAULT_LED_COUNTS, DEFAULT_TILTS
+
+    q = sub.add_parser("design", help="condenser design study: cone, tilt and LED count against coverage and fidelity",
+                       description="For every design of the grid, place the LEDs (layout optimizer, §4.1 rules), "
+                                   "measure coverage, θ_d reach at the peak and capture time, and run the sweep's "
+                                   "pipeline on the design's ideal device against the dense Cook–Torrance fit. "
+                                   "Writes design.csv and design.png; resumable. See docs/design-study.md.")
+    q.add_argument("folders", nargs="+", help="folders (or files) of materials")
+    q.add_argument("-o", "--output", required=True, help="results folder (resumable: finished work is skipped)")
+    q.add_argument("--cones", type=float, nargs="+", default=list(DEFAULT_CONES), help="cone half-angles (degrees)")
+    q.add_argument("--tilts", type=float, nargs="+", default=list(DEFAULT_TILTS), help="axis tilts (degrees)")
+    q.add_argument("--leds", type=int, nargs="+", default=list(DEFAULT_LED_COUNTS), help="LED counts")
+    q.add_argument("--layout-only", action="store_true", help="lay out the designs only (no materials)")
+    q.add_argument("--jobs", type=int, default=0, help="worker processes (0: all cores)")
+    q.add_argument("--scheduler", metavar="ADDRESS", help=_SCHEDULER_HELP)
+    q.add_argument("-q", "--quiet", action="store_true", help="no progress and no summary")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
+    q.set_defaults(func=cmd_design)
     return p
+
+
+def cmd_gallery(args: argparse.Namespace) -> int:
+    from .render.gallery import GallerySettings, gallery
+
+    check_output(args.output, folder=True)
+    try:
+        rotations = tuple(float(r) for r in args.rotations.split(","))
+    except ValueError:
+        raise ReflectoError(f"--rotations: expected degrees separated by commas, got {args.rotations!r}") from None
+    settings = GallerySettings(args.device, args.calibration, rotations, args.spp, args.resolution, args.seed)
+
+    def progress(name: str, seconds: float) -> None:
+        if not args.quiet and not args.json:
+            print(f"{name}: {seconds:.0f} s", file=sys.stderr)
+
+    page, rows = gallery(args.materials, args.output, settings, progress)
+    info = {"output": str(page), "rows": [r.to_dict() for r in rows]}
+    lines = [f"{r.name}: BRDF error symmetric path {100 * r.symmetric_error:.2f} %, §5.5 {100 * r.asymmetric_error:.2f} %; "
+             f"image difference {100 * r.symmetric_image_difference:.2f} % / {100 * r.asymmetric_image_difference:.2f} % "
+             f"(noise floor {100 * r.noise_floor:.2f} %)" for r in rows] + [f"wrote {page}"]
+    return _emit(args, info, lines)
 
 
 def _new_paths(path: str | Path | None) -> list[Path]:

@@ -244,17 +244,18 @@ def _done(out_dir: Path, name: str) -> dict[str, Any] | None:
 
 
 def prepare_calibration(out_dir: Path, device: str) -> str | None:
-    """For ``as-built``: run the virtual calibration once (kept in ``out_dir``).
+    """For a device with hidden imperfections (``as-built``, ``wide-as-built``): run the
+    virtual calibration once (kept in ``out_dir``); ``None`` for one without.
 
     A kept calibration file that does not load is made again (with a warning).
     """
-    if device == "ideal":
-        return None
     from ..instrument.calibrate import Calibration, calibrate
     from ..instrument.device import load_device
     from ..instrument.simulate import simulate_calibration
 
     dev = load_device(device)
+    if dev.truth is None:  # nominal optics (ideal, wide): the nominal calibration is exact
+        return None
     cal_path = out_dir / f"calibration-{Path(device).stem}.npz"
     if cal_path.exists():
         try:
@@ -366,8 +367,9 @@ def _guarded(fn: Callable[..., Any], args: tuple[Any, ...], label: str) -> tuple
 
 
 def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: Sequence[str], jobs: int,
-              on_result: Callable[[int, bool, Any, float], None]) -> None:
-    """Run ``fn(*items[k])`` for every ``k``, in ``jobs`` worker processes (1: in this one).
+              on_result: Callable[[int, bool, Any, float], None], scheduler: str | None = None) -> None:
+    """Run ``fn(*items[k])`` for every ``k``, in ``jobs`` worker processes (1: in this one),
+    or on the Dask cluster whose scheduler listens at ``scheduler`` (:func:`run_on_dask`).
 
     ``on_result(k, ok, value_or_message, seconds)`` is called in this process as each
     item ends, in completion order; a failed item never stops the others. Workers
@@ -376,6 +378,9 @@ def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: 
     finished is run again, each in a process of its own, so that only the item that
     kills its process is reported failed ("worker process died").
     """
+    if scheduler:
+        run_on_dask(fn, items, labels, scheduler, on_result)
+        return
     if jobs <= 1 or len(items) <= 1:
         for k, args in enumerate(items):
             on_result(k, *_guarded(fn, args, labels[k]))
@@ -395,6 +400,49 @@ def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: 
                     continue
                 on_result(futs[f], *res)
     _run_isolated(fn, items, labels, sorted(unfinished), jobs, on_result)
+
+
+#: How long (s) to try to reach a Dask scheduler before giving up.
+DASK_CONNECT_TIMEOUT_S = 30.0
+
+
+def run_on_dask(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: Sequence[str], scheduler: str,
+                on_result: Callable[[int, bool, Any, float], None]) -> None:
+    """Run ``fn(*items[k])`` on a Dask cluster (``dask.distributed``, the ``dask`` extra).
+
+    ``scheduler`` is the scheduler's address (``tcp://host:8786``). Each item is one
+    task, wrapped as locally (:func:`_guarded`), so a failed item arrives as its message;
+    ``on_result`` runs in this process as tasks end. The items write their results
+    themselves (atomically, to a folder every worker must see under the same path),
+    and every seed derives from the item, so the results equal a local run's. A worker
+    that dies is the scheduler's to handle: it reruns the task elsewhere, and a task
+    that kills workers repeatedly ends as failed ("worker process died"). Tasks are
+    submitted with ``pure=False`` (a rerun of the batch recomputes what its records lack).
+    """
+    try:
+        from distributed import Client, as_completed
+        from distributed.client import FutureCancelledError
+        from distributed.scheduler import KilledWorker
+    except ImportError:
+        raise ReflectoError("--scheduler needs dask.distributed: pip install 'reflecto[dask]'") from None
+    if not items:
+        return
+    try:
+        client = Client(scheduler, timeout=DASK_CONNECT_TIMEOUT_S, set_as_default=False)
+    except (OSError, TimeoutError) as e:
+        raise ReflectoError(f"{scheduler}: cannot reach the Dask scheduler ({one_line(e)})") from None
+    try:
+        futs = {client.submit(_guarded, fn, args, labels[k], pure=False, key=f"reflecto-{k}-{labels[k]}"): k
+                for k, args in enumerate(items)}
+        for f in as_completed(list(futs), loop=client.loop):
+            k = futs[f]
+            try:
+                res = f.result()
+            except (KilledWorker, FutureCancelledError):
+                res = (False, f"{labels[k]}: worker process died (killed by a signal, or out of memory)", 0.0)
+            on_result(k, *res)
+    finally:
+        client.close()
 
 
 def _run_isolated(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: Sequence[str], which: list[int],
@@ -420,8 +468,12 @@ def _run_isolated(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labe
 
 
 def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ideal", jobs: int = 0,
-          progress: bool = True) -> list[dict[str, Any]]:
+          progress: bool = True, scheduler: str | None = None) -> list[dict[str, Any]]:
     """Run the sweep (resumable); returns every material's record, sorted by name.
+
+    ``scheduler``: the address of a Dask scheduler to run the materials on instead of
+    local processes (:func:`run_on_dask`); ``out_dir`` must then be a path every worker
+    sees.
 
     Raises
     ------
@@ -449,7 +501,7 @@ def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ide
 
     try:
         run_batch(run_material, [(str(p), str(out), device, cal) for p in todo], [str(p) for p in todo],
-                  jobs or os.cpu_count() or 1, finished)
+                  jobs or os.cpu_count() or 1, finished, scheduler=scheduler)
     finally:
         bar.close()
     recs = [records[k] for k in sorted(records)]

@@ -7,12 +7,19 @@ and exposure one raw image (16-bit PNG, RGB, ``height × width``), and
     {"format": "reflecto-capture", "version": 1, "kind": "sample",
      "device": {... nominal device description ...},
      "image": {"width": 320, "height": 240, "channels": 3, "encoding": "png16"},
+     "rotation_deg": 0.0,          # the sample's tangent in the device frame (optional)
      "frames": [{"file": "led0_t1.png", "led": 0, "exposure_ms": 1.0}, ...,
                 {"file": "led0_t1ms_check.png", "led": 0, "exposure_ms": 1.0, "check": true}],
      "simulation": {...}}          # provenance only; the pipeline never reads it
 
 A sample capture of a device with ``check_leds`` also holds their check frames: the
 same LED fired again after the whole sequence, at the same exposures, to detect motion.
+``rotation_deg`` is the rotation of the sample about the device's axis, relative to
+the device: the azimuth of the sample's tangent in the device frame (degrees,
+counter-clockwise seen from above the sample; a device turned by ψ over a fixed
+sample records −ψ). Captures of one point at several rotations are reconstructed
+together (paper §5.5); absent means 0.
+
 Reading validates everything before any value is used: every frame present and of the
 right size, one frame per (LED, exposure) of the device and per (check LED, exposure),
 no frame saturated everywhere.
@@ -39,6 +46,8 @@ from .device import MAX_EXPOSURE_MS, Device
 CAPTURE_FORMAT = "reflecto-capture"
 CAPTURE_VERSION = 1
 MANIFEST = "manifest.json"
+#: Largest |rotation_deg| a manifest may state (a few turns; beyond it the number is noise).
+MAX_ROTATION_DEG = 3600.0
 
 
 class CaptureError(ReflectoError):
@@ -69,6 +78,9 @@ class Capture:
         ``(C, E, height, width, 3)``, or ``None`` when the device takes none.
     extra
         Further manifest entries (``simulation`` provenance, calibration targets).
+    rotation_deg
+        Rotation of the sample about the device's axis: the azimuth of its tangent in
+        the device frame, degrees in ``[0, 360)`` (module docstring).
     """
 
     device: Device
@@ -78,6 +90,7 @@ class Capture:
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)
     path: Path | None = None
     check: NDArray[np.integer] | None = None
+    rotation_deg: float = 0.0
 
     @property
     def n_leds(self) -> int:
@@ -251,6 +264,7 @@ def write_capture(capture: Capture, out_dir: str | Path) -> Path:
             "kind": capture.kind,
             "device": dev.nominal().to_dict(),
             "image": {"width": int(w), "height": int(h), "channels": 3, "encoding": f"png{8 * capture.raw.itemsize}"},
+            "rotation_deg": float(capture.rotation_deg) % 360.0,
             "frames": frames,
             **capture.extra,
         }
@@ -348,6 +362,11 @@ def read_capture(cap_dir: str | Path) -> Capture:
         if len(own) != len(times) or any(not (0 < t <= MAX_EXPOSURE_MS) for t in own):
             raise CaptureError(mpath, f"expected {len(times)} positive exposure times per LED, found {own[:10]}")
         times = np.array(own)
+    rotation = m.get("rotation_deg", 0.0)
+    if (not isinstance(rotation, (int, float)) or isinstance(rotation, bool) or not math.isfinite(rotation)
+            or abs(rotation) > MAX_ROTATION_DEG):
+        raise FileFormatError(mpath, f"'rotation_deg' must be a finite number of degrees (|r| ≤ {MAX_ROTATION_DEG:g}), "
+                              f"got {short_repr(rotation)}")
     kind = m.get("kind", "sample")
     if not isinstance(kind, str):
         raise FileFormatError(mpath, f"'kind' must be a string, got {short_repr(kind)}")
@@ -386,7 +405,8 @@ def read_capture(cap_dir: str | Path) -> Capture:
             raw[led, e] = img_
     cap = Capture(device, raw, times, kind=kind,
                   extra={k: v for k, v in m.items() if k not in
-                         {"format", "version", "kind", "device", "image", "frames"}}, path=cap_dir, check=check)
+                         {"format", "version", "kind", "device", "image", "frames", "rotation_deg"}}, path=cap_dir,
+                  check=check, rotation_deg=float(rotation) % 360.0)
     check_saturation(cap)
     return cap
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +64,25 @@ DEFAULT_FIRING_ORDER = (0, 1, 3, 5, 4, 2)
 #: too). It costs two frames: 14 instead of 12, 8.6 instead of 10 captures per second
 #: (docs/instrument.md).
 DEFAULT_CHECK_LEDS = (DEFAULT_FIRING_ORDER[0],)
+
+#: LEDs at least this high above the sample plane (degrees) count as *steep*: their
+#: slices are the ones whose mirror-symmetry plane the shake test can locate
+#: (:data:`reflecto.reconstruct.symmetry.MIN_ELEVATION_DEG`).
+STEEP_ELEVATION_DEG = 20.0
+
+
+def steep_last_order(led_angles: Sequence[Sequence[float]]) -> tuple[int, ...]:
+    """A firing order derived from the layout: the LEDs below :data:`STEEP_ELEVATION_DEG`
+    first, in index order, then the steep ones, the steepest first.
+
+    A hand shake moves the sample for every LED fired after it; with the steep LEDs last,
+    any shake turns at least one slice whose mirror plane can be located. For the
+    default layout this is :data:`DEFAULT_FIRING_ORDER`.
+    """
+    el = [float(a[0]) for a in led_angles]
+    flat = [k for k in range(len(el)) if el[k] < STEEP_ELEVATION_DEG]
+    steep = sorted((k for k in range(len(el)) if el[k] >= STEEP_ELEVATION_DEG), key=lambda k: (-el[k], k))
+    return tuple(flat + steep)
 
 
 #: Limits of device descriptions (docs/limits.md): sensor size, LEDs, exposures.
@@ -465,7 +485,24 @@ class Device:
         if name == "earlier":
             return cls("earlier", Optics(axis_tilt_deg=0.0), EARLIER_LED_ANGLES,
                        Camera(read_noise=0.0, shot_noise=False), occluder_deg=EARLIER_OCCLUDER_DEG)
-        raise ParameterError(f"unknown built-in device {name!r} (expected 'ideal', 'as-built' or 'earlier', or a file)")
+        if name in ("wide", "wide-as-built"):
+            return cls.design(name, WIDE_OPTICS, WIDE_LED_ANGLES, ideal=name == "wide")
+        raise ParameterError(f"unknown built-in device {name!r} (expected one of {', '.join(BUILTINS)}, or a file)")
+
+    @classmethod
+    def design(cls, name: str, optics: Optics, led_angles: Sequence[Sequence[float]], ideal: bool = True) -> Device:
+        """A device of another optical design with the built-in devices' conventions.
+
+        The firing order is :func:`steep_last_order`; the first LED fired is fired once
+        more as the check frame. ``ideal``: nominal optics and a noiseless camera, as
+        ``ideal``; otherwise the as-built imperfections of ``as-built`` (the same seeded
+        draws of LED, optics and vignetting errors), scaled to these optics.
+        """
+        angles = tuple((float(a[0]), float(a[1])) for a in led_angles)
+        order = steep_last_order(angles)
+        camera = Camera(read_noise=0.0, shot_noise=False) if ideal else Camera()
+        truth = None if ideal else _as_built_truth(angles, optics)
+        return cls(name, optics, angles, camera, truth=truth, firing_order=order, check_leds=(order[0],))
 
     def with_camera(self, **changes: Any) -> Device:
         """The same device with some camera fields replaced.
@@ -483,21 +520,27 @@ class Device:
         return dataclasses.replace(self, camera=dataclasses.replace(self.camera, **changes))
 
 
-def _as_built_truth() -> DeviceTruth:
-    """Fixed imperfections of the as-built device (seeded, so every run agrees)."""
+def _as_built_truth(led_angles: Sequence[Sequence[float]] = DEFAULT_LED_ANGLES,
+                    optics: Optics | None = None) -> DeviceTruth:
+    """Fixed imperfections of an as-built device (seeded, so every run agrees).
+
+    The defaults are the ``as-built`` device's; another layout and optics (``wide``) get
+    the same draws: LED direction errors up to ±0.5°, intensities in [0.85, 1.15], the
+    principal point, distortion, roll and vignetting of ``as-built``.
+    """
     rng = np.random.default_rng(2010)
-    n = len(DEFAULT_LED_ANGLES)
+    n = len(led_angles)
     # direction errors of up to ±0.5° in elevation and azimuth (azimuth scaled to arc)
     d_el = rng.uniform(-0.5, 0.5, n)
     d_az = rng.uniform(-0.5, 0.5, n)
     angles = []
-    for (el, az), a, b in zip(DEFAULT_LED_ANGLES, d_el, d_az):
+    for (el, az), a, b in zip(led_angles, d_el, d_az):
         el2 = max(el + a, 4.6)
         angles.append((round(el2, 4), round(az + b / math.cos(math.radians(el2)), 4)))
     intensity = tuple(np.round(rng.uniform(0.85, 1.15, n), 4))
-    optics = Optics(cx=163.2, cy=116.9, k1=-0.06, k2=0.015, roll_deg=0.7, disc_radius_px=112.0)
+    real = (optics or Optics()).replace(cx=163.2, cy=116.9, k1=-0.06, k2=0.015, roll_deg=0.7, disc_radius_px=112.0)
     return DeviceTruth(
-        optics=optics,
+        optics=real,
         led_angles=tuple(angles),
         led_intensity=intensity,
         transmission={"floor": 0.5, "u0": 150.0, "v0": 128.0, "su": 170.0, "sv": 150.0},
@@ -510,7 +553,26 @@ def _as_built_truth() -> DeviceTruth:
 #: that the slices see only the central NDF region (θ_h ≲ 50°). See docs/validation.md.
 EARLIER_LED_ANGLES = ((90.0, 0.0), (35.0, 0.0), (35.0, 72.0), (35.0, 144.0), (35.0, 216.0), (35.0, 288.0))
 EARLIER_OCCLUDER_DEG = 8.0
-BUILTINS = ("ideal", "as-built", "earlier")
+#: The ``wide`` device: the best realisable design of the condenser design study
+#: (docs/design-study.md, ``reflecto design``; chosen on the tuning half, the design
+#: ``c60.0-t20.0-l10``): a 60° cone (NA 0.87) about an axis tilted 20°, whose views reach
+#: θ_o = 80°, so that the specular peak is seen up to θ_d = 79° (eq. 10's grazing cut is
+#: 80°); ten LEDs placed by :func:`reflecto.instrument.layout.optimize_layout` with the
+#: study's weights (22 frames, 0.18 s per capture).
+WIDE_OPTICS = Optics(cone_half_angle_deg=60.0, axis_tilt_deg=20.0)
+WIDE_LED_ANGLES = (
+    (5.0, 0.0),
+    (6.7657, 87.142),
+    (32.9653, 212.9443),
+    (10.7112, 173.0997),
+    (7.2392, 308.7996),
+    (42.8177, 202.2664),
+    (13.6589, 217.2527),
+    (10.8129, 297.0548),
+    (19.3728, 146.0542),
+    (29.0568, 131.7786),
+)
+BUILTINS = ("ideal", "as-built", "earlier", "wide", "wide-as-built")
 
 
 def load_device(spec: str | Path) -> Device:
@@ -518,7 +580,7 @@ def load_device(spec: str | Path) -> Device:
     if str(spec) in BUILTINS:
         return Device.builtin(str(spec))
     path = Path(spec)
-    d = read_description(path, missing="no such device file (built-ins: ideal, as-built, earlier)")
+    d = read_description(path, missing=f"no such device file (built-ins: {', '.join(BUILTINS)})")
     try:
         return Device.from_dict(d, where=str(path))
     except (ParameterError, TypeError, ValueError) as e:

@@ -21,6 +21,7 @@ v = row), the sensor is ``width × height``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any
 
@@ -126,9 +127,10 @@ class Optics:
         cy = (self.height - 1) / 2 if self.cy is None else float(self.cy)
         return cx, cy
 
-    @property
+    @functools.cached_property
     def axis_frame(self) -> Array:
-        """Rows ``(x', y', a)``: sensor axes and optical axis in the device frame."""
+        """Rows ``(x', y', a)``: sensor axes and optical axis in the device frame (read-only;
+        computed once per optics, since the layout optimizer asks for it per LED and layout)."""
         t, p, r = (math.radians(v) for v in (self.axis_tilt_deg, self.axis_azimuth_deg, self.roll_deg))
         a = np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
         # x' lies in the plane of the axis and +z, pointing away from the normal's side
@@ -136,7 +138,9 @@ class Optics:
         y0 = np.cross(a, x0)
         x = math.cos(r) * x0 + math.sin(r) * y0
         y = np.cross(a, x)
-        return np.stack([x, y, a])
+        frame = np.stack([x, y, a])
+        frame.setflags(write=False)
+        return frame
 
     @property
     def axis(self) -> Array:

@@ -242,7 +242,8 @@ def simulate_capture(
         "shake": shake_info,
         "device_truth": device.name if device.truth is not None else None,
     }
-    return Capture(device.nominal(), raw, np.array(times), "sample", {"simulation": sim}, check=check)
+    return Capture(device.nominal(), raw, np.array(times), "sample", {"simulation": sim}, check=check,
+                   rotation_deg=float(rotation_deg) % 360.0)
 
 
 # --------------------------------------------------------------- calibration

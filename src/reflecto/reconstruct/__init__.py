@@ -1,7 +1,11 @@
-"""The §5 reconstruction: BRDF slices → generalized microfacet BRDF (:mod:`.pipeline`)."""
+"""The §5 reconstruction: BRDF slices → generalized microfacet BRDF (:mod:`.pipeline`);
+captures at several rotations → one BRDF that may break eq. 3 (§5.5, :mod:`.asymmetric`)."""
 
+from .asymmetric import AsymmetricReconstruction, RotatedCapture, reconstruct_rotations
 from .isotropy import IsotropyTest
 from .motion import MotionReport
 from .pipeline import Options, Reconstruction, reconstruct
+from .synthesis import SynthesisOptions
 
-__all__ = ["IsotropyTest", "MotionReport", "Options", "Reconstruction", "reconstruct"]
+__all__ = ["AsymmetricReconstruction", "IsotropyTest", "MotionReport", "Options", "Reconstruction",
+           "RotatedCapture", "SynthesisOptions", "reconstruct", "reconstruct_rotations"]

@@ -6,11 +6,18 @@ equalities that need no microfacet model:
 
 - **Isotropy.** Two LEDs at the same elevation see the same function of the view
   once the view is turned about the normal by the difference of their azimuths.
-  (Our layout: LEDs 1 and 3, θ_i = 82.7° and 83.0°.)
 - **Reciprocity.** LED ``b``'s sample viewed from ``u = (θ_a, φ_b + Δ)`` equals LED
   ``a``'s sample viewed from ``u* = (θ_b, φ_a − Δ)`` for every Δ (rotate the reciprocal
-  pair about the normal), which pairs two LEDs whose elevations both lie in the view
-  cone along a curve. (Our layout: LEDs 2 and 4, θ_i = 67.1° and 37.8°.)
+  pair about the normal), which pairs two steep LEDs
+  (:data:`~reflecto.instrument.device.STEEP_ELEVATION_DEG`) whose polar angles both lie
+  within the view cone's range of polar angles, along a curve. A grazing LED would put
+  its partner's view at grazing exitance, where measured data are not reciprocal.
+
+Which LEDs pair up is derived from the capture, not from an LED numbering: the LED
+directions in the sample frame (equal elevation within :data:`ISOTROPY_MAX_DEG`) and
+the polar angles its view directions span. (The default layout gives one pair of
+each kind: LEDs 1 and 3 at θ_i = 82.7° and 83.0°, LEDs 2 and 4 at 67.1° and 37.8°;
+a layout with more LEDs near one elevation, or inside a wider cone, gives more.)
 
 When the sample turns between two LEDs (a shake), the later slices are measured in a
 turned frame: their θ_i, and with them ``cos θ_i`` in the conversion from radiance to
@@ -32,6 +39,7 @@ from numpy.typing import NDArray
 
 from ..colour import LUM
 from ..hemicube import hemicube
+from ..instrument.device import STEEP_ELEVATION_DEG
 
 Array = NDArray[np.float64]
 
@@ -48,8 +56,8 @@ RECIPROCITY_STEP_DEG = 0.5
 #: reach 0.02 (isotropy) and 0.30 (reciprocity: the RGL materials' own data are not
 #: reciprocal, 0.25–0.30 on cc_ibiza_sunset and vch_golden_yellow; the MERL/NBRDF ones
 #: stay within 0.01) on the ideal device, 0.06 and 0.08 on the as-built one
-#: (``benchmarks/validate_shake.py``). A shake that turns LEDs 1 and 3 differently
-#: reads 0.27–3.8 (isotropy).
+#: (``benchmarks/validate_shake.py``). A shake that turns the default layout's
+#: isotropy pair (LEDs 1 and 3) differently reads 0.27–3.8.
 THRESHOLD = {"isotropy": 0.15, "reciprocity": 0.35}
 #: Directions where the slice changes by more than MAX_STEP in log within STEP_DEG
 #: (degrees) are left out: sharp lobes, where small direction errors dominate.
@@ -160,8 +168,13 @@ def pair_checks(light: Array, view: Array, values: Array, valid: NDArray[np.bool
             tables[k] = _SliceTable(view, lum[k], valid[k] & above & np.isfinite(lum[k]))
         return tables[k]
 
-    # the view cone's largest polar angle: reciprocity needs both elevations inside it
-    theta_view = float(np.arccos(np.clip(view[above, 2], -1.0, 1.0)).max()) if np.any(above) else 0.0
+    # the polar angles the view cone spans: reciprocity needs both LEDs' polar angles within
+    theta_views = np.arccos(np.clip(view[above, 2], -1.0, 1.0))
+    theta_lo, theta_view = (float(theta_views.min()), float(theta_views.max())) if len(theta_views) else (0.0, 0.0)
+    # reciprocity pairs only steep LEDs: a grazing one puts its partner's view at grazing
+    # exitance, where measured data are not reciprocal (RGL: |log ratio| 0.47–0.54 on
+    # clean captures through a 60° cone)
+    steep = math.radians(90.0 - STEEP_ELEVATION_DEG)
     out: list[PairCheck] = []
     for a in range(n_led):
         for b in range(a + 1, n_led):
@@ -175,7 +188,7 @@ def pair_checks(light: Array, view: Array, values: Array, valid: NDArray[np.bool
                 r, n = _median_log_ratio(fa, fb, ha & hb & (dirs_b[:, 2] > 1e-6), "isotropy")
                 if n:
                     out.append(PairCheck(a, b, "isotropy", r, n))
-            elif max(theta[a], theta[b]) < theta_view:
+            elif theta_lo < min(theta[a], theta[b]) and max(theta[a], theta[b]) < min(theta_view, steep):
                 delta = np.radians(np.arange(0.0, 360.0, RECIPROCITY_STEP_DEG))
                 u = _spherical(theta[a], phi[b] + delta)  # LED b's view
                 u_star = _spherical(theta[b], phi[a] - delta)  # LED a's view

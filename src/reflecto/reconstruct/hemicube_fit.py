@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,7 +49,8 @@ from .samples import Bins, bin_samples, kd_bound
 
 Array = NDArray[np.float64]
 
-__all__ = ["HemicubeFit", "fit_hemicube", "auto_work_resolution"]
+__all__ = ["HemicubeFit", "fit_hemicube", "auto_work_resolution", "Merge", "LoopState", "LoopResult", "merge_bins",
+           "symmetric_fill", "run_loop", "output_model"]
 
 #: E(η) (at outer iteration 1) above which an LED is looked for that explains the
 #: inconsistency (its exclusion at least halves E(η)); §5.1's shake handling.
@@ -100,9 +102,19 @@ class HemicubeFit:
     iterations: int
 
 
+#: A hole fill: ``(cube, Σw, Σw·D, last, inner_holes) → (D, log lobe or None)``, where
+#: ``last`` marks the passes of the final outer iteration and ``inner_holes`` a merge
+#: whose holes lie inside the NDF (:attr:`Merge.inner_holes`).
+HoleFill = Callable[[Hemicube, Array, Array, bool, bool], "tuple[Array, Array | None]"]
+
+
 @dataclasses.dataclass
-class _Merge:
-    """The bins of a working hemicube and what the NDF loop keeps fixed about them."""
+class Merge:
+    """The bins of a working hemicube and what the NDF loop keeps fixed about them.
+
+    ``symmetric``: eq. 9 adds every bin at ``h`` and at ``τh`` (eq. 3) and the Fresnel
+    fit uses the τ-symmetric overlaps; without it (§5.5) each bin counts at ``h`` only.
+    """
 
     cube: Hemicube
     bins: Bins
@@ -112,9 +124,29 @@ class _Merge:
     bin_offsets: tuple[Array, Array]
     inner_holes: bool
     lost_leds: list[int]
+    symmetric: bool = True
 
 
-def _prepare(sl: Slices, ok: NDArray[np.bool_], work_resolution: int | None) -> _Merge:
+def merge_bins(work: Hemicube, bins: Bins, n_leds: int, per_led: Array, censored_fraction: float,
+               symmetric: bool = True, pairs: Pairs | None = None) -> Merge:
+    """A :class:`Merge` of ``bins`` (sorted by LED and texel) of ``n_leds`` LEDs.
+
+    ``per_led`` (shape ``(n_leds,)``) counts each LED's measured samples. A tilt that
+    sinks LEDs below the horizon (an LED with fewer than :data:`LOST_LED_FRACTION` of
+    the median's samples is lost), or a slice below the detection limit (a
+    ``censored_fraction`` above :data:`CENSORED_FRACTION`), leaves holes inside the
+    NDF, not only at its grazing rim: they are filled lobe-guided in every iteration.
+    ``pairs``: the overlaps (:func:`.fresnel_fit.overlap_pairs` with ``symmetric``)
+    when already at hand.
+    """
+    lost = np.flatnonzero(per_led < LOST_LED_FRACTION * np.median(per_led)).tolist()
+    pairs = overlap_pairs(bins, n_leds, symmetric=symmetric) if pairs is None else pairs
+    return Merge(work, bins, pairs, bins.count * ndf_mod.merge_weights(bins.o),
+                 grid_stencil(bins.o, *WORK_SIGMA), ndf_mod.bin_offsets(work, bins.h),
+                 bool(lost) or censored_fraction > CENSORED_FRACTION, lost, symmetric)
+
+
+def _prepare(sl: Slices, ok: NDArray[np.bool_], work_resolution: int | None) -> Merge:
     """Bins on the working hemicube (resolution chosen by :func:`auto_work_resolution`)."""
     meas = ok if sl.censored is None else ok & ~sl.censored
     work = hemicube(work_resolution or 128)
@@ -124,18 +156,14 @@ def _prepare(sl: Slices, ok: NDArray[np.bool_], work_resolution: int | None) -> 
         if n != work.n:
             work = hemicube(n)
             bins = bin_samples(sl.light, sl.view, sl.values, meas, work)
-    # a tilt that sinks LEDs below the horizon (or a slice below the detection limit)
-    # leaves holes inside the NDF, not only at its grazing rim: fill them lobe-guided
-    per_led = meas.sum(axis=1)
-    lost = np.flatnonzero(per_led < LOST_LED_FRACTION * np.median(per_led)).tolist()
     censored_fraction = 1.0 - float(meas.sum()) / max(float(ok.sum()), 1.0)
-    return _Merge(work, bins, overlap_pairs(bins, sl.n_leds), bins.count * ndf_mod.merge_weights(bins.o),
-                  grid_stencil(bins.o, *WORK_SIGMA), ndf_mod.bin_offsets(work, bins.h),
-                  bool(lost) or censored_fraction > CENSORED_FRACTION, lost)
+    return merge_bins(work, bins, sl.n_leds, meas.sum(axis=1), censored_fraction)
 
 
 @dataclasses.dataclass
-class _LoopState:
+class LoopState:
+    """What the NDF and Fresnel loops update: η, k_d, k_s, S at the LEDs and bins, the working NDF."""
+
     eta: Array
     kd: Array
     ks: Array
@@ -146,21 +174,27 @@ class _LoopState:
     norm: float = 1.0
 
 
-def _ndf_pass(mg: _Merge, st: _LoopState, use, merged, fres: Array, last: bool, light: Array) -> None:
-    """One pass of the NDF/shadowing loop: eq. 7, eq. 9 (+ eq. 3), hole fill, S (eq. 8), k_s."""
+def symmetric_fill(work: Hemicube, wsum: Array, wv: Array, last: bool, inner_holes: bool) -> tuple[Array, Array | None]:
+    """The hole fill of the symmetric path: lobe-guided (:func:`.ndf.fill_holes_and_lobe`)
+    in the last passes or where the holes lie inside the NDF, plain push–pull before."""
+    if last or inner_holes:
+        return ndf_mod.fill_holes_and_lobe(work, wsum, wv)
+    return ndf_mod.push_pull(work, wsum, wv), None
+
+
+def _ndf_pass(mg: Merge, st: LoopState, use, merged, fres: Array, last: bool, light: Array,
+              fill: HoleFill = symmetric_fill) -> None:
+    """One pass of the NDF/shadowing loop: eq. 7, eq. 9 (+ eq. 3 if symmetric), hole fill, S (eq. 8), k_s."""
     bins, work = mg.bins, mg.cube
     wsum, offsets = merged
     dh, d_lum = np.empty((len(bins), 3)), np.empty(len(bins))
     cos_io = bins.i[:, 2] * bins.o[:, 2]
     _kernels.partial_ndf(bins.f, st.kd / math.pi, cos_io, st.s_led, bins.led, st.s_o, fres, LUM, dh, d_lum)
     tex, tex_tau, wb = bins.texel[use], bins.texel_tau[use], mg.w_merge[use]
-    wv = ndf_mod.merge_sums(work, tex, tex_tau, wb * d_lum[use])
+    wv = ndf_mod.merge_sums(work, tex, tex_tau, wb * d_lum[use], symmetric=mg.symmetric)
     if st.d_work.any():  # each texel's value moved to its centre (first order, previous NDF's slope)
         wv *= ndf_mod.position_correction(work, st.d_work, offsets)
-    if last or mg.inner_holes:
-        d, st.log_lobe = ndf_mod.fill_holes_and_lobe(work, wsum, wv)
-    else:
-        d, st.log_lobe = ndf_mod.push_pull(work, wsum, wv), None
+    d, st.log_lobe = fill(work, wsum, wv, last, mg.inner_holes)
     d = np.maximum(d, 0.0)
     st.norm = float(d @ work.projected_solid_angles)
     if st.norm > 0.0:
@@ -177,7 +211,7 @@ def _ndf_pass(mg: _Merge, st: _LoopState, use, merged, fres: Array, last: bool, 
     st.ks = np.clip((wb * d_b) @ dh[use] / max(den, 1e-300), 0.0, 1.0)
 
 
-def _fresnel_step(mg: _Merge, st: _LoopState, kd_max: Array, excluded: set[int], fixed_eta: float | None,
+def _fresnel_step(mg: Merge, st: LoopState, kd_max: Array, excluded: set[int], fixed_eta: float | None,
                   check: bool) -> FresnelFit:
     """η and k_d from the overlaps (§5.1, one η); at the check iteration an LED whose
     exclusion at least halves an E(η) above :data:`SHAKE_THRESHOLD` is excluded."""
@@ -196,16 +230,30 @@ def _fresnel_step(mg: _Merge, st: _LoopState, kd_max: Array, excluded: set[int],
     return fit
 
 
-def fit_hemicube(sl: Slices, ok: NDArray[np.bool_], *, fixed_eta: float | None = None,
-                 work_resolution: int | None = None, resolution: int = 512, outer_iterations: int = 5,
-                 min_outer_iterations: int = 3, eta_tolerance: float = 0.01, inner_iterations: int = 2,
-                 kd_bound_max_deg: float = 75.0) -> HemicubeFit:
-    """Reconstruct a hemicube NDF and the scalars from slices in the sample frame (module docstring)."""
-    mg = _prepare(sl, ok, work_resolution)
-    kd_max = kd_bound(sl.light, sl.view, sl.values, ok, sl.pixels, kd_bound_max_deg)
+@dataclasses.dataclass
+class LoopResult:
+    """The state after :func:`run_loop`, with E(η) last and at the check iteration, the
+    LEDs excluded for inconsistency and the outer iterations run."""
+
+    state: LoopState
+    fresnel_error: float
+    fresnel_error_at_check: float
+    excluded_leds: list[int]
+    iterations: int
+
+
+def run_loop(mg: Merge, kd_max: Array, light: Array, *, fixed_eta: float | None = None, outer_iterations: int = 5,
+             min_outer_iterations: int = 3, eta_tolerance: float = 0.01, inner_iterations: int = 2,
+             fill: HoleFill = symmetric_fill) -> LoopResult:
+    """The Fresnel loop around the NDF/shadowing loop (module docstring) on a :class:`Merge`.
+
+    ``kd_max`` (3,) bounds ρ_d; ``light`` (L, 3) are the LED directions in the sample
+    frame, one per LED index of the bins; ``fill`` completes the merged NDF.
+    """
+    n_leds = len(light)
     eta0 = 1.5 if fixed_eta is None else float(fixed_eta)
-    st = _LoopState(np.full(3, eta0), 0.5 * kd_max, np.ones(3), np.ones(sl.n_leds), np.ones(len(mg.bins)),
-                    np.zeros(mg.cube.size))
+    st = LoopState(np.full(3, eta0), 0.5 * kd_max, np.ones(3), np.ones(n_leds), np.ones(len(mg.bins)),
+                   np.zeros(mg.cube.size))
     excluded: set[int] = set()
     merged_for, merged = None, None
     e_check = fit_error = math.nan
@@ -222,20 +270,36 @@ def fit_hemicube(sl: Slices, ok: NDArray[np.bool_], *, fixed_eta: float | None =
         last = outer == outer_iterations - 1 or (outer >= min_outer_iterations - 1 and converged)
         use = ~np.isin(mg.bins.led, list(excluded)) if excluded else slice(None)
         if merged_for != excluded:  # eq. 9's Σw and the samples' mean texel offsets, fixed while the bins are
-            wsum = ndf_mod.merge_sums(mg.cube, mg.bins.texel[use], mg.bins.texel_tau[use], mg.w_merge[use])
+            wsum = ndf_mod.merge_sums(mg.cube, mg.bins.texel[use], mg.bins.texel_tau[use], mg.w_merge[use],
+                                      symmetric=mg.symmetric)
             offsets = ndf_mod.top_offsets(mg.cube, (mg.bin_offsets[0][use], mg.bin_offsets[1][use]),
-                                          mg.bins.texel[use], mg.bins.texel_tau[use], mg.w_merge[use], wsum)
+                                          mg.bins.texel[use], mg.bins.texel_tau[use], mg.w_merge[use], wsum,
+                                          symmetric=mg.symmetric)
             merged_for, merged = set(excluded), (wsum, offsets)
         fres = np.maximum(fresnel(mg.bins.cos_d[:, None], st.eta[None, :1]), 1e-6)
         for _ in range(inner_iterations):
-            _ndf_pass(mg, st, use, merged, fres, last, sl.light)
+            _ndf_pass(mg, st, use, merged, fres, last, light, fill)
         if last:
             break
-    return HemicubeFit(_output_model(mg, st, resolution), float(st.eta[0]), fit_error, e_check, sorted(excluded),
-                       mg.lost_leds, bool(np.any(st.ks >= 1.0)), outer + 1)
+    return LoopResult(st, fit_error, e_check, sorted(excluded), outer + 1)
 
 
-def _output_model(mg: _Merge, st: _LoopState, resolution: int) -> MicrofacetBRDF:
+def fit_hemicube(sl: Slices, ok: NDArray[np.bool_], *, fixed_eta: float | None = None,
+                 work_resolution: int | None = None, resolution: int = 512, outer_iterations: int = 5,
+                 min_outer_iterations: int = 3, eta_tolerance: float = 0.01, inner_iterations: int = 2,
+                 kd_bound_max_deg: float = 75.0) -> HemicubeFit:
+    """Reconstruct a hemicube NDF and the scalars from slices in the sample frame (module docstring)."""
+    mg = _prepare(sl, ok, work_resolution)
+    kd_max = kd_bound(sl.light, sl.view, sl.values, ok, sl.pixels, kd_bound_max_deg)
+    r = run_loop(mg, kd_max, sl.light, fixed_eta=fixed_eta, outer_iterations=outer_iterations,
+                 min_outer_iterations=min_outer_iterations, eta_tolerance=eta_tolerance,
+                 inner_iterations=inner_iterations)
+    st = r.state
+    return HemicubeFit(output_model(mg, st, resolution), float(st.eta[0]), r.fresnel_error, r.fresnel_error_at_check,
+                       r.excluded_leds, mg.lost_leds, bool(np.any(st.ks >= 1.0)), r.iterations)
+
+
+def output_model(mg: Merge, st: LoopState, resolution: int) -> MicrofacetBRDF:
     """Smooth the working NDF's flanks and tails, refine it to the output hemicube."""
     lobe = st.log_lobe - math.log(max(st.norm, 1e-300)) if st.log_lobe is not None else None
     d = ndf_mod.smooth_wide(mg.cube, st.d_work, lobe)

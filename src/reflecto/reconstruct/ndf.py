@@ -59,7 +59,7 @@ def bin_offsets(cube: Hemicube, h: Array) -> tuple[Array, Array]:
 
 
 def top_offsets(cube: Hemicube, offsets: tuple[Array, Array], texel: NDArray[np.intp], texel_tau: NDArray[np.intp],
-                w: Array, wsum: Array) -> tuple[Array, Array]:
+                w: Array, wsum: Array, symmetric: bool = True) -> tuple[Array, Array]:
     """Mean position of the merged samples within each top-face texel, in texels.
 
     A texel's merged value is the weighted mean of its samples, which sit at ``h``
@@ -67,14 +67,17 @@ def top_offsets(cube: Hemicube, offsets: tuple[Array, Array], texel: NDArray[np.
     samples the half vector along sparse curves, so the mean offset of a texel is up
     to half a texel and varies from texel to texel. ``offsets`` are the bins' own
     (:func:`bin_offsets`). Returns ``(Δcol, Δrow)``, shape ``(N, N)`` each,
-    ``Σ w·Δ / Σ w`` per texel (0 where nothing was merged).
+    ``Σ w·Δ / Σ w`` per texel (0 where nothing was merged); without ``symmetric``
+    (§5.5: no τ images in the merge) the samples count at ``h`` only.
     """
     n = cube.n
     inv = np.divide(1.0, wsum[: n * n], out=np.zeros(n * n), where=wsum[: n * n] > 0)
     out = []
     for d in offsets:  # τ = diag(−1, −1, 1) mirrors a top-face offset to its negative
         wd = w * d
-        s = np.bincount(texel, weights=wd, minlength=cube.size)[: n * n] - np.bincount(texel_tau, weights=wd, minlength=cube.size)[: n * n]
+        s = np.bincount(texel, weights=wd, minlength=cube.size)[: n * n]
+        if symmetric:
+            s -= np.bincount(texel_tau, weights=wd, minlength=cube.size)[: n * n]
         out.append((s * inv).reshape(n, n))
     return out[0], out[1]
 

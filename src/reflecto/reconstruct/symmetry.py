@@ -29,11 +29,14 @@ from numpy.typing import NDArray
 from .. import _kernels
 from ..colour import LUM
 from ..hemicube import hemicube
+from ..instrument.device import STEEP_ELEVATION_DEG
 
 Array = NDArray[np.float64]
 
-#: LEDs at least this far above the sample plane (degrees) enter the test.
-MIN_ELEVATION_DEG = 20.0
+#: LEDs at least this far above the sample plane (degrees) enter the test: the device's
+#: *steep* LEDs, whichever their index (the firing order fires them last,
+#: :func:`reflecto.instrument.device.steep_last_order`).
+MIN_ELEVATION_DEG = STEEP_ELEVATION_DEG
 #: Plane angles searched: ±SEARCH_DEG in steps of STEP_DEG, then a parabola.
 SEARCH_DEG = 12.0
 STEP_DEG = 1.0
