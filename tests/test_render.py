@@ -110,6 +110,12 @@ def test_cli_render_compare_reports_difference_and_floor(mitsuba, tmp_path, caps
     assert img.shape == (64, 3 * 64 + 8, 3)
     # the grey background (sRGB of 0.18) in the corner of both renders
     assert abs(int(img[0, 0, 0]) - 118) <= 1 and abs(int(img[0, 68, 0]) - 118) <= 1
+    # --json: one document with the difference and its floor (a BRDF against itself: both tiny)
+    assert main(["render", str(src), "--scene", "sphere-point", "--resolution", "64", "--compare", str(src),
+                 "-o", str(out), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["output"] == str(out) and doc["spp"] == 64 and 0.0 <= doc["difference"] < 0.015
+    assert doc["noise_floor"] >= 0.0 and doc["corrected"] <= doc["difference"]
 
 
 def test_the_scene_in_docs_mitsuba_renders_an_export(mitsuba, shared, tmp_path):

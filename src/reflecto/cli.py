@@ -548,9 +548,10 @@ def cmd_render(args: argparse.Namespace) -> int:
         r = render(src, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
         # a linear EXR keeps the object's alpha; PNG and HDR get the grey background
         save_image(np.dstack([r.radiance, r.alpha]) if out.suffix.lower() == ".exr" else r.image(), out)
-        print(f"rendered {src.name} ({args.scene}, {args.resolution}², {r.spp} spp, {r.variant}) in {r.seconds:.1f} s; "
-              f"wrote {out}")
-        return 0
+        return _emit(args, {"source": str(args.source), "scene": args.scene, "resolution": args.resolution,
+                            "spp": r.spp, "variant": r.variant, "seconds": r.seconds, "output": str(out)},
+                     [f"rendered {src.name} ({args.scene}, {args.resolution}², {r.spp} spp, {r.variant}) in "
+                      f"{r.seconds:.1f} s; wrote {out}"])
     if out.suffix.lower() != ".png":
         raise ReflectoError(f"{out}: a comparison image must be .png")
     ref = load_source(args.compare)
@@ -563,14 +564,17 @@ def cmd_render(args: argparse.Namespace) -> int:
         iio.imwrite(tmp, comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha,
                                           alpha_test=c.test.alpha))
     seconds = c.test.seconds + c.reference.seconds + c.reference_repeat.seconds
-    print(f"rendered {src.name} and {ref.name} twice ({args.scene}, {args.resolution}², {c.test.spp} spp, "
-          f"{c.test.variant}) in {seconds:.1f} s; {c.summary()}; wrote {out} (reference | {src.name} | difference)")
+    lines = [f"rendered {src.name} and {ref.name} twice ({args.scene}, {args.resolution}², {c.test.spp} spp, "
+             f"{c.test.variant}) in {seconds:.1f} s; {c.summary()}; wrote {out} (reference | {src.name} | difference)"]
     if c.within_noise:
-        print("note: the difference is within the noise floor: at this spp the two render alike")
+        lines.append("note: the difference is within the noise floor: at this spp the two render alike")
     elif not c.resolved:
-        print(f"note: the noise floor is more than a third of the difference; about --spp {c.spp_to_resolve()} "
-              "would bring it there")
-    return 0
+        lines.append(f"note: the noise floor is more than a third of the difference; about --spp {c.spp_to_resolve()} "
+                     "would bring it there")
+    return _emit(args, {"source": str(args.source), "reference": str(args.compare), "scene": args.scene,
+                        "resolution": args.resolution, "spp": c.test.spp, "variant": c.test.variant, "seconds": seconds,
+                        "difference": c.difference, "noise_floor": c.noise_floor, "corrected": c.corrected,
+                        "output": str(out)}, lines)
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -897,6 +901,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--compare", metavar="REFERENCE", help="also render REFERENCE; write reference | source | difference")
     q.add_argument("-o", "--output", required=True,
                    help="image: .png (sRGB, grey background), .exr (linear RGBA) or .hdr (linear, grey background)")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_render)
 
     q = sub.add_parser("compare", help="error of TEST against REFERENCE (Ngan et al. metric, eq. 10; every half-vector "
