@@ -167,7 +167,9 @@ def test_run_batch_on_a_local_dask_cluster_equals_the_local_run(cluster):
 
 def test_an_unreachable_scheduler_is_one_error(monkeypatch):
     from reflecto.errors import ReflectoError
-    from reflecto.evaluate import sweep
+    import importlib
+
+    sweep = importlib.import_module("reflecto.evaluate.sweep")  # the module, not the re-exported function
     from reflecto.evaluate.sweep import run_batch
 
     pytest.importorskip("distributed")

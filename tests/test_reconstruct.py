@@ -169,16 +169,16 @@ def test_a_normal_whose_fit_underflows_the_ndf_is_rejected_not_a_crash():
 def test_a_metal_keeps_its_dark_diffuse_floor(shared):
     """tungsten-carbide's peak wants k_s > 1 in a channel; with k_s held at 1 the rest of
     the peak must not go into k_d: k_d stays under the floor the samples measure
-    (:func:`reflecto.reconstruct.samples.kd_bound`; the dense CT fit's ρ_d ≤ 0.035)."""
+    (:func:`reflecto.reconstruct.samples.kd_median_bound`; the dense CT fit's ρ_d ≤ 0.035)."""
     from reflecto.evaluate.sweep import material_seed
-    from reflecto.reconstruct.samples import kd_bound
+    from reflecto.reconstruct.samples import kd_median_bound
     from reflecto.sources import load_source
 
     src = load_source(shared / "merl-nbrdf" / "tungsten-carbide.h5")
     dev = Device.builtin("ideal")
     sl = extract_slices(simulate_capture(src, dev, seed=material_seed("tungsten-carbide")), nominal_calibration(dev))
     res = reconstruct(sl)
-    bound = kd_bound(sl.light, sl.view, sl.values, sl.valid, sl.pixels, 75.0)
+    bound = kd_median_bound(sl.light, sl.view, sl.values, sl.valid, 75.0)
     assert np.all(res.model.kd <= bound + 1e-12) and np.all(res.model.kd < 0.04), (res.model.kd, bound)
     assert np.all(res.model.ks <= 1.0)
 

@@ -49,7 +49,7 @@ from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF
 from ..polar import IsotropicNDF, polar_nodes
 from . import _polar_kernels
-from .samples import kd_bound
+from .samples import kd_median_bound
 
 Array = NDArray[np.float64]
 
@@ -613,10 +613,10 @@ def channel_scalars(fit: LuminanceFit, kd_max: Array | None = None) -> tuple[Arr
     Linear least squares of ``f_c = k_{d,c}/π + k_{s,c} F D S/(4 cos cos)`` over the
     measured bins with the luminance fit's weights, on the box of the physical bounds:
     ``k_s ≤ 1`` (a microfacet reflects at most F) and ``k_d ≤ k_d,max`` (shape ``(3,)``,
-    :func:`.samples.kd_bound`: the specular term is ≥ 0, so ``k_d/π`` cannot exceed the
-    lowest values measured). Without the second bound a channel whose peak wants
-    ``k_s > 1`` pushes the rest of the peak into ``k_d``, a diffuse floor hundreds of
-    times the measured one (a metal rendered as a coloured plastic).
+    :func:`.samples.kd_median_bound`: the specular term is ≥ 0, so ``k_d/π`` cannot
+    exceed what most samples measure). Without the second bound a channel whose lobe
+    the luminance fit's ``D`` does not match can put its misfit into ``k_d``: a diffuse
+    level hundreds of times the measured floor (a metal rendered as a coloured plastic).
     """
     p = fit.problem
     s = fit.state
@@ -686,11 +686,11 @@ def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | N
                   kd_bound_max_deg: float = 75.0) -> IsotropicFit:
     """Reconstruct an isotropic material from its slices (see the module docstring);
     ``k_d`` is bounded by the samples with θ_i, θ_o ≤ ``kd_bound_max_deg``
-    (:func:`.samples.kd_bound`)."""
+    (:func:`.samples.kd_median_bound`)."""
     nodes = polar_nodes()
     bins = bin_polar(slices, nodes, valid)
     lum = fit_luminance(bins, nodes, fixed_eta)
-    kd, ks = channel_scalars(lum, kd_bound(slices.light, slices.view, slices.values, valid, slices.pixels, kd_bound_max_deg))
+    kd, ks = channel_scalars(lum, kd_median_bound(slices.light, slices.view, slices.values, valid, kd_bound_max_deg))
     d = np.exp(lum.state.z - lum.state.z.max())
     model = IsotropicMicrofacetBRDF((nodes, d), kd, ks, lum.state.eta)
     return IsotropicFit(model, lum.state.eta, lum.eps, lum.ks_bound,

@@ -201,6 +201,27 @@ def kd_bound(light: Array, view: Array, values: Array, valid: NDArray[np.bool_],
     return np.maximum(kd_upper_bound(box_mean(values[leds], valid[leds], pixels), near[leds]), 0.0)
 
 
+def kd_median_bound(light: Array, view: Array, values: Array, valid: NDArray[np.bool_], max_deg: float) -> Array:
+    """``π ·`` the median of f per channel over the valid samples with θ_i, θ_o ≤ ``max_deg``
+    (shape ``(3,)``; without such a sample, every valid one; without any, ``inf``).
+
+    The bound of ρ_d that the isotropic path applies. ``f = ρ_d/π + specular ≥ ρ_d/π``
+    holds at every sample for a Lambertian diffuse; a real diffuse term varies with
+    angle (it darkens toward grazing), so the lowest samples (:func:`kd_bound`) sit
+    below the level that fits the bulk of them. The median tolerates that variation on
+    up to half the samples and still caps a ρ_d that a channel's misfit of the peak
+    would otherwise raise far above everything measured. ``light`` (L, 3), ``view``
+    (P, 3), ``values`` (L, P, 3), ``valid`` (L, P); directions in the sample frame.
+    """
+    c_lim = math.cos(math.radians(max_deg))
+    near = valid & (light[:, 2] >= c_lim)[:, None] & (view[:, 2] >= c_lim)[None, :]
+    if not near.any():
+        near = valid
+    if not near.any():
+        return np.full(3, np.inf)
+    return math.pi * np.maximum(np.median(values[near], axis=0), 0.0)
+
+
 def kd_upper_bound(values: Array, valid: NDArray[np.bool_]) -> Array:
     """``π · f_low`` per channel: ρ_d/π ≤ f everywhere, so ρ_d ≤ π min f (shape ``(3,)``).
 
