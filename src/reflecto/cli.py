@@ -713,6 +713,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_design(args: argparse.Namespace) -> int:
+    """``reflecto design DIR... -o OUT``: the condenser design study (:func:`reflecto.evaluate.design.design_study`);
+    returns exit status 0, 1 when a material failed."""
     from .evaluate.design import best_design, design_study
 
     failures: list[tuple[str, str]] = []
@@ -977,6 +979,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_gallery(args: argparse.Namespace) -> int:
+    """``reflecto gallery SOURCE... -o DIR``: teapots of reference, symmetric path and §5.5 path
+    (:func:`reflecto.render.gallery.gallery`, the paper's Fig. 6); returns exit status 0."""
     from .render.gallery import GallerySettings, gallery
 
     check_output(args.output, folder=True)

@@ -225,6 +225,7 @@ class CaptureConsistency:
 
     @property
     def worst_ratio(self) -> float:
+        """Shape difference of the worst pair of captures over the within-capture spread (0 without one)."""
         if self.worst is None:
             return 0.0
         q = self.ratio(*self.worst)
@@ -232,13 +233,16 @@ class CaptureConsistency:
 
     @property
     def worst_level(self) -> float:
+        """|mean log offset| of the worst pair's partial NDFs at shared half vectors (0 without one)."""
         return 0.0 if self.worst is None else abs(float(self.cross_mean[self.worst]))
 
     @property
     def consistent(self) -> bool:
+        """Whether the captures can show one sample (no pair breaks the level or shape test)."""
         return self.worst is None or not self.breaks(*self.worst)
 
     def to_dict(self) -> dict[str, Any]:
+        """The test as JSON-ready numbers (non-finite entries as ``None``)."""
         fin = (lambda m: [[None if not math.isfinite(x) else float(x) for x in row] for row in m])
         return {"cross_rms": fin(self.cross_rms), "cross_mean": fin(self.cross_mean),
                 "within_rms": self.within_rms if math.isfinite(self.within_rms) else None,
@@ -399,14 +403,17 @@ class AsymmetricReconstruction:
 
     @property
     def isotropic(self) -> bool:
+        """Whether the set took the 1-D isotropic shortcut (an isotropic model)."""
         return isinstance(self.model, IsotropicMicrofacetBRDF)
 
     @property
     def shake_detected(self) -> bool:
+        """Whether any capture of the set was flagged as shaken (§5.1)."""
         return any(m.shake_detected for m in self.motion)
 
     @property
     def normal_tilt_deg(self) -> float:
+        """Angle between the set's estimated normal and the device's axis normal (degrees)."""
         return math.degrees(math.acos(min(1.0, float(self.normal[2]))))
 
     def summary(self) -> dict[str, Any]:

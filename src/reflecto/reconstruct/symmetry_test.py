@@ -95,6 +95,7 @@ class SymmetryTest:
 
     @property
     def decided(self) -> bool:
+        """Whether enough τ pairs were observed for a verdict (``MIN_PAIRS``)."""
         return self.tau_pairs >= MIN_PAIRS
 
     @property
@@ -114,6 +115,7 @@ class SymmetryTest:
         return not self.decided or self.ratio < THRESHOLD
 
     def to_dict(self) -> dict[str, float | int | bool]:
+        """The test as JSON-ready numbers."""
         return {"asymmetry": self.asymmetry, "ratio": self.ratio, "tau_rms": self.tau_rms, "direct_rms": self.direct_rms,
                 "tau_pairs": self.tau_pairs, "direct_pairs": self.direct_pairs, "captures": self.captures,
                 "threshold": THRESHOLD, "decided": self.decided, "symmetric": self.symmetric}

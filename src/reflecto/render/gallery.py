@@ -75,6 +75,7 @@ class GalleryRow:
     seconds: float
 
     def to_dict(self) -> dict[str, Any]:
+        """The row as JSON-ready values."""
         return dataclasses.asdict(self)
 
 
