@@ -546,7 +546,7 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
     sb = set_bins(sls, oks, opt.work_resolution)
     # a 1-D fit of the first capture gives S, F and k_d for comparing partial NDFs:
     # are the captures of one material, and do they keep eq. 3?
-    reference = fit_isotropic(sls[0], oks[0], opt.fixed_eta).model
+    reference = fit_isotropic(sls[0], oks[0], opt.fixed_eta).least_squares
     pairs = overlap_pairs(sb.bins, len(sb.light), symmetric=True)
     ratios = pair_ratios(sb.bins, len(sb.light), reference, pairs)
     consistency = capture_consistency(sb, ratios)

@@ -673,6 +673,11 @@ class IsotropicFit:
         The physical bound ``k_s ≤ 1`` binds (the specular level then fixes ``η``).
     bins
         Number of bins fitted (measured, censored).
+    least_squares
+        The same ``D``, ``S`` and η with the channel scalars of the least-squares fit
+        without the ``k_d`` ceiling: the isotropic class's best explanation of the
+        samples, which the isotropy test (:func:`.isotropy.azimuthal_test`) compares
+        them with (its thresholds are set on it). ``model`` is the one to use.
     """
 
     model: IsotropicMicrofacetBRDF
@@ -680,6 +685,7 @@ class IsotropicFit:
     model_error: float
     ks_at_bound: bool
     bins: tuple[int, int]
+    least_squares: IsotropicMicrofacetBRDF | None = None
 
 
 def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | None = None,
@@ -693,5 +699,8 @@ def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | N
     kd, ks = channel_scalars(lum, kd_median_bound(slices.light, slices.view, slices.values, valid, kd_bound_max_deg))
     d = np.exp(lum.state.z - lum.state.z.max())
     model = IsotropicMicrofacetBRDF((nodes, d), kd, ks, lum.state.eta)
+    kd_ls, ks_ls = channel_scalars(lum)
+    ls = model if np.array_equal(kd_ls, kd) and np.array_equal(ks_ls, ks) else \
+        IsotropicMicrofacetBRDF((nodes, d), kd_ls, ks_ls, lum.state.eta)
     return IsotropicFit(model, lum.state.eta, lum.eps, lum.ks_bound,
-                        (int(np.count_nonzero(~bins.censored)), int(np.count_nonzero(bins.censored))))
+                        (int(np.count_nonzero(~bins.censored)), int(np.count_nonzero(bins.censored))), ls)

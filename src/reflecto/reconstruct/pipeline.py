@@ -260,7 +260,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     sl = slices.reframe(frame) if opt.estimate_normal else slices
     ok = valid & sl.valid
     iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
-    test = azimuthal_test(sl, ok, iso.model)
+    test = azimuthal_test(sl, ok, iso.least_squares)
     isotropic = _choose_isotropic(opt.isotropic, test)
     fit: IsotropicFit | HemicubeFit = iso
     if not isotropic:
