@@ -10,41 +10,17 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from reflecto.cli import main
 from reflecto.errors import BatchError, ReflectoWarning
 import importlib
 sweep_mod = importlib.import_module("reflecto.evaluate.sweep")  # the module, not the re-exported function
-from reflecto.evaluate.split import half as sw_half
-from reflecto.io import atomic_write
+
+from _fake_sweep import fake_run_material  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PLASTIC = ROOT / "examples" / "ggx-plastic.json"
-
-
-def fake_run_material(path: str, out_dir: str, device: str = "ideal", calibration: str | None = None) -> dict:
-    """A stand-in for the minutes-long evaluation: the real loader, then a synthetic record.
-
-    Module-level, so that worker processes unpickle it by name.
-    """
-    from reflecto.sources import load_source
-
-    src = load_source(path)
-    name = Path(path).stem
-    a = float(src.albedo([0.0])[0, 1])
-    img = np.full((sweep_mod.SPHERE_RES, sweep_mod.SPHERE_RES, 3), 0.1).tolist()
-    rec = {"name": name, "file": path, "device": device, "seed": sweep_mod.material_seed(name),
-           "timings": {"total_s": 0.01, "ours_reconstruct_s": 0.01, "cook_torrance_fit_s": 0.01},
-           "ours": {"error": a, "log_rmse": 0.1, "eta": [1.5, 1.5, 1.5], "ks": [0.5, 0.5, 0.5], "albedo_max": a,
-                    "finite": True, "isotropic": True},
-           "earlier": {"error": 2 * a, "log_rmse": 0.2}, "cook_torrance": {"error": 1.5 * a, "log_rmse": 0.1},
-           "same_data_ct": {"error": 1.2 * a, "log_rmse": 0.1}, "half": sw_half(name),
-           "renders": {k: img for k in ("reference", "ours", "earlier", "cook_torrance")}, "albedo_ref": a}
-    with atomic_write(Path(out_dir) / "materials" / f"{name}.json", "w") as fh:
-        fh.write(json.dumps(rec))
-    return rec
 
 
 def _materials(folder: Path, n_good: int, bad: bool = True) -> Path:

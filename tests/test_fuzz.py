@@ -51,6 +51,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _fake_sweep import fake_run_material  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 #: A case whose child process peaks above this resident size is a memory blow-up
@@ -63,30 +65,6 @@ OUTCOMES = ("refused", "accepted-same", "accepted-changed", "recovered") + FAILU
 
 
 # ------------------------------------------------------------------ base inputs
-def fake_run_material(path: str, out_dir: str, device: str = "ideal", calibration: str | None = None) -> dict:
-    """The sweep's per-material evaluation, stood in: the real loader, a synthetic record."""
-    import importlib
-    sw = importlib.import_module("reflecto.evaluate.sweep")
-    from reflecto.evaluate.split import half as sw_half
-    from reflecto.io import atomic_write
-    from reflecto.sources import load_source
-
-    src = load_source(path)
-    name = Path(path).stem
-    a = float(np.clip(src.albedo([0.0])[0, 1], 1e-3, 1.0))
-    img = np.full((sw.SPHERE_RES, sw.SPHERE_RES, 3), 0.1).tolist()
-    rec = {"name": name, "file": path, "device": device, "seed": sw.material_seed(name),
-           "timings": {"total_s": 0.01, "ours_reconstruct_s": 0.01, "cook_torrance_fit_s": 0.01},
-           "ours": {"error": a, "log_rmse": 0.1, "eta": [1.5, 1.5, 1.5], "ks": [0.5, 0.5, 0.5], "albedo_max": a,
-                    "finite": True, "isotropic": True},
-           "earlier": {"error": 2 * a, "log_rmse": 0.2}, "cook_torrance": {"error": 1.5 * a, "log_rmse": 0.1},
-           "same_data_ct": {"error": 1.2 * a, "log_rmse": 0.1}, "half": sw_half(name),
-           "renders": {k: img for k in ("reference", "ours", "earlier", "cook_torrance")}, "albedo_ref": a}
-    with atomic_write(Path(out_dir) / "materials" / f"{name}.json", "w") as fh:
-        fh.write(json.dumps(rec))
-    return rec
-
-
 def build_base(folder: Path) -> Path:
     """Valid inputs of every kind, in ``folder`` (about 60 MB; 10–20 s)."""
     from reflecto.cli import main

@@ -1,6 +1,9 @@
-"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|export|render|compare|report|fit-ct|sweep|gallery``.
+"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|export|render|compare|report|fit-ct|sweep|gallery|design``.
 
-Every failure prints one line, ``reflecto: error: FILE: problem``, on stderr and
+Each subcommand is one ``cmd_*`` handler: it takes the parsed arguments of its
+subcommand (:func:`build_parser`) and returns the exit status (0, or 1 when a batch
+item failed); a failure raises :class:`~reflecto.errors.ReflectoError`, which
+:func:`main` prints as one line. Every failure prints one line, ``reflecto: error: FILE: problem``, on stderr and
 exits with status 1, leaving no output file and no folder it created; ``--json``
 makes stdout exactly one JSON document. Batches (several captures, ``sweep``)
 finish every item they can, report each failed one, and exit 1 if any failed.
@@ -64,17 +67,6 @@ def _check_suffix(output: str | Path, kind: str, hint: str = "") -> None:
 
 def cmd_info(args: argparse.Namespace) -> int:
     """``reflecto info SOURCE``: kind, parameters and directional albedo (0–80°) of a BRDF file.
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     from .sources import load_source
 
@@ -101,17 +93,6 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 def cmd_tabulate(args: argparse.Namespace) -> int:
     """``reflecto tabulate SOURCE -o F.binary``: a MERL table of any source, evaluated at the bin centres.
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     from .sources import load_source
     from .sources import merl
@@ -130,17 +111,6 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
 
 def cmd_layout(args: argparse.Namespace) -> int:
     """``reflecto layout``: coverage of a device's LED layout (§4.1, Fig. 2), optionally re-optimised and plotted.
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     from .instrument import layout
     from .instrument.device import load_device
@@ -176,17 +146,6 @@ def cmd_layout(args: argparse.Namespace) -> int:
 def cmd_simulate(args: argparse.Namespace) -> int:
     """``reflecto simulate SOURCE -o CAP``: write the raw frames and manifest of a virtual capture
     (tilt, rotation, shake, camera noise).
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     from .instrument.capture import write_capture
     from .instrument.device import load_device
@@ -210,17 +169,6 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_simulate_calibration(args: argparse.Namespace) -> int:
     """``reflecto simulate-calibration -o DIR``: virtual calibration captures (white standard,
     pinhole grid, mirror) of a device.
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     from .instrument.device import load_device
     from .instrument.simulate import simulate_calibration
@@ -236,17 +184,6 @@ def cmd_simulate_calibration(args: argparse.Namespace) -> int:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """``reflecto calibrate DIR -o CAL.npz``: geometric, LED and radiometric calibration from a
     calibration folder.
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     from .instrument.calibrate import calibrate
 
@@ -383,17 +320,6 @@ def _report_failures(failures: list[tuple[str, str]]) -> None:
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     """``reflecto reconstruct CAP... -o OUT``: the §5 reconstruction of one capture, or of several
     in parallel worker processes (a model file and its ``.json`` summary each).
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     import os
     import time
@@ -484,17 +410,6 @@ def _export_format(args: argparse.Namespace) -> str:
 def cmd_export(args: argparse.Namespace) -> int:
     """``reflecto export MODEL -o F.bsdf|F.binary``: an RGL tensor file or a MERL table (the suffix
     or ``--format`` chooses).
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     from .sources import load_source
 
@@ -527,17 +442,6 @@ def merl_bins() -> int:
 def cmd_render(args: argparse.Namespace) -> int:
     """``reflecto render SOURCE -o IMG``: a Mitsuba 3 render; with ``--compare``, the mean image
     difference against a reference and its noise floor (docs/mitsuba.md).
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     from .render.mitsuba import compare, comparison_image, render, save_image
     from .sources import load_source
@@ -580,17 +484,6 @@ def cmd_render(args: argparse.Namespace) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     """``reflecto compare REF TEST``: eq. 10 error (normalized by the reference's albedo) and
     log-RMSE of TEST against REF (over every φ_h when either source is anisotropic).
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     from .evaluate.metrics import comparison_error
     from .sources import load_source
@@ -606,17 +499,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_report(args: argparse.Namespace) -> int:
     """``reflecto report MODEL -o DIR``: the HTML report of a model (renders, NDF, slices, numbers).
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     from .evaluate.report import write_report
     from .io import read_json
@@ -635,17 +517,6 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_fit_ct(args: argparse.Namespace) -> int:
     """``reflecto fit-ct SOURCE``: the dense Cook–Torrance baseline fit (algorithm reference
     §6.3) and its eq. 10 error.
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     from .evaluate.cooktorrance import fit_cook_torrance
     from .evaluate.metrics import brdf_error
@@ -665,17 +536,6 @@ def cmd_fit_ct(args: argparse.Namespace) -> int:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     """``reflecto sweep DIR... -o RESULTS``: the §6 validation over materials, resumable, in parallel.
-
-    Parameters
-    ----------
-    args
-        The parsed arguments of the subcommand (:func:`build_parser`).
-
-    Returns
-    -------
-    int
-        Exit status 0; a failure raises :class:`~reflecto.errors.ReflectoError`, which
-        :func:`main` prints as one line.
     """
     from .evaluate.sweep import summarize, sweep
 

@@ -50,6 +50,22 @@ MODEL_SUFFIX = ".reflecto"
 __all__ = ["MicrofacetBRDF", "IsotropicMicrofacetBRDF", "load_model", "MODEL_SUFFIX"]
 
 
+
+def _common_scalars(model, kd, ks, eta, correlated, metadata, path) -> None:
+    """Set and check what both microfacet models share: ``kd``, ``ks`` (≥ 0) and ``eta``
+    (> 0) as RGB triplets, the shadowing form, the metadata and the file path."""
+    model.kd = _rgb(kd, "kd")
+    model.ks = _rgb(ks, "ks")
+    model.eta = _rgb(eta, "eta")
+    if np.any(model.kd < 0) or np.any(model.ks < 0):
+        raise ParameterError("kd and ks must be >= 0")
+    if np.any(model.eta <= 0):
+        raise ParameterError("eta must be > 0")
+    model.correlated = bool(correlated)
+    model.metadata = dict(metadata or {})
+    model.path = path
+    model.reciprocal = True
+
 class MicrofacetBRDF(BRDFSource):
     """Generalized microfacet BRDF with a tabulated hemicube NDF.
 
@@ -96,17 +112,7 @@ class MicrofacetBRDF(BRDFSource):
         if normalize and total <= 0:
             raise ParameterError("ndf is zero everywhere")
         self.ndf_values = q
-        self.kd = _rgb(kd, "kd")
-        self.ks = _rgb(ks, "ks")
-        self.eta = _rgb(eta, "eta")
-        if np.any(self.kd < 0) or np.any(self.ks < 0):
-            raise ParameterError("kd and ks must be >= 0")
-        if np.any(self.eta <= 0):
-            raise ParameterError("eta must be > 0")
-        self.correlated = bool(correlated)
-        self.metadata = dict(metadata or {})
-        self.path = path
-        self.reciprocal = True
+        _common_scalars(self, kd, ks, eta, correlated, metadata, path)
         self.isotropic = False
         self._padded = self.cube.pad(self.ndf_values)
         self._sigma: SigmaTable | None = None
@@ -492,17 +498,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
             ndf = IsotropicNDF(np.asarray(nodes, np.float64), np.asarray(values, "<f4").astype(np.float64),
                                normalize=False)
         self.ndf_table = ndf
-        self.kd = _rgb(kd, "kd")
-        self.ks = _rgb(ks, "ks")
-        self.eta = _rgb(eta, "eta")
-        if np.any(self.kd < 0) or np.any(self.ks < 0):
-            raise ParameterError("kd and ks must be >= 0")
-        if np.any(self.eta <= 0):
-            raise ParameterError("eta must be > 0")
-        self.correlated = bool(correlated)
-        self.metadata = dict(metadata or {})
-        self.path = path
-        self.reciprocal = True
+        _common_scalars(self, kd, ks, eta, correlated, metadata, path)
         self.isotropic = True
         self._fresnel_table = FresnelTable(self.eta)
         self._hemicube: dict[int, MicrofacetBRDF] = {}

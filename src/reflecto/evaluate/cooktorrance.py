@@ -64,15 +64,7 @@ class CookTorrance(BRDFSource):
         """Cook–Torrance BRDF ``f = ρ_d/π + ρ_s D G F / (π cos θ_i cos θ_o)`` (sr⁻¹; algorithm
         reference §6.3).
 
-        Parameters
-        ----------
-        i, o
-            Unit directions in the local frame, shape ``(N, 3)`` (or broadcastable ``(..., 3)``).
-
-        Returns
-        -------
-        ndarray, shape ``(N, 3)``
-            Linear RGB BRDF; 0 where either direction is below the horizon.
+        Directions, shapes and return as :meth:`reflecto.sources.base.BRDFSource.eval`.
         """
         i = np.asarray(i, float)
         o = np.asarray(o, float)

@@ -64,11 +64,11 @@ from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
 from . import hemicube_fit as hf
 from .fresnel_fit import Pairs, fit_fresnel, overlap_pairs
-from .isotropic import ETA_MAX, fit_isotropic
+from .isotropic import fit_isotropic
 from .isotropy import CONDITIONAL_EXPLAINED, IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
 from .normal import estimate_normal_consistency, tilt_frame
-from .pipeline import Options, limit_energy, usable_samples
+from .pipeline import Options, bound_notes, limit_energy, usable_samples
 from .samples import Bins, bin_samples, kd_bound
 from .symmetry_test import PairRatios, SymmetryTest, pair_ratios, symmetry_from_ratios
 from .synthesis import SynthesisFill, SynthesisOptions
@@ -454,15 +454,7 @@ def _notes(model, isotropic: bool, ks_at_bound: bool, eta: float, symmetry: Symm
                      f"seen by no capture, {100 * synthesized:.1f} % synthesized, the rest lobe-filled")
     if symmetry.decided and symmetry.symmetric:
         notes.append("the merged data keep the symmetry of eq. 3: a single capture would have done")
-    if ks_at_bound:
-        notes.append("k_s at its physical bound 1 (a microfacet reflects at most F): the specular level fixes η")
-    if eta >= ETA_MAX * (1 - 1e-6):
-        notes.append(f"η at its bound {ETA_MAX:g}: a metal-like flat Fresnel curve; the channels' k_s carry its colour")
-    if np.any(model.kd <= 0):
-        notes.append("k_d = 0 in channels " + str(np.flatnonzero(model.kd <= 0).tolist()) + ": no diffuse floor measured")
-    if energy_scale < 1:
-        notes.append(f"k_d and k_s scaled by {energy_scale:.3f} so that the albedo stays ≤ 1")
-    return notes
+    return notes + bound_notes(ks_at_bound, eta, model, energy_scale)
 
 
 def _set_normal(captures: Sequence[RotatedCapture], valids: list[NDArray[np.bool_]], max_tilt_deg: float) -> Array:

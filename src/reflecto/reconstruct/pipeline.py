@@ -240,9 +240,16 @@ def _notes(fit: IsotropicFit | HemicubeFit, model, isotropic: bool, test: Isotro
         notes.append(f"anisotropic: a second azimuthal harmonic explains {100 * test.anisotropy:.0f} % of the "
                      f"partial NDF's ring-wise variance ({100 * test.conditional:.0f} % of what θ_d and φ_d "
                      "leave); hemicube NDF")
-    if fit.ks_at_bound:
+    return notes + bound_notes(fit.ks_at_bound, fit.eta, model, energy_scale)
+
+
+def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> list[str]:
+    """Plain notes on every parameter the data held at a physical or search bound (``k_s = 1``,
+    η at :data:`~.isotropic.ETA_MAX`, ``k_d = 0``) and on the energy limit, for a summary."""
+    notes = []
+    if ks_at_bound:
         notes.append("k_s at its physical bound 1 (a microfacet reflects at most F): the specular level fixes η")
-    if fit.eta >= ETA_MAX * (1 - 1e-6):
+    if eta >= ETA_MAX * (1 - 1e-6):
         notes.append(f"η at its bound {ETA_MAX:g}: a metal-like flat Fresnel curve; the channels' k_s carry its colour")
     if np.any(model.kd <= 0):
         notes.append("k_d = 0 in channels " + str(np.flatnonzero(model.kd <= 0).tolist()) + ": no diffuse floor measured")

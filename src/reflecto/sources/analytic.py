@@ -191,15 +191,7 @@ class AnalyticBRDF(BRDFSource):
         """Microfacet BRDF ``f = k_d/π + k_s D(h) F(i·h; η) / (4 σ(i) σ(o))`` (eqs. 1–2 in the
         form of AR 1.6, ``σ`` the projected area of eq. 8), sr⁻¹.
 
-        Parameters
-        ----------
-        i, o
-            Unit directions in the local frame, shape ``(N, 3)`` (or broadcastable ``(..., 3)``).
-
-        Returns
-        -------
-        ndarray, shape ``(N, 3)``
-            Linear RGB BRDF; 0 where either direction is below the horizon.
+        Directions, shapes and return as :meth:`reflecto.sources.base.BRDFSource.eval`.
         """
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)

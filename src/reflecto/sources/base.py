@@ -38,7 +38,8 @@ class BRDFSource(abc.ABC):
         Parameters
         ----------
         i, o
-            Unit directions, shape ``(N, 3)`` (or broadcastable ``(..., 3)``).
+            Unit directions in the local frame (``x = t, y = b, z = n``; ``i`` toward the
+            light, ``o`` toward the viewer), shape ``(N, 3)`` (or broadcastable ``(..., 3)``).
 
         Returns
         -------

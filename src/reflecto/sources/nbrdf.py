@@ -122,15 +122,7 @@ class NBRDF(BRDFSource):
         """The neural BRDF: a 6-21-21-3 ReLU network of ``(h, d)`` (Rusinkiewicz half and
         difference vectors, ``φ_d`` mod π), output ``max(0, exp(y) − 1)``, sr⁻¹.
 
-        Parameters
-        ----------
-        i, o
-            Unit directions in the local frame, shape ``(N, 3)`` (or broadcastable ``(..., 3)``).
-
-        Returns
-        -------
-        ndarray, shape ``(N, 3)``
-            Linear RGB BRDF; 0 where either direction is below the horizon.
+        Directions, shapes and return as :meth:`reflecto.sources.base.BRDFSource.eval`.
         """
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)

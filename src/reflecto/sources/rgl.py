@@ -357,15 +357,7 @@ class RGLBRDF(BRDFSource):
         """The BRDF ``f = eval_cosine(i, o) / cos θ_o`` of the tensor file, evaluated like Mitsuba 3's
         ``measured`` plugin, sr⁻¹.
 
-        Parameters
-        ----------
-        i, o
-            Unit directions in the local frame, shape ``(N, 3)`` (or broadcastable ``(..., 3)``).
-
-        Returns
-        -------
-        ndarray, shape ``(N, 3)``
-            Linear RGB BRDF; 0 where either direction is below the horizon.
+        Directions, shapes and return as :meth:`reflecto.sources.base.BRDFSource.eval`.
         """
         o = np.asarray(o, dtype=np.float64)
         v = self.eval_cosine(i, o)
