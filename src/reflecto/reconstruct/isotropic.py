@@ -618,6 +618,12 @@ def channel_scalars(fit: LuminanceFit, kd_max: Array | None = None) -> tuple[Arr
     the luminance fit's ``D`` does not match can put its misfit into ``k_d``: a diffuse
     level hundreds of times the measured floor (a metal rendered as a coloured plastic).
     """
+    return scalars_under_ceilings(fit, [kd_max])[0]
+
+
+def scalars_under_ceilings(fit: LuminanceFit, ceilings: list[Array | None]) -> list[tuple[Array, Array]]:
+    """:func:`channel_scalars` for each ``k_d`` ceiling of ``ceilings`` (``None``: none),
+    from one pass over the bins (the normal equations do not depend on the ceiling)."""
     p = fit.problem
     s = fit.state
     n, _ = normalization(p.nodes, s.z)
@@ -628,12 +634,15 @@ def channel_scalars(fit: LuminanceFit, kd_max: Array | None = None) -> tuple[Arr
     w = p.w[me]
     m = a.T @ (a * w[:, None])
     m = m + 1e-12 * np.trace(m) * np.eye(2)
-    upper = np.full(3, np.inf) if kd_max is None else np.asarray(kd_max, dtype=np.float64)
-    kd, ks = np.zeros(3), np.zeros(3)
-    for c in range(3):
-        v = a.T @ (w * p.bins.f[me, c])
-        kd[c], ks[c] = _box_least_squares(m, v, (0.0, float(upper[c])), (0.0, 1.0))
-    return kd, ks
+    vs = [a.T @ (w * p.bins.f[me, c]) for c in range(3)]
+    out = []
+    for kd_max in ceilings:
+        upper = np.full(3, np.inf) if kd_max is None else np.asarray(kd_max, dtype=np.float64)
+        kd, ks = np.zeros(3), np.zeros(3)
+        for c in range(3):
+            kd[c], ks[c] = _box_least_squares(m, vs[c], (0.0, float(upper[c])), (0.0, 1.0))
+        out.append((kd, ks))
+    return out
 
 
 def _box_least_squares(m: Array, v: Array, xb: tuple[float, float], yb: tuple[float, float]) -> tuple[float, float]:
@@ -696,10 +705,10 @@ def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | N
     nodes = polar_nodes()
     bins = bin_polar(slices, nodes, valid)
     lum = fit_luminance(bins, nodes, fixed_eta)
-    kd, ks = channel_scalars(lum, kd_median_bound(slices.light, slices.view, slices.values, valid, kd_bound_max_deg))
+    ceiling = kd_median_bound(slices.light, slices.view, slices.values, valid, kd_bound_max_deg)
+    (kd, ks), (kd_ls, ks_ls) = scalars_under_ceilings(lum, [ceiling, None])
     d = np.exp(lum.state.z - lum.state.z.max())
     model = IsotropicMicrofacetBRDF((nodes, d), kd, ks, lum.state.eta)
-    kd_ls, ks_ls = channel_scalars(lum)
     ls = model if np.array_equal(kd_ls, kd) and np.array_equal(ks_ls, ks) else \
         IsotropicMicrofacetBRDF((nodes, d), kd_ls, ks_ls, lum.state.eta)
     return IsotropicFit(model, lum.state.eta, lum.eps, lum.ks_bound,
