@@ -809,12 +809,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("folders", nargs="+", help="folders (or files) of materials: .binary .bsdf .h5 .json .toml")
     q.add_argument("-o", "--output", required=True, help="results folder (resumable: finished materials are skipped)")
     q.add_argument("--device", default="ideal", help="our device: ideal | as-built | device file")
-    q.add_argument("--jobs", type=int, default=0, help="worker processes (0: all cores)")
-    q.add_argument("--scheduler", metavar="ADDRESS", help=_SCHEDULER_HELP)
-    q.add_argument("-q", "--quiet", action="store_true",
-                   help="no progress (else a bar on a terminal, plain lines on stderr otherwise or under CI=true) "
-                        "and no summary")
-    q.add_argument("--json", action="store_true", help=_JSON_HELP)
+    _batch_options(q)
     q.set_defaults(func=cmd_sweep)
 
     from .evaluate.design import DEFAULT_CONES, DEFAULT_LED_COUNTS, DEFAULT_TILTS
@@ -830,12 +825,19 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--tilts", type=float, nargs="+", default=list(DEFAULT_TILTS), help="axis tilts (degrees)")
     q.add_argument("--leds", type=int, nargs="+", default=list(DEFAULT_LED_COUNTS), help="LED counts")
     q.add_argument("--layout-only", action="store_true", help="lay out the designs only (no materials)")
-    q.add_argument("--jobs", type=int, default=0, help="worker processes (0: all cores)")
-    q.add_argument("--scheduler", metavar="ADDRESS", help=_SCHEDULER_HELP)
-    q.add_argument("-q", "--quiet", action="store_true", help="no progress and no summary")
-    q.add_argument("--json", action="store_true", help=_JSON_HELP)
+    _batch_options(q)
     q.set_defaults(func=cmd_design)
     return p
+
+
+def _batch_options(q: argparse.ArgumentParser) -> None:
+    """The options of the batch commands (``sweep``, ``design``): workers, scheduler, quiet, JSON."""
+    q.add_argument("--jobs", type=int, default=0, help="worker processes (0: all cores)")
+    q.add_argument("--scheduler", metavar="ADDRESS", help=_SCHEDULER_HELP)
+    q.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress (else a bar on a terminal, plain lines on stderr otherwise or under CI=true) "
+                        "and no summary")
+    q.add_argument("--json", action="store_true", help=_JSON_HELP)
 
 
 def cmd_gallery(args: argparse.Namespace) -> int:
