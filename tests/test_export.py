@@ -1,5 +1,7 @@
 """Exports: RGL .bsdf read back by reflecto and by Mitsuba 3, MERL round trip, errors."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -19,12 +21,14 @@ MODELS = {
     "plastic": AnalyticBRDF(distribution="ggx", alpha=0.2, kd=(0.4, 0.2, 0.1), ks=0.5, eta=1.5),
     "metal": AnalyticBRDF(distribution="beckmann", alpha=0.05, kd=0.0, ks=0.9, eta=(2.5, 2.0, 1.8)),
     "anisotropic": AnalyticBRDF(distribution="ggx", alpha=(0.1, 0.4), rotation_deg=30, kd=0.1, ks=0.7, eta=1.6),
+    "constant-fresnel": AnalyticBRDF(distribution="ggx", alpha=0.1, kd=0.05, ks=0.4, eta=1.5),  # η = ∞ below
 }
 
 
 def _model(name: str) -> MicrofacetBRDF:
     a = MODELS[name]
-    return MicrofacetBRDF.from_ndf_function(a.ndf, kd=a.kd, ks=a.ks, eta=a.eta)
+    eta = math.inf if name == "constant-fresnel" else a.eta  # the constant Fresnel lobe, F ≡ 1
+    return MicrofacetBRDF.from_ndf_function(a.ndf, kd=a.kd, ks=a.ks, eta=eta)
 
 
 def relative_difference(test: np.ndarray, ref: np.ndarray) -> np.ndarray:

@@ -89,3 +89,23 @@ def test_analytic_fresnel_jacobian_matches_finite_differences():
         np.testing.assert_allclose(jac[0], num_eta, rtol=1e-5, atol=1e-7 * np.abs(num_eta).max())
         np.testing.assert_allclose(jac[1], num_kd, rtol=1e-5, atol=1e-7 * np.abs(num_kd).max())
         assert np.abs(jac[0]).max() > 0 and np.abs(jac[1]).max() > 0
+
+
+def test_constant_fresnel_is_the_conductor_limit():
+    """η = ∞ is F ≡ 1 at every angle, in both implementations and the table; F0 = 1; the
+    JSON form has no infinity and reads back."""
+    from reflecto.fresnel import CONSTANT, eta_from_json, eta_to_json, format_eta, fresnel_numpy, is_constant
+
+    c = np.linspace(0.0, 1.0, 11)
+    assert np.array_equal(fresnel(c, CONSTANT), np.ones(11))
+    assert np.array_equal(fresnel_numpy(c, CONSTANT), np.ones(11))
+    assert np.allclose(FresnelTable(np.full(3, CONSTANT))(c), 1.0)
+    assert f0_from_eta(CONSTANT) == 1.0 and f0_from_eta(1.5) == pytest.approx(0.04)
+    # the dielectric at a large η approaches it from below
+    assert 0.999 < float(fresnel(1.0, 1e4)) < 1.0
+    assert eta_to_json(np.full(3, CONSTANT)) == {"fresnel": "constant", "eta": None}
+    assert eta_to_json(1.5) == {"fresnel": "dielectric", "eta": [1.5, 1.5, 1.5]}
+    assert is_constant(eta_from_json(eta_to_json(CONSTANT))) and not is_constant(1.5)
+    assert eta_from_json({"eta": [1.5, 1.5, 1.5]}).tolist() == [1.5] * 3  # records without "fresnel"
+    assert eta_from_json({"eta": None}) is None and eta_from_json({"eta": [1.5, float("inf"), 1.5]}) is None
+    assert format_eta(CONSTANT).startswith("∞") and format_eta([1.5] * 3) == "1.500"

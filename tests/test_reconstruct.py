@@ -674,3 +674,40 @@ def test_hemicube_fresnel_subsample_is_drawn_per_pair(shared):
     etas = [fit(bins, pr, a, n_leds, kd0, eta0, kd_max, per_channel=False, diagnostics=False).eta[0]
             for pr in (pairs, pairs.select(slice(1, None)), pairs.select(slice(2, None)))]
     assert max(etas) / min(etas) - 1 < 0.01, etas
+
+
+def _constant_fresnel_ggx(alpha=0.08, kd=0.02, ks=0.6):
+    """A GGX lobe whose Fresnel is constant (F ≡ 1, η = ∞): no dielectric η fits it."""
+    from reflecto.polar import polar_nodes
+
+    nodes = polar_nodes()
+    c2 = np.cos(nodes) ** 2
+    d = alpha**2 / (math.pi * (c2 * (alpha**2 - 1) + 1) ** 2)
+    return IsotropicMicrofacetBRDF((nodes, d), kd, ks, math.inf)
+
+
+def test_flat_fresnel_data_take_the_constant_fresnel_lobe_not_the_eta_bound(tmp_path):
+    """Data whose specular level does not rise toward grazing: the fit ends with the
+    constant Fresnel lobe (η = ∞) instead of η parked at ETA_MAX, says so, and recovers
+    the BRDF; the model file and the summary carry it without an infinity."""
+    from reflecto.reconstruct.isotropic import ETA_MAX
+
+    src = _constant_fresnel_ggx()
+    res = reconstruct(_capture(src, seed=5))
+    m = res.model
+    assert math.isinf(res.eta) and np.all(np.isinf(m.eta)), res.eta
+    assert any("constant Fresnel" in n for n in res.notes) and not any("bound" in n and "η" in n for n in res.notes)
+    assert np.allclose(m.ks, 0.6, rtol=0.03) and np.allclose(m.kd, 0.02, atol=0.01), (m.kd, m.ks)
+    assert ndf_error(src, m) < 0.02
+    assert brdf_error(src, m, stride=3).normalized < 0.01
+    summary = res.summary()
+    assert summary["fresnel"] == "constant" and summary["eta"] is None
+    json.dumps(summary, allow_nan=False)
+    back = MicrofacetBRDF.load(m.save(tmp_path / "flat.reflecto"))
+    assert isinstance(back, IsotropicMicrofacetBRDF)
+    assert np.all(np.isinf(back.eta))
+    i, o = np.array([[0.3, 0.0, 0.954]]), np.array([[-0.5, 0.2, 0.843]])
+    assert np.allclose(back.eval(i, o), m.eval(i, o), rtol=1e-5)
+    # a dielectric of large η is still a dielectric: the constant lobe is not a default
+    res2 = reconstruct(_capture(AnalyticBRDF(distribution="ggx", alpha=0.08, kd=0.02, ks=0.6, eta=8.0), seed=5))
+    assert math.isfinite(res2.eta) and res2.eta < ETA_MAX

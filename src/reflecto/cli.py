@@ -272,6 +272,7 @@ def _reconstruct_asymmetric(args: argparse.Namespace) -> int:
     import os
 
     from .io import atomic_write
+    from .fresnel import format_eta
     from .reconstruct import Options
     from .reconstruct.asymmetric import MIN_CAPTURES, reconstruct_rotations
 
@@ -299,7 +300,7 @@ def _reconstruct_asymmetric(args: argparse.Namespace) -> int:
     info = {"models": [{"captures": caps, "output": str(out), "summary": summary}], "failed": []}
     kind = "isotropic (1-D, all captures)" if res.isotropic else "hemicube, §5.5 merge and synthesis"
     rots = "/".join(f"{r:g}" for r in res.rotations_deg)
-    lines = [f"{out}: {kind} from {len(caps)} captures at {rots}°, eta {res.eta:.3f}, "
+    lines = [f"{out}: {kind} from {len(caps)} captures at {rots}°, eta {format_eta(res.eta)}, "
              f"kd {np.round(res.model.kd, 3).tolist()}, ks {np.round(res.model.ks, 3).tolist()}, "
              f"tilt {res.normal_tilt_deg:.2f}°, {res.seconds * 1000:.0f} ms"
              + ("  SHAKE DETECTED" if res.shake_detected else ""),
@@ -345,6 +346,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         from .io import make_parents
 
         make_parents(Path(args.output))
+    from .fresnel import eta_from_json, format_eta
+
     jobs = [(c, args.calibration, o, args.estimate_normal, args.eta, args.isotropic, args.nominal)
             for c, o in zip(caps, outs)]
     results: dict[int, dict] = {}
@@ -374,7 +377,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     for k, r in sorted(results.items()):
         flag = f"  SHAKE DETECTED ({r['motion']})" if r["shake_detected"] else ""
         kind = "isotropic" if r["isotropic"] else "anisotropic"
-        lines.append(f"{outs[k]}: {kind}, eta {r['eta'][0]:.3f}, kd {np.round(r['kd'], 3).tolist()}, "
+        lines.append(f"{outs[k]}: {kind}, eta {format_eta(eta_from_json(r))}, kd {np.round(r['kd'], 3).tolist()}, "
                      f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, {r['seconds'] * 1000:.0f} ms{flag}")
         lines += [f"  note: {note}" for note in r["notes"]]
         sym = r.get("symmetry_test", {})

@@ -7,9 +7,18 @@ Eq. 4 of Lan et al. 2010, after Cook & Torrance 1982 (algorithm-reference §2.1)
 
 ``F(1) = ((η − 1)/(η + 1))² = F0``, ``F(0) = 1``. Where ``g²`` would be negative
 (η < 1, total internal reflection) ``F = 1``.
+
+``η = ∞`` (:data:`CONSTANT`) is the limit of eq. 4 for a perfect conductor, ``F ≡ 1``:
+the *constant Fresnel* lobe, the reconstruction's explicit answer for data whose
+specular level does not rise toward grazing as any dielectric's does (metallic paints,
+the sheen of fabrics). Files and JSON carry it as ``"fresnel": "constant"`` with no η
+(:func:`eta_to_json`).
 """
 
 from __future__ import annotations
+
+import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -58,10 +67,47 @@ def fresnel_numpy(c: ArrayLike, eta: ArrayLike) -> Array:
     return np.clip(f, 0.0, 1.0)
 
 
+#: The relative index of the constant Fresnel lobe, ``F ≡ 1`` (module docstring).
+CONSTANT = math.inf
+
+
+def is_constant(eta: ArrayLike) -> bool:
+    """Whether ``eta`` (a scalar or an RGB triplet) is the constant Fresnel lobe ``η = ∞``."""
+    return bool(np.all(np.isposinf(np.asarray(eta, dtype=np.float64))))
+
+
+def eta_to_json(eta: ArrayLike) -> dict[str, Any]:
+    """``{"fresnel": "dielectric", "eta": [R, G, B]}``, or ``{"fresnel": "constant",
+    "eta": None}`` for :data:`CONSTANT` (JSON has no infinity)."""
+    if is_constant(eta):
+        return {"fresnel": "constant", "eta": None}
+    return {"fresnel": "dielectric", "eta": np.broadcast_to(np.asarray(eta, dtype=np.float64), (3,)).tolist()}
+
+
+def eta_from_json(record: dict[str, Any]) -> Array | None:
+    """Inverse of :func:`eta_to_json`: η as three floats (∞ for the constant lobe); ``None``
+    when the record holds neither form."""
+    if record.get("fresnel") == "constant" and record.get("eta") is None:
+        return np.full(3, CONSTANT)
+    v = record.get("eta")
+    ok = isinstance(v, list) and len(v) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                      and math.isfinite(x) for x in v)
+    return np.asarray(v, dtype=np.float64) if ok else None
+
+
+def format_eta(eta: ArrayLike) -> str:
+    """η for a summary line: ``"1.500"`` (one η serves R, G, B: the first channel's), or
+    ``"∞ (constant Fresnel)"``."""
+    if is_constant(eta):
+        return "∞ (constant Fresnel)"
+    return f"{float(np.ravel(np.asarray(eta, dtype=np.float64))[0]):.3f}"
+
+
 def f0_from_eta(eta: ArrayLike) -> Array:
-    """Normal-incidence reflectance ``F0 = ((η − 1)/(η + 1))²``."""
+    """Normal-incidence reflectance ``F0 = ((η − 1)/(η + 1))²`` (1 for ``η = ∞``)."""
     eta = np.asarray(eta, dtype=np.float64)
-    return ((eta - 1.0) / (eta + 1.0)) ** 2
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isposinf(eta), 1.0, ((eta - 1.0) / (eta + 1.0)) ** 2)[()]
 
 
 def eta_from_f0(f0: ArrayLike) -> Array:

@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import _kernels
 from .errors import FileFormatError, ParameterError, short_repr
-from .fresnel import FresnelTable, fresnel
+from .fresnel import FresnelTable, eta_to_json, fresnel, is_constant
 from .hemicube import Hemicube, hemicube
 from .io import atomic_write
 from .polar import IsotropicNDF
@@ -53,10 +53,11 @@ __all__ = ["MicrofacetBRDF", "IsotropicMicrofacetBRDF", "load_model", "MODEL_SUF
 
 def _common_scalars(model, kd, ks, eta, correlated, metadata, path) -> None:
     """Set and check what both microfacet models share: ``kd``, ``ks`` (≥ 0) and ``eta``
-    (> 0) as RGB triplets, the shadowing form, the metadata and the file path."""
+    (> 0, or ∞ for the constant Fresnel lobe, :data:`reflecto.fresnel.CONSTANT`) as RGB
+    triplets, the shadowing form, the metadata and the file path."""
     model.kd = _rgb(kd, "kd")
     model.ks = _rgb(ks, "ks")
-    model.eta = _rgb(eta, "eta")
+    model.eta = np.full(3, math.inf) if is_constant(eta) else _rgb(eta, "eta")  # ∞: the constant Fresnel lobe
     if np.any(model.kd < 0) or np.any(model.ks < 0):
         raise ParameterError("kd and ks must be >= 0")
     if np.any(model.eta <= 0):
@@ -209,7 +210,7 @@ class MicrofacetBRDF(BRDFSource):
             "resolution": f"{self.cube.n}x{self.cube.n} top, {self.cube.n}x{self.cube.half} sides",
             "kd": self.kd.tolist(),
             "ks": self.ks.tolist(),
-            "eta": self.eta.tolist(),
+            **eta_to_json(self.eta),
             "shadowing": "height-correlated Smith" if self.correlated else "separable APS (eq. 8)",
             **({"metadata": self.metadata} if self.metadata else {}),
         }
@@ -242,7 +243,7 @@ class MicrofacetBRDF(BRDFSource):
             "resolution": self.cube.n,
             "kd": self.kd.tolist(),
             "ks": self.ks.tolist(),
-            "eta": self.eta.tolist(),
+            **eta_to_json(self.eta),
             "correlated": self.correlated,
             "metadata": self.metadata,
         }
@@ -410,7 +411,8 @@ def _model_parameters(path: Path, meta: dict[str, Any]) -> tuple[Array, Array, A
 
     kd = triple("kd", 0.0, 1.0)
     ks = triple("ks", 0.0, math.inf)
-    eta = triple("eta", *ETA_RANGE)
+    eta = np.full(3, math.inf) if meta.get("fresnel") == "constant" and meta.get("eta") is None \
+        else triple("eta", *ETA_RANGE)
     correlated = meta.get("correlated", False)
     if not isinstance(correlated, bool):
         raise FileFormatError(path, f"invalid model parameters ('correlated' must be true or false, got {short_repr(correlated)})")
@@ -449,7 +451,7 @@ def _check_model(path: Path, model: MicrofacetBRDF | IsotropicMicrofacetBRDF) ->
 
     if not (np.all(model.kd >= 0) and np.all(model.kd <= 1)):
         raise FileFormatError(path, f"k_d {model.kd.tolist()} outside [0, 1]")
-    if not (np.all(model.eta >= ETA_RANGE[0]) and np.all(model.eta <= ETA_RANGE[1])):
+    if not is_constant(model.eta) and not (np.all(model.eta >= ETA_RANGE[0]) and np.all(model.eta <= ETA_RANGE[1])):
         raise FileFormatError(path, f"η {model.eta.tolist()} outside [{ETA_RANGE[0]:g}, {ETA_RANGE[1]:g}]")
     if isinstance(model, IsotropicMicrofacetBRDF):
         total = model.ndf_table.normalization
@@ -564,7 +566,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
             "resolution": f"isotropic, {self.resolution} polar nodes",
             "kd": self.kd.tolist(),
             "ks": self.ks.tolist(),
-            "eta": self.eta.tolist(),
+            **eta_to_json(self.eta),
             "shadowing": "height-correlated Smith" if self.correlated else "separable APS (eq. 8)",
             **({"metadata": self.metadata} if self.metadata else {}),
         }
@@ -582,7 +584,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
             "resolution": self.resolution,
             "kd": self.kd.tolist(),
             "ks": self.ks.tolist(),
-            "eta": self.eta.tolist(),
+            **eta_to_json(self.eta),
             "correlated": self.correlated,
             "metadata": self.metadata,
         }

@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import BatchError, ReflectoError
+from ..fresnel import eta_to_json
 from ..io import atomic_write, make_parents, read_json
 
 #: The grid of ``reflecto design`` by default (degrees, degrees, LEDs).
@@ -254,7 +255,7 @@ def evaluate_design(src: Any, device: Any, seed: int, ref_values: Any, albedo: f
     res = reconstruct(sl)
     err = brdf_error(src, res.model, stride=METRIC_STRIDE, albedo_ref=albedo, reference_values=ref_values)
     m = res.model
-    return {"error": err.normalized, "log_rmse": err.log_rmse, "eta": m.eta.tolist(), "kd": m.kd.tolist(),
+    return {"error": err.normalized, "log_rmse": err.log_rmse, **eta_to_json(m.eta), "kd": m.kd.tolist(),
             "ks": m.ks.tolist(), "isotropic": bool(res.isotropic), "shake_detected": bool(res.shake_detected),
             "albedo_max": float(res.albedo_max), "energy_scale": float(res.energy_scale),
             "model_error": float(res.model_error), "seconds": time.perf_counter() - t0}
@@ -414,7 +415,9 @@ def table_row(geo: dict[str, Any], runs: dict[str, dict[str, Any]], cts: dict[st
                     "shaken": int(sum(runs[n]["shake_detected"] for n in names)),
                     "anisotropic": int(sum(not runs[n]["isotropic"] for n in names)),
                     "max_albedo": float(max(runs[n]["albedo_max"] for n in names)),
-                    "max_eta": float(max(max(runs[n]["eta"]) for n in names)),
+                    "max_eta": float(max((max(runs[n]["eta"]) for n in names if runs[n]["eta"] is not None),
+                                         default=math.nan)),
+                    "constant_fresnel": int(sum(runs[n]["eta"] is None for n in names)),
                     "seconds": float(sum(runs[n]["seconds"] for n in names))})
     return row
 
@@ -423,7 +426,7 @@ TABLE_COLUMNS = ("key", "cone_half_angle_deg", "axis_tilt_deg", "n_leds", "na", 
                  "realisable", "limit", "coverage_after_tau", "coverage_bound", "theta_d_reach_deg",
                  "peak_theta_d_deg", "frames", "capture_s", "materials", "ours_below_ct", "fraction_below_ct",
                  "median_ratio", "median_error", "median_ct_error", "shaken", "anisotropic", "max_albedo", "max_eta",
-                 "seconds", "leds")
+                 "constant_fresnel", "seconds", "leds")
 
 
 def write_design_table(rows: list[dict[str, Any]], path: Path) -> Path:

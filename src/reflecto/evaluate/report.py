@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from ..colour import LUM
 from ..errors import FileFormatError
+from ..fresnel import is_constant
 from ..io import atomic_path, atomic_write, read_json
 from ..model import MicrofacetBRDF, load_model
 from ..plotting import pyplot, save_figure
@@ -221,7 +222,7 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     out.mkdir(parents=True, exist_ok=True)
     figs: list[tuple[str, list[tuple[str, str]]]] = []
     numbers: dict[str, Any] = {
-        "η (R, G, B)": np.round(model.eta, 4).tolist(),
+        "η (R, G, B)": "∞: constant Fresnel, F ≡ 1" if is_constant(model.eta) else np.round(model.eta, 4).tolist(),
         "k_d (R, G, B)": np.round(model.kd, 4).tolist(),
         "k_s (R, G, B)": np.round(model.ks, 4).tolist(),
         "NDF": model.parameters().get("resolution", "isotropic" if model.isotropic else "anisotropic"),

@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import BatchError, FileFormatError, ReflectoError, ReflectoWarning, one_line
+from ..fresnel import eta_from_json, eta_to_json, is_constant
 from ..io import atomic_write, make_parents, read_description, read_json, remove_empty
 
 MATERIAL_SUFFIXES = (".binary", ".bsdf", ".h5", ".json", ".toml")
@@ -162,7 +163,7 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
         tm[f"{label}_metric_s"] = time.perf_counter() - t0
         m = res.model
         rec[label] = {"error": err.normalized, "log_rmse": err.log_rmse, "rmse": err.rmse.tolist(),
-                      "eta": m.eta.tolist(), "kd": m.kd.tolist(), "ks": m.ks.tolist(), "isotropic": res.isotropic,
+                      **eta_to_json(m.eta), "kd": m.kd.tolist(), "ks": m.ks.tolist(), "isotropic": res.isotropic,
                       "model_error": res.model_error, "shake_detected": res.shake_detected,
                       "albedo_max": res.albedo_max, "energy_scale": res.energy_scale, "notes": res.notes,
                       "finite": bool(np.isfinite(err.normalized))}
@@ -209,7 +210,7 @@ def record_problem(rec: Any, name: str) -> str | None:
     def triple(v: Any) -> bool:
         return isinstance(v, list) and len(v) == 3 and all(number(e) for e in v)
 
-    if not triple(ours.get("eta")) or not triple(ours.get("ks")) or not number(ours.get("albedo_max")) \
+    if eta_from_json(ours) is None or not triple(ours.get("ks")) or not number(ours.get("albedo_max")) \
             or not isinstance(ours.get("finite"), bool):
         return "ours: eta, ks, albedo_max or finite missing or invalid"
     renders = rec.get("renders")
@@ -534,6 +535,12 @@ COLUMNS = ("name", "half", "device", "ours", "earlier", "cook_torrance", "same_d
            "ours_finite", "seconds_total", "seconds_reconstruct", "seconds_ct_fit")
 
 
+def _eta_cell(result: dict[str, Any]) -> str:
+    """The table's η of a result: the relative index, or ``constant`` for the constant Fresnel lobe."""
+    eta = eta_from_json(result)
+    return "constant" if eta is None or is_constant(eta) else f"{eta[0]:.4g}"
+
+
 def write_table(records: list[dict[str, Any]], path: Path) -> Path:
     """The CSV table of a sweep (one row per material)."""
     import csv
@@ -548,7 +555,7 @@ def write_table(records: list[dict[str, Any]], path: Path) -> Path:
         w.writerow([r["name"], r.get("half", "other"), r["device"], f"{o:.6g}", f"{r['earlier']['error']:.6g}",
                     f"{ct:.6g}", f"{sd:.6g}", f"{o / max(ct, 1e-300):.4g}", f"{o / max(sd, 1e-300):.4g}",
                     f"{r['ours']['log_rmse']:.6g}", f"{r['cook_torrance']['log_rmse']:.6g}",
-                    f"{r['ours']['eta'][0]:.4g}", f"{max(r['ours']['ks']):.4g}", r["ours"].get("isotropic"),
+                    _eta_cell(r["ours"]), f"{max(r['ours']['ks']):.4g}", r["ours"].get("isotropic"),
                     f"{r['ours']['albedo_max']:.4g}", r["ours"]["finite"],
                     f"{tm['total_s']:.2f}", f"{tm['ours_reconstruct_s']:.3f}", f"{tm['cook_torrance_fit_s']:.2f}"])
     with atomic_write(path, "w") as fh:

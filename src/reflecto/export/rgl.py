@@ -56,6 +56,7 @@ from scipy import ndimage
 
 from ..colour import LUM
 from ..errors import ReflectoError
+from ..fresnel import f0_from_eta, is_constant
 from ..io import atomic_write, read_json
 from ..sources.base import BRDFSource
 from ..sources.rgl import MAGIC, Marginal2D
@@ -246,8 +247,7 @@ def _floor(source: BRDFSource, ring: Array, u0: Array, scale: float, min_floor: 
     peak = float(ring.max())
     kd, ks, eta = (getattr(source, k, None) for k in ("kd", "ks", "eta"))
     if kd is not None and ks is not None and eta is not None:
-        eta = np.asarray(eta, dtype=np.float64)
-        f0 = float(((eta - 1) / (eta + 1)) ** 2 @ LUM)
+        f0 = float(f0_from_eta(eta) @ LUM)
         kdl, ksl = float(np.asarray(kd) @ LUM), float(np.asarray(ks) @ LUM)
         c = 4.0 * kdl / (math.pi * max(ksl * f0, 1e-6))
     else:
@@ -525,7 +525,9 @@ def export_description(source: BRDFSource, isotropic: bool) -> str:
     parts.append(f"source kind {source.kind}")
     for key, label in (("kd", "k_d"), ("ks", "k_s"), ("eta", "eta")):
         v = getattr(source, key, None)
-        if v is not None:
+        if key == "eta" and v is not None and is_constant(v):
+            parts.append("constant Fresnel (F = 1)")
+        elif v is not None:
             parts.append(f"{label} (R,G,B) " + " ".join(f"{float(x):.4g}" for x in np.ravel(v)))
     params = source.parameters()
     for key in ("resolution", "shadowing"):

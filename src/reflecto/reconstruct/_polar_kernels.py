@@ -110,10 +110,12 @@ def luminance_pass(j, t, z, shadow_geometry, cos_d, f, w, measured, kd, g, eta, 
     ``G_b = S_b / (4 cos θ_i cos θ_o)`` (``shadow_geometry``); ``r_b = m_b − f_b``,
     one-sided (``max(0, r_b)``) where ``measured[b]`` is False. Writes ``r_out``; with
     ``jacobian`` also the specular part ``spec_out`` (``∂r/∂ log g``) and
-    ``deta_out = ∂r/∂ log(η − 1)`` (0 for an inactive bound). Returns ``Σ w r²``.
+    ``deta_out = ∂r/∂ log(η − 1)`` (0 for an inactive bound and for the constant Fresnel
+    ``η = ∞``, where F ≡ 1). Returns ``Σ w r²``.
     """
     cost = 0.0
     de = 1e-6 * eta
+    finite_eta = math.isfinite(eta)
     for b in range(r_out.shape[0]):
         k = j[b]
         lz = (1.0 - t[b]) * z[k] + t[b] * z[k + 1]
@@ -128,11 +130,11 @@ def luminance_pass(j, t, z, shadow_geometry, cos_d, f, w, measured, kd, g, eta, 
         r_out[b] = r
         cost += w[b] * r * r
         if jacobian:
-            if active:
+            if active and finite_eta:
                 spec_out[b] = spec
                 dfr = (_fresnel(cos_d[b], eta + de) - fr) / de
                 deta_out[b] = spec * dfr / (fr if fr > 0.0 else 1e-300) * (eta - 1.0)
             else:
-                spec_out[b] = 0.0
+                spec_out[b] = spec if active else 0.0
                 deta_out[b] = 0.0
     return cost

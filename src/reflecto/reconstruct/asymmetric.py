@@ -59,6 +59,7 @@ from numpy.typing import NDArray
 from .. import geometry
 from ..colour import LUM
 from ..errors import ReflectoError
+from ..fresnel import eta_to_json
 from ..hemicube import Hemicube, hemicube
 from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
@@ -420,7 +421,7 @@ class AsymmetricReconstruction:
         """JSON-ready summary (the ``.json`` written beside the model file)."""
         nan = (lambda x: x if math.isfinite(x) else None)
         return {"asymmetric": True, "isotropic": self.isotropic, "rotations_deg": self.rotations_deg,
-                "eta": self.model.eta.tolist(), "kd": self.model.kd.tolist(), "ks": self.model.ks.tolist(),
+                **eta_to_json(self.model.eta), "kd": self.model.kd.tolist(), "ks": self.model.ks.tolist(),
                 "normal": self.normal.tolist(), "normal_tilt_deg": self.normal_tilt_deg,
                 "isotropy_tests": [t.to_dict() for t in self.isotropy], "symmetry_test": self.symmetry.to_dict(),
                 "capture_consistency": self.consistency.to_dict(),

@@ -30,7 +30,9 @@ from ``D`` (eq. 8). The stages:
 
 One ``η`` serves the three channels: the per-channel ``k_s`` carries the specular
 colour, and within the device's ``θ_d`` range a per-channel real ``η`` is not
-identifiable from the Fresnel curve's shape (algorithm-reference §2.2–2.3).
+identifiable from the Fresnel curve's shape (algorithm-reference §2.2–2.3). Where the
+data want a flatter curve than ``η = ETA_MAX`` gives, the fit takes the constant
+Fresnel lobe ``F ≡ 1`` (``η = ∞``, :func:`fit_luminance`) instead of the bound.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from numpy.typing import NDArray
 
 from ..colour import LUM
 from ..errors import ReflectoError
-from ..fresnel import fresnel
+from ..fresnel import CONSTANT, fresnel
 from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF
 from ..polar import IsotropicNDF, polar_nodes
@@ -454,9 +456,12 @@ def _apply(problem: LuminanceProblem, s: LuminanceState, step: Array, tie_ks: bo
     if not (math.isfinite(n) and n > 0):
         return None
     z = z - math.log(n)
-    eta = 1.0 + (s.eta - 1.0) * math.exp(float(np.clip(step[k + 2], -2.0, 2.0)))
+    if math.isinf(s.eta):  # the constant Fresnel lobe: η is not a parameter
+        eta = s.eta
+    else:
+        eta = min(max(1.0 + (s.eta - 1.0) * math.exp(float(np.clip(step[k + 2], -2.0, 2.0))), ETA_MIN), ETA_MAX)
     g = 1.0 if tie_ks else s.g * n * math.exp(float(np.clip(step[k + 1], -3.0, 3.0)))
-    return LuminanceState(z, max(s.kd + float(step[k]), 0.0), g, min(max(eta, ETA_MIN), ETA_MAX))
+    return LuminanceState(z, max(s.kd + float(step[k]), 0.0), g, eta)
 
 
 def _normal_equations(problem: LuminanceProblem, s: LuminanceState, tie_ks: bool) -> tuple[Array, Array]:
@@ -590,7 +595,23 @@ class LuminanceFit:
 
 def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
                   outer_iterations: int = OUTER_ITERATIONS) -> LuminanceFit:
-    """The luminance fit at its fixed point with ``S`` (module docstring, stage 3)."""
+    """The luminance fit at its fixed point with ``S`` (module docstring, stage 3).
+
+    When the free η ends at :data:`ETA_MAX` still pushed upward, the data ask for a
+    Fresnel curve flatter than any dielectric's: the fit is repeated with the constant
+    Fresnel lobe (``η = ∞``, ``F ≡ 1``, :data:`reflecto.fresnel.CONSTANT`), and that one
+    is kept if its cost is lower, so no η is left parked at the search bound.
+    """
+    fit = _fit_luminance(bins, nodes, fixed_eta, outer_iterations)
+    if fixed_eta is None and fit.state.eta >= ETA_MAX * (1 - 1e-9):
+        flat = _fit_luminance(bins, nodes, CONSTANT, outer_iterations)
+        if flat.cost < fit.cost:
+            return flat
+    return fit
+
+
+def _fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None, outer_iterations: int) -> LuminanceFit:
+    """One luminance fit from the initial state, η free or held at ``fixed_eta``."""
     problem = LuminanceProblem(bins, nodes)
     s = initial_state(problem, 1.5 if fixed_eta is None else fixed_eta)
     tie = False

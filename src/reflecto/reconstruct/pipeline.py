@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 
 from .. import geometry
 from ..errors import ParameterError, ReflectoError
+from ..fresnel import eta_to_json, is_constant
 from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
 from .hemicube_fit import HemicubeFit, fit_hemicube
@@ -168,7 +169,7 @@ class Reconstruction:
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary (the ``material.json`` written beside a model file)."""
         nan = (lambda x: x if math.isfinite(x) else None)
-        return {"isotropic": self.isotropic, "eta": self.model.eta.tolist(), "kd": self.model.kd.tolist(),
+        return {"isotropic": self.isotropic, **eta_to_json(self.model.eta), "kd": self.model.kd.tolist(),
                 "ks": self.model.ks.tolist(), "normal": self.frame[2].tolist(), "normal_tilt_deg": self.normal_tilt_deg,
                 "isotropy_test": self.isotropy.to_dict(), **self.motion.to_dict(),
                 "model_error": nan(self.model_error), "fresnel_error": nan(self.fresnel_error),
@@ -245,11 +246,16 @@ def _notes(fit: IsotropicFit | HemicubeFit, model, isotropic: bool, test: Isotro
 
 def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> list[str]:
     """Plain notes on every parameter the data held at a physical or search bound (``k_s = 1``,
-    η at :data:`~.isotropic.ETA_MAX`, ``k_d = 0``) and on the energy limit, for a summary."""
+    η at :data:`~.isotropic.ETA_MAX`, ``k_d = 0``), on the constant Fresnel lobe that
+    replaces an η beyond that bound, and on the energy limit, for a summary."""
     notes = []
     if ks_at_bound:
         notes.append("k_s at its physical bound 1 (a microfacet reflects at most F): the specular level fixes η")
-    if eta >= ETA_MAX * (1 - 1e-6):
+    if is_constant(eta):
+        notes.append(f"constant Fresnel (F ≡ 1, the η → ∞ limit of eq. 4): the data ask for a flatter curve than "
+                     f"any dielectric up to η = {ETA_MAX:g} gives (a metal-like or sheen lobe); the channels' k_s "
+                     "carry its level and colour")
+    elif eta >= ETA_MAX * (1 - 1e-6):
         notes.append(f"η at its bound {ETA_MAX:g}: a metal-like flat Fresnel curve; the channels' k_s carry its colour")
     if np.any(model.kd <= 0):
         notes.append("k_d = 0 in channels " + str(np.flatnonzero(model.kd <= 0).tolist()) + ": no diffuse floor measured")
