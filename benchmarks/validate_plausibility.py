@@ -21,6 +21,7 @@ NAME-as-built (``wide``, ``wide-as-built``) instead of ``ideal`` and ``as-built`
 from __future__ import annotations
 
 import argparse
+import math
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -39,6 +40,7 @@ def one(job: tuple[str, str, str | None, float]) -> dict:
     from reflecto.instrument.simulate import simulate_capture
     from reflecto.instrument.slices import extract_slices
     from reflecto.reconstruct import Options, reconstruct
+    from reflecto.fresnel import is_constant
     from reflecto.reconstruct.isotropic import ETA_MAX
     from reflecto.sources import load_source
 
@@ -55,7 +57,8 @@ def one(job: tuple[str, str, str | None, float]) -> dict:
     m = res.model
     albedo = float(m.albedo(ANGLES, n_u=96, n_phi=96).max())
     bad = []
-    if not (res.eta < ETA_MAX and np.ptp(m.eta) == 0):
+    constant = is_constant(m.eta)  # the constant Fresnel lobe: an explicit model, not η at its bound
+    if not (constant or (res.eta < ETA_MAX and np.ptp(m.eta) == 0)):
         bad.append(f"η {m.eta.tolist()}")
     if np.any(m.ks > 1.0) or np.any(m.ks < 0) or np.any(m.kd < 0):
         bad.append(f"k_s {m.ks.round(3).tolist()} k_d {m.kd.round(3).tolist()}")
@@ -65,7 +68,8 @@ def one(job: tuple[str, str, str | None, float]) -> dict:
         bad.append(f"anisotropic ({100 * res.isotropy.anisotropy:.0f} %)")
     if res.shake_detected:
         bad.append("shake: " + res.motion.describe())
-    return {"name": name, "device": device, "tilt": tilt, "bad": bad, "eta": res.eta, "albedo": albedo,
+    return {"name": name, "device": device, "tilt": tilt, "bad": bad, "eta": math.nan if constant else res.eta,
+            "constant_fresnel": constant, "albedo": albedo,
             "notes": res.notes, "seconds": res.seconds}
 
 
@@ -101,7 +105,11 @@ def main() -> None:
         shake = sum(any(b.startswith("shake") for b in r["bad"]) for r in group)
         print(f"{label}: {ok}/{len(group)} plausible and clean; isotropic {iso}/{len(group)}; flagged as shaken "
               f"{shake}/{len(group)}; max albedo {np.nanmax([r['albedo'] for r in group]):.4f}; "
-              f"η range {np.nanmin([r['eta'] for r in group]):.3f}–{np.nanmax([r['eta'] for r in group]):.3f}")
+              f"η range {np.nanmin([r['eta'] for r in group]):.3f}–{np.nanmax([r['eta'] for r in group]):.3f}; "
+              f"constant Fresnel {sum(r.get('constant_fresnel', False) for r in group)}/{len(group)}")
+        for r in group:
+            if r.get("constant_fresnel"):
+                print(f"  constant Fresnel: {r['name']} (tilt {r['tilt']:g}°)")
 
 
 if __name__ == "__main__":
