@@ -24,6 +24,9 @@ Parts (``--part``, default all):
   (noise, hidden optics errors) with its simulated calibration; §5.5 error against
   the ideal device's (target ≤ 1.25×).
   ``--part fill-summary`` prints the verdict again from ``fill.json``.
+* ``noise`` — what sets acceptance 4's as-built error: §5.5 on the ideal device, on the
+  ideal optics with the as-built camera's noise, on the as-built optics with a noiseless
+  camera (calibrated), and on the as-built device.
 * ``mixed`` — acceptance 5's mixed samples: sets whose captures are of two materials
   must be refused.
 * ``timing`` — acceptance 6: one §5.5 reconstruction from 4 captures against one
@@ -332,6 +335,58 @@ def part_asbuilt(jobs: int) -> None:
     print(f"acceptance 4: as-built within 25 % of the ideal device's error on {ok}/{len(rows)}")
 
 
+#: Part ``noise``'s devices: the ideal one, the ideal optics with the as-built camera
+#: (read and shot noise), the as-built optics with a noiseless camera (calibrated), and
+#: the as-built device (calibrated).
+NOISE_VARIANTS = ("ideal", "ideal optics + noise", "as-built, no noise", "as-built")
+
+
+def _noise_variant(label: str):  # type: ignore[no-untyped-def]
+    import dataclasses
+
+    from reflecto.instrument.calibrate import calibrate, nominal_calibration
+    from reflecto.instrument.device import load_device
+    from reflecto.instrument.simulate import simulate_calibration
+
+    ideal, built = load_device("ideal"), load_device("as-built")
+    if label == "ideal":
+        return ideal, nominal_calibration(ideal)
+    if label == "ideal optics + noise":
+        dev = dataclasses.replace(ideal, camera=built.camera)
+        return dev, nominal_calibration(dev)
+    dev = built if label == "as-built" else dataclasses.replace(
+        built, camera=dataclasses.replace(built.camera, read_noise=0.0, shot_noise=False))
+    cal_dir = OUT / ("calib-as-built" if label == "as-built" else "calib-as-built-noiseless")
+    if not (cal_dir / "calibration.json").is_file():
+        simulate_calibration(dev, cal_dir, seed=11)
+    return dev, calibrate(cal_dir)
+
+
+def one_noise(path: str) -> dict:
+    """Part ``noise`` for one material: the §5.5 error on each of :data:`NOISE_VARIANTS`."""
+    from reflecto.evaluate.metrics import comparison_error
+    from reflecto.reconstruct.asymmetric import reconstruct_rotations
+    from reflecto.sources import load_source
+
+    src = load_source(path)
+    out = {"name": Path(path).stem}
+    for label in NOISE_VARIANTS:
+        dev, cal = _noise_variant(label)
+        out[label] = comparison_error(src, reconstruct_rotations(_captures(src, dev, cal, ROTATIONS_4)).model).normalized
+    return out
+
+
+def part_noise(jobs: int) -> None:
+    """What sets acceptance 4's as-built error: the camera's noise, the optics' hidden
+    errors through the calibration, or both (§5.5 at 0/90/180/270° on each variant)."""
+    rows = _map(one_noise, [str(p) for p in asymmetric_files()], jobs)
+    for r in rows:
+        print(f"{r['name']:20s} " + " | ".join(f"{k} {100 * r[k]:.3f} %" for k in NOISE_VARIANTS)
+              + f"   noise alone {r['ideal optics + noise'] / r['ideal']:.2f}×, calibration alone "
+              f"{r['as-built, no noise'] / r['ideal']:.2f}×")
+    _save("noise", rows)
+
+
 def part_mixed(jobs: int) -> None:
     from _shared_models import material_files
 
@@ -370,7 +425,7 @@ def part_timing() -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--part", default="all",
-                    choices=("all", "asym", "fill", "fill-summary", "sym", "asbuilt", "mixed", "timing"))
+                    choices=("all", "asym", "fill", "fill-summary", "sym", "asbuilt", "noise", "mixed", "timing"))
     ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
     args = ap.parse_args()
     t0 = time.perf_counter()
@@ -382,7 +437,8 @@ def main() -> None:
         elif part == "fill-summary":  # the verdict of a finished part fill, from its JSON
             fill_summary(json.loads((OUT / "fill.json").read_text()))
         else:
-            {"asym": part_asym, "fill": part_fill, "sym": part_sym, "asbuilt": part_asbuilt, "mixed": part_mixed}[part](
+            {"asym": part_asym, "fill": part_fill, "sym": part_sym, "asbuilt": part_asbuilt, "noise": part_noise,
+             "mixed": part_mixed}[part](
                 args.jobs)
     print(f"({time.perf_counter() - t0:.0f} s)")
 
