@@ -35,12 +35,12 @@ ANGLES = np.array([0.0, 30.0, 60.0, 75.0, 85.0, 89.0])
 
 def one(job: tuple[str, str, str | None, float]) -> dict:
     from reflecto.evaluate.sweep import material_seed
+    from reflecto.fresnel import is_constant
     from reflecto.instrument.calibrate import load_calibration, nominal_calibration
     from reflecto.instrument.device import load_device
     from reflecto.instrument.simulate import simulate_capture
     from reflecto.instrument.slices import extract_slices
     from reflecto.reconstruct import Options, reconstruct
-    from reflecto.fresnel import is_constant
     from reflecto.reconstruct.isotropic import ETA_MAX
     from reflecto.sources import load_source
 
