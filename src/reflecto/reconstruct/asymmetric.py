@@ -362,8 +362,9 @@ class AsymmetricReconstruction:
     normal
         The set's normal in device coordinates.
     isotropy
-        Each capture's azimuthal test (its own sample frame); empty when not run (the
-        data break eq. 3, or ``Options(isotropic="no")``).
+        The captures' azimuthal tests (each in its own sample frame), in capture order
+        up to the first anisotropic one; empty when not run (the data break eq. 3, or
+        ``Options(isotropic="no")``).
     symmetry
         The eq. 3 test on the merged data (:mod:`.symmetry_test`).
     consistency
@@ -507,11 +508,16 @@ def _choose_isotropic(option: str, sls: Sequence[Slices], oks: Sequence[NDArray[
     """The 1-D path? ``"auto"``: when every capture's azimuthal test (against the
     ``reference`` isotropic model) is isotropic (:func:`_isotropic_for_set`) and the
     merged data keep eq. 3 — an NDF that breaks eq. 3 is not isotropic, whatever its
-    second harmonic says."""
+    second harmonic says. The tests run in capture order and, under ``"auto"``, stop at
+    the first anisotropic one: it decides the set."""
     if option == "no" or (option == "auto" and not symmetry.symmetric):
         return False, []
-    tests = [azimuthal_test(s, ok, reference) for s, ok in zip(sls, oks)]
-    return option == "yes" or all(_isotropic_for_set(t) for t in tests), tests
+    tests: list[IsotropyTest] = []
+    for s, ok in zip(sls, oks):
+        tests.append(azimuthal_test(s, ok, reference))
+        if option == "auto" and not _isotropic_for_set(tests[-1]):
+            return False, tests
+    return True, tests
 
 
 def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options | None = None,
