@@ -599,24 +599,34 @@ def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
 
     When the free η ends at :data:`ETA_MAX` still pushed upward, the data ask for a
     Fresnel curve flatter than any dielectric's: the fit is repeated with the constant
-    Fresnel lobe (``η = ∞``, ``F ≡ 1``, :data:`reflecto.fresnel.CONSTANT`), and that one
-    is kept if its cost is lower, so no η is left parked at the search bound.
+    Fresnel lobe (``η = ∞``, ``F ≡ 1``, :data:`reflecto.fresnel.CONSTANT`) twice: from
+    the initial state, and from the bound's state (its NDF, ``k_d``, ``k_s`` and ``S``;
+    at η = 50 the Fresnel curve is already nearly flat, and a fresh start can end in a
+    worse minimum than the bound's). The cheapest of the three fits is kept, so no η is
+    left parked at the search bound unless the data fit it better than either constant
+    lobe (then the notes say so).
     """
     fit = _fit_luminance(bins, nodes, fixed_eta, outer_iterations)
     if fixed_eta is None and fit.state.eta >= ETA_MAX * (1 - 1e-9):
-        flat = _fit_luminance(bins, nodes, CONSTANT, outer_iterations)
-        if flat.cost < fit.cost:
-            return flat
+        flats = (_fit_luminance(bins, nodes, CONSTANT, outer_iterations),
+                 _fit_luminance(bins, nodes, CONSTANT, outer_iterations, start=fit.state))
+        return min((fit, *flats), key=lambda f: f.cost)
     return fit
 
 
-def _fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None, outer_iterations: int) -> LuminanceFit:
-    """One luminance fit from the initial state, η free or held at ``fixed_eta``."""
+def _fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None, outer_iterations: int,
+                   start: LuminanceState | None = None) -> LuminanceFit:
+    """One luminance fit, η free or held at ``fixed_eta``, from the initial state or ``start``."""
     problem = LuminanceProblem(bins, nodes)
-    s = initial_state(problem, 1.5 if fixed_eta is None else fixed_eta)
+    set_weights(problem)
+    if start is None:
+        s = initial_state(problem, 1.5 if fixed_eta is None else fixed_eta)
+    else:
+        s = start.copy()
+        s.eta = s.eta if fixed_eta is None else fixed_eta
+        update_shadowing(problem, s)
     tie = False
     cost = math.inf
-    set_weights(problem)
     for _ in range(outer_iterations):
         prior(problem, s)
         s, cost = solve(problem, s, fix_eta=fixed_eta is not None, tie_ks=tie)
