@@ -27,6 +27,8 @@ Parts (``--part``, default all):
 * ``noise`` — what sets acceptance 4's as-built error: §5.5 on the ideal device, on the
   ideal optics with the as-built camera's noise, on the as-built optics with a noiseless
   camera (calibrated), and on the as-built device.
+* ``photons`` — whether the noise's share is variance or bias: the ideal optics with the
+  as-built camera collecting 1, 4, 16 and 64 times its electrons.
 * ``mixed`` — acceptance 5's mixed samples: sets whose captures are of two materials
   must be refused.
 * ``timing`` — acceptance 6: one §5.5 reconstruction from 4 captures against one
@@ -387,6 +389,49 @@ def part_noise(jobs: int) -> None:
     _save("noise", rows)
 
 
+#: Part ``photons``: the as-built camera on the ideal optics, collecting this many times
+#: its electrons (full well, sensitivity and read noise scaled alike: the same DN and
+#: saturation, relative noise 1/√k).
+PHOTON_FACTORS = (1, 4, 16, 64)
+
+
+def one_photons(path: str) -> dict:
+    """Part ``photons`` for one material: the §5.5 error at each of :data:`PHOTON_FACTORS`."""
+    import dataclasses
+
+    from reflecto.evaluate.metrics import comparison_error
+    from reflecto.instrument.calibrate import nominal_calibration
+    from reflecto.instrument.device import load_device
+    from reflecto.reconstruct.asymmetric import reconstruct_rotations
+    from reflecto.sources import load_source
+
+    src = load_source(path)
+    ideal, cam = load_device("ideal"), load_device("as-built").camera
+    out = {"name": Path(path).stem}
+    for k in PHOTON_FACTORS:
+        dev = dataclasses.replace(ideal, camera=dataclasses.replace(
+            cam, full_well=k * cam.full_well, sensitivity=k * cam.sensitivity, read_noise=k * cam.read_noise))
+        out[str(k)] = comparison_error(src, reconstruct_rotations(
+            _captures(src, dev, nominal_calibration(dev), ROTATIONS_4)).model).normalized
+    return out
+
+
+def part_photons(jobs: int) -> None:
+    """Whether the noise's share of acceptance 4 is variance (falls as 1/√k with k× the
+    light) or a bias (stays): the §5.5 error on the ideal optics with the as-built
+    camera at :data:`PHOTON_FACTORS` × its electrons, against the noiseless ideal device."""
+    ideal_file = OUT / "asym.json"
+    ideal = {r["name"]: r["error_asymmetric"] for r in json.loads(ideal_file.read_text())} if ideal_file.is_file() else {
+        r["name"]: r["error_asymmetric"] for r in part_asym(jobs)}
+    rows = _map(one_photons, [str(p) for p in asymmetric_files()], jobs)
+    for r in rows:
+        e0 = ideal[r["name"]]
+        print(f"{r['name']:20s} ideal {100 * e0:.3f} % | " + " | ".join(
+            f"×{k} {100 * r[str(k)]:.3f} % ({r[str(k)] / e0:.2f}×)" for k in PHOTON_FACTORS), flush=True)
+        r["ideal"] = e0
+    _save("photons", rows)
+
+
 def part_mixed(jobs: int) -> None:
     from _shared_models import material_files
 
@@ -425,7 +470,7 @@ def part_timing() -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--part", default="all",
-                    choices=("all", "asym", "fill", "fill-summary", "sym", "asbuilt", "noise", "mixed", "timing"))
+                    choices=("all", "asym", "fill", "fill-summary", "sym", "asbuilt", "noise", "photons", "mixed", "timing"))
     ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
     args = ap.parse_args()
     t0 = time.perf_counter()
@@ -438,7 +483,7 @@ def main() -> None:
             fill_summary(json.loads((OUT / "fill.json").read_text()))
         else:
             {"asym": part_asym, "fill": part_fill, "sym": part_sym, "asbuilt": part_asbuilt, "noise": part_noise,
-             "mixed": part_mixed}[part](
+             "photons": part_photons, "mixed": part_mixed}[part](
                 args.jobs)
     print(f"({time.perf_counter() - t0:.0f} s)")
 

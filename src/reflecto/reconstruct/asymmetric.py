@@ -336,8 +336,8 @@ class SetDistance:
             return float("inf")
         n_l = sls[0].n_leds
         bins = _concatenate([bin_samples(s.light, s.view, s.values, s.valid, self.cube) for s in sls], self.cube, n_l)
-        kd_max = np.min([kd_bound(s.light, s.view, s.values, s.valid, s.pixels, self.kd_bound_max_deg) for s in sls],
-                        axis=0)
+        kd_max = np.min([kd_bound(s.light, s.view, s.values, s.valid, s.pixels, self.kd_bound_max_deg, s.noise)
+                         for s in sls], axis=0)
         n_all = n_l * len(sls)
         pairs = overlap_pairs(bins, n_all, symmetric=False)
         a = bins.i[:, 2] * bins.o[:, 2] / np.maximum(self.shadowing(bins.i) * self.shadowing(bins.o), 1e-6)
@@ -474,7 +474,7 @@ def _fit_hemicube_set(sb: _SetBins, sls: Sequence[Slices], oks: Sequence[NDArray
     """The hemicube loop on all captures' bins without τ (``pairs``: their direct overlaps), completed by synthesis."""
     mg = hf.merge_bins(sb.cube, sb.bins, len(sb.light), sb.per_led, sb.censored_fraction, symmetric=False,
                        pairs=pairs)
-    kd_max = np.min([kd_bound(s.light, s.view, s.values, ok, s.pixels, opt.kd_bound_max_deg)
+    kd_max = np.min([kd_bound(s.light, s.view, s.values, ok, s.pixels, opt.kd_bound_max_deg, s.noise)
                      for s, ok in zip(sls, oks)], axis=0)
     fill = SynthesisFill(synthesis)
     result = hf.run_loop(mg, kd_max, sb.light, fixed_eta=opt.fixed_eta, fill=fill)

@@ -290,7 +290,7 @@ def fit_hemicube(sl: Slices, ok: NDArray[np.bool_], *, fixed_eta: float | None =
                  kd_bound_max_deg: float = 75.0) -> HemicubeFit:
     """Reconstruct a hemicube NDF and the scalars from slices in the sample frame (module docstring)."""
     mg = _prepare(sl, ok, work_resolution)
-    kd_max = kd_bound(sl.light, sl.view, sl.values, ok, sl.pixels, kd_bound_max_deg)
+    kd_max = kd_bound(sl.light, sl.view, sl.values, ok, sl.pixels, kd_bound_max_deg, sl.noise)
     r = run_loop(mg, kd_max, sl.light, fixed_eta=fixed_eta, outer_iterations=outer_iterations,
                  min_outer_iterations=min_outer_iterations, eta_tolerance=eta_tolerance,
                  inner_iterations=inner_iterations)
