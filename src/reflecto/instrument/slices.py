@@ -53,8 +53,8 @@ class Slices:
         bounds, not measurements: the reconstruction uses them to bound k_d, not as
         NDF or Fresnel data.
     noise
-        Standard deviation of each sample's luminance (sr⁻¹) from the camera's noise
-        model (read, shot and quantization noise of the exposures merged,
+        Standard deviation (sr⁻¹) of one channel's reading at each sample's luminance,
+        from the camera's noise model (read, shot and quantization noise of the exposures merged,
         :func:`reflecto.instrument.hdr.merge_noise`), shape ``(L, P)``, or ``None`` when
         the camera has no noise model (gamma-encoded).
     limit

@@ -336,8 +336,9 @@ class SetDistance:
             return float("inf")
         n_l = sls[0].n_leds
         bins = _concatenate([bin_samples(s.light, s.view, s.values, s.valid, self.cube) for s in sls], self.cube, n_l)
-        kd_max = np.min([kd_bound(s.light, s.view, s.values, s.valid, s.pixels, self.kd_bound_max_deg, s.noise)
-                         for s in sls], axis=0)
+        # the plain bound (these slices carry no noise model): the same for every candidate normal
+        kd_max = np.min([kd_bound(s.light, s.view, s.values, s.valid, s.pixels, self.kd_bound_max_deg) for s in sls],
+                        axis=0)
         n_all = n_l * len(sls)
         pairs = overlap_pairs(bins, n_all, symmetric=False)
         a = bins.i[:, 2] * bins.o[:, 2] / np.maximum(self.shadowing(bins.i) * self.shadowing(bins.o), 1e-6)

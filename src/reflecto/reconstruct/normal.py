@@ -84,7 +84,7 @@ class ConsistencyDistance:
         ok = sl.valid
         if ok.sum() < 1000:
             return float("inf")
-        kd_max = kd_bound(sl.light, sl.view, sl.values, ok, sl.pixels, self.kd_bound_max_deg, sl.noise)
+        kd_max = kd_bound(sl.light, sl.view, sl.values, ok, sl.pixels, self.kd_bound_max_deg)
         bins = bin_samples(sl.light, sl.view, sl.values, ok, self.cube)
         pairs = overlap_pairs(bins, self.n_leds)
         a = bins.i[:, 2] * bins.o[:, 2] / np.maximum(self.shadowing(bins.i) * self.shadowing(bins.o), 1e-6)

@@ -213,11 +213,12 @@ def kd_bound(light: Array, view: Array, values: Array, valid: NDArray[np.bool_],
     down: ≈ 3σ on the raw samples, and still ``z σ_box`` after the box mean (the
     as-built camera's shot noise: 1.5–4.5 % below ρ_d on the analytic lobes, and k_d
     then sits at that bound, its deficit divided by F into a floor under the whole NDF).
-    With the camera's noise model (``noise``, the luminance standard deviation of each
-    sample (L, P), :attr:`~reflecto.instrument.slices.Slices.noise`) each box mean is
-    raised by ``z σ_box`` (:func:`box_noise`; the luminance's relative noise applied to
-    every channel), so that the percentile estimates the floor's level rather than its
-    noise's lower tail. ``light`` (L, 3), ``view`` (P, 3), ``values`` (L, P, 3),
+    With the camera's noise model (``noise``: per sample, shape (L, P), the standard
+    deviation of a channel reading at the sample's luminance,
+    :attr:`~reflecto.instrument.slices.Slices.noise`) each box mean is raised by
+    ``z σ_box`` (:func:`box_noise`; for a channel ``v`` above the luminance by
+    ``√(v/lum)`` more, as its shot noise grows), so that the percentile estimates the
+    floor's level rather than its noise's lower tail. ``light`` (L, 3), ``view`` (P, 3), ``values`` (L, P, 3),
     ``valid`` (L, P), ``pixels`` (P, 2); directions in the sample frame. Without a
     valid sample within ``max_deg`` every valid sample bounds; without any, 0.
     """
@@ -230,9 +231,12 @@ def kd_bound(light: Array, view: Array, values: Array, valid: NDArray[np.bool_],
     leds = np.flatnonzero(near.any(axis=1))  # box_mean costs per LED: only those that bound
     boxed = box_mean(values[leds], valid[leds], pixels)
     if noise is not None:
-        lum = boxed @ LUM
-        rel = np.divide(box_noise(noise[leds], valid[leds], pixels), lum, out=np.zeros_like(lum), where=lum > 0)
-        boxed = boxed * (1.0 + KD_BOUND_Z * rel[..., None])
+        lum = np.maximum(boxed @ LUM, 1e-300)
+        # a channel's σ: ≤ σ(lum) below the luminance (read and shot noise both fall or
+        # stay), ≤ σ(lum) √(v/lum) above it (shot noise grows as √v): the envelope, so
+        # that the bound is never under-corrected
+        grow = np.sqrt(np.maximum(boxed, 0.0) / lum[..., None])
+        boxed = boxed + KD_BOUND_Z * box_noise(noise[leds], valid[leds], pixels)[..., None] * np.maximum(grow, 1.0)
     return np.maximum(kd_upper_bound(boxed, near[leds]), 0.0)
 
 
