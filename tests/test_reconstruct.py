@@ -321,6 +321,30 @@ def test_hemicube_kd_on_a_noisy_camera_is_not_held_at_a_biased_bound():
     assert np.allclose(res.model.ks, 0.7, rtol=0.05), res.model.ks
 
 
+def test_inverse_variance_merge_lowers_the_noise_of_a_noisy_hemicube_ndf():
+    """The hemicube loop on the ideal optics with the as-built camera's noise: weighing
+    each bin's partial NDF by its inverse variance (the camera's noise model through
+    eq. 7's gain) instead of eq. 9's √cos θ_o lowers the NDF's error against the truth;
+    a bin's variance is Σσ²/n² over its pixels (here 7.1 % against 9.1 %)."""
+    from reflecto.reconstruct import hemicube_fit as hf
+    from reflecto.reconstruct.samples import bin_variance, kd_bound
+
+    src = AnalyticBRDF(distribution="ggx", alpha=[0.35, 0.15], rotation_deg=20, kd=0.2, ks=0.7, eta=1.4)
+    dev = dataclasses.replace(Device.builtin("ideal"), camera=Device.builtin("as-built").camera)
+    sl = _capture(src, dev)
+    ok = sl.valid
+    mg = hf._prepare(sl, ok, None)
+    assert mg.bin_variance is not None and np.all(mg.bin_variance > 0)
+    flat = bin_variance(sl.light, sl.view, np.full_like(sl.noise, 0.01), ok, mg.cube)
+    assert np.allclose(flat, 1e-4 / mg.bins.count)
+    kd_max = kd_bound(sl.light, sl.view, sl.values, ok, sl.pixels, 75.0, sl.noise)
+    errors = {}
+    for label, merge in (("noise", mg), ("eq. 9", dataclasses.replace(mg, bin_variance=None))):
+        st = hf.run_loop(merge, kd_max, sl.light, fixed_eta=1.4).state
+        errors[label] = ndf_error(src, hf.output_model(merge, st, 128))
+    assert errors["noise"] < 0.08 and errors["noise"] < 0.85 * errors["eq. 9"], errors
+
+
 def test_compiled_box_mean_matches_scipy():
     """The running-sum kernel against scipy.ndimage.uniform_filter, with holes, image
     borders and pixels outside the cone (not in ``pixels``)."""

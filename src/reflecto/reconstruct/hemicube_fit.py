@@ -6,8 +6,9 @@
     repeat (3 to 5 times, until η moves < 1 %; Fresnel loop):
         fit η and k_d to overlapping bins (§5.1, eqs. 5–6)    fresnel_fit.py
         repeat (NDF/shadowing loop):
-            partial NDFs (eq. 7), merged (eq. 9) and
-            completed by symmetry (eq. 3)                     ndf.py
+            partial NDFs (eq. 7), merged (eq. 9, each bin by
+            its inverse variance under the camera's noise
+            model) and completed by symmetry (eq. 3)          ndf.py
             S from the NDF (eq. 8)                            shadowing.py
             k_s per channel (linear least squares)
     smooth a wide lobe's flanks and the weak tails            ndf.py
@@ -45,12 +46,12 @@ from ..model import MicrofacetBRDF
 from ..shadowing import grid_stencil, sigma_table
 from . import ndf as ndf_mod
 from .fresnel_fit import FresnelFit, Pairs, fit_fresnel, overlap_pairs
-from .samples import Bins, bin_samples, kd_bound
+from .samples import Bins, bin_samples, bin_variance, kd_bound
 
 Array = NDArray[np.float64]
 
 __all__ = ["HemicubeFit", "fit_hemicube", "auto_work_resolution", "Merge", "LoopState", "LoopResult", "merge_bins",
-           "symmetric_fill", "run_loop", "output_model"]
+           "noise_weights", "symmetric_fill", "run_loop", "output_model"]
 
 #: E(η) (at outer iteration 1) above which an LED is looked for that explains the
 #: inconsistency (its exclusion at least halves E(η)); §5.1's shake handling.
@@ -114,6 +115,9 @@ class Merge:
 
     ``symmetric``: eq. 9 adds every bin at ``h`` and at ``τh`` (eq. 3) and the Fresnel
     fit uses the τ-symmetric overlaps; without it (§5.5) each bin counts at ``h`` only.
+    ``bin_variance``: each bin's noise variance (:func:`.samples.bin_variance`); with it
+    the loop weighs the partial NDFs by their inverse variance (:func:`noise_weights`)
+    instead of eq. 9's ``W``.
     """
 
     cube: Hemicube
@@ -125,10 +129,11 @@ class Merge:
     inner_holes: bool
     lost_leds: list[int]
     symmetric: bool = True
+    bin_variance: Array | None = None
 
 
 def merge_bins(work: Hemicube, bins: Bins, n_leds: int, per_led: Array, censored_fraction: float,
-               symmetric: bool = True, pairs: Pairs | None = None) -> Merge:
+               symmetric: bool = True, pairs: Pairs | None = None, bin_variance: Array | None = None) -> Merge:
     """A :class:`Merge` of ``bins`` (sorted by LED and texel) of ``n_leds`` LEDs.
 
     ``per_led`` (shape ``(n_leds,)``) counts each LED's measured samples. A tilt that
@@ -137,13 +142,34 @@ def merge_bins(work: Hemicube, bins: Bins, n_leds: int, per_led: Array, censored
     ``censored_fraction`` above :data:`CENSORED_FRACTION`), leaves holes inside the
     NDF, not only at its grazing rim: they are filled lobe-guided in every iteration.
     ``pairs``: the overlaps (:func:`.fresnel_fit.overlap_pairs` with ``symmetric``)
-    when already at hand.
+    when already at hand; ``bin_variance`` as in :class:`Merge`.
     """
     lost = np.flatnonzero(per_led < LOST_LED_FRACTION * np.median(per_led)).tolist()
     pairs = overlap_pairs(bins, n_leds, symmetric=symmetric) if pairs is None else pairs
     return Merge(work, bins, pairs, bins.count * ndf_mod.merge_weights(bins.o),
                  grid_stencil(bins.o, *WORK_SIGMA), ndf_mod.bin_offsets(work, bins.h),
-                 bool(lost) or censored_fraction > CENSORED_FRACTION, lost, symmetric)
+                 bool(lost) or censored_fraction > CENSORED_FRACTION, lost, symmetric, bin_variance)
+
+
+def noise_weights(mg: Merge, st: LoopState) -> Array:
+    """Inverse-variance merge weights of the bins' partial NDFs, shape ``(B,)``, median 1.
+
+    Eq. 7 turns a bin's mean ``f`` into ``D̂ = (f − k_d/π) · 4 cos θ_i cos θ_o /
+    (k_s F(θ_d) S(i) S(o))``, so its variance is ``Var f · (cos θ_i cos θ_o / (F S(i)
+    S(o)))²`` up to the common ``(4/k_s)²``; ``Var f`` is the camera's noise model
+    (:attr:`Merge.bin_variance`). Weighing each bin by the inverse is the
+    minimum-variance merge of a texel's estimates; eq. 9's ``W = √cos θ_o`` is the paper's
+    choice for a camera whose noise it does not model. ``F`` and ``S`` are the state's.
+    """
+    b = mg.bins
+    fres = np.maximum(fresnel(b.cos_d, float(st.eta @ LUM)), 1e-6)
+    gain = b.i[:, 2] * b.o[:, 2] / (fres * np.maximum(st.s_led[b.led] * st.s_o, 1e-6))
+    var = np.asarray(mg.bin_variance) * gain * gain
+    w = np.divide(1.0, var, out=np.zeros_like(var), where=var > 0.0)
+    if not np.any(w > 0.0):
+        return mg.w_merge
+    w[var <= 0.0] = w[w > 0.0].max()  # a noiseless bin (none on a camera with a noise model): the best weight
+    return w / float(np.median(w))
 
 
 def _prepare(sl: Slices, ok: NDArray[np.bool_], work_resolution: int | None) -> Merge:
@@ -157,7 +183,8 @@ def _prepare(sl: Slices, ok: NDArray[np.bool_], work_resolution: int | None) -> 
             work = hemicube(n)
             bins = bin_samples(sl.light, sl.view, sl.values, meas, work)
     censored_fraction = 1.0 - float(meas.sum()) / max(float(ok.sum()), 1.0)
-    return merge_bins(work, bins, sl.n_leds, meas.sum(axis=1), censored_fraction)
+    variance = None if sl.noise is None else bin_variance(sl.light, sl.view, sl.noise, meas, work)
+    return merge_bins(work, bins, sl.n_leds, meas.sum(axis=1), censored_fraction, bin_variance=variance)
 
 
 @dataclasses.dataclass
@@ -269,6 +296,9 @@ def run_loop(mg: Merge, kd_max: Array, light: Array, *, fixed_eta: float | None 
         converged = abs(float(st.eta @ LUM) - eta_before) <= eta_tolerance * eta_before
         last = outer == outer_iterations - 1 or (outer >= min_outer_iterations - 1 and converged)
         use = ~np.isin(mg.bins.led, list(excluded)) if excluded else slice(None)
+        if mg.bin_variance is not None:  # the weights follow η and S: merge anew each outer iteration
+            mg = dataclasses.replace(mg, w_merge=noise_weights(mg, st))
+            merged_for = None
         if merged_for != excluded:  # eq. 9's Σw and the samples' mean texel offsets, fixed while the bins are
             wsum = ndf_mod.merge_sums(mg.cube, mg.bins.texel[use], mg.bins.texel_tau[use], mg.w_merge[use],
                                       symmetric=mg.symmetric)

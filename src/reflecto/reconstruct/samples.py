@@ -93,6 +93,19 @@ def bin_samples(light: Array, view: Array, values: Array, valid: NDArray[np.bool
     return Bins(cube, led, texel, tau[texel], cnt, i, o, h, f, cos_d)
 
 
+def bin_variance(light: Array, view: Array, noise: Array, valid: NDArray[np.bool_], cube: Hemicube) -> Array:
+    """Variance of each bin's mean luminance (sr⁻²), in :func:`bin_samples`' bin order, shape ``(B,)``:
+    ``Σ σ² / n²`` over the bin's ``n`` samples (independent pixel noise ``σ``,
+    :attr:`~reflecto.instrument.slices.Slices.noise`, shape ``(L, P)``)."""
+    li, pi = np.nonzero(valid)
+    key = li * cube.size + cube.index(_kernels.as_dirs(light)[li] + _kernels.as_dirs(view)[pi])
+    n_keys = light.shape[0] * cube.size
+    count = np.bincount(key, minlength=n_keys)
+    used = np.flatnonzero(count)
+    var = np.bincount(key, weights=noise[li, pi] ** 2, minlength=n_keys)[used]
+    return var / count[used].astype(np.float64) ** 2
+
+
 def bin_samples_numpy(light: Array, view: Array, values: Array, valid: NDArray[np.bool_], cube: Hemicube) -> Bins:
     """NumPy reference of :func:`bin_samples` (same sums in the same order)."""
     li, pi = np.nonzero(valid)
