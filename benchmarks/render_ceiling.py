@@ -18,7 +18,9 @@ material. This script shows how far other models get on the same render when the
   adds up), least squares and then two reweighted rounds toward the metric's absolute
   differences (:func:`fit_class_to_render`, the best of the three kept). This is the
   caveat below removed: what the class can reach on this render at all, with its
-  parameters free (per-channel η in [1.01, 60], ``k_s`` unbounded).
+  parameters free (per-channel η in [1.01, 60], ``k_s`` unbounded); with
+  ``--render-fit plausible`` under the reconstruction's constraints (one η for R, G, B,
+  scanned over 1.03–31, and ``k_s ≤ 1``).
 
 All of them are rendered by the direct renderer (:func:`reflecto.render.sphere.render_sphere`:
 the same camera and lights as ``reflecto render --scene sphere-point``, each BRDF evaluated
@@ -27,7 +29,7 @@ image difference of :func:`reflecto.render.mitsuba.image_difference`. The fits o
 eq. 10, not the render, so the ceiling column bounds what eq. 10-fitted models of the
 class reach on the render, not what any model of the class could.
 
-Run: ``.venv/bin/python benchmarks/render_ceiling.py [--names a,b] [--jobs 2] [--render-fit]``
+Run: ``.venv/bin/python benchmarks/render_ceiling.py [--names a,b] [--jobs 2] [--render-fit [plausible]]``
 (≈ 25 s per material for the ceiling fit; all 50 ≈ 12 minutes on 2 cores; the render
 fit ≈ 3 minutes more per material).
 """
@@ -102,33 +104,51 @@ class RenderProblem(model_ceiling.Problem):
         self.w2 = self.sw**2
 
 
+class PlausibleRenderProblem(RenderProblem):
+    """:class:`RenderProblem` with ``k_s ≤ 1`` per channel: after each round of the
+    alternation ``k_s`` is clipped to ``1 / ∫ D cos θ_h dω`` of the current NDF, so that
+    the normalized model's ``k_s`` stays at most 1 (a projected alternation)."""
+
+    def solve_linear(self, q: np.ndarray, d: np.ndarray, kd: np.ndarray, ks: np.ndarray, rounds: int = 8):
+        for _ in range(rounds):
+            d, kd, ks = super().solve_linear(q, d, kd, ks, rounds=1)
+            ks = np.minimum(ks, 1.0 / max(model_ceiling.normalize(d, self.present), 1e-300))
+        return d, kd, ks
+
+
 #: Rounds of :func:`fit_class_to_render`: least squares, then reweighted toward |Δ|.
 RENDER_FIT_ROUNDS = 3
 
 
-def fit_class_to_render(ref, r: np.ndarray, mask: np.ndarray) -> tuple[float, object]:
+def fit_class_to_render(ref, r: np.ndarray, mask: np.ndarray, plausible: bool = False) -> tuple[float, object]:
     """The class fitted to the render of ``ref`` (:class:`RenderProblem`); returns the
     smallest mean image difference over :data:`RENDER_FIT_ROUNDS` rounds and its model.
     After each round the samples are reweighted by ``1/max(a, 10⁻³ ā)`` with ``a`` their
-    absolute radiance difference, the iteratively reweighted least squares of an L1 fit."""
+    absolute radiance difference, the iteratively reweighted least squares of an L1 fit.
+
+    ``plausible``: the reconstruction's constraints instead of free parameters, one η for
+    R, G, B (each of ``model_ceiling.ETA_ORACLE``, 1.03–31, fitted in turn, the best
+    kept) and ``k_s ≤ 1`` per channel (:class:`PlausibleRenderProblem`)."""
     from reflecto.render.mitsuba import SMOOTHING_PX, image_difference
     from reflecto.render.sphere import render_sphere
 
-    prob = RenderProblem(ref)
     best: tuple[float, object] = (float("inf"), None)
-    for _ in range(RENDER_FIT_ROUNDS):
-        m = model_ceiling.fit_class(prob)
-        diff = image_difference(r, render_sphere(m, RESOLUTION, SUPERSAMPLE), mask, SMOOTHING_PX)
-        if diff < best[0]:
-            best = (diff, m)
-        a = np.sum(np.abs(m.eval(prob.i, prob.o) - prob.r), axis=1) * prob.base
-        prob.reweight(1.0 / np.maximum(a, 1e-3 * float(np.mean(a))))
+    for eta in (model_ceiling.ETA_ORACLE if plausible else (None,)):
+        prob = PlausibleRenderProblem(ref) if plausible else RenderProblem(ref)
+        for _ in range(RENDER_FIT_ROUNDS):
+            m = (model_ceiling.fit_class(prob, eta_fixed=float(eta), outer=3) if plausible
+                 else model_ceiling.fit_class(prob))
+            diff = image_difference(r, render_sphere(m, RESOLUTION, SUPERSAMPLE), mask, SMOOTHING_PX)
+            if diff < best[0]:
+                best = (diff, m)
+            a = np.sum(np.abs(m.eval(prob.i, prob.o) - prob.r), axis=1) * prob.base
+            prob.reweight(1.0 / np.maximum(a, 1e-3 * float(np.mean(a))))
     return best
 
 
-def one(args: tuple[str, str, bool]) -> tuple:
-    """(name, ours, dense CT, class ceiling[, class fitted to the render, its η]) mean image
-    differences for one material."""
+def one(args: tuple[str, str, str | None]) -> tuple:
+    """(name, ours, dense CT, class ceiling[, class fitted to the render, its η, its k_s]) mean
+    image differences for one material; ``args[2]`` the render fit (``free``, ``plausible`` or None)."""
     from reflecto.evaluate.cooktorrance import fit_cook_torrance
     from reflecto.model import load_model
     from reflecto.render.mitsuba import SMOOTHING_PX, image_difference
@@ -143,21 +163,25 @@ def one(args: tuple[str, str, bool]) -> tuple:
     diffs = [image_difference(r, render_sphere(m, RESOLUTION, SUPERSAMPLE), mask, SMOOTHING_PX) for m in models]
     if not render_fit:
         return (Path(path).stem, *diffs)
-    diff, m = fit_class_to_render(ref, r, mask)
-    return (Path(path).stem, *diffs, diff, [float(x) for x in np.atleast_1d(m.eta)])
+    diff, m = fit_class_to_render(ref, r, mask, plausible=render_fit == "plausible")
+    return (Path(path).stem, *diffs, diff, [float(x) for x in np.atleast_1d(m.eta)],
+            [float(x) for x in np.atleast_1d(m.ks)])
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--names", help="comma-separated material names (default: all 50)")
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--render-fit", action="store_true", help="also fit the class to the render itself")
+    ap.add_argument("--render-fit", nargs="?", const="free", choices=("free", "plausible"),
+                    help="also fit the class to the render itself: free parameters (default) or the "
+                         "reconstruction's constraints (one η, k_s ≤ 1)")
     args = ap.parse_args()
     todo = [(str(p), str(m), args.render_fit) for p, m in shared_models(args.names.split(",") if args.names else None)]
     with ProcessPoolExecutor(args.jobs) as ex:
         rows = []
         for row in ex.map(one, todo):
-            extra = (f"  class fitted to the render {100 * row[4]:6.2f} % (η {' / '.join(f'{x:.3g}' for x in row[5])})"
+            extra = (f"  class fitted to the render ({args.render_fit}) {100 * row[4]:6.2f} % "
+                     f"(η {' / '.join(f'{x:.3g}' for x in row[5])}, k_s {' / '.join(f'{x:.3g}' for x in row[6])})"
                      if args.render_fit else "")
             print(f"{row[0]:28s} ours {100 * row[1]:6.2f} %  dense CT {100 * row[2]:6.2f} %  "
                   f"class ceiling {100 * row[3]:6.2f} %" + extra, flush=True)
