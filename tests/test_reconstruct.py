@@ -327,19 +327,20 @@ def test_inverse_variance_merge_lowers_the_noise_of_a_noisy_hemicube_ndf():
     eq. 7's gain) instead of eq. 9's √cos θ_o lowers the NDF's error against the truth;
     a bin's variance is Σσ²/n² over its pixels (here 7.1 % against 9.1 %)."""
     from reflecto.reconstruct import hemicube_fit as hf
-    from reflecto.reconstruct.samples import bin_variance, kd_bound
+    from reflecto.reconstruct.samples import bin_samples, kd_bound
 
     src = AnalyticBRDF(distribution="ggx", alpha=[0.35, 0.15], rotation_deg=20, kd=0.2, ks=0.7, eta=1.4)
     dev = dataclasses.replace(Device.builtin("ideal"), camera=Device.builtin("as-built").camera)
     sl = _capture(src, dev)
     ok = sl.valid
     mg = hf._prepare(sl, ok, None)
-    assert mg.bin_variance is not None and np.all(mg.bin_variance > 0)
-    flat = bin_variance(sl.light, sl.view, np.full_like(sl.noise, 0.01), ok, mg.cube)
+    assert mg.bins.variance is not None and np.all(mg.bins.variance > 0)
+    flat = bin_samples(sl.light, sl.view, sl.values, ok, mg.cube, np.full_like(sl.noise, 0.01)).variance
     assert np.allclose(flat, 1e-4 / mg.bins.count)
     kd_max = kd_bound(sl.light, sl.view, sl.values, ok, sl.pixels, 75.0, sl.noise)
     errors = {}
-    for label, merge in (("noise", mg), ("eq. 9", dataclasses.replace(mg, bin_variance=None))):
+    eq9 = dataclasses.replace(mg, bins=dataclasses.replace(mg.bins, variance=None))
+    for label, merge in (("noise", mg), ("eq. 9", eq9)):
         st = hf.run_loop(merge, kd_max, sl.light, fixed_eta=1.4).state
         errors[label] = ndf_error(src, hf.output_model(merge, st, 128))
     assert errors["noise"] < 0.08 and errors["noise"] < 0.85 * errors["eq. 9"], errors
@@ -460,11 +461,13 @@ def test_compiled_binning_matches_numpy():
                         nominal_calibration(dev))
     valid = sl.valid.copy()
     valid[1, ::5] = False  # holes: the order of the valid samples must not matter
+    noise = np.random.default_rng(4).random(valid.shape)
     for n in (64, 128):
-        a = bin_samples(sl.light, sl.view, sl.values, valid, hemicube(n))
-        b = bin_samples_numpy(sl.light, sl.view, sl.values, valid, hemicube(n))
-        for name in ("led", "texel", "texel_tau", "count", "i", "o", "h", "f"):
+        a = bin_samples(sl.light, sl.view, sl.values, valid, hemicube(n), noise)
+        b = bin_samples_numpy(sl.light, sl.view, sl.values, valid, hemicube(n), noise)
+        for name in ("led", "texel", "texel_tau", "count", "i", "o", "h", "f", "variance"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        assert bin_samples(sl.light, sl.view, sl.values, valid, hemicube(n)).variance is None
         assert np.allclose(a.cos_d, b.cos_d, rtol=0, atol=1e-15)
         assert a.count.sum() == valid.sum()
     assert np.array_equal(kd_upper_bound(sl.values, valid), np.percentile(sl.values[valid], 0.2, axis=0) * np.pi)

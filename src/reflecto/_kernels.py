@@ -240,12 +240,13 @@ def cube_index(n, dirs, out):
 
 
 @njit(**_OPTS)
-def bin_accumulate(light, view, values, valid, n):
+def bin_accumulate(light, view, values, valid, n, sq):
     """Per (LED, texel of i + o) sums of the valid samples: :func:`reconstruct.samples.bin_samples`.
 
     Samples are visited LED by LED, pixel by pixel (the order of ``np.nonzero``), so
     the sums equal ``np.bincount``'s bit for bit. Returns the used keys
-    ``led·size + texel`` (ascending), their counts, ``Σf`` (K, 3) and ``Σo`` (K, 3).
+    ``led·size + texel`` (ascending), their counts, ``Σf`` (K, 3), ``Σo`` (K, 3) and
+    ``Σ sq`` (K,) when ``sq`` has the shape of ``valid`` (zeros otherwise).
     """
     size = 3 * n * n
     n_l, n_p = valid.shape
@@ -277,6 +278,8 @@ def bin_accumulate(light, view, values, valid, n):
     slot = count
     fsum = np.zeros((nb, 3))
     osum = np.zeros((nb, 3))
+    qsum = np.zeros(nb)
+    with_sq = sq.shape[0] == n_l and sq.shape[1] == n_p
     m = 0
     for l in range(n_l):
         for p in range(n_p):
@@ -286,7 +289,9 @@ def bin_accumulate(light, view, values, valid, n):
                 for ch in range(3):
                     fsum[b, ch] += values[l, p, ch]
                     osum[b, ch] += view[p, ch]
-    return used, cnt, fsum, osum
+                if with_sq:
+                    qsum[b] += sq[l, p]
+    return used, cnt, fsum, osum, qsum
 
 
 @njit(**_OPTS)

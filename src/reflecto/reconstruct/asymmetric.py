@@ -70,7 +70,7 @@ from .isotropy import CONDITIONAL_EXPLAINED, IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
 from .normal import estimate_normal_consistency, tilt_frame
 from .pipeline import Options, bound_notes, limit_energy, usable_samples
-from .samples import Bins, bin_samples, bin_variance, kd_bound
+from .samples import Bins, bin_samples, kd_bound
 from .symmetry_test import PairRatios, SymmetryTest, pair_ratios, symmetry_from_ratios
 from .synthesis import SynthesisFill, SynthesisOptions
 
@@ -152,7 +152,6 @@ class _SetBins:
     per_led: Array
     censored_fraction: float
     n_leds: int
-    variance: Array | None = None
 
 
 def _measured(sl: Slices, ok: NDArray[np.bool_]) -> NDArray[np.bool_]:
@@ -163,8 +162,9 @@ def _concatenate(parts: list[Bins], cube: Hemicube, leds_per_capture: int) -> Bi
     """One :class:`Bins` of several captures' bins, capture ``c``'s LEDs offset by ``c·L`` (sorted by LED, texel)."""
     cat = (lambda name: np.concatenate([getattr(b, name) for b in parts]))
     led = np.concatenate([b.led + c * leds_per_capture for c, b in enumerate(parts)])
+    variance = cat("variance") if all(b.variance is not None for b in parts) else None
     return Bins(cube, led, cat("texel"), cat("texel_tau"), cat("count"), cat("i"), cat("o"), cat("h"), cat("f"),
-                cat("cos_d"))
+                cat("cos_d"), variance)
 
 
 def set_bins(sls: Sequence[Slices], oks: Sequence[NDArray[np.bool_]], work_resolution: int | None) -> _SetBins:
@@ -174,7 +174,8 @@ def set_bins(sls: Sequence[Slices], oks: Sequence[NDArray[np.bool_]], work_resol
     cube = hemicube(work_resolution or 128)
 
     def binned(c: Hemicube) -> Bins:
-        return _concatenate([bin_samples(s.light, s.view, s.values, _measured(s, ok), c) for s, ok in zip(sls, oks)],
+        return _concatenate([bin_samples(s.light, s.view, s.values, _measured(s, ok), c, s.noise)
+                             for s, ok in zip(sls, oks)],
                             c, n_l)
 
     bins = binned(cube)
@@ -186,11 +187,7 @@ def set_bins(sls: Sequence[Slices], oks: Sequence[NDArray[np.bool_]], work_resol
     per_led = np.concatenate([_measured(s, ok).sum(axis=1) for s, ok in zip(sls, oks)]).astype(np.float64)
     n_ok = sum(float(ok.sum()) for ok in oks)
     censored = 1.0 - float(per_led.sum()) / max(n_ok, 1.0)
-    variance = None
-    if all(s.noise is not None for s in sls):
-        variance = np.concatenate([bin_variance(s.light, s.view, s.noise, _measured(s, ok), cube)
-                                   for s, ok in zip(sls, oks)])
-    return _SetBins(cube, bins, np.concatenate([s.light for s in sls]), per_led, censored, n_l, variance)
+    return _SetBins(cube, bins, np.concatenate([s.light for s in sls]), per_led, censored, n_l)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -479,7 +476,7 @@ def _fit_hemicube_set(sb: _SetBins, sls: Sequence[Slices], oks: Sequence[NDArray
                       synthesis: SynthesisOptions, pairs: Pairs) -> tuple[hf.LoopResult, hf.Merge, SynthesisFill]:
     """The hemicube loop on all captures' bins without τ (``pairs``: their direct overlaps), completed by synthesis."""
     mg = hf.merge_bins(sb.cube, sb.bins, len(sb.light), sb.per_led, sb.censored_fraction, symmetric=False,
-                       pairs=pairs, bin_variance=sb.variance)
+                       pairs=pairs)
     kd_max = np.min([kd_bound(s.light, s.view, s.values, ok, s.pixels, opt.kd_bound_max_deg, s.noise)
                      for s, ok in zip(sls, oks)], axis=0)
     fill = SynthesisFill(synthesis)

@@ -46,7 +46,7 @@ from ..model import MicrofacetBRDF
 from ..shadowing import grid_stencil, sigma_table
 from . import ndf as ndf_mod
 from .fresnel_fit import FresnelFit, Pairs, fit_fresnel, overlap_pairs
-from .samples import Bins, bin_samples, bin_variance, kd_bound
+from .samples import Bins, bin_samples, kd_bound
 
 Array = NDArray[np.float64]
 
@@ -115,9 +115,8 @@ class Merge:
 
     ``symmetric``: eq. 9 adds every bin at ``h`` and at ``τh`` (eq. 3) and the Fresnel
     fit uses the τ-symmetric overlaps; without it (§5.5) each bin counts at ``h`` only.
-    ``bin_variance``: each bin's noise variance (:func:`.samples.bin_variance`); with it
-    the loop weighs the partial NDFs by their inverse variance (:func:`noise_weights`)
-    instead of eq. 9's ``W``.
+    Bins with a noise model (:attr:`.samples.Bins.variance`) make the loop weigh the
+    partial NDFs by their inverse variance (:func:`noise_weights`) instead of eq. 9's ``W``.
     """
 
     cube: Hemicube
@@ -129,11 +128,10 @@ class Merge:
     inner_holes: bool
     lost_leds: list[int]
     symmetric: bool = True
-    bin_variance: Array | None = None
 
 
 def merge_bins(work: Hemicube, bins: Bins, n_leds: int, per_led: Array, censored_fraction: float,
-               symmetric: bool = True, pairs: Pairs | None = None, bin_variance: Array | None = None) -> Merge:
+               symmetric: bool = True, pairs: Pairs | None = None) -> Merge:
     """A :class:`Merge` of ``bins`` (sorted by LED and texel) of ``n_leds`` LEDs.
 
     ``per_led`` (shape ``(n_leds,)``) counts each LED's measured samples. A tilt that
@@ -142,13 +140,13 @@ def merge_bins(work: Hemicube, bins: Bins, n_leds: int, per_led: Array, censored
     ``censored_fraction`` above :data:`CENSORED_FRACTION`), leaves holes inside the
     NDF, not only at its grazing rim: they are filled lobe-guided in every iteration.
     ``pairs``: the overlaps (:func:`.fresnel_fit.overlap_pairs` with ``symmetric``)
-    when already at hand; ``bin_variance`` as in :class:`Merge`.
+    when already at hand.
     """
     lost = np.flatnonzero(per_led < LOST_LED_FRACTION * np.median(per_led)).tolist()
     pairs = overlap_pairs(bins, n_leds, symmetric=symmetric) if pairs is None else pairs
     return Merge(work, bins, pairs, bins.count * ndf_mod.merge_weights(bins.o),
                  grid_stencil(bins.o, *WORK_SIGMA), ndf_mod.bin_offsets(work, bins.h),
-                 bool(lost) or censored_fraction > CENSORED_FRACTION, lost, symmetric, bin_variance)
+                 bool(lost) or censored_fraction > CENSORED_FRACTION, lost, symmetric)
 
 
 def noise_weights(mg: Merge, st: LoopState) -> Array:
@@ -157,14 +155,14 @@ def noise_weights(mg: Merge, st: LoopState) -> Array:
     Eq. 7 turns a bin's mean ``f`` into ``D̂ = (f − k_d/π) · 4 cos θ_i cos θ_o /
     (k_s F(θ_d) S(i) S(o))``, so its variance is ``Var f · (cos θ_i cos θ_o / (F S(i)
     S(o)))²`` up to the common ``(4/k_s)²``; ``Var f`` is the camera's noise model
-    (:attr:`Merge.bin_variance`). Weighing each bin by the inverse is the
+    (:attr:`.samples.Bins.variance`). Weighing each bin by the inverse is the
     minimum-variance merge of a texel's estimates; eq. 9's ``W = √cos θ_o`` is the paper's
     choice for a camera whose noise it does not model. ``F`` and ``S`` are the state's.
     """
     b = mg.bins
     fres = np.maximum(fresnel(b.cos_d, float(st.eta @ LUM)), 1e-6)
     gain = b.i[:, 2] * b.o[:, 2] / (fres * np.maximum(st.s_led[b.led] * st.s_o, 1e-6))
-    var = np.asarray(mg.bin_variance) * gain * gain
+    var = np.asarray(b.variance) * gain * gain
     w = np.divide(1.0, var, out=np.zeros_like(var), where=var > 0.0)
     if not np.any(w > 0.0):
         return mg.w_merge
@@ -176,15 +174,14 @@ def _prepare(sl: Slices, ok: NDArray[np.bool_], work_resolution: int | None) -> 
     """Bins on the working hemicube (resolution chosen by :func:`auto_work_resolution`)."""
     meas = ok if sl.censored is None else ok & ~sl.censored
     work = hemicube(work_resolution or 128)
-    bins = bin_samples(sl.light, sl.view, sl.values, meas, work)
+    bins = bin_samples(sl.light, sl.view, sl.values, meas, work, sl.noise)
     if work_resolution is None:
         n = auto_work_resolution(bins)
         if n != work.n:
             work = hemicube(n)
-            bins = bin_samples(sl.light, sl.view, sl.values, meas, work)
+            bins = bin_samples(sl.light, sl.view, sl.values, meas, work, sl.noise)
     censored_fraction = 1.0 - float(meas.sum()) / max(float(ok.sum()), 1.0)
-    variance = None if sl.noise is None else bin_variance(sl.light, sl.view, sl.noise, meas, work)
-    return merge_bins(work, bins, sl.n_leds, meas.sum(axis=1), censored_fraction, bin_variance=variance)
+    return merge_bins(work, bins, sl.n_leds, meas.sum(axis=1), censored_fraction)
 
 
 @dataclasses.dataclass
@@ -296,7 +293,7 @@ def run_loop(mg: Merge, kd_max: Array, light: Array, *, fixed_eta: float | None 
         converged = abs(float(st.eta @ LUM) - eta_before) <= eta_tolerance * eta_before
         last = outer == outer_iterations - 1 or (outer >= min_outer_iterations - 1 and converged)
         use = ~np.isin(mg.bins.led, list(excluded)) if excluded else slice(None)
-        if mg.bin_variance is not None:  # the weights follow η and S: merge anew each outer iteration
+        if mg.bins.variance is not None:  # the weights follow η and S: merge anew each outer iteration
             mg = dataclasses.replace(mg, w_merge=noise_weights(mg, st))
             merged_for = None
         if merged_for != excluded:  # eq. 9's Σw and the samples' mean texel offsets, fixed while the bins are

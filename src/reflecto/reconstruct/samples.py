@@ -46,6 +46,10 @@ class Bins:
         Mean BRDF value (sr⁻¹), shape ``(B, 3)``.
     cos_d
         ``c = i·h`` (cos θ_d), shape ``(B,)``.
+    variance
+        Variance of the bin's mean luminance (sr⁻²), ``Σ σ² / n²`` over its ``n`` samples
+        (independent pixel noise ``σ``, :attr:`~reflecto.instrument.slices.Slices.noise`),
+        shape ``(B,)``; ``None`` when binned without a noise model.
     """
 
     cube: Hemicube
@@ -58,6 +62,7 @@ class Bins:
     h: Array
     f: Array
     cos_d: Array
+    variance: Array | None = None
 
     def __len__(self) -> int:
         return len(self.led)
@@ -65,10 +70,12 @@ class Bins:
     def select(self, mask: NDArray[np.bool_]) -> Bins:
         """The bins where ``mask`` holds."""
         return Bins(self.cube, self.led[mask], self.texel[mask], self.texel_tau[mask], self.count[mask],
-                    self.i[mask], self.o[mask], self.h[mask], self.f[mask], self.cos_d[mask])
+                    self.i[mask], self.o[mask], self.h[mask], self.f[mask], self.cos_d[mask],
+                    None if self.variance is None else self.variance[mask])
 
 
-def bin_samples(light: Array, view: Array, values: Array, valid: NDArray[np.bool_], cube: Hemicube) -> Bins:
+def bin_samples(light: Array, view: Array, values: Array, valid: NDArray[np.bool_], cube: Hemicube,
+                noise: Array | None = None) -> Bins:
     """Average the valid samples of ``(L, P)`` slices per LED and texel of ``h``.
 
     Parameters
@@ -83,30 +90,24 @@ def bin_samples(light: Array, view: Array, values: Array, valid: NDArray[np.bool
         Usable samples, shape ``(L, P)``.
     cube
         Working hemicube.
+    noise
+        Standard deviation of each sample's luminance (sr⁻¹), shape ``(L, P)``
+        (:attr:`~reflecto.instrument.slices.Slices.noise`); with it the bins carry
+        :attr:`Bins.variance`.
     """
     light = _kernels.as_dirs(light)
     view = _kernels.as_dirs(view)
     vals = np.ascontiguousarray(values, dtype=np.float64)
-    used, cnt, fsum, osum = _kernels.bin_accumulate(light, view, vals, np.ascontiguousarray(valid, dtype=np.bool_), cube.n)
+    sq = np.zeros((0, 0)) if noise is None else np.ascontiguousarray(noise, dtype=np.float64) ** 2
+    used, cnt, fsum, osum, qsum = _kernels.bin_accumulate(light, view, vals, np.ascontiguousarray(valid, dtype=np.bool_),
+                                                          cube.n, sq)
     led, texel, i, o, h, f, cos_d = _kernels.bin_finish(light, used, cnt, fsum, osum, cube.size)
     tau = cube.permutation(geometry.TAU)
-    return Bins(cube, led, texel, tau[texel], cnt, i, o, h, f, cos_d)
+    return Bins(cube, led, texel, tau[texel], cnt, i, o, h, f, cos_d, None if noise is None else qsum / (cnt * cnt))
 
 
-def bin_variance(light: Array, view: Array, noise: Array, valid: NDArray[np.bool_], cube: Hemicube) -> Array:
-    """Variance of each bin's mean luminance (sr⁻²), in :func:`bin_samples`' bin order, shape ``(B,)``:
-    ``Σ σ² / n²`` over the bin's ``n`` samples (independent pixel noise ``σ``,
-    :attr:`~reflecto.instrument.slices.Slices.noise`, shape ``(L, P)``)."""
-    li, pi = np.nonzero(valid)
-    key = li * cube.size + cube.index(_kernels.as_dirs(light)[li] + _kernels.as_dirs(view)[pi])
-    n_keys = light.shape[0] * cube.size
-    count = np.bincount(key, minlength=n_keys)
-    used = np.flatnonzero(count)
-    var = np.bincount(key, weights=noise[li, pi] ** 2, minlength=n_keys)[used]
-    return var / count[used].astype(np.float64) ** 2
-
-
-def bin_samples_numpy(light: Array, view: Array, values: Array, valid: NDArray[np.bool_], cube: Hemicube) -> Bins:
+def bin_samples_numpy(light: Array, view: Array, values: Array, valid: NDArray[np.bool_], cube: Hemicube,
+                      noise: Array | None = None) -> Bins:
     """NumPy reference of :func:`bin_samples` (same sums in the same order)."""
     li, pi = np.nonzero(valid)
     o = view[pi]
@@ -122,7 +123,11 @@ def bin_samples_numpy(light: Array, view: Array, values: Array, valid: NDArray[n
     def total(x: Array) -> Array:
         return np.column_stack([np.bincount(b, weights=x[:, k], minlength=nb) for k in range(x.shape[1])])
 
-    return _finish(cube, light, used, count[used].astype(np.float64), total(values[li, pi]), total(o))
+    cnt = count[used].astype(np.float64)
+    bins = _finish(cube, light, used, cnt, total(values[li, pi]), total(o))
+    if noise is not None:
+        bins.variance = np.bincount(b, weights=noise[li, pi] ** 2, minlength=nb) / (cnt * cnt)
+    return bins
 
 
 def _finish(cube: Hemicube, light: Array, used: NDArray[np.intp], cnt: Array, fsum: Array, osum: Array) -> Bins:
