@@ -20,7 +20,11 @@ material. This script shows how far other models get on the same render when the
   caveat below removed: what the class can reach on this render at all, with its
   parameters free (per-channel η in [1.01, 60], ``k_s`` unbounded); with
   ``--render-fit plausible`` under the reconstruction's constraints (one η for R, G, B,
-  scanned over 1.03–31, and ``k_s ≤ 1``).
+  scanned over 1.03–31, three outer rounds of S each, and ``k_s ≤ 1``). Its eq. 10
+  error is printed beside it.
+* with ``--trade-off``, **the trade-off**: what a plausible model of the class can keep
+  of eq. 10 while its render is within the bar — the lowest eq. 10 error among the
+  models fitted to eq. 10 and the render together (:func:`trade_off`), against ours.
 
 All of them are rendered by the direct renderer (:func:`reflecto.render.sphere.render_sphere`:
 the same camera and lights as ``reflecto render --scene sphere-point``, each BRDF evaluated
@@ -29,9 +33,9 @@ image difference of :func:`reflecto.render.mitsuba.image_difference`. The fits o
 eq. 10, not the render, so the ceiling column bounds what eq. 10-fitted models of the
 class reach on the render, not what any model of the class could.
 
-Run: ``.venv/bin/python benchmarks/render_ceiling.py [--names a,b] [--jobs 2] [--render-fit [plausible]]``
-(≈ 25 s per material for the ceiling fit; all 50 ≈ 12 minutes on 2 cores; the render
-fit ≈ 3 minutes more per material).
+Run: ``.venv/bin/python benchmarks/render_ceiling.py [--names a,b] [--jobs 2] [--render-fit [plausible]]
+[--trade-off [--shares 0.5,0.9]]`` (≈ 25 s per material for the ceiling fit; all 50 ≈ 12 minutes on 2 cores;
+the render fit ≈ 3 minutes more per material, the trade-off ≈ 8).
 """
 
 from __future__ import annotations
@@ -118,6 +122,69 @@ class PlausibleRenderProblem(RenderProblem):
 
 #: Rounds of :func:`fit_class_to_render`: least squares, then reweighted toward |Δ|.
 RENDER_FIT_ROUNDS = 3
+#: Shares λ of the render in :func:`trade_off`'s objective (the rest is eq. 10's).
+TRADE_OFF = (0.5, 0.9)
+#: Stride of the eq. 10 grid on which :func:`trade_off` ranks its candidates (the one
+#: it keeps is reported on the full grid).
+RANK_STRIDE = 2
+
+
+class TradeOffProblem(PlausibleRenderProblem):
+    """Eq. 10's residuals (:class:`model_ceiling.Problem`, the whole reference) and the
+    render's (:class:`RenderProblem`) in one plausible fit: cost ``(1 − λ) C₁₀/E₁₀ + λ
+    C_r/E_r``, each part over its reference's own sum of squares ``E`` (``Σ (sw R)²``), so
+    that ``λ`` is a share independent of the material's brightness. :meth:`reweight`
+    acts on the render's part only (eq. 10 stays a least-squares fit)."""
+
+    def __init__(self, source, share: float) -> None:  # noqa: D107
+        render = RenderProblem(source)
+        grid = model_ceiling.Problem(source)
+        e10 = float(np.sum((grid.sw[:, None] * grid.r) ** 2))
+        er = float(np.sum((render.base[:, None] * render.r) ** 2))
+        self.n_grid = len(grid.i)
+        self.i, self.o = np.concatenate([grid.i, render.i]), np.concatenate([grid.o, render.o])
+        self.r, self.kh = np.concatenate([grid.r, render.r]), np.concatenate([grid.kh, render.kh])
+        self.c = np.concatenate([grid.c, render.c])
+        self.base = np.concatenate([grid.sw * np.sqrt((1.0 - share) / e10), render.base * np.sqrt(share / er)])
+        self.present = grid.present | render.present
+        self.reweight(np.ones(len(self.i)))
+
+    def reweight(self, extra: np.ndarray) -> None:  # noqa: D102
+        extra = np.array(extra, dtype=np.float64)
+        extra[: self.n_grid] = 1.0
+        super().reweight(extra)
+
+
+def trade_off(ref, r: np.ndarray, mask: np.ndarray,
+              shares: tuple[float, ...] = TRADE_OFF) -> tuple[float, float, object] | None:
+    """The lowest eq. 10 error among plausible models of the class whose render is within
+    :data:`BAR`: every model of :class:`TradeOffProblem` for each of ``shares``
+    (default :data:`TRADE_OFF`), each η of ``model_ceiling.ETA_ORACLE`` and each of
+    :data:`RENDER_FIT_ROUNDS` rounds (reweighted as :func:`fit_class_to_render`), ranked
+    on the stride-:data:`RANK_STRIDE` grid. Returns ``(eq. 10 on the full grid, image
+    difference, model)``, or ``None`` if no model reaches the bar."""
+    from reflecto.evaluate.metrics import brdf_error, evaluate_on_grid, max_albedo, metric_grid
+    from reflecto.render.mitsuba import SMOOTHING_PX, image_difference
+    from reflecto.render.sphere import render_sphere
+
+    albedo = max_albedo(ref)
+    values = evaluate_on_grid(ref, metric_grid(RANK_STRIDE))  # the reference once, not per candidate
+    best: tuple[float, float, object] | None = None
+    for share in shares:
+        for eta in model_ceiling.ETA_ORACLE:
+            prob = TradeOffProblem(ref, share)
+            for _ in range(RENDER_FIT_ROUNDS):
+                m = model_ceiling.fit_class(prob, eta_fixed=float(eta), outer=3)
+                diff = image_difference(r, render_sphere(m, RESOLUTION, SUPERSAMPLE), mask, SMOOTHING_PX)
+                if diff <= BAR:
+                    err = brdf_error(ref, m, stride=RANK_STRIDE, albedo_ref=albedo, reference_values=values).normalized
+                    if best is None or err < best[0]:
+                        best = (err, diff, m)
+                a = np.sum(np.abs(m.eval(prob.i, prob.o) - prob.r), axis=1) * prob.base
+                prob.reweight(1.0 / np.maximum(a, 1e-3 * float(np.mean(a))))
+    if best is None:
+        return None
+    return brdf_error(ref, best[2], albedo_ref=albedo).normalized, best[1], best[2]
 
 
 def fit_class_to_render(ref, r: np.ndarray, mask: np.ndarray, plausible: bool = False) -> tuple[float, object]:
@@ -146,26 +213,49 @@ def fit_class_to_render(ref, r: np.ndarray, mask: np.ndarray, plausible: bool = 
     return best
 
 
-def one(args: tuple[str, str, str | None]) -> tuple:
-    """(name, ours, dense CT, class ceiling[, class fitted to the render, its η, its k_s]) mean
-    image differences for one material; ``args[2]`` the render fit (``free``, ``plausible`` or None)."""
+def one(args: tuple[str, str, str | None, tuple[float, ...] | None]) -> dict:
+    """The mean image differences of one material (keys ``name``, ``ours``, ``dense CT``,
+    ``class ceiling``; with a render fit (``args[2]``: ``free`` or ``plausible``) also
+    ``render fit``, its ``eta``, ``ks`` and eq. 10 error ``render fit eq10``; with
+    ``args[3]`` (the shares) the :func:`trade_off` result ``trade-off`` and eq. 10 of ours, ``ours eq10``)."""
     from reflecto.evaluate.cooktorrance import fit_cook_torrance
+    from reflecto.evaluate.metrics import brdf_error
     from reflecto.model import load_model
     from reflecto.render.mitsuba import SMOOTHING_PX, image_difference
     from reflecto.render.sphere import render_sphere
     from reflecto.sources import load_source
 
-    path, model_file, render_fit = args
+    path, model_file, render_fit, shares = args
     ref = load_source(path)
     r = render_sphere(ref, RESOLUTION, SUPERSAMPLE)
     mask = r.sum(axis=-1) > 0
-    models = (load_model(model_file), fit_cook_torrance(ref), model_ceiling.fit_class(model_ceiling.Problem(ref)))
+    ours = load_model(model_file)
+    models = (ours, fit_cook_torrance(ref), model_ceiling.fit_class(model_ceiling.Problem(ref)))
     diffs = [image_difference(r, render_sphere(m, RESOLUTION, SUPERSAMPLE), mask, SMOOTHING_PX) for m in models]
-    if not render_fit:
-        return (Path(path).stem, *diffs)
-    diff, m = fit_class_to_render(ref, r, mask, plausible=render_fit == "plausible")
-    return (Path(path).stem, *diffs, diff, [float(x) for x in np.atleast_1d(m.eta)],
-            [float(x) for x in np.atleast_1d(m.ks)])
+    row: dict = {"name": Path(path).stem, **dict(zip(("ours", "dense CT", "class ceiling"), diffs))}
+    if render_fit:
+        diff, m = fit_class_to_render(ref, r, mask, plausible=render_fit == "plausible")
+        row.update({"render fit": diff, "eta": [float(x) for x in np.atleast_1d(m.eta)],
+                    "ks": [float(x) for x in np.atleast_1d(m.ks)], "render fit eq10": brdf_error(ref, m).normalized})
+    if shares:
+        row["ours eq10"] = brdf_error(ref, ours).normalized
+        row["trade-off"] = trade_off(ref, r, mask, shares)
+    return row
+
+
+def _line(row: dict, render_fit: str | None) -> str:
+    text = (f"{row['name']:28s} ours {100 * row['ours']:6.2f} %  dense CT {100 * row['dense CT']:6.2f} %  "
+            f"class ceiling {100 * row['class ceiling']:6.2f} %")
+    if render_fit:
+        text += (f"  class fitted to the render ({render_fit}) {100 * row['render fit']:6.2f} % "
+                 f"(η {' / '.join(f'{x:.3g}' for x in row['eta'])}, k_s {' / '.join(f'{x:.3g}' for x in row['ks'])}, "
+                 f"eq. 10 {row['render fit eq10']:.4g})")
+    if "trade-off" in row:
+        t = row["trade-off"]
+        text += f"  eq. 10: ours {row['ours eq10']:.4g}, " + (
+            "no plausible model within the bar" if t is None else
+            f"lowest within the bar {t[0]:.4g} (render {100 * t[1]:.2f} %, η {float(np.atleast_1d(t[2].eta)[0]):.3g})")
+    return text
 
 
 def main() -> None:
@@ -175,26 +265,29 @@ def main() -> None:
     ap.add_argument("--render-fit", nargs="?", const="free", choices=("free", "plausible"),
                     help="also fit the class to the render itself: free parameters (default) or the "
                          "reconstruction's constraints (one η, k_s ≤ 1)")
+    ap.add_argument("--trade-off", action="store_true",
+                    help="also the lowest eq. 10 error of a plausible model whose render is within 25 %% "
+                         "(fitted to eq. 10 and the render together, trade_off)")
+    ap.add_argument("--shares", default=",".join(str(x) for x in TRADE_OFF),
+                    help="the render's shares of the trade-off's cost, comma-separated (default %(default)s)")
     args = ap.parse_args()
-    todo = [(str(p), str(m), args.render_fit) for p, m in shared_models(args.names.split(",") if args.names else None)]
+    shares = tuple(float(x) for x in args.shares.split(",")) if args.trade_off else None
+    todo = [(str(p), str(m), args.render_fit, shares)
+            for p, m in shared_models(args.names.split(",") if args.names else None)]
     with ProcessPoolExecutor(args.jobs) as ex:
         rows = []
         for row in ex.map(one, todo):
-            extra = (f"  class fitted to the render ({args.render_fit}) {100 * row[4]:6.2f} % "
-                     f"(η {' / '.join(f'{x:.3g}' for x in row[5])}, k_s {' / '.join(f'{x:.3g}' for x in row[6])})"
-                     if args.render_fit else "")
-            print(f"{row[0]:28s} ours {100 * row[1]:6.2f} %  dense CT {100 * row[2]:6.2f} %  "
-                  f"class ceiling {100 * row[3]:6.2f} %" + extra, flush=True)
+            print(_line(row, args.render_fit), flush=True)
             rows.append(row)
-    v = np.array([r[1:5] for r in rows])
-    labels = ("ours", "dense CT", "class ceiling") + (("class fitted to the render",) if args.render_fit else ())
-    for k, label in enumerate(labels):
-        print(f"{label:14s} median {100 * np.median(v[:, k]):5.2f} %, above 25 %: {int(np.sum(v[:, k] > BAR))} of {len(v)}")
-    over = [r[0] for r in rows if r[1] > BAR]
-    both = [r[0] for r in rows if r[1] > BAR and r[3] > BAR]
+    labels = ("ours", "dense CT", "class ceiling") + (("render fit",) if args.render_fit else ())
+    for label in labels:
+        v = np.array([r[label] for r in rows])
+        print(f"{label:14s} median {100 * np.median(v):5.2f} %, above 25 %: {int(np.sum(v > BAR))} of {len(v)}")
+    over = [r["name"] for r in rows if r["ours"] > BAR]
+    both = [r["name"] for r in rows if r["ours"] > BAR and r["class ceiling"] > BAR]
     print(f"ours above 25 %: {len(over)}; of these, the class ceiling is above 25 % too on {len(both)}: {', '.join(both)}")
     if args.render_fit:
-        reach = [r[0] for r in rows if r[1] > BAR and r[4] <= BAR]
+        reach = [r["name"] for r in rows if r["ours"] > BAR and r["render fit"] <= BAR]
         print(f"of ours above 25 %, the class fitted to the render reaches ≤ 25 % on {len(reach)}: {', '.join(reach)}")
 
 
