@@ -129,6 +129,14 @@ TRADE_OFF = (0.5, 0.9)
 RANK_STRIDE = 2
 
 
+def reweight_toward_l1(prob: RenderProblem, model) -> None:
+    """One step of the iteratively reweighted least squares of an L1 fit: each sample's
+    residual scaled by ``1/max(a, 10⁻³ ā)^½``, ``a`` its weighted absolute difference
+    (summed over R, G, B) under ``model``."""
+    a = np.sum(np.abs(model.eval(prob.i, prob.o) - prob.r), axis=1) * prob.base
+    prob.reweight(1.0 / np.maximum(a, 1e-3 * float(np.mean(a))))
+
+
 class TradeOffProblem(PlausibleRenderProblem):
     """Eq. 10's residuals (:class:`model_ceiling.Problem`, the whole reference) and the
     render's (:class:`RenderProblem`) in one plausible fit: cost ``(1 − λ) C₁₀/E₁₀ + λ
@@ -136,9 +144,7 @@ class TradeOffProblem(PlausibleRenderProblem):
     that ``λ`` is a share independent of the material's brightness. :meth:`reweight`
     acts on the render's part only (eq. 10 stays a least-squares fit)."""
 
-    def __init__(self, source, share: float) -> None:  # noqa: D107
-        render = RenderProblem(source)
-        grid = model_ceiling.Problem(source)
+    def __init__(self, grid: model_ceiling.Problem, render: RenderProblem, share: float) -> None:  # noqa: D107
         e10 = float(np.sum((grid.sw[:, None] * grid.r) ** 2))
         er = float(np.sum((render.base[:, None] * render.r) ** 2))
         self.n_grid = len(grid.i)
@@ -169,10 +175,12 @@ def trade_off(ref, r: np.ndarray, mask: np.ndarray,
 
     albedo = max_albedo(ref)
     values = evaluate_on_grid(ref, metric_grid(RANK_STRIDE))  # the reference once, not per candidate
+    grid, render = model_ceiling.Problem(ref), RenderProblem(ref)
     best: tuple[float, float, object] | None = None
     for share in shares:
+        prob = TradeOffProblem(grid, render, share)
         for eta in model_ceiling.ETA_ORACLE:
-            prob = TradeOffProblem(ref, share)
+            prob.reweight(np.ones(len(prob.i)))
             for _ in range(RENDER_FIT_ROUNDS):
                 m = model_ceiling.fit_class(prob, eta_fixed=float(eta), outer=3)
                 diff = image_difference(r, render_sphere(m, RESOLUTION, SUPERSAMPLE), mask, SMOOTHING_PX)
@@ -180,8 +188,7 @@ def trade_off(ref, r: np.ndarray, mask: np.ndarray,
                     err = brdf_error(ref, m, stride=RANK_STRIDE, albedo_ref=albedo, reference_values=values).normalized
                     if best is None or err < best[0]:
                         best = (err, diff, m)
-                a = np.sum(np.abs(m.eval(prob.i, prob.o) - prob.r), axis=1) * prob.base
-                prob.reweight(1.0 / np.maximum(a, 1e-3 * float(np.mean(a))))
+                reweight_toward_l1(prob, m)
     if best is None:
         return None
     return brdf_error(ref, best[2], albedo_ref=albedo).normalized, best[1], best[2]
@@ -200,16 +207,16 @@ def fit_class_to_render(ref, r: np.ndarray, mask: np.ndarray, plausible: bool = 
     from reflecto.render.sphere import render_sphere
 
     best: tuple[float, object] = (float("inf"), None)
+    prob = PlausibleRenderProblem(ref) if plausible else RenderProblem(ref)
     for eta in (model_ceiling.ETA_ORACLE if plausible else (None,)):
-        prob = PlausibleRenderProblem(ref) if plausible else RenderProblem(ref)
+        prob.reweight(np.ones(len(prob.i)))
         for _ in range(RENDER_FIT_ROUNDS):
             m = (model_ceiling.fit_class(prob, eta_fixed=float(eta), outer=3) if plausible
                  else model_ceiling.fit_class(prob))
             diff = image_difference(r, render_sphere(m, RESOLUTION, SUPERSAMPLE), mask, SMOOTHING_PX)
             if diff < best[0]:
                 best = (diff, m)
-            a = np.sum(np.abs(m.eval(prob.i, prob.o) - prob.r), axis=1) * prob.base
-            prob.reweight(1.0 / np.maximum(a, 1e-3 * float(np.mean(a))))
+            reweight_toward_l1(prob, m)
     return best
 
 
