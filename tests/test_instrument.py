@@ -108,9 +108,32 @@ def test_calibration_recovers_the_as_built_device(as_built):
     true_scale = (cam.sensitivity / cam.gain) * (np.asarray(truth.led_intensity) * dev.led_irradiance
                                                  * truth.leds[:, 2])[:, None, None] * truth.transmission_field()[None]
     rel = cal.scale[..., 1][:, m] / true_scale[:, m] - 1
-    assert np.sqrt(np.mean(rel**2)) < 0.01
+    assert np.sqrt(np.mean(rel**2)) < 0.001, np.sqrt(np.mean(rel**2))  # 0.08 %; a local mean gave 0.15 %
+    # the outer 10 px of the view disc (the grazing views): a local mean read them 0.2 % high
+    v, u = np.mgrid[0 : m.shape[0], 0 : m.shape[1]]
+    radius = np.hypot(u - cal.optics.principal_point[0], v - cal.optics.principal_point[1])[m]
+    rim = radius > radius.max() - 10.0
+    assert np.abs(rel[:, rim].mean(axis=1)).max() < 5e-4, rel[:, rim].mean(axis=1)
     loaded = Calibration.load(d / "cal.npz")
     assert np.array_equal(loaded.scale, cal.scale) and loaded.optics == cal.optics
+
+
+def test_smooth_field_is_exact_for_a_linear_field_up_to_the_disc_rim():
+    from scipy import ndimage
+
+    from reflecto.instrument.calibrate import FIELD_SMOOTHING_PX, smooth_field
+
+    v, u = np.mgrid[0:120, 0:160].astype(np.float64)
+    disc = np.hypot(u - 80.0, v - 60.0) < 50.0
+    field = (1.0 + 0.004 * (u - 80.0) - 0.003 * (v - 60.0))[..., None] * np.array([1.0, 0.5, 2.0])
+    got = smooth_field(field, disc, FIELD_SMOOTHING_PX)
+    assert np.abs(got[disc] / field[disc] - 1.0).max() < 1e-9
+    # a local mean (normalized convolution) reads the rim from inside the disc
+    w = disc.astype(np.float64)
+    mean = ndimage.gaussian_filter(field[..., 0] * w, FIELD_SMOOTHING_PX) / np.maximum(
+        ndimage.gaussian_filter(w, FIELD_SMOOTHING_PX), 1e-12)
+    assert np.abs(mean[disc] / field[disc, 0] - 1.0).max() > 5e-3
+    assert not got[~ndimage.binary_dilation(disc, iterations=20)].any()  # far outside the disc: 0
 
 
 def test_as_built_slices_after_calibration_match_ground_truth(as_built):
