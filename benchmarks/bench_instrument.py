@@ -17,11 +17,10 @@ import cv2  # noqa: E402
 
 cv2.setNumThreads(1)
 
-from reflecto.instrument.calibrate import nominal_calibration  # noqa: E402
 from reflecto.instrument.capture import read_capture, write_capture  # noqa: E402
 from reflecto.instrument.device import Device  # noqa: E402
 from reflecto.instrument.simulate import simulate_capture  # noqa: E402
-from reflecto.instrument.slices import extract_slices  # noqa: E402
+from reflecto import workflow
 from reflecto.sources.analytic import AnalyticBRDF  # noqa: E402
 
 
@@ -30,13 +29,13 @@ from reflecto.sources.analytic import AnalyticBRDF  # noqa: E402
 def main() -> None:
     src = AnalyticBRDF(distribution="ggx", alpha=0.15, kd=[0.3, 0.2, 0.1], ks=0.6, eta=1.5)
     dev = Device.builtin("as-built")
-    cal = nominal_calibration(dev)
+    cal = workflow.calibration_for(dev, missing="nominal")
     cap = simulate_capture(src, dev, seed=0)
     t_sim = _bench.timed(lambda: simulate_capture(src, dev, seed=1))
-    t_slices = _bench.timed(lambda: extract_slices(cap, cal), repeat=15)
+    t_slices = _bench.timed(lambda: workflow.measure(cap, cal), repeat=15)
     with tempfile.TemporaryDirectory() as d:
         write_capture(cap, f"{d}/cap")
-        t_read = _bench.timed(lambda: extract_slices(read_capture(f"{d}/cap"), cal), repeat=15)
+        t_read = _bench.timed(lambda: workflow.measure(read_capture(f"{d}/cap"), cal), repeat=15)
     rows = [
         ("simulate one capture (as-built)", t_sim, 0.3),
         ("raw frames → slices", t_slices, 0.05),

@@ -24,12 +24,11 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from reflecto.evaluate.sweep import find_materials, material_seed  # noqa: E402
-from reflecto.instrument.calibrate import nominal_calibration  # noqa: E402
 from reflecto.instrument.device import Device  # noqa: E402
 from reflecto.instrument.simulate import simulate_capture  # noqa: E402
-from reflecto.instrument.slices import extract_slices  # noqa: E402
+from reflecto import workflow
 from reflecto.reconstruct import reconstruct  # noqa: E402
-from reflecto.sources import load_source  # noqa: E402
+from reflecto.load import load_source  # noqa: E402
 
 #: Rounds over all captures (a slow spell of the machine then hits every capture alike).
 REPEATS = 3
@@ -41,9 +40,9 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="every fifth material")
     args = ap.parse_args()
     dev = Device.builtin("ideal")
-    cal = nominal_calibration(dev)
+    cal = workflow.calibration_for(dev, missing="nominal")
     files = find_materials([SHARED / "rgl", SHARED / "merl-nbrdf"])[:: 5 if args.quick else 1]
-    slices = [extract_slices(simulate_capture(load_source(p), dev, seed=material_seed(p.stem)), cal) for p in files]
+    slices = [workflow.measure(simulate_capture(load_source(p), dev, seed=material_seed(p.stem)), cal) for p in files]
     reconstruct(slices[0])  # compile kernels, fill caches
     times: dict[str, list[float]] = {p.stem: [] for p in files}
     walls: list[float] = []

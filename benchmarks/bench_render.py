@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from reflecto.render.mitsuba import SHARED, default_envmap, render
-from reflecto.sources import load_source
+from reflecto.load import load_source
 
 
 def main() -> None:

@@ -17,7 +17,7 @@ def fake_run_material(path: str, out_dir: str, device: str = "ideal", calibratio
     """Load ``path`` as the sweep would and write a synthetic record of it into ``out_dir``."""
     from reflecto.evaluate.split import half
     from reflecto.io import atomic_write
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     sw = importlib.import_module("reflecto.evaluate.sweep")  # the module, not the re-exported function
     src = load_source(path)

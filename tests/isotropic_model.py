@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from reflecto.fresnel import fresnel
-from reflecto.sources.base import BRDFSource
+from reflecto.brdf import BRDFSource
 
 
 class TabulatedIsotropic(BRDFSource):

@@ -6,7 +6,7 @@ import pytest
 from reflecto import geometry as g
 from reflecto.errors import FileFormatError, ParameterError
 from reflecto.hemicube import hemicube
-from reflecto.sources import load_source
+from reflecto.load import load_source
 from reflecto.sources.analytic import AnalyticBRDF
 from conftest import random_directions
 

@@ -85,7 +85,7 @@ def test_four_rotations_beat_the_symmetric_path_on_an_asymmetric_lobe(captures):
     from reflecto.reconstruct import Options, reconstruct
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
     from reflecto.reconstruct.symmetry_test import symmetry_test_slices
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     src = load_source(BRUSHED)
     caps = [_slices(captures[f"r{r}"]) for r in ROTATIONS]
@@ -303,7 +303,7 @@ def test_errors_of_the_set_pickle():
 
 # ------------------------------------------------------------------ the gallery
 def test_gallery_page_lists_every_material_with_its_errors(tmp_path):
-    from reflecto.render.gallery import GalleryRow, GallerySettings, write_gallery
+    from reflecto.evaluate.gallery import GalleryRow, GallerySettings, write_gallery
 
     rows = [GalleryRow(f"m{k}", f"m{k}.toml", {"alpha": [0.3, 0.1]}, "form", 0.05 * (k + 1), 0.01, 0.04, 0.02, 0.01,
                        4.0 + k, True, {x: f"m{k}_{x}.png" for x in ("reference", "symmetric", "asymmetric")}, 1.0)
@@ -338,7 +338,7 @@ def test_the_set_normal_is_estimated_once():
     from reflecto.instrument.slices import extract_slices
     from reflecto.reconstruct import Options
     from reflecto.reconstruct.asymmetric import RotatedCapture, reconstruct_rotations
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     src = load_source(BRUSHED)
     dev = Device.builtin("ideal")

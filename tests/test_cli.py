@@ -26,7 +26,7 @@ def test_tabulate_analytic(tmp_path, capsys):
     # the diffuse floor 0.2/π lies under every bin above the horizon; the peak is at θ_h ≈ 0
     assert t[t > 0].min() >= 0.2 / np.pi - 1e-12
     from reflecto import geometry as g
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     th, td, pd = merl.bin_centres()
     i, o = g.hd_to_io(th[0], 0.0, td[10], pd[30])
@@ -121,7 +121,7 @@ def test_json_of_calibration_and_report_commands(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path / "calib"), "-o", str(tmp_path / "cal.npz"), "--json"]) == 0
     assert _json_out(capsys)["report"]["reprojection_rms_px"] < 0.1
     from reflecto.model import MicrofacetBRDF
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     MicrofacetBRDF.from_ndf_function(load_source(PLASTIC).ndf, resolution=16, kd=0.1, ks=0.5).save(tmp_path / "m.reflecto")
     assert main(["report", str(tmp_path / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep"), "--json"]) == 0
@@ -144,7 +144,7 @@ def test_reconstruct_without_the_calibration_its_device_needs(tmp_path, capsys):
 
 
 def test_progress_lines_off_a_terminal_and_a_bar_on_one(monkeypatch, capsys):
-    from reflecto.evaluate.sweep import Progress, interactive
+    from reflecto.batch import Progress, interactive
 
     monkeypatch.setenv("CI", "true")
     bar = Progress(3, "sweep")

@@ -144,7 +144,7 @@ def cluster():
 
 
 def test_run_batch_on_a_local_dask_cluster_equals_the_local_run(cluster):
-    from reflecto.evaluate.sweep import run_batch
+    from reflecto.batch import run_batch
 
     o = Optics(cone_half_angle_deg=60.0)
     items = [(o, layout.led_direction([5.0, 40.0, 10.0], [0.0, 180.0, 170.0])), (o, "not directions"),
@@ -169,11 +169,11 @@ def test_an_unreachable_scheduler_is_one_error(monkeypatch):
     from reflecto.errors import ReflectoError
     import importlib
 
-    sweep = importlib.import_module("reflecto.evaluate.sweep")  # the module, not the re-exported function
-    from reflecto.evaluate.sweep import run_batch
+    batch = importlib.import_module("reflecto.batch")
+    from reflecto.batch import run_batch
 
     pytest.importorskip("distributed")
-    monkeypatch.setattr(sweep, "DASK_CONNECT_TIMEOUT_S", 1.0)
+    monkeypatch.setattr(batch, "DASK_CONNECT_TIMEOUT_S", 1.0)
     with pytest.raises(ReflectoError, match="cannot reach the Dask scheduler"):
         run_batch(abs, [(1,)], ["x"], 1, lambda *a: None, scheduler="tcp://127.0.0.1:9")
 

@@ -26,7 +26,7 @@ from reflecto.instrument.capture import CaptureError, read_capture
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_calibration
 from reflecto.model import MicrofacetBRDF
-from reflecto.sources import load_source
+from reflecto.load import load_source
 from reflecto.sources.analytic import AnalyticBRDF
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -384,7 +384,7 @@ def test_merl_spike_between_quadrature_nodes_is_refused_by_its_hemispherical_alb
     rings step over the bin (albedo < 0.5), its exact per-bin integral does not (found by
     the fuzz campaign)."""
     from reflecto.sources import merl
-    from reflecto.sources.base import directional_albedo
+    from reflecto.brdf import directional_albedo
 
     t = np.full(merl.SHAPE + (3,), 0.1)
     t[37, 62:73, :, 0] = 6666.7

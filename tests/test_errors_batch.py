@@ -16,6 +16,7 @@ from reflecto.cli import main
 from reflecto.errors import BatchError, ReflectoWarning
 import importlib
 sweep_mod = importlib.import_module("reflecto.evaluate.sweep")  # the module, not the re-exported function
+batch = importlib.import_module("reflecto.batch")
 
 from _fake_sweep import fake_run_material  # noqa: E402
 
@@ -60,7 +61,7 @@ def test_batch_runner_survives_a_worker_that_dies():
     """A worker killed by a signal takes only its own item with it."""
     results = {}
     items = [("ok", 0.0), ("die", 0.0), ("ok", 0.2), ("ok", 0.0), ("ok", 0.1)]
-    sweep_mod.run_batch(_maybe_die, items, [f"item{k}" for k in range(5)], 2,
+    batch.run_batch(_maybe_die, items, [f"item{k}" for k in range(5)], 2,
                         lambda k, ok, v, s: results.__setitem__(k, (ok, v)))
     assert results[1] == (False, "item1: worker process died (killed by a signal, or out of memory)")
     assert all(results[k] == (True, "ok") for k in (0, 2, 3, 4))

@@ -140,7 +140,7 @@ def test_rgl_export_of_a_reconstructed_metal(shared, tmp_path):
     from reflecto.instrument.simulate import simulate_capture
     from reflecto.instrument.slices import extract_slices
     from reflecto.reconstruct.pipeline import reconstruct
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     dev = Device.builtin("ideal")
     src = load_source(shared / "rgl" / "ilm_l3_37_metallic_rgb.bsdf")
@@ -174,7 +174,7 @@ def chrome_steel(shared):
     from reflecto.instrument.simulate import simulate_capture
     from reflecto.instrument.slices import extract_slices
     from reflecto.reconstruct.pipeline import reconstruct
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     dev = Device.builtin("ideal")
     src = load_source(shared / "merl-nbrdf" / "chrome-steel.h5")

@@ -71,7 +71,7 @@ def build_base(folder: Path) -> Path:
     import importlib
     sw = importlib.import_module("reflecto.evaluate.sweep")
     from reflecto.model import MicrofacetBRDF
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     folder.mkdir(parents=True, exist_ok=True)
     q = ["-q"]
@@ -755,7 +755,7 @@ def fingerprint(kind: str, path: Path | None, root: Path) -> str | None:
     elif kind in ("summary .json", "sweep record"):
         h.update(text(json.loads(path.read_text())))
     else:
-        from reflecto.sources import load_source
+        from reflecto.load import load_source
 
         src = load_source(path)
         rng = np.random.default_rng(7)
@@ -788,8 +788,8 @@ def sanity(kind: str, path: Path | None) -> str | None:
         return None
     if kind in ("capture manifest", "capture frame", "device file", "summary .json", "sweep record"):
         return None
-    from reflecto.sources import load_source
-    from reflecto.sources.base import directional_albedo
+    from reflecto.load import load_source
+    from reflecto.brdf import directional_albedo
 
     src = load_source(path)
     with np.errstate(all="ignore"):

@@ -3,7 +3,8 @@ import pytest
 
 from reflecto import geometry as g
 from reflecto.errors import FileFormatError
-from reflecto.sources import load_source, merl
+from reflecto.sources import merl
+from reflecto.load import load_source
 from reflecto.sources.analytic import AnalyticBRDF
 from conftest import random_directions
 

@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from reflecto.errors import FileFormatError
-from reflecto.sources import NBRDF, load_source
+from reflecto.sources import NBRDF
+from reflecto.load import load_source
 from conftest import random_directions
 
 

@@ -64,7 +64,7 @@ def test_heavy_tailed_ggx_with_diffuse_recovers_eta_kd_ks_and_brdf():
 @pytest.mark.parametrize("dist, alpha, eta, kd", [("ggx", 0.05, 1.5, 0.0), ("beckmann", 0.05, 1.3, 0.0),
                                                   ("ggx", 0.1, 2.0, 0.2), ("beckmann", 0.4, 1.3, 0.2)])
 def test_isotropic_analytic_lobes_recover_eta_ndf_and_brdf(dist, alpha, eta, kd):
-    """Corners of the analytic grid (``benchmarks/validate_reconstruction.py`` runs all 48)."""
+    """Corners of the analytic grid (``studies/validate_reconstruction.py`` runs all 48)."""
     src = AnalyticBRDF(distribution=dist, alpha=alpha, kd=kd, ks=0.8, eta=eta)
     res = reconstruct(_capture(src))
     assert res.isotropic
@@ -172,7 +172,7 @@ def test_a_metal_keeps_its_dark_diffuse_floor(shared):
     (:func:`reflecto.reconstruct.samples.kd_median_bound`; the dense CT fit's ρ_d ≤ 0.035)."""
     from reflecto.evaluate.sweep import material_seed
     from reflecto.reconstruct.samples import kd_median_bound
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     src = load_source(shared / "merl-nbrdf" / "tungsten-carbide.h5")
     dev = Device.builtin("ideal")
@@ -710,7 +710,7 @@ def test_hemicube_fresnel_subsample_is_drawn_per_pair(shared):
     """The anisotropic path's overlap fits draw their subsample by a hash of each pair's
     identity: a 1e-12 change of the k_d bound or one pair more or less leaves η as it was."""
     from reflecto.reconstruct import fresnel_fit, hemicube_fit
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     dev = Device.builtin("ideal")
     sl = extract_slices(simulate_capture(load_source(shared / "merl-nbrdf" / "red-specular-plastic.h5"), dev, seed=36),

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from reflecto.errors import FileFormatError
-from reflecto.sources import RGLBRDF, load_source
+from reflecto.sources import RGLBRDF
+from reflecto.load import load_source
 from reflecto.sources.rgl import read_tensor_file
 from conftest import random_directions
 

@@ -8,7 +8,8 @@ import numpy as np
 from reflecto.evaluate.cooktorrance import CookTorrance, fit_cook_torrance
 from reflecto.evaluate.metrics import brdf_error, metric_grid
 from reflecto.evaluate.sweep import find_materials, sweep
-from reflecto.sources import load_source, merl
+from reflecto.sources import merl
+from reflecto.load import load_source
 from reflecto.sources.analytic import AnalyticBRDF
 
 
@@ -97,7 +98,7 @@ def test_sweep_is_resumable_and_deterministic(tmp_path):
 
 
 def test_model_ceiling_recovers_a_brdf_of_the_papers_class():
-    """benchmarks/model_ceiling.py fits the paper's model class to a dense reference; on
+    """studies/model_ceiling.py fits the paper's model class to a dense reference; on
     an analytic GGX (its S is the APS S of its NDF, its Fresnel eq. 4) the fit must find
     the truth: η per channel within 0.5 %, k_d within 1 %, and eq. 10 below 0.1 %. Fitted
     only to the bins with θ_d ≤ 60°, the same material still comes back (it is in the
@@ -106,7 +107,7 @@ def test_model_ceiling_recovers_a_brdf_of_the_papers_class():
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "studies"))
     import model_ceiling as mc
 
     src = AnalyticBRDF(distribution="ggx", alpha=0.3, kd=(0.3, 0.2, 0.1), ks=0.6, eta=(1.4, 1.5, 1.7))

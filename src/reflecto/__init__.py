@@ -14,7 +14,9 @@ from __future__ import annotations
 from .errors import FileFormatError, ParameterError, ReflectoError
 from .hemicube import Hemicube, hemicube
 from .model import MicrofacetBRDF, load_model
-from .sources import AnalyticBRDF, BRDFSource, MerlBRDF, NBRDF, RGLBRDF, directional_albedo, load_source
+from .brdf import BRDFSource, directional_albedo
+from .sources import NBRDF, RGLBRDF, AnalyticBRDF, MerlBRDF
+from .load import load_source
 
 __version__ = "0.1.0"
 

@@ -21,22 +21,53 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
+import os
+import time
+
+from . import __version__, workflow
+from .fresnel import eta_from_json, format_eta
+from .io import make_parents
+from .reconstruct import Options
+from .reconstruct.asymmetric import MIN_CAPTURES
+from .reconstruct.symmetry_test import SymmetryTest
 from .errors import BatchError, OutputError, ReflectoError, ReflectoWarning, one_line
 from .io import check_output
+from .batch import Progress, interactive, run_batch
+from tqdm import tqdm
+from .load import load_source
+from .sources import merl
+from .instrument import layout
+from .instrument.device import load_device
+from .instrument.plots import plot_coverage
+from .instrument.capture import write_capture
+from .instrument.simulate import simulate_capture
+from .instrument.simulate import simulate_calibration
+from .instrument.calibrate import calibrate
+from .export.rgl import export_rgl
+from .export.merl import export_merl
+from .render.mitsuba import compare, comparison_image, render, save_image
+from .io import atomic_path
+import imageio.v3 as iio
+from .evaluate.metrics import comparison_error
+from .evaluate.report import write_report
+from .io import read_json
+from .errors import FileFormatError
+from .evaluate.cooktorrance import fit_cook_torrance
+from .evaluate.metrics import brdf_error
+from .evaluate.sweep import summarize, sweep
+from .evaluate.design import best_design, design_study
+from .render.mitsuba import DEFAULT_SPP, SCENES
+from .evaluate.design import DEFAULT_CONES, DEFAULT_LED_COUNTS, DEFAULT_TILTS
+from .evaluate.gallery import GallerySettings, gallery
 
 _SHOW_WARNING = warnings.showwarning
 
 
 def _interactive() -> bool:
-    from .evaluate.sweep import interactive
-
     return interactive()
 
 
 def _progress(total: int, desc: str, enabled: bool):  # type: ignore[no-untyped-def]
-    from tqdm import tqdm
-
     return tqdm(total=total, desc=desc, unit="bin", unit_scale=True, disable=not enabled, leave=False)
 
 
@@ -68,7 +99,6 @@ def _check_suffix(output: str | Path, kind: str, hint: str = "") -> None:
 def cmd_info(args: argparse.Namespace) -> int:
     """``reflecto info SOURCE``: kind, parameters and directional albedo (0–80°) of a BRDF file.
     """
-    from .sources import load_source
 
     src = load_source(args.source)
     theta = np.array([0.0, 20.0, 40.0, 60.0, 80.0])
@@ -94,8 +124,6 @@ def cmd_info(args: argparse.Namespace) -> int:
 def cmd_tabulate(args: argparse.Namespace) -> int:
     """``reflecto tabulate SOURCE -o F.binary``: a MERL table of any source, evaluated at the bin centres.
     """
-    from .sources import load_source
-    from .sources import merl
 
     out = Path(args.output)
     _check_suffix(out, "merl", f"use -o {out.with_suffix('.binary')}")
@@ -112,8 +140,6 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
 def cmd_layout(args: argparse.Namespace) -> int:
     """``reflecto layout``: coverage of a device's LED layout (§4.1, Fig. 2), optionally re-optimised and plotted.
     """
-    from .instrument import layout
-    from .instrument.device import load_device
 
     dev = load_device(args.device)
     leds = dev.leds
@@ -123,7 +149,6 @@ def cmd_layout(args: argparse.Namespace) -> int:
     info = {"device": dev.name, "leds_elevation_azimuth_deg": np.round(layout.led_angles(leds), 2).tolist(),
             "coverage": cov.to_dict()}
     if args.plot:
-        from .instrument.plots import plot_coverage
 
         plot_coverage(dev.optics, leds, args.plot, resolution=max(args.resolution, 128))
         info["plot"] = str(args.plot)
@@ -147,10 +172,6 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     """``reflecto simulate SOURCE -o CAP``: write the raw frames and manifest of a virtual capture
     (tilt, rotation, shake, camera noise).
     """
-    from .instrument.capture import write_capture
-    from .instrument.device import load_device
-    from .instrument.simulate import simulate_capture
-    from .sources import load_source
 
     check_output(args.output, folder=True)
     src = load_source(args.source)
@@ -170,8 +191,6 @@ def cmd_simulate_calibration(args: argparse.Namespace) -> int:
     """``reflecto simulate-calibration -o DIR``: virtual calibration captures (white standard,
     pinhole grid, mirror) of a device.
     """
-    from .instrument.device import load_device
-    from .instrument.simulate import simulate_calibration
 
     check_output(args.output, folder=True)
     dev = load_device(args.device)
@@ -185,7 +204,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     """``reflecto calibrate DIR -o CAL.npz``: geometric, LED and radiometric calibration from a
     calibration folder.
     """
-    from .instrument.calibrate import calibrate
 
     check_output(args.output)
     cal = calibrate(args.calib_dir)
@@ -197,85 +215,18 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                   f"LEDs moved by {r['led_offset_from_nominal_deg']}° from nominal"])
 
 
-def _reconstruct_one(cap_dir: str, cal_path: str | None, out: str, normal: bool, eta: float | None,
-                     isotropic: str, nominal: bool) -> dict:
-    """Reconstruct one capture into ``out`` (+ its ``.json`` summary); returns the summary
-    with the motion cues described (``motion``)."""
-    import os
-
-    from .instrument.calibrate import load_calibration, needs_calibration
-    from .instrument.capture import CaptureError, read_capture
-    from .instrument.slices import extract_slices
-    from .io import atomic_write
-    from .reconstruct import Options, reconstruct
-
-    cap = read_capture(cap_dir)
-    if cal_path is None and not nominal and needs_calibration(cap.device):
-        raise CaptureError(cap_dir, f"captured with device {cap.device.name!r}, whose optics, LEDs and vignetting "
-                           "differ from its nominal design: pass --calibration FILE (from `reflecto calibrate`), "
-                           "or --nominal to use the nominal calibration anyway")
-    cal = load_calibration(cal_path, cap.device)
-    options = Options(estimate_normal=normal, fixed_eta=eta, isotropic=isotropic)
-    try:
-        slices = extract_slices(cap, cal)
-        res = reconstruct(slices, options)
-    except CaptureError:
-        raise
-    except ReflectoError as e:  # the reconstruction's own errors do not know the capture's folder
-        problem = str(e).removeprefix("capture: ")
-        raise CaptureError(cap_dir, problem + (f" (calibration {cal_path})" if cal_path else "")) from None
-    summary = {"capture": str(cap_dir), **res.summary(), "symmetry_test": _symmetry_of(slices, res).to_dict()}
-    if cal_path is None and nominal:
-        summary["calibration"] = "nominal (--nominal)"
-    # the model names its capture relative to its own folder, where readers look for it
-    rel = os.path.relpath(Path(cap_dir).resolve(), Path(out).resolve().parent)
-    res.model.metadata.update({"capture": rel, "model_error": summary["model_error"]})
-    res.model.save(out)
-    with atomic_write(Path(out).with_suffix(".json"), "w") as fh:
-        fh.write(json.dumps(summary, indent=1))
-    return {**summary, "motion": res.motion.describe()}
+def _options(args: argparse.Namespace) -> Options:
+    """The reconstruction settings of ``reconstruct``'s flags."""
+    return Options(estimate_normal=args.estimate_normal, fixed_eta=args.eta, isotropic=args.isotropic)
 
 
-def _symmetry_of(slices, res):  # type: ignore[no-untyped-def]
-    """The eq. 3 test (:mod:`reflecto.reconstruct.symmetry_test`) of one capture against its reconstruction."""
-    from .reconstruct.symmetry_test import symmetry_test_slices
-
-    sl = slices if np.array_equal(res.frame, np.eye(3)) else slices.reframe(res.frame)
-    return symmetry_test_slices(sl, slices.valid & sl.valid, res.model)
-
-
-def _load_rotated(cap_dirs: list[str], cal_path: str | None, nominal: bool) -> list:
-    """The captures of a §5.5 set as :class:`~reflecto.reconstruct.asymmetric.RotatedCapture`:
-    one device for all (its manifest's nominal description), one calibration."""
-    from .instrument.calibrate import load_calibration, needs_calibration
-    from .instrument.capture import CaptureError, read_capture
-    from .instrument.slices import extract_slices
-    from .reconstruct.asymmetric import RotatedCapture
-
-    caps = [read_capture(c) for c in cap_dirs]
-    first = caps[0]
-    for c, path in zip(caps[1:], cap_dirs[1:]):
-        if c.device.to_dict() != first.device.to_dict():
-            raise CaptureError(path, f"captured with device {c.device.name!r}, {cap_dirs[0]} with "
-                               f"{first.device.name!r} (or the same name with other optics, LEDs or camera): the "
-                               "captures of one §5.5 set must come from one device")
-    if cal_path is None and not nominal and needs_calibration(first.device):
-        raise CaptureError(cap_dirs[0], f"captured with device {first.device.name!r}, whose optics, LEDs and "
-                           "vignetting differ from its nominal design: pass --calibration FILE (from `reflecto "
-                           "calibrate`), or --nominal to use the nominal calibration anyway")
-    cal = load_calibration(cal_path, first.device)
-    return [RotatedCapture(extract_slices(c, cal), c.rotation_deg, path) for c, path in zip(caps, cap_dirs)]
+def _missing(args: argparse.Namespace) -> workflow.Missing:
+    """``--nominal`` reads a capture without a calibration by the nominal one; else it is refused."""
+    return "nominal" if args.nominal else "refuse"
 
 
 def _reconstruct_asymmetric(args: argparse.Namespace) -> int:
     """``reconstruct CAP... --asymmetric -o MODEL``: one model from captures at several rotations (§5.5)."""
-    import os
-
-    from .io import atomic_write
-    from .fresnel import format_eta
-    from .reconstruct import Options
-    from .reconstruct.asymmetric import MIN_CAPTURES, reconstruct_rotations
-
     caps = list(args.captures)
     if len(caps) < MIN_CAPTURES:
         raise ReflectoError(f"{caps[0]}: --asymmetric reconstructs one model from captures of the same point at "
@@ -286,17 +237,9 @@ def _reconstruct_asymmetric(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".reflecto":
         raise OutputError(out, "with --asymmetric the captures make one model: -o must name a .reflecto file")
     check_output(out)
-    rotated = _load_rotated(caps, args.calibration, args.nominal)
-    options = Options(estimate_normal=args.estimate_normal, fixed_eta=args.eta, isotropic=args.isotropic)
-    res = reconstruct_rotations(rotated, options)
-    summary = {"captures": caps, **res.summary()}
-    if args.calibration is None and args.nominal:
-        summary["calibration"] = "nominal (--nominal)"
-    res.model.metadata.update({"captures": [os.path.relpath(Path(c).resolve(), out.resolve().parent) for c in caps],
-                               "rotations_deg": res.rotations_deg, "asymmetric": True})
-    res.model.save(out)
-    with atomic_write(out.with_suffix(".json"), "w") as fh:
-        fh.write(json.dumps(summary, indent=1))
+    res = workflow.rotations_to_model(caps, args.calibration, _options(args), missing=_missing(args))
+    note = "nominal (--nominal)" if args.calibration is None and args.nominal else None
+    summary = workflow.save_rotations_model(res, out, caps, note)
     info = {"models": [{"captures": caps, "output": str(out), "summary": summary}], "failed": []}
     kind = "isotropic (1-D, all captures)" if res.isotropic else "hemicube, §5.5 merge and synthesis"
     rots = "/".join(f"{r:g}" for r in res.rotations_deg)
@@ -322,11 +265,6 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     """``reflecto reconstruct CAP... -o OUT``: the §5 reconstruction of one capture, or of several
     in parallel worker processes (a model file and its ``.json`` summary each).
     """
-    import os
-    import time
-
-    from .evaluate.sweep import Progress, run_batch
-
     if args.asymmetric:
         return _reconstruct_asymmetric(args)
     caps = list(args.captures)
@@ -343,13 +281,9 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
             if o in seen:
                 raise OutputError(o, f"captures {seen[o]} and {c} have the same name; their models would overwrite each other")
             seen[o] = c
-        from .io import make_parents
-
         make_parents(Path(args.output))
-    from .fresnel import eta_from_json, format_eta
-
-    jobs = [(c, args.calibration, o, args.estimate_normal, args.eta, args.isotropic, args.nominal)
-            for c, o in zip(caps, outs)]
+    options, missing = _options(args), _missing(args)
+    jobs = [(c, o, args.calibration, options, missing) for c, o in zip(caps, outs)]
     results: dict[int, dict] = {}
     failures: list[tuple[str, str]] = []
     bar = Progress(len(jobs), "reconstruct", (len(jobs) > 1 or args.progress) and not args.quiet)
@@ -365,10 +299,10 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         if len(jobs) == 1:
             # one capture: its error is the command's error (nothing else to finish)
             t0 = time.perf_counter()
-            summary = _reconstruct_one(*jobs[0])
+            summary = workflow.reconstruct_folder(*jobs[0])
             finished(0, True, summary, time.perf_counter() - t0)
         else:
-            run_batch(_reconstruct_one, jobs, caps, args.jobs or os.cpu_count() or 1, finished)
+            run_batch(workflow.reconstruct_folder, jobs, caps, args.jobs or os.cpu_count() or 1, finished)
     finally:
         bar.close()
     models = [{"capture": caps[k], "output": outs[k], "summary": results[k]} for k in sorted(results)]
@@ -382,8 +316,6 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         lines += [f"  note: {note}" for note in r["notes"]]
         sym = r.get("symmetry_test", {})
         if sym.get("decided") and not sym.get("symmetric"):
-            from .reconstruct.symmetry_test import SymmetryTest
-
             test = SymmetryTest(*(sym[k] for k in ("asymmetry", "tau_rms", "direct_rms", "tau_pairs", "direct_pairs")))
             lines += [f"  {test.describe()}", f"  hint: {test.hint()}"]
     if args.json:
@@ -414,19 +346,16 @@ def cmd_export(args: argparse.Namespace) -> int:
     """``reflecto export MODEL -o F.bsdf|F.binary``: an RGL tensor file or a MERL table (the suffix
     or ``--format`` chooses).
     """
-    from .sources import load_source
 
     out = Path(args.output)
     fmt = _export_format(args)
     check_output(out)
     src = load_source(args.source)
     if fmt == "rgl":
-        from .export.rgl import export_rgl
 
         iso = {"auto": None, "yes": True, "no": False}[args.isotropic]
         export_rgl(src, out, isotropic=iso)
     else:
-        from .export.merl import export_merl
 
         with _progress(merl_bins(), f"tabulating {src.name}", not args.quiet and not args.json and _interactive()) as bar:
             export_merl(src, out, allow_anisotropic=args.isotropic == "yes", progress=bar.update)
@@ -437,7 +366,6 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def merl_bins() -> int:
     """Number of bins of a MERL table (90 × 90 × 180), the length of a tabulation's progress bar."""
-    from .sources import merl
 
     return merl.N_BINS
 
@@ -446,8 +374,6 @@ def cmd_render(args: argparse.Namespace) -> int:
     """``reflecto render SOURCE -o IMG``: a Mitsuba 3 render; with ``--compare``, the mean image
     difference against a reference and its noise floor (docs/mitsuba.md).
     """
-    from .render.mitsuba import compare, comparison_image, render, save_image
-    from .sources import load_source
 
     src = load_source(args.source)
     out = Path(args.output)
@@ -463,9 +389,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise ReflectoError(f"{out}: a comparison image must be .png")
     ref = load_source(args.compare)
     c = compare(src, ref, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
-    from .io import atomic_path
 
-    import imageio.v3 as iio
 
     with atomic_path(out, suffix=".png") as tmp:
         iio.imwrite(tmp, comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha,
@@ -488,8 +412,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     """``reflecto compare REF TEST``: eq. 10 error (normalized by the reference's albedo) and
     log-RMSE of TEST against REF (over every φ_h when either source is anisotropic).
     """
-    from .evaluate.metrics import comparison_error
-    from .sources import load_source
 
     ref, test = load_source(args.reference), load_source(args.test)
     err = comparison_error(ref, test)
@@ -503,14 +425,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     """``reflecto report MODEL -o DIR``: the HTML report of a model (renders, NDF, slices, numbers).
     """
-    from .evaluate.report import write_report
-    from .io import read_json
 
     summary = Path(args.model).with_suffix(".json")
     if summary.exists() or summary.is_symlink():
         # the report reads the reconstruction summary beside the model: refuse a bad one here
         if not isinstance(read_json(summary), dict):
-            from .errors import FileFormatError
 
             raise FileFormatError(summary, "a reconstruction summary must be a JSON object")
     page = write_report(args.model, args.output, reference=args.ref, spp=args.spp, render=not args.no_render)
@@ -521,9 +440,6 @@ def cmd_fit_ct(args: argparse.Namespace) -> int:
     """``reflecto fit-ct SOURCE``: the dense Cook–Torrance baseline fit (algorithm reference
     §6.3) and its eq. 10 error.
     """
-    from .evaluate.cooktorrance import fit_cook_torrance
-    from .evaluate.metrics import brdf_error
-    from .sources import load_source
 
     src = load_source(args.source)
     ct = fit_cook_torrance(src)
@@ -540,7 +456,6 @@ def cmd_fit_ct(args: argparse.Namespace) -> int:
 def cmd_sweep(args: argparse.Namespace) -> int:
     """``reflecto sweep DIR... -o RESULTS``: the §6 validation over materials, resumable, in parallel.
     """
-    from .evaluate.sweep import summarize, sweep
 
     failures: list[tuple[str, str]] = []
     try:
@@ -578,7 +493,6 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 def cmd_design(args: argparse.Namespace) -> int:
     """``reflecto design DIR... -o OUT``: the condenser design study (:func:`reflecto.evaluate.design.design_study`);
     returns exit status 0, 1 when a material failed."""
-    from .evaluate.design import best_design, design_study
 
     failures: list[tuple[str, str]] = []
     for flag, values, lo, hi in (("--cones", args.cones, 1.0, 88.0), ("--tilts", args.tilts, 0.0, 59.0),
@@ -749,7 +663,6 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_export)
 
-    from .render.mitsuba import DEFAULT_SPP, SCENES
 
     q = sub.add_parser("render", help="render a BRDF with Mitsuba 3 (sphere or teapot, point lights or envmap)",
                        description="Render a BRDF with Mitsuba 3. With --compare, render the source once and the "
@@ -815,7 +728,6 @@ def build_parser() -> argparse.ArgumentParser:
     _batch_options(q)
     q.set_defaults(func=cmd_sweep)
 
-    from .evaluate.design import DEFAULT_CONES, DEFAULT_LED_COUNTS, DEFAULT_TILTS
 
     q = sub.add_parser("design", help="condenser design study: cone, tilt and LED count against coverage and fidelity",
                        description="For every design of the grid, place the LEDs (layout optimizer, §4.1 rules), "
@@ -845,8 +757,7 @@ def _batch_options(q: argparse.ArgumentParser) -> None:
 
 def cmd_gallery(args: argparse.Namespace) -> int:
     """``reflecto gallery SOURCE... -o DIR``: teapots of reference, symmetric path and §5.5 path
-    (:func:`reflecto.render.gallery.gallery`, the paper's Fig. 6); returns exit status 0."""
-    from .render.gallery import GallerySettings, gallery
+    (:func:`reflecto.evaluate.gallery.gallery`, the paper's Fig. 6); returns exit status 0."""
 
     check_output(args.output, folder=True)
     try:
@@ -934,7 +845,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             sys.stdout.flush()
         except BrokenPipeError:
             # the reader of stdout went away (`| head`): the work is done, say nothing more
-            import os
 
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
             rc = 141

@@ -38,6 +38,8 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from .errors import FileFormatError, LimitError, OutputError
+import tomllib
+from .errors import short_repr
 
 MiB = 1 << 20
 #: Largest JSON/TOML description (analytic BRDF, device, capture manifest,
@@ -155,7 +157,6 @@ def parse_json(raw: bytes | str, path: str | Path, kind: str = "JSON") -> Any:
     Refuses invalid UTF-8 and syntax, numbers Python will not convert (integers of
     more than 4300 digits) and nesting deeper than :data:`MAX_JSON_DEPTH`.
     """
-    import tomllib
 
     try:
         text = raw.decode("utf-8") if isinstance(raw, bytes) else raw
@@ -223,8 +224,6 @@ def inside(folder: str | Path, name: Any, where: str | Path, what: str = "file")
 
 
 def _short(v: Any) -> str:
-    from .errors import short_repr
-
     return short_repr(v)
 
 

@@ -16,7 +16,7 @@ from types import ModuleType
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .sources.base import BRDFSource
+from .brdf import BRDFSource
 
 _LLVM_GLOBS = (
     "/usr/lib/*/libLLVM-[0-9]*.so*",
@@ -49,7 +49,7 @@ def import_mitsuba(prefer: str = "llvm_ad_rgb") -> tuple[ModuleType, str]:
         lib = find_libllvm()
         if lib:
             os.environ.setdefault("DRJIT_LIBLLVM_PATH", lib)
-    import mitsuba as mi
+    import mitsuba as mi  # deferred: DRJIT_LIBLLVM_PATH must be set before the import, and Mitsuba is optional
 
     for variant in (prefer, "scalar_rgb"):
         if variant.startswith("llvm") and not os.environ.get("DRJIT_LIBLLVM_PATH"):
@@ -57,7 +57,7 @@ def import_mitsuba(prefer: str = "llvm_ad_rgb") -> tuple[ModuleType, str]:
         try:
             mi.set_variant(variant)
             if variant.startswith("llvm"):
-                import drjit as dr
+                import drjit as dr  # deferred: with Mitsuba, after its variant is set
 
                 dr.zeros(mi.Float, 4)  # force the JIT to load LLVM now
             return mi, variant

@@ -31,14 +31,20 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _kernels
+from .brdf import BRDFSource, Reader, check_plausible, register_reader
+from .brdf import rgb_triplet as _rgb
 from .errors import FileFormatError, ParameterError, short_repr
 from .fresnel import FresnelTable, eta_to_json, fresnel, is_constant
 from .hemicube import Hemicube, hemicube
 from .io import atomic_write
 from .polar import IsotropicNDF
 from .shadowing import SigmaTable, sigma_table
-from .sources.base import BRDFSource
-from .sources.base import rgb_triplet as _rgb
+from .io import content_digest, npy_bytes, sha256
+from .io import MAX_ARCHIVE_BYTES, parse_json, read_input, zip_members
+from .io import npy_array
+import warnings
+from .errors import ReflectoWarning
+import os
 
 Array = NDArray[np.float64]
 
@@ -308,7 +314,6 @@ NDF_NORM_TOLERANCE = 1e-4
 
 def _write_model_file(path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> None:
     """Zip ``meta`` (plus array specs and checksums) and ``arrays`` atomically."""
-    from .io import content_digest, npy_bytes, sha256
 
     members = {f"{name}.npy": npy_bytes(a) for name, a in arrays.items()}
     meta = json.loads(json.dumps(meta))  # what load() will see: string keys, lists, no tuples
@@ -324,7 +329,6 @@ def _write_model_file(path: Path, meta: dict[str, Any], arrays: dict[str, NDArra
 
 def _read_model_file(path: Path) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
     """Metadata and arrays of a model file, with every check up to the arrays' headers."""
-    from .io import MAX_ARCHIVE_BYTES, parse_json, read_input, zip_members
 
     members = zip_members(read_input(path, MAX_ARCHIVE_BYTES, "a model file"), path)
     if "meta.json" not in members or "ndf.npy" not in members:
@@ -350,7 +354,6 @@ def _read_model_file(path: Path) -> tuple[dict[str, Any], dict[str, NDArray[Any]
 
 def _checked_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes]) -> dict[str, NDArray[Any]]:
     """The arrays of a version-3 file, after its metadata and array checksums (any array names)."""
-    from .io import content_digest, npy_array, sha256
 
     if meta.get("sha256") != content_digest(meta):
         raise FileFormatError(path, "metadata checksum mismatch: the file is damaged")
@@ -381,10 +384,7 @@ def _checked_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes])
 def _legacy_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes]) -> dict[str, NDArray[Any]]:
     """The NDF (and polar nodes) of a version-1 or -2 file, whose checksum covers only
     those, with a warning."""
-    import warnings
 
-    from .errors import ReflectoWarning
-    from .io import npy_array
 
     arrays = {"ndf": npy_array(members["ndf.npy"], path, "ndf.npy", dtype="<f4")}
     covered = arrays["ndf"].tobytes()
@@ -428,7 +428,6 @@ def _local_metadata(path: Path, metadata: dict[str, Any]) -> dict[str, Any]:
     The folder is kept (as that path) only if it exists and lies inside the model's
     folder; a model file cannot make a reader open files elsewhere.
     """
-    import os
 
     out = dict(metadata)
     cap = out.get("capture")
@@ -447,8 +446,6 @@ def _local_metadata(path: Path, metadata: dict[str, Any]) -> dict[str, Any]:
 
 def _check_model(path: Path, model: MicrofacetBRDF | IsotropicMicrofacetBRDF) -> None:
     """Ranges, NDF normalization (AR 1.2) and albedo of a model (as loaded or about to be saved)."""
-    from .sources.base import check_plausible
-
     if not (np.all(model.kd >= 0) and np.all(model.kd <= 1)):
         raise FileFormatError(path, f"k_d {model.kd.tolist()} outside [0, 1]")
     if not is_constant(model.eta) and not (np.all(model.eta >= ETA_RANGE[0]) and np.all(model.eta <= ETA_RANGE[1])):
@@ -616,3 +613,6 @@ class IsotropicMicrofacetBRDF(BRDFSource):
             raise FileFormatError(path, f"invalid model parameters ({e})") from None
         _check_model(path, model)
         return model
+
+
+register_reader(Reader("model", "a model file (.reflecto)", (".reflecto",), (b"PK",), load_model))

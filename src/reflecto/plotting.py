@@ -5,15 +5,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import matplotlib
+
 from .io import atomic_path
 
 
 def pyplot() -> Any:
     """``matplotlib.pyplot`` with the non-interactive Agg backend."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: pyplot costs ~0.4 s of start-up, and only plots need it
 
     return plt
 

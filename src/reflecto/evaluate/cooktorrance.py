@@ -28,8 +28,10 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from .. import _kernels, geometry
-from ..sources.base import BRDFSource
+from ..brdf import BRDFSource
 from .metrics import evaluate_on_grid, metric_grid
+from ..hemicube import hemicube
+from ..reconstruct.samples import bin_samples
 
 Array = NDArray[np.float64]
 
@@ -64,7 +66,7 @@ class CookTorrance(BRDFSource):
         """Cook–Torrance BRDF ``f = ρ_d/π + ρ_s D G F / (π cos θ_i cos θ_o)`` (sr⁻¹; algorithm
         reference §6.3).
 
-        Directions, shapes and return as :meth:`reflecto.sources.base.BRDFSource.eval`.
+        Directions, shapes and return as :meth:`reflecto.brdf.BRDFSource.eval`.
         """
         i = np.asarray(i, float)
         o = np.asarray(o, float)
@@ -183,8 +185,6 @@ def fit_cook_torrance_capture(slices: Any) -> CookTorrance:
     per LED and texel of a 128² hemicube (each bin weighs by its pixel count), fitted
     by :func:`fit_cook_torrance_samples`.
     """
-    from ..hemicube import hemicube
-    from ..reconstruct.samples import bin_samples
 
     ok = slices.valid & np.all(np.isfinite(slices.values), axis=-1)
     bins = bin_samples(slices.light, slices.view, slices.values, ok, hemicube(128))

@@ -21,7 +21,7 @@ per design (its layout and geometry), ``ct/<material>.json`` per material,
 ``runs/<key>/<material>.json`` per (design, material), each written atomically; a rerun
 does only what is missing, and every seed derives from the material's name, so a
 restarted study ends with identical results. Work runs in local processes, or on a
-Dask cluster (``scheduler``, :func:`.sweep.run_batch`). At the end ``design.csv`` (one
+Dask cluster (``scheduler``, :func:`reflecto.batch.run_batch`). At the end ``design.csv`` (one
 row per design) and ``design.png`` (fidelity and coverage against cone and tilt) are
 written.
 
@@ -45,9 +45,25 @@ from typing import Any
 
 import numpy as np
 
+from .. import workflow
+from ..instrument.simulate import simulate_capture
 from ..errors import BatchError, ReflectoError
 from ..fresnel import eta_to_json
 from ..io import atomic_write, make_parents, read_json
+from ..hemicube import hemicube
+from ..instrument import layout
+from ..instrument.device import Device
+from ..instrument.optics import Optics
+from .cooktorrance import fit_cook_torrance
+from .metrics import brdf_error
+from .sweep import METRIC_STRIDE
+from ..load import load_source
+from .metrics import evaluate_on_grid, max_albedo, metric_grid
+from .sweep import material_seed
+import os
+from ..batch import Progress, run_batch
+from .sweep import find_materials
+from ..plotting import pyplot, save_figure
 
 #: The grid of ``reflecto design`` by default (degrees, degrees, LEDs).
 DEFAULT_CONES = (48.2, 55.0, 60.0, 65.0)
@@ -85,7 +101,6 @@ class Design:
 
     def optics(self) -> Any:
         """The design's nominal :class:`~reflecto.instrument.optics.Optics` (paper's sensor and law)."""
-        from ..instrument.optics import Optics
 
         return Optics(cone_half_angle_deg=self.cone_half_angle_deg, axis_tilt_deg=self.axis_tilt_deg)
 
@@ -157,8 +172,6 @@ def lay_out(design: Design, seed: int = 0, maxiter: int = 80) -> dict[str, Any]:
     cap, N = 64), ``peak_theta_d_deg`` (θ_d at which h = n is seen), ``theta_d_reach_deg``,
     ``objective_terms``, ``frames, capture_s``, the :class:`Condenser` fields, ``seconds``.
     """
-    from ..hemicube import hemicube
-    from ..instrument import layout
 
     t0 = time.perf_counter()
     optics = design.optics()
@@ -176,7 +189,6 @@ def lay_out(design: Design, seed: int = 0, maxiter: int = 80) -> dict[str, Any]:
 def geometry_record(key: str, optics: Any, angles: Any, seconds: float = 0.0, occluder_deg: float = 0.0,
                     terms: Sequence[float] | None = None, n_check: int = 1) -> dict[str, Any]:
     """The geometry of a layout (see :func:`lay_out`) for given optics and LED angles ``(L, 2)``."""
-    from ..instrument import layout
 
     angles = np.asarray(angles, dtype=np.float64)
     leds = layout.led_direction(angles[:, 0], angles[:, 1])
@@ -195,10 +207,6 @@ def geometry_record(key: str, optics: Any, angles: Any, seconds: float = 0.0, oc
 
 @functools.lru_cache(maxsize=1)
 def _paper_record() -> str:
-    from ..hemicube import hemicube
-    from ..instrument import layout
-    from ..instrument.device import Device
-
     dev = Device.builtin("ideal")
     return json.dumps(geometry_record(PAPER_KEY, dev.optics, np.asarray(dev.led_angles),
                                       terms=layout.objective_terms(dev.optics, dev.leds, hemicube(64)),
@@ -212,8 +220,6 @@ def paper_record() -> dict[str, Any]:
 
 def design_device(rec: dict[str, Any]) -> Any:
     """The ideal :class:`~reflecto.instrument.device.Device` of a design record."""
-    from ..instrument.device import Device
-    from ..instrument.optics import Optics
 
     if rec["key"] == PAPER_KEY:
         return Device.builtin("ideal")
@@ -231,9 +237,6 @@ def _layout_task(cone: float, tilt: float, n_leds: int, out_dir: str) -> dict[st
 # ---------------------------------------------------------------- materials
 def cook_torrance_record(src: Any, ref_values: Any, albedo: float) -> dict[str, Any]:
     """The dense Cook–Torrance fit of a material and its eq. 10 error (the sweep's baseline)."""
-    from .cooktorrance import fit_cook_torrance
-    from .metrics import brdf_error
-    from .sweep import METRIC_STRIDE
 
     t0 = time.perf_counter()
     ct = fit_cook_torrance(src)
@@ -242,17 +245,9 @@ def cook_torrance_record(src: Any, ref_values: Any, albedo: float) -> dict[str, 
 
 
 def evaluate_design(src: Any, device: Any, seed: int, ref_values: Any, albedo: float) -> dict[str, Any]:
-    """One (design, material) record: the sweep's pipeline on the design's ideal device."""
-    from ..instrument.calibrate import nominal_calibration
-    from ..instrument.simulate import simulate_capture
-    from ..instrument.slices import extract_slices
-    from ..reconstruct import reconstruct
-    from .metrics import brdf_error
-    from .sweep import METRIC_STRIDE
-
+    """One (design, material) record: the sweep's capture→model path on the design's ideal device."""
     t0 = time.perf_counter()
-    sl = extract_slices(simulate_capture(src, device, seed=seed), nominal_calibration(device))
-    res = reconstruct(sl)
+    res = workflow.capture_to_model(simulate_capture(src, device, seed=seed), missing="nominal").reconstruction
     err = brdf_error(src, res.model, stride=METRIC_STRIDE, albedo_ref=albedo, reference_values=ref_values)
     m = res.model
     return {"error": err.normalized, "log_rmse": err.log_rmse, **eta_to_json(m.eta), "kd": m.kd.tolist(),
@@ -278,9 +273,6 @@ def _material_task(path: str, out_dir: str, designs: list[dict[str, Any]]) -> di
     The reference on eq. 10's grid and its albedo are computed once for all designs.
     Returns ``{"ct": record, "runs": {key: record}}`` (also the ones already on disk).
     """
-    from ..sources import load_source
-    from .metrics import evaluate_on_grid, max_albedo, metric_grid
-    from .sweep import METRIC_STRIDE, material_seed
 
     p, out = Path(path), Path(out_dir)
     name = p.stem
@@ -328,9 +320,7 @@ def design_study(folders: Sequence[str | Path], out_dir: str | Path, cones: Sequ
     BatchError
         After writing the table of what finished, if some designs or materials failed.
     """
-    import os
 
-    from .sweep import Progress, find_materials, run_batch
 
     out = Path(out_dir)
     make_parents(out / "designs")
@@ -458,7 +448,6 @@ def plot_design(rows: list[dict[str, Any]], path: Path) -> Path:
     CT and the coverage after eq. 3 against the cone half-angle, one line per tilt; open
     markers are designs that are not realisable (:func:`condenser`), the dashed line the
     paper's device."""
-    from ..plotting import pyplot, save_figure
 
     plt = pyplot()
     grid = [r for r in rows if r["key"] != PAPER_KEY and "coverage_after_tau" in r]

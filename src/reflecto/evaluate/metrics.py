@@ -39,7 +39,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..sources import merl
-from ..sources.base import BRDFSource
+from ..brdf import BRDFSource
+from .. import geometry
+from ..hemicube import hemicube
 
 Array = NDArray[np.float64]
 
@@ -70,7 +72,6 @@ def metric_grid(stride: int = 1, theta_max_deg: float = THETA_MAX_DEG, offset: t
     kd = np.arange(offset[0] % stride, merl.N_THETA_D, stride)
     kp = np.arange(offset[1] % stride, merl.N_PHI_D, stride)
     KH, KD, KP = np.meshgrid(kh, kd, kp, indexing="ij")
-    from .. import geometry
 
     i, o = geometry.hd_to_io(th[KH], np.zeros(KH.shape), td[KD], pd[KP])
     u = (KH + 0.5) / merl.N_THETA_H
@@ -207,7 +208,6 @@ AZIMUTH_STRIDE = 3
 def turned_grid(grid: Grid, phi_h: float) -> Grid:
     """``grid`` with every direction turned about ``n`` by ``phi_h`` (radians): the same
     bins at half-vector azimuth ``phi_h``."""
-    from .. import geometry
 
     return Grid(geometry.rotate_z(grid.i, phi_h), geometry.rotate_z(grid.o, phi_h), grid.w, grid.flat)
 
@@ -236,7 +236,6 @@ def ndf_error(reference: BRDFSource, model: BRDFSource, resolution: int = 256, f
     """Mean relative error of ``model``'s NDF against ``reference``'s where the reference's
     ``D`` exceeds ``floor`` of its peak, over the texel directions of a hemicube of the
     given resolution (dimensionless). Both must have an ``ndf(h)`` method."""
-    from ..hemicube import hemicube
 
     h = hemicube(resolution).directions
     d = reference.ndf(h)

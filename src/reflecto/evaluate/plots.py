@@ -9,6 +9,8 @@ import numpy as np
 
 from ..plotting import pyplot as _plt
 from ..plotting import save_figure
+from ..render.mitsuba import exposure_for, to_srgb8
+from ..render.sphere import composite, sphere_coverage
 
 
 def plot_errors(records: list[dict[str, Any]], path: str | Path) -> Path:
@@ -39,9 +41,6 @@ def plot_spheres(records: list[dict[str, Any]], path: str | Path, n: int = 4) ->
     The renders are :func:`reflecto.render.sphere.render_sphere`'s (key and fill
     light), shown at one exposure per row (the reference's) on the grey background.
     """
-    from ..render.mitsuba import exposure_for, to_srgb8
-    from ..render.sphere import composite, sphere_coverage
-
     plt = _plt()
     recs = sorted(records, key=lambda r: r["ours"]["error"] / max(r["earlier"]["error"], 1e-300))[:n]
     cols = (("reference", "reference", None), ("ours", "ours", "ours"), ("earlier", "earlier device", "earlier"),

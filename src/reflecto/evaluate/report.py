@@ -29,12 +29,21 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..colour import LUM
+from .. import workflow
+from ..instrument.capture import read_capture
 from ..errors import FileFormatError
 from ..fresnel import is_constant
 from ..io import atomic_path, atomic_write, read_json
 from ..model import MicrofacetBRDF, load_model
 from ..plotting import pyplot, save_figure
-from ..sources.base import BRDFSource
+from ..brdf import BRDFSource
+import imageio.v3 as iio
+from .. import geometry
+from ..render.mitsuba import compare, comparison_image, render as mi_render, to_srgb8
+from ..instrument.device import load_device
+from ..instrument.plots import plot_coverage
+from ..load import load_source
+from .metrics import brdf_error
 
 Array = NDArray[np.float64]
 
@@ -60,7 +69,6 @@ img { max-width: 100%; image-rendering: auto; }
 def _save_png(fig_or_array: Any, path: Path) -> str:
     """Save a matplotlib figure or an 8-bit image atomically; returns the file name."""
     if isinstance(fig_or_array, np.ndarray):
-        import imageio.v3 as iio
 
         with atomic_path(path, suffix=".png") as tmp:
             iio.imwrite(tmp, fig_or_array)
@@ -122,7 +130,6 @@ def ndf_figures(model: BRDFSource, out: Path) -> list[tuple[str, str]]:
 
 def theta_h_theta_d_image(source: BRDFSource, out: Path, name: str = "thd.png", title: str = "") -> str:
     """BRDF Explorer's θ_h–θ_d image at φ_d = 90° (luminance, log scale)."""
-    from .. import geometry
 
     plt = pyplot()
     th = np.radians(np.linspace(0.25, 89.75, 180))
@@ -143,16 +150,12 @@ def theta_h_theta_d_image(source: BRDFSource, out: Path, name: str = "thd.png", 
 
 def slice_figure(capture_dir: Path, out: Path):  # type: ignore[no-untyped-def]
     """The six slices of a capture (luminance, log scale) on the sensor, and its device; None if unreadable."""
-    from ..instrument.calibrate import nominal_calibration
-    from ..instrument.capture import read_capture
-    from ..instrument.slices import extract_slices
-
     try:
         cap = read_capture(capture_dir)
     except Exception:  # noqa: BLE001 - the capture may be gone; the report still works
         return None
-    cal = nominal_calibration(cap.device)
-    sl = extract_slices(cap, cal)
+    cal = workflow.calibration_for(cap.device, missing="nominal")
+    sl = workflow.measure(cap, cal, capture_dir)
     plt = pyplot()
     h, w = cal.optics.height, cal.optics.width
     fig, axes = plt.subplots(2, (sl.n_leds + 1) // 2, figsize=(3.2 * ((sl.n_leds + 1) // 2), 5.2))
@@ -183,7 +186,6 @@ def render_figures(model: MicrofacetBRDF, ref: BRDFSource | None, out: Path,
     measure between the two reference renders) and the difference corrected for it
     (:class:`reflecto.render.mitsuba.Comparison`).
     """
-    from ..render.mitsuba import compare, comparison_image, render as mi_render, to_srgb8
 
     items, comparisons = [], {}
     for scene, what in (("sphere-env", "Sphere under the studio map"), ("sphere-point", "Sphere under a key and a fill point light")):
@@ -211,9 +213,6 @@ def render_figures(model: MicrofacetBRDF, ref: BRDFSource | None, out: Path,
 def write_report(model_path: str | Path, out_dir: str | Path, reference: str | Path | None = None,
                  spp: int | None = None, render: bool = True) -> Path:
     """Write the HTML report of one model (see the module docstring); returns the page."""
-    from ..instrument.device import load_device
-    from ..instrument.plots import plot_coverage
-    from ..sources import load_source
 
     model_path = Path(model_path)
     model = load_model(model_path)
@@ -246,7 +245,6 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     figs.append(("Normal distribution", ndf_figures(model, out)))
     items = [(theta_h_theta_d_image(model, out, "thd_model.png", "model: θ_h–θ_d at φ_d = 90°"), "Model, BRDF Explorer's θ_h–θ_d view.")]
     if ref is not None:
-        from .metrics import brdf_error
 
         items.append((theta_h_theta_d_image(ref, out, "thd_reference.png", "reference: θ_h–θ_d at φ_d = 90°"), "Reference."))
         err = brdf_error(ref, model)

@@ -27,7 +27,7 @@ that dies) is recorded in ``failures.json`` with its message, and the others fin
 :func:`sweep` then raises :class:`~reflecto.errors.BatchError`. A rerun tries the
 failed ones again. A finished record that cannot be read back or lacks a field is
 done again (with a warning). Workers end when the parent process dies, even by
-SIGKILL (:func:`run_batch`).
+SIGKILL (:func:`reflecto.batch.run_batch`).
 """
 
 from __future__ import annotations
@@ -35,23 +35,30 @@ from __future__ import annotations
 import json
 import math
 import os
-import signal
-import sys
-import threading
 import time
 import warnings
 import zlib
-from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import BatchError, FileFormatError, ReflectoError, ReflectoWarning, one_line
+from .. import workflow
+from ..batch import Progress, run_batch
+from ..instrument.device import load_device
+from ..instrument.simulate import simulate_capture
+from ..errors import BatchError, FileFormatError, ReflectoError, ReflectoWarning
 from ..fresnel import eta_from_json, eta_to_json, is_constant
 from ..io import atomic_write, make_parents, read_description, read_json, remove_empty
+from ..render.sphere import render_sphere
+from ..load import load_source
+from .cooktorrance import fit_cook_torrance, fit_cook_torrance_capture
+from .metrics import brdf_error, evaluate_on_grid, max_albedo, metric_grid
+from .split import half
+from .plots import plot_errors, plot_spheres
+import csv
+import io
 
 MATERIAL_SUFFIXES = (".binary", ".bsdf", ".h5", ".json", ".toml")
 #: Resolution of the sphere renders kept per material (Fig. 4).
@@ -105,35 +112,23 @@ def material_seed(name: str) -> int:
     return zlib.crc32(name.encode()) % (2**31)
 
 
-def _reconstruct(src: Any, device_name: str, calibration: str | None, seed: int) -> tuple[Any, dict[str, float]]:
-    from ..instrument.calibrate import load_calibration, nominal_calibration
-    from ..instrument.device import load_device
-    from ..instrument.simulate import simulate_capture
-    from ..instrument.slices import extract_slices
-    from ..reconstruct import reconstruct
+def _reconstruct(src: Any, device_name: str, calibration: str | None, seed: int) -> tuple[Any, dict[str, float], Any]:
+    """A simulated capture of ``src`` with the device, through the capture→model path
+    (:func:`reflecto.workflow.capture_to_model`); its reconstruction, stage times and slices.
 
-    t = {}
+    ``calibration`` is :func:`reflecto.workflow.calibration_file`'s: a file, or ``None``
+    for a device whose nominal description is exact."""
     dev = load_device(device_name)
     t0 = time.perf_counter()
     cap = simulate_capture(src, dev, seed=seed)
-    t["simulate_s"] = time.perf_counter() - t0
-    cal = load_calibration(calibration, dev.nominal()) if calibration else nominal_calibration(dev)
-    t0 = time.perf_counter()
-    sl = extract_slices(cap, cal)
-    t["slices_s"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    res = reconstruct(sl)
-    t["reconstruct_s"] = time.perf_counter() - t0
-    return res, t, sl
+    simulate_s = time.perf_counter() - t0
+    result = workflow.capture_to_model(cap, calibration, missing="nominal")
+    t = {"simulate_s": simulate_s, "slices_s": result.seconds.slices, "reconstruct_s": result.seconds.reconstruct}
+    return result.reconstruction, t, result.slices
 
 
 def run_material(path: str, out_dir: str, device: str = "ideal", calibration: str | None = None) -> dict[str, Any]:
     """Evaluate one material (see the module docstring); writes and returns its record."""
-    from ..render.sphere import render_sphere
-    from ..sources import load_source
-    from .cooktorrance import fit_cook_torrance, fit_cook_torrance_capture
-    from .metrics import brdf_error, evaluate_on_grid, max_albedo, metric_grid
-    from .split import half
 
     p = Path(path)
     src = load_source(p)
@@ -244,236 +239,12 @@ def _done(out_dir: Path, name: str) -> dict[str, Any] | None:
     return rec
 
 
-def prepare_calibration(out_dir: Path, device: str) -> str | None:
-    """For a device with hidden imperfections (``as-built``, ``wide-as-built``): run the
-    virtual calibration once (kept in ``out_dir``); ``None`` for one without.
-
-    A kept calibration file that does not load is made again (with a warning).
-    """
-    from ..instrument.calibrate import Calibration, calibrate
-    from ..instrument.device import load_device
-    from ..instrument.simulate import simulate_calibration
-
-    dev = load_device(device)
-    if dev.truth is None:  # nominal optics (ideal, wide): the nominal calibration is exact
-        return None
-    cal_path = out_dir / f"calibration-{Path(device).stem}.npz"
-    if cal_path.exists():
-        try:
-            Calibration.load(cal_path)
-        except ReflectoError as e:
-            warnings.warn(f"{e}; calibrating again", ReflectoWarning, stacklevel=2)
-            cal_path.unlink()
-    if not cal_path.is_file():
-        folder = out_dir / f"calibration-{Path(device).stem}"
-        if not folder.is_dir():
-            simulate_calibration(dev, folder, seed=1)
-        calibrate(folder).save(cal_path)
-    return str(cal_path)
-
-
-# ------------------------------------------------------------------ batches
-def interactive() -> bool:
-    """Whether progress may be drawn as a bar: stderr is a terminal and ``CI`` is not set."""
-    ci = os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")
-    try:
-        return sys.stderr.isatty() and not ci
-    except (AttributeError, ValueError):
-        return False
-
-
-class Progress:
-    """Progress of a batch on stderr: a tqdm bar on a terminal, else one plain line per item.
-
-    A line reads ``sweep: 12/50 done (pvc, 8.1 s)`` or ``sweep: 13/50 failed (pvc)``.
-    """
-
-    def __init__(self, total: int, desc: str, enabled: bool = True, initial: int = 0) -> None:
-        self.total, self.desc, self.enabled, self.done = total, desc, enabled, initial
-        self.bar = None
-        if enabled and interactive():
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=total, initial=initial, desc=desc, unit="item", leave=False)
-
-    def update(self, name: str, ok: bool, seconds: float) -> None:
-        """Count one finished item: advance the bar, or print ``desc: k/n done (name, s)`` /
-        ``desc: k/n failed (name)``.
-
-        Parameters
-        ----------
-        name
-            The item's name.
-        ok
-            Whether it succeeded.
-        seconds
-            Its wall time (s).
-        """
-        self.done += 1
-        if self.bar is not None:
-            self.bar.update()
-        elif self.enabled:
-            what = f"done ({name}, {seconds:.1f} s)" if ok else f"failed ({name})"
-            print(f"{self.desc}: {self.done}/{self.total} {what}", file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        """Remove the bar (nothing to do for plain lines)."""
-        if self.bar is not None:
-            self.bar.close()
-
-
-def _watch_parent(parent: int) -> None:
-    """Pool initializer: end this worker as soon as its parent process is gone.
-
-    Linux kills the worker when its parent dies (``PR_SET_PDEATHSIG``, SIGKILL, set
-    by ``prctl``); elsewhere, and as a fallback, a thread polls ``os.getppid()``
-    twice a second. Without this a SIGKILLed parent leaves its workers waiting on
-    their task queue for ever.
-    """
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-    if os.getppid() != parent:  # the parent died before prctl took effect
-        os._exit(1)
-
-    def poll() -> None:
-        while True:
-            time.sleep(0.5)
-            if os.getppid() != parent:
-                os.kill(os.getpid(), signal.SIGKILL)
-
-    threading.Thread(target=poll, name="reflecto-parent-watch", daemon=True).start()
-
-
-def _guarded(fn: Callable[..., Any], args: tuple[Any, ...], label: str) -> tuple[bool, Any, float]:
-    """``(True, fn(*args), seconds)``, or ``(False, message, seconds)`` if it raised.
-
-    The message is one line naming the item: a ReflectoError's own, anything else as
-    an internal error with its type (no exception object crosses the process boundary).
-    """
-    t0 = time.perf_counter()
-    try:
-        return True, fn(*args), time.perf_counter() - t0
-    except ReflectoError as e:
-        msg = one_line(e)
-    except MemoryError:
-        msg = f"{label}: out of memory"
-    except Exception as e:  # noqa: BLE001 — one item's bug must not end the batch
-        msg = f"{label}: internal error ({type(e).__name__}: {one_line(e, 300)})"
-    return False, msg, time.perf_counter() - t0
-
-
-def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: Sequence[str], jobs: int,
-              on_result: Callable[[int, bool, Any, float], None], scheduler: str | None = None) -> None:
-    """Run ``fn(*items[k])`` for every ``k``, in ``jobs`` worker processes (1: in this one),
-    or on the Dask cluster whose scheduler listens at ``scheduler`` (:func:`run_on_dask`).
-
-    ``on_result(k, ok, value_or_message, seconds)`` is called in this process as each
-    item ends, in completion order; a failed item never stops the others. Workers
-    die with this process (:func:`_watch_parent`). If a worker process itself dies
-    (a signal, the out-of-memory killer), the pool is lost: every item that had not
-    finished is run again, each in a process of its own, so that only the item that
-    kills its process is reported failed ("worker process died").
-    """
-    if scheduler:
-        run_on_dask(fn, items, labels, scheduler, on_result)
-        return
-    if jobs <= 1 or len(items) <= 1:
-        for k, args in enumerate(items):
-            on_result(k, *_guarded(fn, args, labels[k]))
-        return
-    unfinished: list[int] = []
-    with ProcessPoolExecutor(max_workers=min(jobs, len(items)), initializer=_watch_parent,
-                             initargs=(os.getpid(),)) as ex:
-        futs = {ex.submit(_guarded, fn, args, labels[k]): k for k, args in enumerate(items)}
-        pending = set(futs)
-        while pending:
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for f in done:
-                try:
-                    res = f.result()
-                except BrokenProcessPool:
-                    unfinished.append(futs[f])
-                    continue
-                on_result(futs[f], *res)
-    _run_isolated(fn, items, labels, sorted(unfinished), jobs, on_result)
-
-
-#: How long (s) to try to reach a Dask scheduler before giving up.
-DASK_CONNECT_TIMEOUT_S = 30.0
-
-
-def run_on_dask(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: Sequence[str], scheduler: str,
-                on_result: Callable[[int, bool, Any, float], None]) -> None:
-    """Run ``fn(*items[k])`` on a Dask cluster (``dask.distributed``, the ``dask`` extra).
-
-    ``scheduler`` is the scheduler's address (``tcp://host:8786``). Each item is one
-    task, wrapped as locally (:func:`_guarded`), so a failed item arrives as its message;
-    ``on_result`` runs in this process as tasks end. The items write their results
-    themselves (atomically, to a folder every worker must see under the same path),
-    and every seed derives from the item, so the results equal a local run's. A worker
-    that dies is the scheduler's to handle: it reruns the task elsewhere, and a task
-    that kills workers repeatedly ends as failed ("worker process died"). Tasks are
-    submitted with ``pure=False`` (a rerun of the batch recomputes what its records lack).
-    """
-    try:
-        from distributed import Client, as_completed
-        from distributed.client import FutureCancelledError
-        from distributed.scheduler import KilledWorker
-    except ImportError:
-        raise ReflectoError("--scheduler needs dask.distributed: pip install 'reflecto[dask]'") from None
-    if not items:
-        return
-    try:
-        client = Client(scheduler, timeout=DASK_CONNECT_TIMEOUT_S, set_as_default=False)
-    except (OSError, TimeoutError) as e:
-        raise ReflectoError(f"{scheduler}: cannot reach the Dask scheduler ({one_line(e)})") from None
-    try:
-        futs = {client.submit(_guarded, fn, args, labels[k], pure=False, key=f"reflecto-{k}-{labels[k]}"): k
-                for k, args in enumerate(items)}
-        for f in as_completed(list(futs), loop=client.loop):
-            k = futs[f]
-            try:
-                res = f.result()
-            except (KilledWorker, FutureCancelledError):
-                res = (False, f"{labels[k]}: worker process died (killed by a signal, or out of memory)", 0.0)
-            on_result(k, *res)
-    finally:
-        client.close()
-
-
-def _run_isolated(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: Sequence[str], which: list[int],
-                  jobs: int, on_result: Callable[[int, bool, Any, float], None]) -> None:
-    """Run the items ``which`` each in a worker process of its own, ``jobs`` at a time."""
-    queue = list(which)
-    active: dict[Any, tuple[int, ProcessPoolExecutor, float]] = {}
-    while queue or active:
-        while queue and len(active) < jobs:
-            k = queue.pop(0)
-            ex = ProcessPoolExecutor(max_workers=1, initializer=_watch_parent, initargs=(os.getpid(),))
-            active[ex.submit(_guarded, fn, items[k], labels[k])] = (k, ex, time.perf_counter())
-        done, _ = wait(set(active), return_when=FIRST_COMPLETED)
-        for f in done:
-            k, ex, t0 = active.pop(f)
-            try:
-                res = f.result()
-            except BrokenProcessPool:
-                res = (False, f"{labels[k]}: worker process died (killed by a signal, or out of memory)",
-                       time.perf_counter() - t0)
-            ex.shutdown(wait=False)
-            on_result(k, *res)
-
-
 def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ideal", jobs: int = 0,
           progress: bool = True, scheduler: str | None = None) -> list[dict[str, Any]]:
     """Run the sweep (resumable); returns every material's record, sorted by name.
 
     ``scheduler``: the address of a Dask scheduler to run the materials on instead of
-    local processes (:func:`run_on_dask`); ``out_dir`` must then be a path every worker
+    local processes (:func:`reflecto.batch.run_on_dask`); ``out_dir`` must then be a path every worker
     sees.
 
     Raises
@@ -487,7 +258,7 @@ def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ide
     if not mats:
         raise ReflectoError(f"no material files in {', '.join(map(str, folders))}")
     make_parents(out / "materials")
-    cal = prepare_calibration(out, device)
+    cal = workflow.calibration_file(device, out)
     records = {p.stem: r for p in mats if (r := _done(out, p.stem)) is not None and r.get("device") == device}
     todo = [p for p in mats if p.stem not in records]
     failures: list[tuple[str, str]] = []
@@ -510,7 +281,6 @@ def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ide
     write_failures(out / "failures.json", failures)
     write_table(recs, out / "results.csv")
     if recs:
-        from .plots import plot_errors, plot_spheres
 
         plot_errors(recs, out / "fig5_errors.png")
         plot_spheres(recs, out / "fig4_spheres.png")
@@ -543,8 +313,6 @@ def _eta_cell(result: dict[str, Any]) -> str:
 
 def write_table(records: list[dict[str, Any]], path: Path) -> Path:
     """The CSV table of a sweep (one row per material)."""
-    import csv
-    import io
 
     buf = io.StringIO()
     w = csv.writer(buf)

@@ -17,7 +17,8 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..sources import merl
-from ..sources.base import BRDFSource
+from ..brdf import BRDFSource
+from .rgl import proxy_ndf
 
 
 def export_merl(source: BRDFSource, path: str | Path, allow_anisotropic: bool = False,
@@ -34,6 +35,5 @@ def export_merl(source: BRDFSource, path: str | Path, allow_anisotropic: bool = 
 def _isotropic(source: BRDFSource) -> bool:
     if getattr(source, "isotropic", False):
         return True
-    from .rgl import proxy_ndf
 
     return proxy_ndf(source)[1]

@@ -58,8 +58,10 @@ from ..colour import LUM
 from ..errors import ReflectoError
 from ..fresnel import f0_from_eta, is_constant
 from ..io import atomic_write, read_json
-from ..sources.base import BRDFSource
+from ..brdf import BRDFSource
 from ..sources.rgl import MAGIC, Marginal2D
+from ..fresnel import fresnel
+from .. import __version__
 
 Array = NDArray[np.float64]
 NDFFunction = Callable[[Array], Array]
@@ -284,7 +286,6 @@ def _fresnel_ratio(source: BRDFSource, u: Array, grid: RGLGrid) -> Array:
     eta = getattr(source, "eta", None)
     if eta is None or not grid.fresnel_sigma:
         return np.ones_like(u)
-    from ..fresnel import fresnel
 
     eta = np.asarray(eta, dtype=np.float64)
     th = 0.5 * math.pi * u * u
@@ -512,7 +513,6 @@ def _capture_info(source: BRDFSource) -> dict[str, str]:
 
 def export_description(source: BRDFSource, isotropic: bool) -> str:
     """One line naming the material, its capture, its parameters and the reflecto version."""
-    from .. import __version__
 
     info = _capture_info(source)
     parts = [f"reflecto {__version__} export of {source.name}"]

@@ -6,7 +6,10 @@
     simulate_capture(brdf, device)     raw frames of one capture            simulate.py
     write_capture / read_capture       the capture folder (PNG + manifest)  capture.py
     simulate_calibration / calibrate   calibration captures → Calibration   simulate.py, calibrate.py
-    extract_slices(capture, cal)       HDR merge, radiometry → Slices       hdr.py, slices.py
+    extract_slices                     HDR merge, radiometry → Slices       hdr.py, slices.py
+
+Which calibration reads a capture, and the whole capture→model path, are
+:mod:`reflecto.workflow`'s.
 """
 
 from .calibrate import Calibration, calibrate, load_calibration, nominal_calibration

@@ -44,6 +44,11 @@ from .capture import CaptureError, read_capture, read_image
 from .device import Device, validate_optics_dict
 from .hdr import merge_debevec, merge_linear, recover_response
 from .optics import Optics
+from ..io import content_digest, sha256
+from ..io import inside, read_json
+from ..io import npy_bytes
+from ..io import MAX_ARCHIVE_BYTES, npy_array, parse_json, read_input, zip_members
+import warnings
 
 Array = NDArray[np.float64]
 
@@ -100,7 +105,6 @@ class Calibration:
         shape and SHA-256 (``arrays``) and the SHA-256 of its own canonical form
         without that entry (``sha256``): a damaged byte anywhere is refused on load.
         """
-        from ..io import content_digest, npy_bytes, sha256
 
         arrays = {"scale": self.scale.astype(np.float32)}
         if self.response is not None:
@@ -136,7 +140,6 @@ class Calibration:
         within :data:`MAX_LED_OFFSET_DEG` of the nominal design), and the scale and
         response arrays' headers, shapes and values.
         """
-        from ..io import MAX_ARCHIVE_BYTES, npy_array, parse_json, read_input, zip_members
 
         path = Path(path)
         members = zip_members(read_input(path, MAX_ARCHIVE_BYTES, "a calibration file",
@@ -154,7 +157,6 @@ class Calibration:
         if version >= 2:
             _verify_checksums(path, meta, members)
         else:
-            import warnings
 
             warnings.warn(f"{path}: calibration format version 1 has no checksum; its contents are range-checked "
                           "only (calibrate again to get version 2)", ReflectoWarning, stacklevel=2)
@@ -213,8 +215,6 @@ def _dark_led(device: Device, optics: Optics, scale: NDArray[np.float32]) -> tup
 
 
 def _verify_checksums(path: Path, meta: dict[str, Any], members: dict[str, bytes]) -> None:
-    from ..io import content_digest, sha256
-
     if meta.get("sha256") != content_digest(meta):
         raise FileFormatError(path, "metadata checksum mismatch: the file is damaged")
     spec = meta.get("arrays")
@@ -455,7 +455,6 @@ def read_calibration_manifest(calib_dir: Path) -> tuple[dict[str, Any], Device]:
     links); ray and mirror-normal directions finite unit vectors above the sample
     plane; mirror LED indices distinct and within the device's LEDs.
     """
-    from ..io import inside, read_json
 
     mpath = calib_dir / "calibration.json"
     if not calib_dir.is_dir() or (not mpath.exists() and not mpath.is_symlink()):
@@ -573,13 +572,11 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
     return Calibration(device.nominal(), optics, leds, scale, response, report)
 
 
-def load_calibration(path: str | Path | None, device: Device) -> Calibration:
-    """A calibration file, or the nominal calibration of ``device`` when ``path`` is None.
+def load_calibration(path: str | Path, device: Device) -> Calibration:
+    """A calibration file, checked against the capture's ``device`` design.
 
-    Refuses a calibration made for a different device design.
+    Refuses a calibration made for a different device design (LED count, camera).
     """
-    if path is None:
-        return nominal_calibration(device)
     cal = Calibration.load(path)
     if cal.device.n_leds != device.n_leds or cal.device.camera != device.camera:
         raise FileFormatError(path, f"calibration is for device {cal.device.name!r}, which does not match "

@@ -53,7 +53,7 @@ DEFAULT_LED_ANGLES = (
 #: fire last. Their slices are the ones whose mirror-symmetry plane can be located
 #: (:mod:`reflecto.reconstruct.symmetry`), so a hand shake at any point of the capture
 #: turns at least one of them and shows as a plane off the normal. In index order a
-#: shake after the 52.2° LED went unseen (0/11 in benchmarks/validate_shake.py).
+#: shake after the 52.2° LED went unseen (0/11 in studies/validate_shake.py).
 DEFAULT_FIRING_ORDER = (0, 1, 3, 5, 4, 2)
 
 #: LEDs fired once more after the whole sequence: a check frame (both exposures) of the

@@ -33,6 +33,7 @@ from numba import njit
 from .. import geometry
 from ..hemicube import Hemicube, hemicube
 from .optics import Optics
+from scipy.optimize import differential_evolution
 
 Array = NDArray[np.float64]
 
@@ -423,7 +424,6 @@ def optimize_layout(
 
     Returns the LED directions, shape ``(n_leds, 3)``.
     """
-    from scipy.optimize import differential_evolution
 
     if not 3 <= len(weights) <= 4:
         raise ValueError("optimize_layout: weights must list 3 or 4 numbers")

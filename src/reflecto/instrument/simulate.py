@@ -35,10 +35,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import _kernels, geometry
 from ..errors import ParameterError
-from ..sources.base import BRDFSource
+from ..brdf import BRDFSource
 from .capture import Capture, _write_png, atomic_dir, write_capture
 from .device import Camera, Device
 from .optics import Optics
+from ..sources.analytic import AnalyticBRDF
 
 Array = NDArray[np.float64]
 
@@ -304,7 +305,6 @@ def simulate_calibration(device: Device, out_dir: str | Path, seed: int = 0, whi
     * ``mirror_led*.png``: a mirror whose known normal sends each LED into the camera;
     * ``response_t*.png`` (gamma cameras only): an exposure sweep of the white target.
     """
-    from ..sources.analytic import AnalyticBRDF
 
     rng = np.random.default_rng(seed)
     optics, leds, intensity, trans = _truth(device)

@@ -57,7 +57,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import geometry
-from ..colour import LUM
 from ..errors import ReflectoError
 from ..fresnel import eta_to_json
 from ..hemicube import Hemicube, hemicube

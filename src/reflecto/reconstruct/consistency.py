@@ -56,7 +56,7 @@ RECIPROCITY_STEP_DEG = 0.5
 #: reach 0.02 (isotropy) and 0.30 (reciprocity: the RGL materials' own data are not
 #: reciprocal, 0.25–0.30 on cc_ibiza_sunset and vch_golden_yellow; the MERL/NBRDF ones
 #: stay within 0.01) on the ideal device, 0.06 and 0.08 on the as-built one
-#: (``benchmarks/validate_shake.py``). A shake that turns the default layout's
+#: (``studies/validate_shake.py``). A shake that turns the default layout's
 #: isotropy pair (LEDs 1 and 3) differently reads 0.27–3.8.
 THRESHOLD = {"isotropy": 0.15, "reciprocity": 0.35}
 #: Directions where the slice changes by more than MAX_STEP in log within STEP_DEG

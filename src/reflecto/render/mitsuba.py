@@ -44,8 +44,15 @@ from numpy.typing import NDArray
 
 from ..colour import LUM
 from ..errors import FileFormatError, ParameterError
-from ..sources.base import BRDFSource
+from ..brdf import BRDFSource
 from .sphere import BACKGROUND, CAMERA, FOV_DEG, LIGHTS, TARGET, UP, composite
+import imageio.v3 as iio
+from ..sources.rgl import RGLBRDF
+from ..export.rgl import export_rgl
+from ..mitsuba_support import import_mitsuba
+from scipy import ndimage
+from ..io import atomic_path
+from matplotlib import colormaps
 
 Array = NDArray[np.float64]
 
@@ -69,7 +76,6 @@ def check_envmap(path: str | Path) -> Path:
     if not path.is_file():
         raise FileFormatError(path, "environment map not found")
     try:
-        import imageio.v3 as iio
 
         img = iio.imread(path)
     except Exception as e:  # noqa: BLE001 - any decoder failure is "unreadable"
@@ -81,11 +87,9 @@ def check_envmap(path: str | Path) -> Path:
 
 def bsdf_file(source: BRDFSource, folder: Path) -> Path:
     """An RGL file for ``source``: its own file if it is one, else a fresh export in ``folder``."""
-    from ..sources.rgl import RGLBRDF
 
     if isinstance(source, RGLBRDF):
         return Path(source.path)
-    from ..export.rgl import export_rgl
 
     return export_rgl(source, folder / "source.bsdf")
 
@@ -201,7 +205,6 @@ def render_file(bsdf_path: Path, scene: str = "sphere-env", envmap: str | Path |
     spp = _check(scene, resolution, spp)
     if envmap is not None:
         check_envmap(envmap)
-    from ..mitsuba_support import import_mitsuba
 
     mi, variant = import_mitsuba("llvm_ad_rgb")
     t0 = time.perf_counter()
@@ -256,7 +259,6 @@ def image_difference(reference: Array, test: Array, mask: NDArray[np.bool_] | No
     """
     r, t = np.asarray(reference, dtype=np.float64), np.asarray(test, dtype=np.float64)
     if smoothing > 0:
-        from scipy import ndimage
 
         sigma = (smoothing, smoothing) + (0,) * (r.ndim - 2)
         r, t = ndimage.gaussian_filter(r, sigma, mode="constant"), ndimage.gaussian_filter(t, sigma, mode="constant")
@@ -351,9 +353,7 @@ def to_srgb8(img: Array, exposure: float = 1.0) -> NDArray[np.uint8]:
 
 def save_image(img: Array, path: str | Path) -> Path:
     """Write a linear image as ``.exr``/``.hdr`` (float) or ``.png`` (sRGB), atomically."""
-    import imageio.v3 as iio
 
-    from ..io import atomic_path
 
     path = Path(path)
     suffix = path.suffix.lower()
@@ -363,7 +363,6 @@ def save_image(img: Array, path: str | Path) -> Path:
         if suffix == ".png":
             iio.imwrite(tmp, to_srgb8(img))
         elif suffix == ".exr":
-            from ..mitsuba_support import import_mitsuba
 
             mi, _ = import_mitsuba("llvm_ad_rgb")
             mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32)).write(str(tmp))
@@ -381,7 +380,6 @@ def comparison_image(reference: Array, test: Array, labels: tuple[str, str] = ("
     same) both renders are composited onto the grey background and the heat map is
     black off the object.
     """
-    from matplotlib import colormaps
 
     lum = lambda a: a @ LUM  # noqa: E731
     rel = np.abs(lum(test) - lum(reference)) / np.maximum(lum(reference), 0.02 * max(float(lum(reference).max()), 1e-12))

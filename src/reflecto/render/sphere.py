@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from ..sources.base import BRDFSource
+from ..brdf import BRDFSource
 
 Array = NDArray[np.float64]
 

@@ -37,8 +37,8 @@ from .. import geometry
 from ..errors import FileFormatError, ParameterError, short_repr
 from ..io import read_description
 from ..fresnel import fresnel
-from .base import BRDFSource
-from .base import rgb_triplet as _rgb
+from ..brdf import BRDFSource, Reader, register_reader
+from ..brdf import rgb_triplet as _rgb
 
 Array = NDArray[np.float64]
 
@@ -191,7 +191,7 @@ class AnalyticBRDF(BRDFSource):
         """Microfacet BRDF ``f = k_d/π + k_s D(h) F(i·h; η) / (4 σ(i) σ(o))`` (eqs. 1–2 in the
         form of AR 1.6, ``σ`` the projected area of eq. 8), sr⁻¹.
 
-        Directions, shapes and return as :meth:`reflecto.sources.base.BRDFSource.eval`.
+        Directions, shapes and return as :meth:`reflecto.brdf.BRDFSource.eval`.
         """
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)
@@ -305,3 +305,6 @@ def load_analytic(path: str | Path) -> AnalyticBRDF:
     """
     path = Path(path)
     return analytic_from_dict(read_description(path), path)
+
+
+register_reader(Reader("analytic", "a JSON/TOML description", (".json", ".toml"), (b"{",), load_analytic))

@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import geometry
 from ..errors import FileFormatError
 from ..io import atomic_write
-from .base import ALBEDO_RANGE, MAX_BRDF_VALUE, BRDFSource, check_plausible, read_file_bytes
+from ..brdf import ALBEDO_RANGE, MAX_BRDF_VALUE, BRDFSource, Reader, check_plausible, read_file_bytes, register_reader
 
 Array = NDArray[np.float64]
 
@@ -106,7 +106,7 @@ def read_merl_table(path: str | Path) -> Array:
 
     Unmeasured bins keep their negative value (times the channel scale). Refuses
     files of the wrong size or dimensions, NaN or infinite values, values above
-    :data:`~reflecto.sources.base.MAX_BRDF_VALUE` and tables without a measured bin.
+    :data:`~reflecto.brdf.MAX_BRDF_VALUE` and tables without a measured bin.
     """
     path = Path(path)
     raw = read_file_bytes(path, FILE_BYTES, f"a MERL file ({FILE_BYTES} bytes)")
@@ -282,3 +282,7 @@ class MerlBRDF(BRDFSource):
             "invalid_bins": int((~valid).sum()),
             "max_value_sr-1": self._flat[valid].max(axis=0).tolist() if valid.any() else None,
         }
+
+
+register_reader(Reader("merl", "a MERL table (.binary)", (".binary",),
+                       (b"\x5a\x00\x00\x00\x5a\x00\x00\x00\xb4\x00\x00\x00",), MerlBRDF))

@@ -22,7 +22,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import geometry
 from ..errors import FileFormatError, short_repr
-from .base import BRDFSource, check_plausible
+from ..brdf import BRDFSource, Reader, check_plausible, register_reader
+import h5py
+from ..io import MAX_BRDF_BYTES, read_input
+from ..io import MAX_DESCRIPTION_BYTES, parse_json
 
 Array = NDArray[np.float64]
 
@@ -37,7 +40,6 @@ def _dataset(path: Path, f: Any, name: str, shape: tuple[int, ...]) -> Array:
     and the shape is checked before reading, so that a huge (even lazily allocated)
     dataset is refused without allocating it.
     """
-    import h5py
 
     link = f.get(name, getlink=True)
     if link is None:
@@ -57,10 +59,6 @@ def _dataset(path: Path, f: Any, name: str, shape: tuple[int, ...]) -> Array:
 
 
 def _read_weights(path: Path) -> list[tuple[Array, Array]]:
-    import h5py
-
-    from ..io import MAX_BRDF_BYTES, read_input
-
     raw = read_input(path, MAX_BRDF_BYTES, "an NBRDF weights file")
     try:
         f = h5py.File(io.BytesIO(raw), "r")
@@ -91,8 +89,6 @@ def _read_weights(path: Path) -> list[tuple[Array, Array]]:
 
 
 def _check_architecture(path: Path) -> None:
-    from ..io import MAX_DESCRIPTION_BYTES, parse_json, read_input
-
     if not path.exists() and not path.is_symlink():
         return
     d = parse_json(read_input(path, MAX_DESCRIPTION_BYTES, "an NBRDF architecture file"), path)
@@ -122,7 +118,7 @@ class NBRDF(BRDFSource):
         """The neural BRDF: a 6-21-21-3 ReLU network of ``(h, d)`` (Rusinkiewicz half and
         difference vectors, ``φ_d`` mod π), output ``max(0, exp(y) − 1)``, sr⁻¹.
 
-        Directions, shapes and return as :meth:`reflecto.sources.base.BRDFSource.eval`.
+        Directions, shapes and return as :meth:`reflecto.brdf.BRDFSource.eval`.
         """
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)
@@ -140,3 +136,6 @@ class NBRDF(BRDFSource):
     def parameters(self) -> dict[str, Any]:
         """The network's shape and number of weights, for ``reflecto info``."""
         return {"network": "6-21-21-3 (ReLU, exp(x)-1)", "weights": sum(k.size + b.size for k, b in self.layers)}
+
+
+register_reader(Reader("nbrdf", "an NBRDF fit (.h5)", (".h5",), (b"\x89HDF",), NBRDF))

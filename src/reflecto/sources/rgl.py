@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import FileFormatError
-from .base import BRDFSource, check_plausible, read_file_bytes
+from ..brdf import BRDFSource, Reader, check_plausible, read_file_bytes, register_reader
 
 Array = NDArray[np.float64]
 
@@ -357,7 +357,7 @@ class RGLBRDF(BRDFSource):
         """The BRDF ``f = eval_cosine(i, o) / cos θ_o`` of the tensor file, evaluated like Mitsuba 3's
         ``measured`` plugin, sr⁻¹.
 
-        Directions, shapes and return as :meth:`reflecto.sources.base.BRDFSource.eval`.
+        Directions, shapes and return as :meth:`reflecto.brdf.BRDFSource.eval`.
         """
         o = np.asarray(o, dtype=np.float64)
         v = self.eval_cosine(i, o)
@@ -372,3 +372,6 @@ class RGLBRDF(BRDFSource):
             "isotropic": self.isotropic,
             "table": f"{self._rgb[0].h}x{self._rgb[0].w} RGB per incident direction",
         }
+
+
+register_reader(Reader("rgl", "an RGL tensor file (.bsdf)", (".bsdf",), (b"tensor_file\x00",), RGLBRDF))

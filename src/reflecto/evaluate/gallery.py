@@ -23,13 +23,22 @@ import dataclasses
 import html
 import json
 import math
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from .. import workflow
 from ..errors import ParameterError
+from ..instrument.simulate import simulate_capture
+from ..reconstruct import Options, reconstruct_rotations
+from ..render.mitsuba import render, save_image
+from .metrics import comparison_error
+from ..instrument.device import load_device
+from ..load import load_source
+from ..render.mitsuba import SMOOTHING_PX, image_difference, object_mask
+from ..io import atomic_write
+from ..io import atomic_folder
 
 __all__ = ["GallerySettings", "GalleryRow", "gallery_row", "write_gallery", "gallery"]
 
@@ -79,38 +88,16 @@ class GalleryRow:
         return dataclasses.asdict(self)
 
 
-def _calibration(settings: GallerySettings, device):  # type: ignore[no-untyped-def]
-    """The calibration of ``device``: the given file, the nominal one, or a simulated and computed one."""
-    from ..instrument.calibrate import calibrate, load_calibration, needs_calibration, nominal_calibration
-    from ..instrument.simulate import simulate_calibration
-
-    if settings.calibration:
-        return load_calibration(settings.calibration, device.nominal())
-    if not needs_calibration(device.nominal()):
-        return nominal_calibration(device)
-    with tempfile.TemporaryDirectory(prefix="reflecto-gallery-cal-") as tmp:
-        return calibrate(simulate_calibration(device, Path(tmp) / "calib", seed=settings.seed))
-
-
 def _reconstructions(src, device, cal, settings: GallerySettings):  # type: ignore[no-untyped-def]
     """The symmetric path's model, the §5.5 model, and the first capture's symmetry test."""
-    from ..instrument.simulate import simulate_capture
-    from ..instrument.slices import extract_slices
-    from ..reconstruct import Options, reconstruct
-    from ..reconstruct.asymmetric import RotatedCapture, reconstruct_rotations, sample_frames
-    from ..reconstruct.symmetry_test import symmetry_test_slices
-
-    caps = [RotatedCapture(extract_slices(simulate_capture(src, device, seed=settings.seed + k, rotation_deg=r), cal),
-                           float(r), f"rotation {r:g}°") for k, r in enumerate(settings.rotations_deg)]
-    first = caps[0].slices.reframe(sample_frames([caps[0].rotation_deg])[0])
-    sym = reconstruct(first, Options(isotropic="auto" if src.isotropic else "no"))
-    test = symmetry_test_slices(first, first.valid, sym.model)
-    return sym.model, reconstruct_rotations(caps).model, test
+    caps = [simulate_capture(src, device, seed=settings.seed + k, rotation_deg=r)
+            for k, r in enumerate(settings.rotations_deg)]
+    first = workflow.capture_to_model(caps[0], cal, Options(isotropic="auto" if src.isotropic else "no"))
+    rotated = workflow.rotated_captures(caps, cal, names=[f"rotation {r:g}°" for r in settings.rotations_deg])
+    return first.model, reconstruct_rotations(rotated).model, first.symmetry
 
 
 def _render_png(source, out: Path, name: str, settings: GallerySettings, seed: int):  # type: ignore[no-untyped-def]
-    from .mitsuba import render, save_image
-
     r = render(source, "teapot-env", resolution=settings.resolution, spp=settings.spp, seed=seed)
     save_image(r.image(), out / name)
     return r
@@ -118,16 +105,12 @@ def _render_png(source, out: Path, name: str, settings: GallerySettings, seed: i
 
 def gallery_row(path: str | Path, out: Path, settings: GallerySettings, device=None, cal=None) -> GalleryRow:  # type: ignore[no-untyped-def]
     """Reconstruct, compare and render one material into the folder ``out`` (module docstring)."""
-    from ..evaluate.metrics import comparison_error
-    from ..instrument.device import load_device
-    from ..sources import load_source
-    from .mitsuba import SMOOTHING_PX, image_difference, object_mask
 
     t0 = time.perf_counter()
     p = Path(path)
     src = load_source(p)
     device = device or load_device(settings.device)
-    cal = cal or _calibration(settings, device)
+    cal = cal or workflow.calibration_for(device, settings.calibration, missing="simulate", seed=settings.seed)
     sym, asym, test = _reconstructions(src, device, cal, settings)
     e_sym, e_asym = comparison_error(src, sym), comparison_error(src, asym)
     stem = p.stem
@@ -164,7 +147,6 @@ def _cell(row: GalleryRow, kind: str) -> str:
 
 def write_gallery(rows: Sequence[GalleryRow], out: Path, settings: GallerySettings) -> Path:
     """``index.html`` (and ``gallery.json``) of the rows in the folder ``out``."""
-    from ..io import atomic_write
 
     rots = "/".join(f"{r:g}" for r in settings.rotations_deg)
     head = ("<tr><th>material</th><th>reference</th><th>symmetric path (one capture, eq. 3 mirror)</th>"
@@ -199,12 +181,10 @@ def gallery(paths: Sequence[str | Path], out_dir: str | Path, settings: GalleryS
     The folder appears complete or not at all; ``progress(name, seconds)`` is called
     after each material. Returns the page and the rows.
     """
-    from ..instrument.device import load_device
-    from ..io import atomic_folder
 
     settings = settings or GallerySettings()
     device = load_device(settings.device)
-    cal = _calibration(settings, device)
+    cal = workflow.calibration_for(device, settings.calibration, missing="simulate", seed=settings.seed)
     rows = []
     with atomic_folder(out_dir) as tmp:
         for p in paths:

@@ -17,17 +17,20 @@ gives isotropic materials: isotropic files. ``--analytic``: also analytic models
 reader of the format instead (the same interpolation, float64; Mitsuba agrees to
 ≤ 2·10⁻⁵).
 
-Run: ``.venv/bin/python benchmarks/validate_exports.py`` (≈ 6 minutes on one core; the
+Run: ``.venv/bin/python studies/validate_exports.py`` (≈ 6 minutes on one core; the
 first run also reconstructs the 50 materials, ≈ 30 s). Timings on a shared machine are
 noisy: compare paired runs.
 """
 
 from __future__ import annotations
 
-import _bench  # noqa: F401  (one core, single-threaded libraries: before NumPy)
-
-import argparse
 import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import _bench  # noqa: E402, F401  (one core, single-threaded libraries: before NumPy)
+
+import argparse  # noqa: E402
 import tempfile
 import time
 from pathlib import Path

@@ -33,7 +33,7 @@ image difference of :func:`reflecto.render.mitsuba.image_difference`. The fits o
 eq. 10, not the render, so the ceiling column bounds what eq. 10-fitted models of the
 class reach on the render, not what any model of the class could.
 
-Run: ``.venv/bin/python benchmarks/render_ceiling.py [--names a,b] [--jobs 2] [--render-fit [plausible]]
+Run: ``.venv/bin/python studies/render_ceiling.py [--names a,b] [--jobs 2] [--render-fit [plausible]]
 [--trade-off [--shares 0.5,0.9]]`` (≈ 25 s per material for the ceiling fit; all 50 ≈ 12 minutes on 2 cores;
 the render fit ≈ 3 minutes more per material, the trade-off ≈ 8).
 """
@@ -230,7 +230,7 @@ def one(args: tuple[str, str, str | None, tuple[float, ...] | None]) -> dict:
     from reflecto.model import load_model
     from reflecto.render.mitsuba import SMOOTHING_PX, image_difference
     from reflecto.render.sphere import render_sphere
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     path, model_file, render_fit, shares = args
     ref = load_source(path)

@@ -1,16 +1,27 @@
-"""The common interface of every BRDF source, and quantities derived from it."""
+"""The common interface of every BRDF (:class:`BRDFSource`), quantities derived from it, and
+the register of file readers.
+
+Every BRDF in reflecto — a measured table, an analytic lobe, a reconstructed model —
+is a :class:`BRDFSource`; the model (:mod:`reflecto.model`) and the readers
+(:mod:`reflecto.sources`) both build on this module, which depends on neither.
+Each reader registers the suffixes and leading bytes it reads (:func:`register_reader`);
+:func:`reflecto.load.load_source` picks one by suffix, else by the file's first bytes.
+"""
 
 from __future__ import annotations
 
 import abc
+import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .. import geometry
-from ..errors import FileFormatError, ParameterError
+from . import geometry
+from .errors import FileFormatError, ParameterError
+from .io import MAX_BRDF_BYTES, read_input
 
 Array = NDArray[np.float64]
 
@@ -131,8 +142,6 @@ def rgb_triplet(value: Any, name: str) -> Array:
 def read_file_bytes(path: Path, limit: int | None = None, what: str = "a BRDF file") -> bytes:
     """Whole contents of a regular file of at most ``limit`` bytes (default
     :data:`reflecto.io.MAX_BRDF_BYTES`); FileFormatError naming the file otherwise."""
-    from ..io import MAX_BRDF_BYTES, read_input
-
     return read_input(path, MAX_BRDF_BYTES if limit is None else limit, what)
 
 
@@ -180,3 +189,42 @@ def check_plausible(source: BRDFSource, path: Path, albedo_range: tuple[float, f
     if a.min() < lo or a.max() > hi:
         raise FileFormatError(path, f"directional albedo {a.min():.4g} to {a.max():.4g}, outside the plausible "
                               f"[{lo:g}, {hi:g}]: damaged, or not a BRDF in sr⁻¹")
+
+
+# ------------------------------------------------------------------ readers
+@dataclasses.dataclass(frozen=True)
+class Reader:
+    """How one kind of BRDF file is read.
+
+    Attributes
+    ----------
+    kind
+        Short name of the kind (``"merl"``, ``"rgl"``, ``"nbrdf"``, ``"analytic"``, ``"model"``).
+    description
+        The kind in words, for messages (``"a MERL table (.binary)"``).
+    suffixes
+        Lower-case suffixes read as this kind (``(".binary",)``).
+    magic
+        Leading bytes that identify the kind when the suffix does not (may be empty).
+    open
+        ``open(path) -> BRDFSource``.
+    """
+
+    kind: str
+    description: str
+    suffixes: tuple[str, ...]
+    magic: tuple[bytes, ...]
+    open: Callable[[Path], BRDFSource]
+
+
+READERS: dict[str, Reader] = {}
+
+
+def register_reader(reader: Reader) -> Reader:
+    """Add ``reader`` to :data:`READERS` (each suffix is read by one reader)."""
+    for suffix in reader.suffixes:
+        other = READERS.get(suffix)
+        if other is not None and other.kind != reader.kind:
+            raise ValueError(f"suffix {suffix} is already read as {other.kind}")
+        READERS[suffix] = reader
+    return reader

@@ -13,7 +13,7 @@ also tilted by 5°, 10° and 15° (as-built, ``--estimate-normal``). Checked per
 
 Prints one line per capture with any violation, then the counts.
 
-Run: ``.venv/bin/python benchmarks/validate_plausibility.py [--jobs 2] [--no-tilt] [--device wide]``
+Run: ``.venv/bin/python studies/validate_plausibility.py [--jobs 2] [--no-tilt] [--device wide]``
 (≈ 5 minutes on 2 cores). ``--device NAME`` checks the built-in pair NAME (ideal) and
 NAME-as-built (``wide``, ``wide-as-built``) instead of ``ideal`` and ``as-built``.
 """
@@ -36,21 +36,20 @@ ANGLES = np.array([0.0, 30.0, 60.0, 75.0, 85.0, 89.0])
 def one(job: tuple[str, str, str | None, float]) -> dict:
     from reflecto.evaluate.sweep import material_seed
     from reflecto.fresnel import is_constant
-    from reflecto.instrument.calibrate import load_calibration, nominal_calibration
     from reflecto.instrument.device import load_device
     from reflecto.instrument.simulate import simulate_capture
-    from reflecto.instrument.slices import extract_slices
+    from reflecto import workflow
     from reflecto.reconstruct import Options, reconstruct
     from reflecto.reconstruct.isotropic import ETA_MAX
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     path, device, cal_path, tilt = job
     dev = load_device(device)
-    cal = load_calibration(cal_path, dev.nominal()) if cal_path else nominal_calibration(dev)
+    cal = workflow.calibration_for(dev, cal_path, missing="nominal")
     name = Path(path).stem
     cap = simulate_capture(load_source(path), dev, seed=material_seed(name), tilt_deg=tilt)
     try:
-        res = reconstruct(extract_slices(cap, cal), Options(estimate_normal=tilt > 0))
+        res = reconstruct(workflow.measure(cap, cal), Options(estimate_normal=tilt > 0))
     except Exception as e:  # noqa: BLE001 - reported, the run goes on
         return {"name": name, "device": device, "tilt": tilt, "bad": [f"FAILED {type(e).__name__}: {e}"],
                 "eta": float("nan"), "albedo": float("nan"), "notes": [], "seconds": 0.0}

@@ -20,7 +20,7 @@ reference | model | difference images of the best, the median, the worst materia
 of ``--show`` ones to ``--out`` (default ``out/validate-renders``), to look for seams
 at the parameterization's pole (the highlight's centre) or rings.
 
-Run: ``.venv/bin/python benchmarks/validate_renders.py`` (≈ 6 minutes on 2 cores;
+Run: ``.venv/bin/python studies/validate_renders.py`` (≈ 6 minutes on 2 cores;
 ``--names a,b`` for some materials, ``--scene sphere-env`` for the environment map).
 """
 
@@ -38,7 +38,7 @@ from reflecto.export.rgl import export_rgl  # noqa: E402
 from reflecto.model import load_model  # noqa: E402
 from reflecto.render.mitsuba import SMOOTHING_PX, compare, comparison_image, image_difference, object_mask  # noqa: E402
 from reflecto.render.sphere import render_sphere  # noqa: E402
-from reflecto.sources import load_source  # noqa: E402
+from reflecto.load import load_source  # noqa: E402
 from reflecto.sources.rgl import RGLBRDF  # noqa: E402
 
 SHOW = ("chrome-steel", "irid_flake_paint1_rgb", "pvc", "paper_white_rgb")

@@ -8,7 +8,7 @@ the model error ε, whether the capture was found isotropic, and the time; then 
 many cases meet the targets (2 %, 5 %, 1 %). Then six anisotropic GGX cases: found
 anisotropic, and the NDF within 8 %.
 
-Run: ``.venv/bin/python benchmarks/validate_reconstruction.py [--bits N]`` (≈ 2 minutes).
+Run: ``.venv/bin/python studies/validate_reconstruction.py [--bits N]`` (≈ 2 minutes).
 ``--bits 16`` gives the ideal device a 16-bit ADC instead of its 12 bits: the rounding of
 a flat diffuse floor is then 16× finer (a diagnostic; the acceptance is the 12-bit device).
 """
@@ -21,10 +21,9 @@ import time
 import numpy as np
 
 from reflecto.evaluate.metrics import brdf_error, ndf_error
-from reflecto.instrument.calibrate import nominal_calibration
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
-from reflecto.instrument.slices import extract_slices
+from reflecto import workflow
 from reflecto.reconstruct import reconstruct
 from reflecto.sources.analytic import AnalyticBRDF
 
@@ -36,7 +35,7 @@ def main() -> None:
     dev = Device.builtin("ideal")
     if args.bits is not None:
         dev = dev.with_camera(bits=args.bits)
-    cal = nominal_calibration(dev)
+    cal = workflow.calibration_for(dev, missing="nominal")
     ok = np.zeros(3, int)
     n = 0
     for dist in ("ggx", "beckmann"):
@@ -44,7 +43,7 @@ def main() -> None:
             for eta in (1.3, 1.5, 2.0):
                 for kd in (0.0, 0.2):
                     src = AnalyticBRDF(distribution=dist, alpha=alpha, kd=kd, ks=0.8, eta=eta)
-                    sl = extract_slices(simulate_capture(src, dev, seed=1), cal)
+                    sl = workflow.measure(simulate_capture(src, dev, seed=1), cal)
                     t = time.perf_counter()
                     res = reconstruct(sl)
                     t = time.perf_counter() - t
@@ -63,7 +62,7 @@ def main() -> None:
     cases = [((0.1, 0.2), 0), ((0.05, 0.2), 75), ((0.2, 0.05), 120), ((0.1, 0.4), 30), ((0.4, 0.1), 0), ((0.1, 0.4), 60)]
     for alpha, rot in cases:
         src = AnalyticBRDF(distribution="ggx", alpha=alpha, rotation_deg=rot, kd=0.1, ks=0.7, eta=1.5)
-        res = reconstruct(extract_slices(simulate_capture(src, dev, seed=1), cal))
+        res = reconstruct(workflow.measure(simulate_capture(src, dev, seed=1), cal))
         m = res.model
         e_ndf = ndf_error(src, m, resolution=512)
         n_ok += e_ndf <= 0.08 and not res.isotropic

@@ -7,7 +7,7 @@ the sample's horizon, and the normalized eq. 10 error next to the same material'
 untilted error (same seed); then how many captures meet the targets (normal within
 0.5°, error within 20 % of the untilted one).
 
-Run: ``.venv/bin/python benchmarks/validate_tilt.py`` (≈ 3 minutes).
+Run: ``.venv/bin/python studies/validate_tilt.py`` (≈ 3 minutes).
 """
 
 from __future__ import annotations
@@ -17,10 +17,9 @@ import math
 import numpy as np
 
 from reflecto.evaluate.metrics import brdf_error
-from reflecto.instrument.calibrate import nominal_calibration
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
-from reflecto.instrument.slices import extract_slices
+from reflecto import workflow
 from reflecto.reconstruct import Options, reconstruct
 from reflecto.sources.analytic import AnalyticBRDF
 
@@ -36,17 +35,17 @@ SEEDS = (1, 2)
 
 def main() -> None:
     dev = Device.builtin("ideal")
-    cal = nominal_calibration(dev)
+    cal = workflow.calibration_for(dev, missing="nominal")
     n = ok_normal = ok_error = flagged = 0
     for p in MATERIALS:
         src = AnalyticBRDF(**p)
         label = f"{p['distribution']} α={p['alpha']} η={p['eta']} k_d={p['kd']}"
         for seed in SEEDS:
-            flat = reconstruct(extract_slices(simulate_capture(src, dev, seed=seed), cal))
+            flat = reconstruct(workflow.measure(simulate_capture(src, dev, seed=seed), cal))
             e0 = brdf_error(src, flat.model, stride=3).normalized
             for tilt in TILTS:
                 cap = simulate_capture(src, dev, tilt_deg=tilt, seed=seed)
-                res = reconstruct(extract_slices(cap, cal), Options(estimate_normal=True))
+                res = reconstruct(workflow.measure(cap, cal), Options(estimate_normal=True))
                 truth = np.array(cap.extra["simulation"]["normal"])
                 off = math.degrees(math.acos(min(1.0, float(np.dot(truth, res.frame[2])))))
                 e = brdf_error(src, res.model, stride=3).normalized

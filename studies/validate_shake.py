@@ -13,7 +13,7 @@ moved LEDs and the angle; then the detection rate and the number of false alarms
 the four cues together and each alone, and the
 detection rate by the firing position of the first moved LED.
 
-Run: ``.venv/bin/python benchmarks/validate_shake.py [--jobs N] [--device as-built]
+Run: ``.venv/bin/python studies/validate_shake.py [--jobs N] [--device as-built]
 [--firing-order 0,1,2,3,4,5] [--check-leds 0|4,0|none]`` (≈ 2 minutes on 2 cores);
 ``--firing-order`` tries another order of the same LEDs and ``--check-leds`` other
 check frames (the defaults are the device's).
@@ -39,12 +39,11 @@ from reflecto.reconstruct.symmetry import PLANE_THRESHOLD_DEG  # noqa: E402
 
 
 def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None, tuple[int, ...] | None]) -> dict:
-    from reflecto.instrument.calibrate import load_calibration, nominal_calibration
     from reflecto.instrument.device import load_device
     from reflecto.instrument.simulate import simulate_capture
-    from reflecto.instrument.slices import extract_slices
+    from reflecto import workflow
     from reflecto.reconstruct import reconstruct
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     k, path, device, cal_path, order, check = args
     dev = load_device(device)
@@ -52,12 +51,12 @@ def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None, tuple[int
         dev = dataclasses.replace(dev, firing_order=order)
     if check is not None:
         dev = dataclasses.replace(dev, check_leds=check)
-    cal = load_calibration(cal_path, dev.nominal()) if cal_path else nominal_calibration(dev)
+    cal = workflow.calibration_for(dev, cal_path, missing="nominal")
     src = load_source(path)
     out = {"name": Path(path).stem}
     for shake in (False, True):
         cap = simulate_capture(src, dev, seed=k, shake=shake)
-        res = reconstruct(extract_slices(cap, cal))
+        res = reconstruct(workflow.measure(cap, cal))
         s = res.summary()
         key = "shaken" if shake else "clean"
         planes = [x for x in s["symmetry_plane_offsets_deg"] if x is not None]

@@ -22,7 +22,7 @@ would hold it (512 hemicube, D interpolated log-linearly in θ_h between bin cen
 ``--shadowing correlated`` uses the height-correlated form of S. Nothing of the device enters: this bounds
 the reconstruction from below on each material, it does not measure it.
 
-    .venv/bin/python benchmarks/model_ceiling.py ../shared/data/rgl ../shared/data/merl-nbrdf \
+    .venv/bin/python studies/model_ceiling.py ../shared/data/rgl ../shared/data/merl-nbrdf \
         --table docs/sweep-ideal.csv -o out/ceiling.csv --jobs 2
 """
 
@@ -46,7 +46,7 @@ from reflecto.evaluate.metrics import brdf_error, evaluate_on_grid, metric_grid
 from reflecto.evaluate.sweep import find_materials
 from reflecto.fresnel import fresnel
 from reflecto.model import MicrofacetBRDF
-from reflecto.sources import load_source
+from reflecto.load import load_source
 from reflecto.sources import merl
 
 ETA_MIN, ETA_MAX = 1.01, 60.0
@@ -141,13 +141,12 @@ def device_coverage(source, device: str, seed: int) -> np.ndarray:
     than the six slices hold; it is an upper bound on what they can tell.
     """
     from reflecto import geometry
-    from reflecto.instrument.calibrate import nominal_calibration
     from reflecto.instrument.device import load_device
     from reflecto.instrument.simulate import simulate_capture
-    from reflecto.instrument.slices import extract_slices
+    from reflecto import workflow
 
     dev = load_device(device)
-    sl = extract_slices(simulate_capture(source, dev, seed=seed), nominal_calibration(dev))
+    sl = workflow.measure(simulate_capture(source, dev, seed=seed), workflow.calibration_for(dev, missing="nominal"))
     mask = np.zeros((merl.N_THETA_H, merl.N_THETA_D), bool)
     for led in range(len(sl.light)):
         o = sl.view[sl.valid[led]]

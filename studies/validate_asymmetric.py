@@ -36,7 +36,7 @@ Parts (``--part``, default all):
   symmetric (``--isotropic no``) reconstruction of one capture, median of 3 after a
   warm-up, one core (target ≤ 4×).
 
-Run: ``.venv/bin/python benchmarks/validate_asymmetric.py [--part P] [--jobs N]``
+Run: ``.venv/bin/python studies/validate_asymmetric.py [--part P] [--jobs N]``
 (asym ≈ 1 min, fill ≈ 3 min, sym ≈ 4 min, asbuilt ≈ 1 min, mixed ≈ 15 s,
 timing ≈ 20 s on 2 busy cores). Results go to ``out/validate_asymmetric/<part>.json``.
 """
@@ -55,7 +55,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "studies"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from reflecto import workflow  # noqa: E402
 
 OUT = ROOT / "out" / "validate_asymmetric"
 ROTATIONS_4 = (0.0, 90.0, 180.0, 270.0)
@@ -75,13 +78,13 @@ def asymmetric_files() -> list[Path]:
 
 
 def _device_and_calibration(device: str):  # type: ignore[no-untyped-def]
-    from reflecto.instrument.calibrate import calibrate, nominal_calibration
+    from reflecto.instrument.calibrate import calibrate
     from reflecto.instrument.device import load_device
     from reflecto.instrument.simulate import simulate_calibration
 
     dev = load_device(device)
     if device == "ideal":
-        return dev, nominal_calibration(dev)
+        return dev, workflow.calibration_for(dev, missing="nominal")
     cal_dir = OUT / f"calib-{device}"
     if not (cal_dir / "calibration.json").is_file():
         simulate_calibration(dev, cal_dir, seed=11)
@@ -90,11 +93,11 @@ def _device_and_calibration(device: str):  # type: ignore[no-untyped-def]
 
 def _captures(src, dev, cal, rotations, seed0: int = 1):  # type: ignore[no-untyped-def]
     from reflecto.instrument.simulate import simulate_capture
-    from reflecto.instrument.slices import extract_slices
-    from reflecto.reconstruct.asymmetric import RotatedCapture
+    from reflecto import workflow
 
-    return [RotatedCapture(extract_slices(simulate_capture(src, dev, seed=seed0 + k, rotation_deg=r), cal), float(r),
-                           f"rotation {r:g}°") for k, r in enumerate(rotations)]
+    return workflow.rotated_captures([simulate_capture(src, dev, seed=seed0 + k, rotation_deg=r)
+                                      for k, r in enumerate(rotations)], cal, rotations_deg=rotations,
+                                     names=[f"rotation {r:g}°" for r in rotations])
 
 
 def _symmetric_path(caps, isotropic: str):  # type: ignore[no-untyped-def]
@@ -109,7 +112,7 @@ def one_asym(args: tuple[str, str]) -> dict:
     """Part ``asym`` (and ``asbuilt``) for one material file on one device."""
     from reflecto.evaluate.metrics import comparison_error, ndf_error
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     path, device = args
     src = load_source(path)
@@ -167,7 +170,7 @@ def one_fill(args: tuple[str, tuple[float, ...]]) -> dict:
     """Part ``fill`` for one material and rotation set."""
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
     from reflecto.reconstruct.synthesis import SynthesisOptions
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     path, rotations = args
     src = random_asymmetric(int(path.removeprefix("random-"))) if path.startswith("random-") else load_source(path)
@@ -193,7 +196,7 @@ def one_sym(args: tuple[str, str | dict, int]) -> dict:
     """Part ``sym`` for one symmetric material (a file, or analytic keywords)."""
     from reflecto.evaluate.metrics import comparison_error
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
     from reflecto.sources.analytic import AnalyticBRDF
 
     from reflecto.errors import ReflectoError
@@ -220,7 +223,7 @@ def one_mixed(args: tuple[str, str]) -> dict:
     """Part ``mixed``: captures 0/90° of one material, 180/270° of another; must be refused."""
     from reflecto.errors import ReflectoError
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     a, b = args
     dev, cal = _device_and_calibration("ideal")
@@ -347,16 +350,16 @@ NOISE_VARIANTS = ("ideal", "ideal optics + noise", "as-built, no noise", "as-bui
 def _noise_variant(label: str):  # type: ignore[no-untyped-def]
     import dataclasses
 
-    from reflecto.instrument.calibrate import calibrate, nominal_calibration
+    from reflecto.instrument.calibrate import calibrate
     from reflecto.instrument.device import load_device
     from reflecto.instrument.simulate import simulate_calibration
 
     ideal, built = load_device("ideal"), load_device("as-built")
     if label == "ideal":
-        return ideal, nominal_calibration(ideal)
+        return ideal, workflow.calibration_for(ideal, missing="nominal")
     if label == "ideal optics + noise":
         dev = dataclasses.replace(ideal, camera=built.camera)
-        return dev, nominal_calibration(dev)
+        return dev, workflow.calibration_for(dev, missing="nominal")
     dev = built if label == "as-built" else dataclasses.replace(
         built, camera=dataclasses.replace(built.camera, read_noise=0.0, shot_noise=False))
     cal_dir = OUT / ("calib-as-built" if label == "as-built" else "calib-as-built-noiseless")
@@ -369,7 +372,7 @@ def one_noise(path: str) -> dict:
     """Part ``noise`` for one material: the §5.5 error on each of :data:`NOISE_VARIANTS`."""
     from reflecto.evaluate.metrics import comparison_error
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     src = load_source(path)
     out = {"name": Path(path).stem}
@@ -401,10 +404,9 @@ def one_photons(path: str) -> dict:
     import dataclasses
 
     from reflecto.evaluate.metrics import comparison_error
-    from reflecto.instrument.calibrate import nominal_calibration
     from reflecto.instrument.device import load_device
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     src = load_source(path)
     ideal, built = load_device("ideal"), load_device("as-built")
@@ -413,7 +415,7 @@ def one_photons(path: str) -> dict:
     for k in PHOTON_FACTORS:
         dev = dataclasses.replace(ideal, camera=_brighter(cam, k))
         out[str(k)] = comparison_error(src, reconstruct_rotations(
-            _captures(src, dev, nominal_calibration(dev), ROTATIONS_4)).model).normalized
+            _captures(src, dev, workflow.calibration_for(dev, missing="nominal"), ROTATIONS_4)).model).normalized
     dev, cal = _as_built_bright()
     out["as-built ×64"] = comparison_error(src, reconstruct_rotations(_captures(src, dev, cal, ROTATIONS_4)).model).normalized
     return out
@@ -483,7 +485,7 @@ def part_timing() -> None:
 
     from reflecto.reconstruct import Options, reconstruct
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     dev, cal = _device_and_calibration("ideal")
     ratios = []

@@ -5,7 +5,7 @@ Runs the sweep twice on the same materials, once in local processes and once on 
 the two ``results.csv`` in every column but the ``seconds_*`` ones (timings), and every
 material record but its ``timings`` (and the temporary path it was read from). Prints the verdict and both wall times.
 
-    .venv/bin/python benchmarks/validate_dask.py ../shared/data/rgl ../shared/data/merl-nbrdf \\
+    .venv/bin/python studies/validate_dask.py ../shared/data/rgl ../shared/data/merl-nbrdf \\
         --device wide --only pvc yellow-paint cm_military_green_rgb -o out/dask-check
 
 Resumable like the sweep: a rerun into the same folder reuses finished records.

@@ -7,14 +7,13 @@ defaults: on the texels the defaults synthesized, the Ω-weighted RMS of log(D/D
 and the mass error (as part ``fill``), each case's value over the defaults', summarized
 as the geometric mean and the worst over the cases, and the synthesis's time.
 
-Run: ``.venv/bin/python benchmarks/synthesis_choices.py [--jobs N]`` (≈ 5 min on 2 busy
+Run: ``.venv/bin/python studies/synthesis_choices.py [--jobs N]`` (≈ 5 min on 2 busy
 cores); results in ``out/validate_asymmetric/choices.json``.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import os
@@ -24,7 +23,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "studies"))
 sys.path.insert(0, str(ROOT / "tests"))
 
 #: One option changed at a time (SynthesisOptions field → value).
@@ -40,7 +39,7 @@ def one(args: tuple[str, tuple[float, ...]]) -> dict:
     import validate_asymmetric as v
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
     from reflecto.reconstruct.synthesis import SynthesisOptions
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     name, rotations = args
     src = v.random_asymmetric(int(name.removeprefix("random-"))) if name.startswith("random-") else load_source(name)

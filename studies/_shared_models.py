@@ -1,4 +1,4 @@
-"""The 50 shared reconstructions (ideal device), cached under ``out/`` for the export benchmarks.
+"""The 50 shared reconstructions (ideal device), cached under ``out/`` for the export and render studies.
 
 Every material of ``shared/data/rgl`` and ``shared/data/merl-nbrdf`` is simulated on the
 ideal device with the sweep's seed (:func:`reflecto.evaluate.sweep.material_seed`) and
@@ -46,17 +46,16 @@ def material_files() -> list[Path]:
 def shared_models(names: list[str] | None = None, quiet: bool = False) -> Iterator[tuple[Path, Path]]:
     """``(material file, model file)`` for each shared material (or those named), reconstructing when not cached."""
     from reflecto.evaluate.sweep import material_seed
-    from reflecto.instrument.calibrate import nominal_calibration
     from reflecto.instrument.device import Device
     from reflecto.instrument.simulate import simulate_capture
-    from reflecto.instrument.slices import extract_slices
+    from reflecto import workflow
     from reflecto.reconstruct.pipeline import reconstruct
-    from reflecto.sources import load_source
+    from reflecto.load import load_source
 
     folder = ROOT / "out" / "shared-models" / reconstruction_key()
     folder.mkdir(parents=True, exist_ok=True)
     dev = Device.builtin("ideal")
-    cal = nominal_calibration(dev)
+    cal = workflow.calibration_for(dev, missing="nominal")
     for p in material_files():
         if names and p.stem not in names:
             continue
@@ -64,7 +63,7 @@ def shared_models(names: list[str] | None = None, quiet: bool = False) -> Iterat
         if not out.is_file():
             t0 = time.perf_counter()
             cap = simulate_capture(load_source(p), dev, seed=material_seed(p.stem))
-            res = reconstruct(extract_slices(cap, cal))
+            res = reconstruct(workflow.measure(cap, cal))
             res.model.metadata.update({"material": p.stem, "device": "ideal (simulated)"})
             res.model.save(out)
             if not quiet:

@@ -1,0 +1,336 @@
+"""The one capture→model path: a capture and a calibration choice in, a model out.
+
+Every caller that turns a capture into a BRDF — the CLI (``reconstruct``, ``watch``),
+the §6 studies (``sweep``, ``design``, ``gallery``, ``report``) and the Python API —
+goes through this module, so that a change to the path is made once::
+
+    calibration_for(device, calibration, missing=)   which calibration reads the capture
+    measure(capture, calibration)                   HDR merge, radiometry → Slices   (§4.3)
+    capture_to_model(capture, calibration, options) … → reconstruct (§5) → CaptureModel
+    save_model(result, output, capture_dir)         model file + JSON summary, atomically
+    reconstruct_folder(capture_dir, output, ...)    all of the above for one capture folder
+    rotations_to_model(captures, calibration, ...)  captures at several rotations (§5.5)
+
+**Which calibration.** A capture is read with (1) the calibration given (a
+:class:`~reflecto.instrument.calibrate.Calibration` or its file, checked against the
+capture's device design), else (2) the nominal calibration when the device's nominal
+description is exact (``ideal``, ``earlier``), else (3) what the caller's ``missing``
+says: ``"refuse"`` (the CLI's default: a real or as-built device differs from its
+nominal optics, LEDs and vignetting in ways only a calibration recovers), ``"nominal"``
+(the CLI's ``--nominal``, and studies that simulate with a device whose nominal
+description is exact, e.g. ``wide``), or ``"simulate"`` (studies of a simulated
+device with hidden imperfections: the virtual calibration procedure, §4.2, is run).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tempfile
+import time
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from .errors import ReflectoError, ReflectoWarning
+from .instrument.calibrate import Calibration, calibrate, load_calibration, needs_calibration, nominal_calibration
+from .instrument.capture import Capture, CaptureError, read_capture
+from .instrument.device import Device, load_device
+from .instrument.simulate import simulate_calibration
+from .instrument.slices import Slices, extract_slices
+from .io import atomic_write
+from .reconstruct import Options, Reconstruction, reconstruct
+from .reconstruct.asymmetric import AsymmetricReconstruction, RotatedCapture, reconstruct_rotations, sample_frames
+from .reconstruct.symmetry_test import SymmetryTest, symmetry_test_slices
+
+__all__ = ["CaptureModel", "Missing", "StageSeconds", "calibration_file", "calibration_for", "capture_to_model",
+           "measure", "reconstruct_folder", "rotations_to_model", "save_model", "save_rotations_model"]
+
+#: What :func:`calibration_for` does for a device that needs a measured calibration and has none.
+Missing = Literal["refuse", "nominal", "simulate"]
+
+
+# ------------------------------------------------------------------ calibration
+def calibration_for(device: Device, calibration: str | Path | Calibration | None = None, *,
+                    missing: Missing = "refuse", seed: int = 1, where: str | Path = "<capture>") -> Calibration:
+    """The calibration that reads captures of ``device`` (module docstring, *Which calibration*).
+
+    Parameters
+    ----------
+    device
+        The capture's device: its manifest's nominal description, or a simulated device
+        (which, for ``missing="simulate"``, carries the hidden truth the virtual
+        calibration measures).
+    calibration
+        A calibration or its ``.npz`` file; ``None`` for none.
+    missing
+        ``"refuse"``, ``"nominal"`` or ``"simulate"``, for a device that needs a measured
+        calibration when none is given.
+    seed
+        Seed of the simulated calibration captures (``missing="simulate"``).
+    where
+        The capture, for the refusal's message.
+
+    Raises
+    ------
+    CaptureError
+        ``missing="refuse"`` and the device needs a measured calibration.
+    FileFormatError
+        The calibration file is damaged or made for another device design.
+    """
+    nominal = device.nominal()
+    if isinstance(calibration, Calibration):
+        return calibration
+    if calibration is not None:
+        return load_calibration(calibration, nominal)
+    if not needs_calibration(nominal) or missing == "nominal":
+        return nominal_calibration(device)
+    if missing == "refuse":
+        raise CaptureError(where, f"captured with device {device.name!r}, whose optics, LEDs and vignetting "
+                           "differ from its nominal design: pass --calibration FILE (from `reflecto calibrate`), "
+                           "or --nominal to use the nominal calibration anyway")
+    with tempfile.TemporaryDirectory(prefix="reflecto-calibration-") as tmp:
+        return calibrate(simulate_calibration(device, Path(tmp) / "calib", seed=seed))
+
+
+def calibration_file(device: str | Path, folder: Path, seed: int = 1) -> str | None:
+    """The calibration file of a simulated device with hidden imperfections (``as-built``,
+    ``wide-as-built``), made once by the virtual calibration procedure and kept in
+    ``folder``; ``None`` for a device whose nominal description is exact (``ideal``,
+    ``wide``), which the nominal calibration reads.
+
+    Batches pass the file's path (not the calibration) to their workers. A kept file that
+    does not load is made again (with a warning).
+    """
+    dev = load_device(device)
+    if dev.truth is None:
+        return None
+    cal_path = folder / f"calibration-{Path(device).stem}.npz"
+    if cal_path.exists():
+        try:
+            Calibration.load(cal_path)
+        except ReflectoError as e:
+            warnings.warn(f"{e}; calibrating again", ReflectoWarning, stacklevel=2)
+            cal_path.unlink()
+    if not cal_path.is_file():
+        calib_dir = folder / f"calibration-{Path(device).stem}"
+        if not calib_dir.is_dir():
+            simulate_calibration(dev, calib_dir, seed=seed)
+        calibrate(calib_dir).save(cal_path)
+    return str(cal_path)
+
+
+# ------------------------------------------------------------------ one capture
+@dataclasses.dataclass(frozen=True)
+class StageSeconds:
+    """Wall time (s) of each stage of :func:`capture_to_model` and :func:`reconstruct_folder`."""
+
+    read: float = 0.0
+    slices: float = 0.0
+    reconstruct: float = 0.0
+    symmetry: float = 0.0
+    write: float = 0.0
+
+    @property
+    def total(self) -> float:
+        """Sum of the stages (s)."""
+        return self.read + self.slices + self.reconstruct + self.symmetry + self.write
+
+
+@dataclasses.dataclass(frozen=True)
+class CaptureModel:
+    """The result of :func:`capture_to_model`.
+
+    Attributes
+    ----------
+    reconstruction
+        The §5 reconstruction (model, η, normal, tests, notes).
+    slices
+        The capture's BRDF slices: in the device frame, turned by the capture's
+        ``rotation_deg`` when it has one (the sample's tangent, §5.5).
+    symmetry
+        The eq. 3 test of the capture, in the sample frame, against the model.
+    calibration
+        Which calibration read it: ``"nominal"``, ``"nominal (--nominal)"``,
+        ``"simulated"`` or the file's path.
+    seconds
+        Wall time of each stage.
+    """
+
+    reconstruction: Reconstruction
+    slices: Slices
+    symmetry: SymmetryTest
+    calibration: str
+    seconds: StageSeconds
+
+    @property
+    def model(self):  # type: ignore[no-untyped-def]
+        """The reconstructed BRDF."""
+        return self.reconstruction.model
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready summary: :meth:`Reconstruction.summary`, the symmetry test and the calibration."""
+        out = {**self.reconstruction.summary(), "symmetry_test": self.symmetry.to_dict()}
+        if self.calibration != "nominal":
+            out["calibration"] = self.calibration
+        return out
+
+
+def measure(capture: Capture, calibration: Calibration, where: str | Path | None = None) -> Slices:
+    """The capture's BRDF slices (HDR merge and radiometry, §4.3); errors name ``where``."""
+    try:
+        return extract_slices(capture, calibration)
+    except CaptureError:
+        raise
+    except ReflectoError as e:
+        if where is None:
+            raise
+        raise CaptureError(where, str(e).removeprefix("capture: ")) from None
+
+
+def _symmetry(slices: Slices, res: Reconstruction) -> SymmetryTest:
+    """The eq. 3 test (:mod:`reflecto.reconstruct.symmetry_test`) of one capture in its sample frame."""
+    sl = slices if np.array_equal(res.frame, np.eye(3)) else slices.reframe(res.frame)
+    return symmetry_test_slices(sl, slices.valid & sl.valid, res.model)
+
+
+def _calibration_label(calibration: str | Path | Calibration | None, missing: Missing, device: Device) -> str:
+    if isinstance(calibration, Calibration):
+        return "given"
+    if calibration is not None:
+        return str(calibration)
+    if not needs_calibration(device.nominal()):
+        return "nominal"
+    return {"nominal": "nominal (--nominal)", "simulate": "simulated"}.get(missing, "nominal")
+
+
+def capture_to_model(capture: Capture | str | Path, calibration: str | Path | Calibration | None = None,
+                     options: Options | None = None, *, missing: Missing = "refuse", seed: int = 1) -> CaptureModel:
+    """Turn one capture into a model: calibration, slices (§4.3), reconstruction (§5), eq. 3 test.
+
+    Parameters
+    ----------
+    capture
+        A :class:`~reflecto.instrument.capture.Capture`, or its folder.
+    calibration, missing, seed
+        The calibration choice (:func:`calibration_for`).
+    options
+        Reconstruction settings (:class:`~reflecto.reconstruct.Options`).
+
+    Raises
+    ------
+    CaptureError
+        Naming the capture folder (or ``<capture>``), for a capture that gives no model.
+    """
+    t0 = time.perf_counter()
+    where: str | Path = "<capture>"
+    if not isinstance(capture, Capture):
+        where = capture
+        capture = read_capture(capture)
+    t1 = time.perf_counter()
+    cal = calibration_for(capture.device, calibration, missing=missing, seed=seed, where=where)
+    slices = measure(capture, cal, where)
+    if capture.rotation_deg % 360.0:  # the model lives in the sample's frame, turned by the manifest's rotation
+        slices = slices.reframe(sample_frames([capture.rotation_deg])[0])
+    t2 = time.perf_counter()
+    try:
+        res = reconstruct(slices, options)
+    except CaptureError:
+        raise
+    except ReflectoError as e:  # the reconstruction's own errors do not know the capture's folder
+        cal_note = f" (calibration {calibration})" if isinstance(calibration, (str, Path)) else ""
+        raise CaptureError(where, str(e).removeprefix("capture: ") + cal_note) from None
+    t3 = time.perf_counter()
+    sym = _symmetry(slices, res)
+    t4 = time.perf_counter()
+    return CaptureModel(res, slices, sym, _calibration_label(calibration, missing, capture.device),
+                        StageSeconds(read=t1 - t0, slices=t2 - t1, reconstruct=t3 - t2, symmetry=t4 - t3))
+
+
+def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path | None = None) -> dict[str, Any]:
+    """Write the model file and its ``.json`` summary beside it (each atomically); returns the summary.
+
+    The model names its capture relative to its own folder, where readers look for it.
+    """
+    out = Path(output)
+    summary = result.summary()
+    if capture_dir is not None:
+        summary = {"capture": str(capture_dir), **summary}
+        rel = os.path.relpath(Path(capture_dir).resolve(), out.resolve().parent)
+        result.model.metadata.update({"capture": rel})
+    result.model.metadata.update({"model_error": summary["model_error"]})
+    result.model.save(out)
+    with atomic_write(out.with_suffix(".json"), "w") as fh:
+        fh.write(json.dumps(summary, indent=1))
+    return summary
+
+
+def reconstruct_folder(capture_dir: str | Path, output: str | Path, calibration: str | Path | None = None,
+                       options: Options | None = None, missing: Missing = "refuse") -> dict[str, Any]:
+    """A capture folder → its model file and ``.json`` summary (:func:`capture_to_model`, :func:`save_model`).
+
+    Returns the summary, with the motion cues described (``motion``) and the stages'
+    wall times (``stage_seconds``). A module-level function of plain arguments, so
+    that batches run it in worker processes.
+    """
+    result = capture_to_model(capture_dir, calibration, options, missing=missing)
+    t0 = time.perf_counter()
+    summary = save_model(result, output, capture_dir)
+    seconds = dataclasses.replace(result.seconds, write=time.perf_counter() - t0)
+    return {**summary, "motion": result.reconstruction.motion.describe(),
+            "stage_seconds": {**dataclasses.asdict(seconds), "total": seconds.total}}
+
+
+# ------------------------------------------------------------------ several rotations (§5.5)
+def rotated_captures(captures: Sequence[Capture | str | Path], calibration: str | Path | Calibration | None = None,
+                     *, missing: Missing = "refuse", seed: int = 1,
+                     rotations_deg: Sequence[float] | None = None,
+                     names: Sequence[str] | None = None) -> list[RotatedCapture]:
+    """The captures of a §5.5 set as :class:`~reflecto.reconstruct.asymmetric.RotatedCapture`:
+    one device for all (refused otherwise), one calibration.
+
+    ``rotations_deg`` overrides the captures' own rotations (their manifests' ``rotation_deg``);
+    ``names`` name the captures in messages (default: their folders).
+    """
+    if names is None:
+        names = [str(c) if not isinstance(c, Capture) else f"capture {k + 1}" for k, c in enumerate(captures)]
+    caps = [c if isinstance(c, Capture) else read_capture(c) for c in captures]
+    if not caps:
+        raise ReflectoError("<no capture>: the asymmetric reconstruction (§5.5) needs captures")
+    first = caps[0]
+    for c, name in zip(caps[1:], names[1:]):
+        if c.device.to_dict() != first.device.to_dict():
+            raise CaptureError(name, f"captured with device {c.device.name!r}, {names[0]} with "
+                               f"{first.device.name!r} (or the same name with other optics, LEDs or camera): the "
+                               "captures of one §5.5 set must come from one device")
+    cal = calibration_for(first.device, calibration, missing=missing, seed=seed, where=names[0])
+    rots = [c.rotation_deg for c in caps] if rotations_deg is None else list(rotations_deg)
+    return [RotatedCapture(measure(c, cal, name), float(r), name) for c, r, name in zip(caps, rots, names)]
+
+
+def rotations_to_model(captures: Sequence[Capture | str | Path], calibration: str | Path | Calibration | None = None,
+                       options: Options | None = None, *, missing: Missing = "refuse",
+                       seed: int = 1) -> AsymmetricReconstruction:
+    """One model from captures of the same point at several rotations (§5.5,
+    :func:`~reflecto.reconstruct.asymmetric.reconstruct_rotations`)."""
+    return reconstruct_rotations(rotated_captures(captures, calibration, missing=missing, seed=seed), options)
+
+
+def save_rotations_model(result: AsymmetricReconstruction, output: str | Path, capture_dirs: Sequence[str | Path],
+                         calibration_note: str | None = None) -> dict[str, Any]:
+    """Write a §5.5 model and its ``.json`` summary (each atomically); returns the summary."""
+    out = Path(output)
+    summary = {"captures": [str(c) for c in capture_dirs], **result.summary()}
+    if calibration_note:
+        summary["calibration"] = calibration_note
+    result.model.metadata.update({"captures": [os.path.relpath(Path(c).resolve(), out.resolve().parent)
+                                               for c in capture_dirs],
+                                  "rotations_deg": result.rotations_deg, "asymmetric": True})
+    result.model.save(out)
+    with atomic_write(out.with_suffix(".json"), "w") as fh:
+        fh.write(json.dumps(summary, indent=1))
+    return summary
