@@ -159,6 +159,9 @@ class CaptureModel:
         ``"simulated"`` or the file's path.
     seconds
         Wall time of each stage.
+    provenance
+        What the capture's manifest says of its origin: the device's name and, for a
+        simulated capture, its material (kept in the model's metadata, for exports).
     """
 
     reconstruction: Reconstruction
@@ -166,6 +169,7 @@ class CaptureModel:
     symmetry: SymmetryTest
     calibration: str
     seconds: StageSeconds
+    provenance: dict[str, str] = dataclasses.field(default_factory=dict)
 
     @property
     def model(self):  # type: ignore[no-untyped-def]
@@ -248,7 +252,17 @@ def capture_to_model(capture: Capture | str | Path, calibration: str | Path | Ca
     sym = _symmetry(slices, res)
     t4 = time.perf_counter()
     return CaptureModel(res, slices, sym, _calibration_label(calibration, missing, capture.device),
-                        StageSeconds(read=t1 - t0, slices=t2 - t1, reconstruct=t3 - t2, symmetry=t4 - t3))
+                        StageSeconds(read=t1 - t0, slices=t2 - t1, reconstruct=t3 - t2, symmetry=t4 - t3),
+                        provenance(capture))
+
+
+def provenance(capture: Capture) -> dict[str, str]:
+    """The device's name and, for a simulated capture, its material, from the capture's manifest."""
+    out = {"device": capture.device.name}
+    sim = capture.extra.get("simulation")
+    if isinstance(sim, dict) and isinstance(sim.get("source"), str) and sim["source"]:
+        out["material"] = Path(sim["source"]).stem + " (simulated capture)"
+    return out
 
 
 def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path | None = None) -> dict[str, Any]:
@@ -262,7 +276,7 @@ def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path
         summary = {"capture": str(capture_dir), **summary}
         rel = os.path.relpath(Path(capture_dir).resolve(), out.resolve().parent)
         result.model.metadata.update({"capture": rel})
-    result.model.metadata.update({"model_error": summary["model_error"]})
+    result.model.metadata.update({**result.provenance, "model_error": summary["model_error"]})
     result.model.save(out)
     with atomic_write(out.with_suffix(".json"), "w") as fh:
         fh.write(json.dumps(summary, indent=1))

@@ -55,9 +55,8 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from ..colour import LUM
-from ..errors import ReflectoError
 from ..fresnel import f0_from_eta, is_constant
-from ..io import atomic_write, read_json
+from ..io import atomic_write
 from ..brdf import BRDFSource
 from ..sources.rgl import MAGIC, Marginal2D
 from ..fresnel import fresnel
@@ -493,22 +492,10 @@ def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | 
 
 # ------------------------------------------------------------------ description
 def _capture_info(source: BRDFSource) -> dict[str, str]:
-    """Material and device of the capture a model's metadata names, where its manifest can be read."""
+    """Material, device and capture of a model, as its metadata records them
+    (:func:`reflecto.workflow.save_model` writes them from the capture's manifest)."""
     meta = getattr(source, "metadata", None) or {}
-    info = {k: str(meta[k]) for k in ("material", "device") if k in meta}
-    cap = meta.get("capture")
-    if cap:
-        info["capture"] = str(cap)
-        try:
-            manifest = read_json(Path(cap) / "manifest.json")
-            sim = manifest.get("simulation") or {}
-            if sim.get("source") and "material" not in info:
-                info["material"] = Path(str(sim["source"])).stem + " (simulated capture)"
-            if (manifest.get("device") or {}).get("name") and "device" not in info:
-                info["device"] = str(manifest["device"]["name"])
-        except (ReflectoError, OSError, ValueError, AttributeError, TypeError):
-            pass
-    return info
+    return {k: str(meta[k]) for k in ("material", "device", "capture") if meta.get(k)}
 
 
 def export_description(source: BRDFSource, isotropic: bool) -> str:
