@@ -43,6 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..colour import LUM
+from ..plotting import pyplot
 from ..errors import FileFormatError, ParameterError
 from ..brdf import BRDFSource
 from .sphere import BACKGROUND, CAMERA, FOV_DEG, LIGHTS, TARGET, UP, composite
@@ -52,7 +53,6 @@ from ..export.rgl import export_rgl
 from ..mitsuba_support import import_mitsuba
 from scipy import ndimage
 from ..io import atomic_path
-from matplotlib import colormaps
 
 Array = NDArray[np.float64]
 
@@ -388,7 +388,7 @@ def comparison_image(reference: Array, test: Array, labels: tuple[str, str] = ("
         rel = np.where((alpha >= 1.0 - 1e-6) & (a_test >= 1.0 - 1e-6), rel, 0.0)
         reference, test = composite(reference, alpha, exposure), composite(test, a_test, exposure)
         exposure = 1.0
-    heat = (colormaps["inferno"](np.clip(rel / 0.2, 0.0, 1.0))[..., :3] * 255).astype(np.uint8)
+    heat = (pyplot().colormaps["inferno"](np.clip(rel / 0.2, 0.0, 1.0))[..., :3] * 255).astype(np.uint8)
     gap = np.full((reference.shape[0], 4, 3), 255, np.uint8)
     return np.concatenate([to_srgb8(reference, exposure), gap, to_srgb8(test, exposure), gap, heat], axis=1)
 
