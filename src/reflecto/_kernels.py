@@ -13,11 +13,12 @@ not depend on the core count); batch-level parallelism lives in the CLI.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
 
-_OPTS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+_OPTS: dict[str, Any] = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
 
 @njit(inline="always", **_OPTS)

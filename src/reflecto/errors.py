@@ -94,11 +94,17 @@ class BatchError(ReflectoError):
         ``(item, message)`` per failed item; each message names its file.
     total
         Number of items in the batch.
+
+    Attributes
+    ----------
+    records
+        What the batch finished (its records, for a caller that reports them), or ``[]``.
     """
 
     def __init__(self, failures: list[tuple[str, str]], total: int) -> None:
         self.failures = list(failures)
         self.total = total
+        self.records: list = []
         super().__init__(f"{len(self.failures)} of {total} items failed")
 
 

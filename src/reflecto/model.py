@@ -91,6 +91,15 @@ class MicrofacetBRDF(BRDFSource):
         Free JSON-serializable information kept in the model file.
     """
 
+    #: Diffuse and specular albedos and the relative index, RGB, shape ``(3,)`` (set by the constructor).
+    kd: Array
+    ks: Array
+    eta: Array
+    #: Height-correlated Smith shadowing (else separable), and free-form metadata.
+    correlated: bool
+    metadata: dict[str, Any]
+
+
     kind = "model"
 
     def __init__(
@@ -482,6 +491,15 @@ class IsotropicMicrofacetBRDF(BRDFSource):
     metadata
         Free JSON-serializable information kept in the model file.
     """
+
+    #: Diffuse and specular albedos and the relative index, RGB, shape ``(3,)`` (set by the constructor).
+    kd: Array
+    ks: Array
+    eta: Array
+    #: Height-correlated Smith shadowing (else separable), and free-form metadata.
+    correlated: bool
+    metadata: dict[str, Any]
+
 
     kind = "model"
 

@@ -6,12 +6,13 @@ Each has a NumPy reference in that module (``*_numpy``) that the tests compare i
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from numba import njit
 
 from .._kernels import _fresnel
 
-_OPTS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+_OPTS: dict[str, Any] = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
 
 @njit(**_OPTS)
