@@ -72,33 +72,21 @@ from .pipeline import Options, bound_notes, limit_energy, usable_samples
 from .samples import Bins, bin_samples, kd_bound
 from .symmetry_test import PairRatios, SymmetryTest, pair_ratios, symmetry_from_ratios
 from .synthesis import SynthesisFill, SynthesisOptions
+from .tuning import ASYMMETRIC
 
 Array = NDArray[np.float64]
 
 __all__ = ["RotatedCapture", "AsymmetricReconstruction", "CaptureConsistency", "reconstruct_rotations",
            "check_rotations", "sample_frames", "capture_consistency", "SetDistance"]
 
-#: Two captures whose rotations differ by less than this (degrees, modulo 360) are duplicates.
-DUPLICATE_DEG = 1.0
-#: Captures needed for §5.5.
-MIN_CAPTURES = 2
-#: Two captures measure different materials (or carry a wrong rotation) when their
-#: partial NDFs at the same sample-frame texels differ in level: the weighted mean of
-#: their log ratio is at least this (log units; 0.15 is a 16 % level difference). On the
-#: 62 single-material sets of the validation it stays ≤ 0.07; on mixed sets it is
-#: 0.09–2.0 (docs/design/asymmetric.md) …
-INCONSISTENT_LEVEL = 0.15
-#: … or when they differ in shape by at least this factor of what two LEDs of one capture
-#: differ by at one texel (RMS log ratio), by at least :data:`INCONSISTENT_MIN` in absolute
-#: terms, *and* in level by at least :data:`INCONSISTENT_LEVEL_WITH_SHAPE`. The level
-#: condition keeps sets of one measured anisotropic material: at 90° to each other its
-#: captures see a texel through other (i, o), where the model's S and F miss the BRDF by
-#: up to 3.8× the within-capture spread, but with no level offset (|mean| ≤ 0.01).
-INCONSISTENT_RATIO = 3.0
-INCONSISTENT_MIN = 0.15
-INCONSISTENT_LEVEL_WITH_SHAPE = 0.03
-#: Cross-capture pairs needed to judge two captures.
-MIN_CROSS_PAIRS = 30
+# Tuned numbers: what, units and provenance are in :mod:`.tuning` (asymmetric stage).
+DUPLICATE_DEG = ASYMMETRIC.duplicate_deg
+MIN_CAPTURES = ASYMMETRIC.min_captures
+INCONSISTENT_LEVEL = ASYMMETRIC.inconsistent_level
+INCONSISTENT_RATIO = ASYMMETRIC.inconsistent_ratio
+INCONSISTENT_MIN = ASYMMETRIC.inconsistent_min
+INCONSISTENT_LEVEL_WITH_SHAPE = ASYMMETRIC.inconsistent_level_with_shape
+MIN_CROSS_PAIRS = ASYMMETRIC.min_cross_pairs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -435,8 +423,7 @@ class AsymmetricReconstruction:
                 "albedo_max": self.albedo_max, "notes": self.notes, "seconds": self.seconds}
 
 
-#: Polar cap over which the synthesized and hole fractions are reported (degrees).
-CAP_DEG = 80.0
+CAP_DEG = ASYMMETRIC.cap_deg
 
 
 def _cap_fraction(cube: Hemicube, mask: NDArray[np.bool_] | None) -> float:

@@ -40,32 +40,19 @@ from numpy.typing import NDArray
 from ..colour import LUM
 from ..hemicube import hemicube
 from ..instrument.device import STEEP_ELEVATION_DEG
+from .tuning import CONSISTENCY
 
 Array = NDArray[np.float64]
 
-#: Resolution of the hemicube over view directions that a slice is averaged onto.
-CUBE_N = 64
-#: LEDs whose incidence angles differ by at most this (degrees) are compared by isotropy.
-ISOTROPY_MAX_DEG = 1.0
-#: Fewer paired directions than this give no verdict for a pair: texels of the first
-#: LED's table (isotropy) or steps of Δ (reciprocity).
-MIN_PAIRS = {"isotropy": 200, "reciprocity": 20}
-#: Step (degrees) of the relative azimuth Δ along a reciprocity curve.
-RECIPROCITY_STEP_DEG = 0.5
-#: ``|log_ratio|`` above this flags a shake. Clean captures of the 50 shared materials
-#: reach 0.02 (isotropy) and 0.30 (reciprocity: the RGL materials' own data are not
-#: reciprocal, 0.25–0.30 on cc_ibiza_sunset and vch_golden_yellow; the MERL/NBRDF ones
-#: stay within 0.01) on the ideal device, 0.06 and 0.08 on the as-built one
-#: (``studies/validate_shake.py``). A shake that turns the default layout's
-#: isotropy pair (LEDs 1 and 3) differently reads 0.27–3.8.
-THRESHOLD = {"isotropy": 0.15, "reciprocity": 0.35}
-#: Directions where the slice changes by more than MAX_STEP in log within STEP_DEG
-#: (degrees) are left out: sharp lobes, where small direction errors dominate.
-STEP_DEG = 1.0
-MAX_STEP = 0.1
-#: Samples below this fraction of the pair's 99th-percentile value are left out (their
-#: ratio is dominated by rounding and noise).
-FLOOR = 0.02
+# Tuned numbers: what, units and provenance are in :mod:`.tuning` (consistency stage).
+CUBE_N = CONSISTENCY.cube_n
+ISOTROPY_MAX_DEG = CONSISTENCY.isotropy_max_deg
+MIN_PAIRS = {"isotropy": CONSISTENCY.min_pairs_isotropy, "reciprocity": CONSISTENCY.min_pairs_reciprocity}
+RECIPROCITY_STEP_DEG = CONSISTENCY.reciprocity_step_deg
+THRESHOLD = {"isotropy": CONSISTENCY.threshold_isotropy, "reciprocity": CONSISTENCY.threshold_reciprocity}
+STEP_DEG = CONSISTENCY.step_deg
+MAX_STEP = CONSISTENCY.max_step
+FLOOR = CONSISTENCY.floor
 
 
 @dataclasses.dataclass(frozen=True)

@@ -40,16 +40,15 @@ from .. import _kernels
 from ..colour import LUM
 from ..fresnel import fresnel_numpy
 from .samples import Bins
+from .tuning import FRESNEL_FIT, ISOTROPIC
 
 Array = NDArray[np.float64]
 
-#: Only bins whose ``f cos cos / S S`` is above this fraction of the maximum take part.
-MIN_LEVEL = 1e-4
-ETA_MAX = 50.0
-#: Minimum pixels per bin for a pair.
-MIN_COUNT = 1
-#: About this many pairs enter the LM fit (a deterministic hashed subsample, :func:`pair_hash`).
-MAX_PAIRS = 12000
+# Tuned numbers: what, units and provenance are in :mod:`.tuning` (fresnel_fit stage).
+MIN_LEVEL = FRESNEL_FIT.min_level
+ETA_MAX = ISOTROPIC.eta_max
+MIN_COUNT = FRESNEL_FIT.min_count
+MAX_PAIRS = FRESNEL_FIT.max_pairs
 
 
 @dataclasses.dataclass

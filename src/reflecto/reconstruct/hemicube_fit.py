@@ -47,25 +47,19 @@ from ..shadowing import grid_stencil, sigma_table
 from . import ndf as ndf_mod
 from .fresnel_fit import FresnelFit, Pairs, fit_fresnel, overlap_pairs
 from .samples import Bins, bin_samples, kd_bound
+from .tuning import HEMICUBE_FIT
 
 Array = NDArray[np.float64]
 
 __all__ = ["HemicubeFit", "fit_hemicube", "auto_work_resolution", "Merge", "LoopState", "LoopResult", "merge_bins",
            "noise_weights", "symmetric_fill", "run_loop", "output_model"]
 
-#: E(η) (at outer iteration 1) above which an LED is looked for that explains the
-#: inconsistency (its exclusion at least halves E(η)); §5.1's shake handling.
-SHAKE_THRESHOLD = 0.7
-#: (n_theta, n_phi) of the loop's σ tables (eq. 8); the final model uses the full grid.
-WORK_SIGMA = (46, 64)
-#: (rings, azimuths) of the loop's σ quadrature (the model's: 128 × 256).
-WORK_QUAD = (64, 256)
-#: An LED with fewer usable samples than this fraction of the median LED's is counted
-#: as lost (below the tilted sample's horizon, or its slice below the detection limit).
-LOST_LED_FRACTION = 0.25
-#: When more than this fraction of the valid samples is below the detection limit,
-#: the NDF's holes take the lobe-guided fill in every iteration.
-CENSORED_FRACTION = 0.25
+# Tuned numbers: what, units and provenance are in :mod:`.tuning` (hemicube_fit stage).
+SHAKE_THRESHOLD = HEMICUBE_FIT.shake_threshold
+WORK_SIGMA = HEMICUBE_FIT.work_sigma
+WORK_QUAD = HEMICUBE_FIT.work_quad
+LOST_LED_FRACTION = HEMICUBE_FIT.lost_led_fraction
+CENSORED_FRACTION = HEMICUBE_FIT.censored_fraction
 
 
 def auto_work_resolution(bins: Bins) -> int:

@@ -52,40 +52,26 @@ from ..model import IsotropicMicrofacetBRDF
 from ..polar import IsotropicNDF, polar_nodes
 from . import _polar_kernels
 from .samples import kd_median_bound
+from .tuning import ISOTROPIC
 
 Array = NDArray[np.float64]
 
 __all__ = ["PolarBins", "IsotropicFit", "bin_polar", "fit_isotropic", "LuminanceProblem", "solve",
            "fit_luminance", "channel_scalars", "lobe_log"]
 
-#: θ_h cells of the bins per interval between two NDF nodes.
-CELLS_PER_INTERVAL = 2
-#: Width of the θ_d cells of the bins (radians): F and S vary slowly with θ_d.
-TD_STEP = math.radians(1.0)
-#: Length scale of the curvature prior on log D (radians): 0.1°, below the camera's
-#: sampling of the half vector (≈ 0.2° per pixel), so that it shapes only what the data
-#: leave open (gaps between rings, the unobserved grazing rim), never a resolved lobe.
-SMOOTH_LENGTH = math.radians(0.1)
-#: Weight of the tail prior relative to one radian of data (see :func:`prior`): large,
-#: so that beyond the last measured ring the NDF keeps the shape of the fitted lobe.
-TAIL_WEIGHT = 1e3
-#: Weight of the unimodality prior (the NDF does not rise beyond its peak) relative to
-#: one radian of data: large, a constraint in effect.
-MONOTONE_WEIGHT = 1e3
-#: The model error is estimated over bins whose camera noise is below this fraction of
-#: their value (1 %: a reading of ≳ 30 DN on the 12-bit noiseless camera) …
-QUIET_NOISE = 0.01
-#: … when there are at least this many of them (else over all measured bins).
-MIN_QUIET_BINS = 100
-#: Largest relative index searched (F0 = 0.92; algorithm-reference §2.1).
-ETA_MAX = 50.0
-#: Smallest relative index searched (F0 = 2.5e-7).
-ETA_MIN = 1.001
-#: Outer iterations (S from D, ε from the residuals) of :func:`fit_luminance`.
-OUTER_ITERATIONS = 5
-#: Levenberg–Marquardt stops when the cost falls by less than this fraction.
-LM_TOLERANCE = 1e-5
-LM_MAX_ITERATIONS = 40
+# Tuned numbers: what, units and provenance are in :mod:`.tuning` (isotropic stage).
+CELLS_PER_INTERVAL = ISOTROPIC.cells_per_interval
+TD_STEP = ISOTROPIC.td_step
+SMOOTH_LENGTH = ISOTROPIC.smooth_length
+TAIL_WEIGHT = ISOTROPIC.tail_weight
+MONOTONE_WEIGHT = ISOTROPIC.monotone_weight
+QUIET_NOISE = ISOTROPIC.quiet_noise
+MIN_QUIET_BINS = ISOTROPIC.min_quiet_bins
+ETA_MAX = ISOTROPIC.eta_max
+ETA_MIN = ISOTROPIC.eta_min
+OUTER_ITERATIONS = ISOTROPIC.outer_iterations
+LM_TOLERANCE = ISOTROPIC.lm_tolerance
+LM_MAX_ITERATIONS = ISOTROPIC.lm_max_iterations
 
 
 @dataclasses.dataclass

@@ -41,37 +41,24 @@ from numpy.typing import NDArray
 from ..colour import LUM
 from ..geometry import io_to_hd
 from ..instrument.slices import Slices
+from .tuning import ISOTROPY
 
 Array = NDArray[np.float64]
 
 __all__ = ["IsotropyTest", "azimuthal_test"]
 
-#: Width of the rings of half vectors (degrees).
-RING_WIDTH_DEG = 2.0
-#: Rings from this polar angle (degrees; nearer the pole the azimuth is ill defined) …
-RING_START_DEG = 1.0
-#: … to this one.
-RING_END_DEG = 60.0
-#: A ring enters with at least this many samples …
-MIN_RING_SAMPLES = 30
-#: … and an azimuthal spread that conditions its regression (condition number below this).
-MAX_CONDITION = 1e3
-#: Samples enter where the isotropic model's specular part is at least this fraction
-#: of the BRDF (where the partial NDF is measured, not the diffuse floor).
-MIN_SPECULAR_FRACTION = 0.5
-#: Explained fraction of the ring-wise variance above which the material is anisotropic.
-ANISOTROPY_EXPLAINED = 0.8
-#: Condition number bound of the conditional regression (seven standardized columns).
-MAX_CONDITION_CONDITIONAL = 1e6
-#: Fraction of the variance left by the isotropic-misfit basis (θ_d, θ_d², cos 2φ_d,
-#: sin 2φ_d per ring) that the second harmonic explains, above which (together with
-#: :data:`ANISOTROPY_EXPLAINED`) the material is anisotropic.
-CONDITIONAL_EXPLAINED = 0.47
-#: Explained fraction (first harmonic, beyond the second) above which eq. 3 is broken.
-ASYMMETRY_EXPLAINED = 0.5
-#: At least this many rings for a verdict; fewer (a capture with almost no specular
-#: signal) leave the material isotropic.
-MIN_RINGS = 3
+# Tuned numbers: what, units and provenance are in :mod:`.tuning` (isotropy stage).
+RING_WIDTH_DEG = ISOTROPY.ring_width_deg
+RING_START_DEG = ISOTROPY.ring_start_deg
+RING_END_DEG = ISOTROPY.ring_end_deg
+MIN_RING_SAMPLES = ISOTROPY.min_ring_samples
+MAX_CONDITION = ISOTROPY.max_condition
+MIN_SPECULAR_FRACTION = ISOTROPY.min_specular_fraction
+ANISOTROPY_EXPLAINED = ISOTROPY.anisotropy_explained
+MAX_CONDITION_CONDITIONAL = ISOTROPY.max_condition_conditional
+CONDITIONAL_EXPLAINED = ISOTROPY.conditional_explained
+ASYMMETRY_EXPLAINED = ISOTROPY.asymmetry_explained
+MIN_RINGS = ISOTROPY.min_rings
 
 
 @dataclasses.dataclass(frozen=True)
@@ -202,8 +189,7 @@ class _RingRegression:
         return float(np.average(np.hypot(c[:, 1], c[:, 2]), weights=self.n[use]))
 
 
-#: Every this many pixels enters the test.
-PIXEL_STRIDE = 3
+PIXEL_STRIDE = ISOTROPY.pixel_stride
 
 
 def _log_ratios(slices: Slices, valid: NDArray[np.bool_],

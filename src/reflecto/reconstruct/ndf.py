@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from .. import _kernels
 from ..hemicube import Hemicube, hemicube
+from .tuning import NDF
 
 Array = NDArray[np.float64]
 
@@ -82,9 +83,8 @@ def top_offsets(cube: Hemicube, offsets: tuple[Array, Array], texel: NDArray[np.
     return out[0], out[1]
 
 
-#: The first-order position correction of a texel (:func:`position_correction`) is
-#: clipped to this factor range.
-POSITION_CORRECTION_CLIP = (0.75, 1.33)
+# Tuned numbers: what, units and provenance are in :mod:`.tuning` (ndf stage).
+POSITION_CORRECTION_CLIP = NDF.position_correction_clip
 
 
 def position_correction(cube: Hemicube, d: Array, offsets: tuple[Array, Array]) -> Array:
@@ -134,8 +134,7 @@ def push_pull(cube: Hemicube, wsum: Array, wvsum: Array, min_weight: float = 1e-
     return est
 
 
-#: Texels below this fraction of the measured peak do not enter the lobe fit of :func:`fit_lobe`.
-LOBE_FLOOR = 1e-3
+LOBE_FLOOR = NDF.lobe_floor
 
 
 @functools.lru_cache(maxsize=8)
@@ -250,25 +249,14 @@ def fill_holes_and_lobe(cube: Hemicube, wsum: Array, wvsum: Array,
     return np.where(obs, v, np.minimum(guided, plain)), log_lobe
 
 
-#: :func:`smooth_wide` smooths at this fraction of the peak's narrowest half width at half maximum …
-WIDE_SMOOTH_FRACTION = 0.2
-#: … where D is below this fraction of its maximum (none) …
-WIDE_SMOOTH_START = 0.25
-#: … blending in (log-linearly in the level) to all of it below this fraction.
-WIDE_SMOOTH_FULL = 0.03
-#: Below this fraction of its maximum D's ``r`` (deep tails, where the measured values
-#: are noise and diffuse residue) neither enters the filter …
-WIDE_SMOOTH_FLOOR = 1e-3
-#: … nor is replaced; the blend fades out between this fraction and the floor.
-WIDE_SMOOTH_FADE = 1e-2
-#: :func:`smooth_wide` leaves the NDF alone when the fitted lobe misses it by more than
-#: this log-RMS (above :data:`WIDE_SMOOTH_FADE` of the peak).
-WIDE_SMOOTH_MISFIT = 0.08
-#: Resolution at which :func:`smooth_wide` filters (texels of ≈ 1.4°) …
-WIDE_SMOOTH_N = 64
-#: … with at most this many binomial passes (σ ≤ 2.8 texels ≈ 4°: the flanks of the
-#: widest lobes gain nothing from more, and each pass costs).
-WIDE_SMOOTH_MAX_PASSES = 16
+WIDE_SMOOTH_FRACTION = NDF.wide_smooth_fraction
+WIDE_SMOOTH_START = NDF.wide_smooth_start
+WIDE_SMOOTH_FULL = NDF.wide_smooth_full
+WIDE_SMOOTH_FLOOR = NDF.wide_smooth_floor
+WIDE_SMOOTH_FADE = NDF.wide_smooth_fade
+WIDE_SMOOTH_MISFIT = NDF.wide_smooth_misfit
+WIDE_SMOOTH_N = NDF.wide_smooth_n
+WIDE_SMOOTH_MAX_PASSES = NDF.wide_smooth_max_passes
 
 
 def half_width(cube: Hemicube, d: Array) -> float:
@@ -342,15 +330,10 @@ def smooth_wide(cube: Hemicube, d: Array, log_lobe: Array | None) -> Array:
     return out * (float(d @ om) / max(float(out @ om), 1e-300))
 
 
-#: :func:`smooth_tails` keeps texels at or above this fraction of the peak unchanged …
-TAIL_KEEP = 10.0 ** -0.5
-#: … and replaces those at or below this fraction by the smoothed table (log-linear blend between).
-TAIL_FULL = 1e-3
-#: Below this fraction of the peak the tail takes the wide (128-texel scale, σ ≈ 1.3°)
-#: filter only (blended with the narrow one up to :data:`TAIL_FULL`).
-DEEP_FULL = 1e-5
-#: Angular width of the tail smoothing: binomial passes at N = 512 (σ = 2 texels ≈ 0.45°).
-TAIL_PASSES_512 = 8
+TAIL_KEEP = NDF.tail_keep
+TAIL_FULL = NDF.tail_full
+DEEP_FULL = NDF.deep_full
+TAIL_PASSES_512 = NDF.tail_passes_512
 
 
 def smooth_tails(cube: Hemicube, d: Array, passes: int | None = None) -> Array:
@@ -405,13 +388,8 @@ def _ramp(x: Array, lo: float, hi: float) -> Array:
     return np.clip((x - lo) / (hi - lo), 0.0, 1.0)
 
 
-#: A log-cubic value of the refined top face is clipped to this factor of the coarse maximum.
-CUBIC_OVERSHOOT = 1.2
-#: Fractions of the peak between which the refined top face goes from bilinear to
-#: log-cubic: the tails of measured NDFs (noisy, near zero) stay bilinear, as the
-#: cubic's ringing there cost the RGL export of a reconstructed metal 5 → 14 % (95th
-#: percentile).
-CUBIC_FLOOR = (1e-3, 1e-2)
+CUBIC_OVERSHOOT = NDF.cubic_overshoot
+CUBIC_FLOOR = NDF.cubic_floor
 
 
 def resample(src: Hemicube, values: Array, dst: Hemicube) -> Array:
@@ -446,8 +424,7 @@ def resample(src: Hemicube, values: Array, dst: Hemicube) -> Array:
     return src.lookup(values, dst.directions)
 
 
-#: Texels of edge replication around the top face before the spline prefilter.
-_CUBIC_PAD = 4
+_CUBIC_PAD = NDF.cubic_pad
 
 
 @functools.lru_cache(maxsize=8)

@@ -39,22 +39,17 @@ from numpy.typing import NDArray
 
 from ..colour import LUM
 from ..instrument.slices import Slices
+from .tuning import REPEAT
 
 Array = NDArray[np.float64]
 
-#: Side of the pixel blocks compared (pixels).
-BLOCK_PX = 16
-#: A block takes part when at least this fraction of its pixels is valid in both frames.
-BLOCK_MIN_FILL = 0.5
-#: |log ratio| of the whole frame above which the sample moved. Shaken captures of the
-#: 50 shared materials start at 0.06; clean ones repeat to noise (z ≤ 2.3, as-built).
-THRESHOLD = 0.02
-#: |log ratio| of a block above which it changed.
-BLOCK_THRESHOLD = 0.05
-#: Blocks that must change to count as motion.
-MIN_BLOCKS = 2
-#: Significance (in standard errors of the noise) a change must also reach.
-MIN_Z = 6.0
+# Tuned numbers: what, units and provenance are in :mod:`.tuning` (repeat stage).
+BLOCK_PX = REPEAT.block_px
+BLOCK_MIN_FILL = REPEAT.block_min_fill
+THRESHOLD = REPEAT.threshold
+BLOCK_THRESHOLD = REPEAT.block_threshold
+MIN_BLOCKS = REPEAT.min_blocks
+MIN_Z = REPEAT.min_z
 
 
 @dataclasses.dataclass(frozen=True)

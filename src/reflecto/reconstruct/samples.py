@@ -22,6 +22,7 @@ from .. import _kernels, geometry
 from ..colour import LUM
 from ..errors import ParameterError
 from ..hemicube import Hemicube
+from .tuning import SAMPLES
 
 Array = NDArray[np.float64]
 
@@ -155,15 +156,13 @@ def _interpolate(a: float, b: float, t: float) -> float:
     return b - (b - a) * (1.0 - t) if t >= 0.5 else a + (b - a) * t
 
 
-#: Percentile of f per channel whose π-multiple bounds ρ_d from above (a low
-#: percentile rather than the minimum: single noisy pixels must not set it).
-KD_BOUND_PERCENTILE = 0.2
+# Tuned numbers: what, units and provenance are in :mod:`.tuning` (samples stage).
+KD_BOUND_PERCENTILE = SAMPLES.kd_bound_percentile
 #: Subsampling stride of the threshold that pre-selects the low values (kd_upper_bound).
 _SUBSAMPLE = 16
 
 
-#: Half width (pixels) of the box over which :func:`box_mean` averages the slices.
-BOX_RADIUS = 2
+BOX_RADIUS = SAMPLES.box_radius
 
 
 def box_mean(values: Array, valid: NDArray[np.bool_], pixels: NDArray[np.intp], radius: int = BOX_RADIUS) -> Array:

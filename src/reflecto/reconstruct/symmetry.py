@@ -30,6 +30,7 @@ from .. import _kernels
 from ..colour import LUM
 from ..hemicube import hemicube
 from ..instrument.device import STEEP_ELEVATION_DEG
+from .tuning import SYMMETRY
 
 Array = NDArray[np.float64]
 
@@ -37,17 +38,12 @@ Array = NDArray[np.float64]
 #: *steep* LEDs, whichever their index (the firing order fires them last,
 #: :func:`reflecto.instrument.device.steep_last_order`).
 MIN_ELEVATION_DEG = STEEP_ELEVATION_DEG
-#: Plane angles searched: ±SEARCH_DEG in steps of STEP_DEG, then a parabola.
-SEARCH_DEG = 12.0
-STEP_DEG = 1.0
-#: Smallest curvature (per rad²) of the normalized symmetry distance at its minimum
-#: for the plane to count: flatter slices (rough materials) do not locate it.
-MIN_CURVATURE = 5.0
-#: A located plane further than this from the frame's normal (degrees) flags a shake.
-#: Clean captures of the 50 shared materials reach 1.2° (brass; ideal and as-built).
-PLANE_THRESHOLD_DEG = 1.5
-#: Resolution of the hemicube over view directions on which a slice is mirrored.
-CUBE_N = 64
+# Tuned numbers: what, units and provenance are in :mod:`.tuning` (symmetry stage).
+SEARCH_DEG = SYMMETRY.search_deg
+STEP_DEG = SYMMETRY.step_deg
+MIN_CURVATURE = SYMMETRY.min_curvature
+PLANE_THRESHOLD_DEG = SYMMETRY.plane_threshold_deg
+CUBE_N = SYMMETRY.cube_n
 
 
 def plane_offset(light: Array, view: Array, values: Array, weights: Array | None = None) -> tuple[float, float] | None:

@@ -56,37 +56,22 @@ from scipy.spatial import cKDTree
 from ..geometry import rotate_z
 from ..hemicube import Hemicube, hemicube
 from . import ndf as ndf_mod
+from .tuning import SYNTHESIS
 
 Array = NDArray[np.float64]
 
 __all__ = ["SynthesisOptions", "Synthesis", "synthesize_ratio", "SynthesisFill"]
 
-#: Candidate rotations about n are multiples of this (degrees).
-ROTATION_STEP_DEG = 5.0
-#: Radius of the matching window (degrees; Gaussian of σ = radius / 2, cut at the radius).
-WINDOW_DEG = 8.0
-#: A candidate must cover known texels holding at least this fraction of the window's weight.
-MIN_OVERLAP = 0.3
-#: Weight of the squared log gain μ² in the distance.
-GAIN_PENALTY = 0.25
-#: Candidates blended per hole texel.
-BLEND = 3
-#: Rounds of search and fill at most.
-MAX_ROUNDS = 24
-#: Hemicube resolution of the search (texels ≈ 2.8° at the pole; the holes lie beyond
-#: 40° of θ_h, where the ratio varies over tens of degrees); the working NDF's holes
-#: take the synthesized ratio interpolated from it. At 64 the synthesized texels came
-#: out within ±0.4 % of the same error, at 7× the time (0.1–0.4 s against 0.02–0.09 s).
-SYNTHESIS_RESOLUTION = 32
-#: ε of the blending weights (log units squared: a distance of 0.01 is a 10 % misfit).
-BLEND_EPS = 1e-4
-#: Measured texels below this fraction of the peak are no candidates and no known region,
-#: and holes where the lobe is below it keep the plain fill. Below ≈ 1 % of the peak a
-#: measured partial NDF carries the diffuse term's error (on the ideal device ±30 % at
-#: 10⁻³–10⁻², far more below): copying it spreads that error into the holes, while
-#: 10⁻² would leave the tail, where most holes lie, without candidates
-#: (docs/design/asymmetric.md).
-SYNTHESIS_FLOOR = 3e-3
+# Tuned numbers: what, units and provenance are in :mod:`.tuning` (synthesis stage).
+ROTATION_STEP_DEG = SYNTHESIS.rotation_step_deg
+WINDOW_DEG = SYNTHESIS.window_deg
+MIN_OVERLAP = SYNTHESIS.min_overlap
+GAIN_PENALTY = SYNTHESIS.gain_penalty
+BLEND = SYNTHESIS.blend
+MAX_ROUNDS = SYNTHESIS.max_rounds
+SYNTHESIS_RESOLUTION = SYNTHESIS.resolution
+BLEND_EPS = SYNTHESIS.blend_eps
+SYNTHESIS_FLOOR = SYNTHESIS.floor
 
 
 #: How the §5.5 path completes the holes in its last passes: synthesis (the default), or

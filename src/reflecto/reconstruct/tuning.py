@@ -1,0 +1,835 @@
+"""Every tuned number of the reconstruction, with what it does and where its value comes from.
+
+One frozen dataclass per stage (module) of :mod:`reflecto.reconstruct`, plus the polar
+NDF table of :mod:`reflecto.polar` that the isotropic fit reconstructs into. Each
+tuned number is a field whose metadata (:func:`tuned`) says
+
+* ``name``: the module-level constant that aliases it (``isotropic.ETA_MAX``; ``also``
+  lists further aliases in other modules), so that a reader of the module finds it here;
+* ``what``: what the number does (with the paper's section or equation where one applies);
+* ``units``;
+* ``source``: where the value comes from, starting with one of :data:`KINDS`:
+
+  - ``mechanism:`` it follows from the optics, the noise, the sampling or the physics
+    (the text says how);
+  - ``measurement:`` it was measured (the text says on what, and what was found);
+  - ``tuning half:`` only the data could settle it: chosen on the tuning half of the 50
+    shared materials (:mod:`reflecto.evaluate.split`) and checked on the validation half;
+  - ``convention:`` a definition (a resolution, a reporting range);
+  - ``unrecorded:`` no reason for the value could be found in the code, the docs or the
+    history (the text says what was looked at); the number is kept as it is.
+
+The module-level default instances (:data:`ISOTROPIC`, …) hold the values the
+reconstruction uses: each module binds its constants to their fields
+(``ETA_MAX = ISOTROPIC.eta_max``), so every use and every result stays as it was.
+A changed setting is a new instance (``dataclasses.replace(ISOTROPIC, eta_max=20.0)``);
+the instances themselves never change.
+
+:func:`constants_table` writes the table of docs/design/reconstruction.md (*Constants*)
+from these fields; ``python -m reflecto.reconstruct.tuning --update
+docs/design/reconstruction.md`` rewrites it there, and ``tests/test_tuning.py`` fails when
+the two differ.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+from pathlib import Path
+from typing import Any, ClassVar
+
+from .. import polar
+
+__all__ = ["KINDS", "tuned", "PolarTuning", "IsotropicFitTuning", "IsotropyTestTuning", "HemicubeFitTuning",
+           "NDFTuning", "FresnelFitTuning", "SamplesTuning", "SymmetryTuning", "SymmetryTestTuning",
+           "ConsistencyTuning", "RepeatTuning", "SynthesisTuning", "AsymmetricTuning", "NormalTuning",
+           "PipelineTuning", "POLAR", "ISOTROPIC", "ISOTROPY", "HEMICUBE_FIT", "NDF", "FRESNEL_FIT", "SAMPLES",
+           "SYMMETRY", "SYMMETRY_TEST", "CONSISTENCY", "REPEAT", "SYNTHESIS", "ASYMMETRIC", "NORMAL", "PIPELINE",
+           "STAGES", "constants_table", "update_document", "BEGIN_MARKER", "END_MARKER"]
+
+#: The kinds of provenance a field's ``source`` starts with (see the module docstring).
+KINDS = ("mechanism", "measurement", "tuning half", "convention", "unrecorded")
+
+
+def tuned(default: Any, *, name: str, what: str, units: str, source: str, also: tuple[str, ...] = ()) -> Any:
+    """A dataclass field holding one tuned number and its documentation.
+
+    ``name`` is the module-level constant that aliases the field in the stage's module
+    (``'ETA_MAX'``; ``'MIN_PAIRS["isotropy"]'`` for one entry of a dict constant),
+    ``also`` further aliases as ``'module.NAME'``. ``source`` must start with one of
+    :data:`KINDS` followed by a colon.
+    """
+    kind = source.split(":", 1)[0]
+    if kind not in KINDS or ":" not in source:
+        raise ValueError(f"{name}: source must start with one of {KINDS} and a colon, got {source!r}")
+    if not (what and units):
+        raise ValueError(f"{name}: what and units must be given")
+    return dataclasses.field(default=default, metadata={"name": name, "what": what, "units": units,
+                                                         "source": source, "also": tuple(also)})
+
+
+@dataclasses.dataclass(frozen=True)
+class PolarTuning:
+    """The polar NDF table ``D(θ_h)`` (:mod:`reflecto.polar`; eqs. 1, 8) that the isotropic fit fills.
+
+    The values stay defined in :mod:`reflecto.polar` (below :mod:`reflecto.reconstruct`
+    in the layers); the fields take them from there.
+    """
+
+    module: ClassVar[str] = "reflecto.polar"
+    paper: ClassVar[str] = "eqs. 1, 8"
+
+    pole_spacing: float = tuned(
+        polar.POLE_SPACING, name="POLE_SPACING", units="rad (0.1°)",
+        what="spacing of the NDF's polar nodes θ_k at the pole",
+        source="mechanism: half the camera's angular sampling of the half vector (a pixel moves h by ≈ 0.2°), "
+               "so that the sharpest peak the camera resolves is resolved by the table too")
+    spacing_growth: float = tuned(
+        polar.SPACING_GROWTH, name="SPACING_GROWTH", units="fraction of θ_h",
+        what="the node spacing grows by this fraction of the polar angle (0.5° at 10°, 2° at 45°)",
+        source="mechanism: a lobe's structure scales with its width, so a constant relative resolution (4 %)")
+
+
+@dataclasses.dataclass(frozen=True)
+class IsotropicFitTuning:
+    """The isotropic fit: a 1-D NDF ``D(θ_h)`` fitted to the slices (:mod:`.isotropic`; §5.1–5.3, eq. 10)."""
+
+    module: ClassVar[str] = "reflecto.reconstruct.isotropic"
+    paper: ClassVar[str] = "§5.1–5.3, eq. 10"
+
+    cells_per_interval: int = tuned(
+        2, name="CELLS_PER_INTERVAL", units="cells",
+        what="θ_h cells of the bins per interval between two NDF nodes",
+        source="mechanism: second-order bin averaging within half a node interval (docs/design/reconstruction.md)")
+    td_step: float = tuned(
+        math.radians(1.0), name="TD_STEP", units="rad (1°)",
+        what="width of the θ_d cells of the bins",
+        source="mechanism: F and S vary slowly with θ_d; 1° cells average them to second order "
+               "(docs/design/reconstruction.md)")
+    smooth_length: float = tuned(
+        math.radians(0.1), name="SMOOTH_LENGTH", units="rad (0.1°)",
+        what="length scale of the curvature prior on log D",
+        source="mechanism: below the camera's sampling of the half vector (≈ 0.2° per pixel), so that it shapes "
+               "only what the data leave open (gaps between rings, the unobserved grazing rim), never a resolved lobe")
+    tail_weight: float = tuned(
+        1e3, name="TAIL_WEIGHT", units="relative to one radian of data",
+        what="weight of the tail prior: beyond the last measured ring the NDF keeps the shape of the fitted lobe",
+        source="mechanism: much more than one radian of data, so that the rim follows the lobe; "
+               "no sweep of the value 10³ is recorded")
+    monotone_weight: float = tuned(
+        1e3, name="MONOTONE_WEIGHT", units="relative to one radian of data",
+        what="weight of the unimodality prior (the NDF does not rise beyond its peak)",
+        source="mechanism: a surface's NDF is unimodal; the weight is large, a constraint in effect "
+               "(introduced in 8beb865); no sweep of the value 10³ is recorded")
+    quiet_noise: float = tuned(
+        0.01, name="QUIET_NOISE", units="fraction of a bin's value",
+        what="the model error ε is estimated over bins whose camera noise is below this fraction of their value",
+        source="mechanism: the camera noise model; ε is read where the camera noise is negligible "
+               "(1 %: a reading of ≳ 30 DN on the 12-bit noiseless camera)")
+    min_quiet_bins: int = tuned(
+        100, name="MIN_QUIET_BINS", units="bins",
+        what="…when at least this many bins are quiet (else ε is estimated over all measured bins)",
+        source="unrecorded: introduced with the isotropic fit (b0d5371); no reason in code, docs or history")
+    eta_max: float = tuned(
+        50.0, name="ETA_MAX", units="relative index η", also=("fresnel_fit.ETA_MAX",),
+        what="largest relative index searched (eq. 4), in the isotropic fit and in the Fresnel fit of the "
+             "hemicube path; η at it reads as a metal-like flat Fresnel curve",
+        source="mechanism: F0 = 0.92, a real-η metal's range (algorithm-reference §2.1)")
+    eta_min: float = tuned(
+        1.001, name="ETA_MIN", units="relative index η",
+        what="smallest relative index searched (eq. 4)",
+        source="mechanism: just above η = 1 (no interface): F0 = 2.5·10⁻⁷, below any dielectric "
+               "(algorithm-reference §2.1)")
+    outer_iterations: int = tuned(
+        5, name="OUTER_ITERATIONS", units="iterations",
+        what="outer iterations of fit_luminance (S from D, ε from the residuals)",
+        source="mechanism: the paper's ≤ 5 (§5.3); S(D) converges within it on the analytic grid, "
+               "not on 5 of the 50 shared materials (docs/design/reconstruction.md, *The fit*)")
+    lm_tolerance: float = tuned(
+        1e-5, name="LM_TOLERANCE", units="fraction of the cost",
+        what="Levenberg–Marquardt stops when the cost falls by less than this fraction",
+        source="unrecorded: introduced with the isotropic fit (b0d5371); no reason in code, docs or history")
+    lm_max_iterations: int = tuned(
+        40, name="LM_MAX_ITERATIONS", units="iterations",
+        what="Levenberg–Marquardt iterations at most",
+        source="unrecorded: introduced with the isotropic fit (b0d5371); no reason in code, docs or history")
+
+
+@dataclasses.dataclass(frozen=True)
+class IsotropyTestTuning:
+    """The azimuthal-harmonic test: isotropic, anisotropic, eq. 3 broken? (:mod:`.isotropy`)."""
+
+    module: ClassVar[str] = "reflecto.reconstruct.isotropy"
+    paper: ClassVar[str] = "eq. 3, eq. 7"
+
+    ring_width_deg: float = tuned(
+        2.0, name="RING_WIDTH_DEG", units="deg",
+        what="width of the rings of half vectors (θ_h)",
+        source="mechanism: sampling; enough samples per ring for the 5-term regression "
+               "(docs/design/reconstruction.md)")
+    ring_start_deg: float = tuned(
+        1.0, name="RING_START_DEG", units="deg",
+        what="the rings start at this θ_h",
+        source="mechanism: nearer the pole the azimuth φ_h of a half vector is ill defined")
+    ring_end_deg: float = tuned(
+        60.0, name="RING_END_DEG", units="deg",
+        what="the rings end at this θ_h",
+        source="unrecorded: introduced with the isotropy test (b0d5371); no reason in code, docs or history")
+    min_ring_samples: int = tuned(
+        30, name="MIN_RING_SAMPLES", units="samples",
+        what="a ring enters with at least this many samples",
+        source="mechanism: sampling; enough samples per ring for the 5-term regression "
+               "(docs/design/reconstruction.md)")
+    max_condition: float = tuned(
+        1e3, name="MAX_CONDITION", units="condition number",
+        what="a ring enters only when the azimuthal spread of its samples conditions its regression below this",
+        source="unrecorded: introduced with the isotropy test (b0d5371); no reason in code, docs or history")
+    min_specular_fraction: float = tuned(
+        0.5, name="MIN_SPECULAR_FRACTION", units="fraction of the BRDF",
+        what="samples enter where the isotropic model's specular part is at least this fraction of the BRDF",
+        source="mechanism: the partial NDF (eq. 7) is measured where the specular term dominates, "
+               "not on the diffuse floor")
+    anisotropy_explained: float = tuned(
+        0.8, name="ANISOTROPY_EXPLAINED", units="fraction of variance",
+        what="explained fraction of the ring-wise variance (second harmonic) above which the material is "
+             "anisotropic",
+        source="tuning half: isotropic materials ≤ 0.71, anisotropic lobes with α_x/α_y ≥ 1.5 ≥ 0.89; the midpoint")
+    max_condition_conditional: float = tuned(
+        1e6, name="MAX_CONDITION_CONDITIONAL", units="condition number",
+        what="condition number bound of the conditional regression (seven standardized columns)",
+        source="mechanism: a ring whose 7-term design is this ill-conditioned cannot separate φ_h from φ_d; "
+               "it is left out (docs/design/reconstruction.md)")
+    conditional_explained: float = tuned(
+        0.47, name="CONDITIONAL_EXPLAINED", units="fraction of variance",
+        what="fraction of the variance left by the isotropic-misfit basis (θ_d, θ_d², cos 2φ_d, sin 2φ_d per "
+             "ring) that the second harmonic explains, above which (with ANISOTROPY_EXPLAINED) the material is "
+             "anisotropic",
+        source="tuning half: isotropic materials ≤ 0.42, analytic anisotropic lobes (α_x/α_y ≥ 1.5, GGX and "
+               "Beckmann) ≥ 0.52; the midpoint. Validation half ≤ 0.37 (9481582)")
+    asymmetry_explained: float = tuned(
+        0.5, name="ASYMMETRY_EXPLAINED", units="fraction of variance",
+        what="explained fraction of the first harmonic (beyond the second) above which eq. 3 is broken",
+        source="unrecorded: introduced with the isotropy test (b0d5371); no reason in code, docs or history")
+    min_rings: int = tuned(
+        3, name="MIN_RINGS", units="rings",
+        what="at least this many rings for a verdict; fewer (almost no specular signal) leave the material "
+             "isotropic",
+        source="unrecorded: the former hand-written table grouped it with the ring sampling (enough samples "
+               "per ring), which sets the samples, not the count of rings")
+    pixel_stride: int = tuned(
+        3, name="PIXEL_STRIDE", units="pixels",
+        what="every this many pixels (per image axis) enters the test",
+        source="unrecorded: a speed setting (the rings hold thousands of samples, says the docstring); "
+               "no measurement of the stride is recorded")
+
+
+@dataclasses.dataclass(frozen=True)
+class HemicubeFitTuning:
+    """The anisotropic path: a hemicube NDF fitted jointly with η, k_d, k_s, S (:mod:`.hemicube_fit`; §5.1–5.3)."""
+
+    module: ClassVar[str] = "reflecto.reconstruct.hemicube_fit"
+    paper: ClassVar[str] = "§5.1–5.3, eqs. 8, 9"
+
+    shake_threshold: float = tuned(
+        0.7, name="SHAKE_THRESHOLD", units="E(η)",
+        what="E(η) at outer iteration 1 above which an LED is looked for whose exclusion at least halves E(η) "
+             "(§5.1's shake handling)",
+        source="measurement: on the path before b0d5371 (all materials through the hemicube fit), clean captures "
+               "of the 50 shared materials reached 0.57 (ideal and as-built), shaken ones 0.10–1.03; 0.7 keeps "
+               "clean captures unflagged with a margin, the other cues find the shakes E(η) misses (7bfc0d2; the "
+               "comment in pipeline.py before b0d5371). Not re-measured on the anisotropic path alone")
+    work_sigma: tuple[int, int] = tuned(
+        (46, 64), name="WORK_SIGMA", units="(n_θ, n_φ) nodes",
+        what="size of the loop's σ tables (eq. 8); the final model uses the full grid",
+        source="unrecorded: a loop-only (speed) size introduced in 7266107; no measurement of it is recorded")
+    work_quad: tuple[int, int] = tuned(
+        (64, 256), name="WORK_QUAD", units="(rings, azimuths)",
+        what="the loop's σ quadrature (the final model's: 128 × 256)",
+        source="measurement: 64 × 128 gave the analytic grid's errors (565b5b7) but moved η of sparkling "
+               "materials (aventurnine 1.68 → 1.39: it skips texels of a spiky NDF), so 256 azimuths (aa740b6)")
+    lost_led_fraction: float = tuned(
+        0.25, name="LOST_LED_FRACTION", units="fraction of the median LED's samples",
+        what="an LED with fewer usable samples is counted as lost (below a tilted sample's horizon, or its slice "
+             "below the detection limit), and the holes take the lobe-guided fill in every iteration",
+        source="unrecorded: introduced with the tilted-capture fill (80a162b, whose result is recorded for the "
+               "change as a whole: validate_tilt normals within 0.05° on 24/24); no reason for 0.25")
+    censored_fraction: float = tuned(
+        0.25, name="CENSORED_FRACTION", units="fraction of the valid samples",
+        what="above this fraction below the detection limit, the NDF's holes take the lobe-guided fill in every "
+             "iteration",
+        source="measurement: with it, GGX α = 0.05, k_d = 0 went from 1.14–1.21 % to 0.52–0.54 % BRDF error and "
+               "the analytic grid's BRDF ≤ 1 % from 45 to 47/48 (e882dab); no other value is recorded")
+
+
+@dataclasses.dataclass(frozen=True)
+class NDFTuning:
+    """Partial NDFs, their merge, completion and output smoothing (:mod:`.ndf`; eqs. 3, 7, 9)."""
+
+    module: ClassVar[str] = "reflecto.reconstruct.ndf"
+    paper: ClassVar[str] = "eqs. 3, 7, 9"
+
+    position_correction_clip: tuple[float, float] = tuned(
+        (0.75, 1.33), name="POSITION_CORRECTION_CLIP", units="factor range",
+        what="clip of the first-order correction that moves a texel's merged value (eq. 9) to its centre",
+        source="unrecorded: introduced with the correction (c0dcead, whose result is recorded for the change as a "
+               "whole: analytic grid BRDF ≤ 1 % 36 → 45/48); no reason for the range")
+    lobe_floor: float = tuned(
+        1e-3, name="LOBE_FLOOR", units="fraction of the peak",
+        what="texels below this fraction of the measured peak do not enter the lobe fit of the hole fill",
+        source="unrecorded: introduced with the lobe-guided fill (3afe7ab); no reason for the value")
+    wide_smooth_fraction: float = tuned(
+        0.2, name="WIDE_SMOOTH_FRACTION", units="fraction of the narrowest HWHM",
+        what="smooth_wide filters a wide lobe's flanks at this fraction of the peak's narrowest half width at "
+             "half maximum (the camera's sampling curves leave arcs of ±10 % on GGX α = 0.4)",
+        source="measurement: analytic grid NDF ≤ 5 % 43 → 45/48 (GGX α = 0.4, η = 1.3: 5.6 → 3.9 %), η and "
+               "BRDF unchanged, measured materials unchanged (226bcb1)")
+    wide_smooth_start: float = tuned(
+        0.25, name="WIDE_SMOOTH_START", units="fraction of max D",
+        what="smooth_wide acts where D is below this fraction of its maximum…",
+        source="unrecorded: set with smooth_wide (226bcb1), whose result is recorded for the filter as a whole")
+    wide_smooth_full: float = tuned(
+        0.03, name="WIDE_SMOOTH_FULL", units="fraction of max D",
+        what="…blending in log-linearly to the full filter below this fraction",
+        source="unrecorded: set with smooth_wide (226bcb1), whose result is recorded for the filter as a whole")
+    wide_smooth_floor: float = tuned(
+        1e-3, name="WIDE_SMOOTH_FLOOR", units="fraction of max D",
+        what="below this fraction (deep tails: noise and diffuse residue) D's ratio to the lobe neither enters "
+             "the filter…",
+        source="unrecorded: set with smooth_wide (226bcb1), whose result is recorded for the filter as a whole")
+    wide_smooth_fade: float = tuned(
+        1e-2, name="WIDE_SMOOTH_FADE", units="fraction of max D",
+        what="…nor is replaced; the blend fades out between this fraction and the floor",
+        source="unrecorded: set with smooth_wide (226bcb1), whose result is recorded for the filter as a whole")
+    wide_smooth_misfit: float = tuned(
+        0.08, name="WIDE_SMOOTH_MISFIT", units="log RMS",
+        what="smooth_wide leaves the NDF alone when the fitted lobe misses it by more than this "
+             "(above WIDE_SMOOTH_FADE of the peak)",
+        source="measurement: of the measured materials only pink-felt passes this gate, so they stay unchanged "
+               "(226bcb1)")
+    wide_smooth_n: int = tuned(
+        64, name="WIDE_SMOOTH_N", units="texels per face side",
+        what="resolution at which smooth_wide filters (texels of ≈ 1.4°)",
+        source="unrecorded: set with smooth_wide (226bcb1); no reason for the resolution")
+    wide_smooth_max_passes: int = tuned(
+        16, name="WIDE_SMOOTH_MAX_PASSES", units="binomial passes",
+        what="at most this many passes of smooth_wide's filter (σ ≤ 2.8 texels ≈ 4°)",
+        source="mechanism: the flanks of the widest lobes gain nothing from a wider filter, and each pass costs")
+    tail_keep: float = tuned(
+        10.0 ** -0.5, name="TAIL_KEEP", units="fraction of the peak",
+        what="smooth_tails keeps texels at or above this fraction of the peak (10^-0.5) unchanged…",
+        source="unrecorded: introduced with the tail smoothing for the exports (b01dbdd); no reason for the value")
+    tail_full: float = tuned(
+        1e-3, name="TAIL_FULL", units="fraction of the peak",
+        what="…and replaces those at or below this fraction by the smoothed table (log-linear blend between)",
+        source="unrecorded: introduced with the tail smoothing for the exports (b01dbdd); no reason for the value")
+    deep_full: float = tuned(
+        1e-5, name="DEEP_FULL", units="fraction of the peak",
+        what="below this fraction the tail takes the wide filter only (128-texel scale, σ ≈ 1.3°; blended with "
+             "the narrow one up to TAIL_FULL)",
+        source="measurement: exports of all 50 reconstructed shared materials, 48/50 within median 1 %, "
+               "95th percentile 5 % (validate_exports --all, fdce0ec, for the deep-tail filter as a whole)")
+    tail_passes_512: int = tuned(
+        8, name="TAIL_PASSES_512", units="binomial passes at N = 512",
+        what="angular width of the tail smoothing (σ = 2 texels ≈ 0.45°)",
+        source="unrecorded: introduced with the tail smoothing for the exports (b01dbdd); no reason for the width")
+    cubic_overshoot: float = tuned(
+        1.2, name="CUBIC_OVERSHOOT", units="factor of the coarse maximum",
+        what="a log-cubic value of the refined top face (output NDF) is clipped to this factor",
+        source="unrecorded: introduced with the log-cubic refinement (8846e6b); no reason for the value")
+    cubic_floor: tuple[float, float] = tuned(
+        (1e-3, 1e-2), name="CUBIC_FLOOR", units="fractions of the peak",
+        what="between these the refined top face goes from bilinear to log-cubic (the lobe takes the cubic, "
+             "the noisy tails stay bilinear)",
+        source="measurement: the cubic's ringing in the tails cost the RGL export of a reconstructed metal "
+               "5 → 14 % (95th percentile) (8846e6b)")
+    cubic_pad: int = tuned(
+        4, name="_CUBIC_PAD", units="texels",
+        what="edge replication around the top face before the cubic spline prefilter",
+        source="unrecorded: introduced with the log-cubic refinement (8846e6b); no reason for the value")
+
+
+@dataclasses.dataclass(frozen=True)
+class FresnelFitTuning:
+    """Fresnel index and diffuse albedo from overlapping bins (:mod:`.fresnel_fit`; §5.1, eqs. 4–6).
+
+    Its η bound is :attr:`IsotropicFitTuning.eta_max` (``fresnel_fit.ETA_MAX`` aliases it).
+    """
+
+    module: ClassVar[str] = "reflecto.reconstruct.fresnel_fit"
+    paper: ClassVar[str] = "§5.1, eqs. 4–6"
+
+    min_level: float = tuned(
+        1e-4, name="MIN_LEVEL", units="fraction of the maximum",
+        what="only bins whose f cos θ_i cos θ_o / (S S) is above this fraction of the maximum take part",
+        source="unrecorded: introduced with the binned overlap fit (f43bf73); no reason for the value")
+    min_count: int = tuned(
+        1, name="MIN_COUNT", units="pixels per bin",
+        what="minimum pixels in each bin of a pair",
+        source="convention: 1, every non-empty bin pairs")
+    max_pairs: int = tuned(
+        12000, name="MAX_PAIRS", units="pairs",
+        what="about this many pairs enter the LM fit (a deterministic hashed subsample)",
+        source="measurement: with the hashed subsample of ≈ 12,000 pairs a 1e-12 change of the k_d bound moves "
+               "η, k_s ≤ 1 % (silver-paint) and ≤ 5e-4 on 47 of the 50 shared materials; bench 80–83 ms "
+               "(1a56243); the count itself dates from f43bf73 with no recorded reason")
+
+
+@dataclasses.dataclass(frozen=True)
+class SamplesTuning:
+    """Binning of the slice samples and the k_d ceiling (:mod:`.samples`)."""
+
+    module: ClassVar[str] = "reflecto.reconstruct.samples"
+    paper: ClassVar[str] = "eq. 9 (bins), k_d bound"
+
+    kd_bound_percentile: float = tuned(
+        0.2, name="KD_BOUND_PERCENTILE", units="percent",
+        what="percentile of f per channel whose π-multiple bounds ρ_d (k_d) from above",
+        source="unrecorded: a low percentile rather than the minimum, so that single noisy pixels cannot set it "
+               "(the comment's reason); no reason for 0.2 itself")
+    box_radius: int = tuned(
+        2, name="BOX_RADIUS", units="pixels",
+        what="half width of the box (5 × 5) over which box_mean averages the slices before the k_d bound",
+        source="measurement: noise put the raw samples' 0.2 % percentile ≈ 3σ below the diffuse level on the "
+               "as-built camera (white-marble k_d 0.14 vs 0.19 ideal); with the 5 × 5 box the as-built sweep "
+               "median went 0.446 → 0.360, ideal unchanged (173949f)")
+
+
+@dataclasses.dataclass(frozen=True)
+class SymmetryTuning:
+    """Mirror symmetry of the steep LEDs' slices: a shake cue (:mod:`.symmetry`; §5.1, §5.4)."""
+
+    module: ClassVar[str] = "reflecto.reconstruct.symmetry"
+    paper: ClassVar[str] = "§5.1, §5.4"
+
+    search_deg: float = tuned(
+        12.0, name="SEARCH_DEG", units="deg",
+        what="plane angles searched: ±this, in steps of STEP_DEG, then a parabola",
+        source="unrecorded: introduced with the cue (7bfc0d2); no reason for the range")
+    step_deg: float = tuned(
+        1.0, name="STEP_DEG", units="deg",
+        what="step of the plane-angle search",
+        source="unrecorded: introduced with the cue (7bfc0d2); no reason for the step")
+    min_curvature: float = tuned(
+        5.0, name="MIN_CURVATURE", units="per rad²",
+        what="smallest curvature of the normalized symmetry distance at its minimum for the plane to count "
+             "(flatter slices, rough materials, do not locate it)",
+        source="unrecorded: introduced with the cue (7bfc0d2); no reason for the value")
+    plane_threshold_deg: float = tuned(
+        1.5, name="PLANE_THRESHOLD_DEG", units="deg",
+        what="a located plane further than this from the frame's normal flags a shake",
+        source="measurement: clean captures of the 50 shared materials reach 1.2° (brass; ideal and as-built); "
+               "1.5° is about the 64² view hemicube's texel (1.4°), a plane located to a texel")
+    cube_n: int = tuned(
+        64, name="CUBE_N", units="texels per face side",
+        what="resolution of the view hemicube on which a slice is mirrored",
+        source="unrecorded: introduced with the cue (7bfc0d2); no reason for the resolution")
+
+
+@dataclasses.dataclass(frozen=True)
+class SymmetryTestTuning:
+    """How far the data break eq. 3: τ pairs against direct pairs (:mod:`.symmetry_test`; eq. 3, §5.5)."""
+
+    module: ClassVar[str] = "reflecto.reconstruct.symmetry_test"
+    paper: ClassVar[str] = "eq. 3, §5.5"
+
+    level: float = tuned(
+        0.02, name="LEVEL", units="fraction of the 99.5th percentile",
+        what="bins enter where their partial NDF is above this fraction of its 99.5th percentile…",
+        source="unrecorded: introduced with the test (5664aca); no reason for the value")
+    min_specular_fraction: float = tuned(
+        0.5, name="MIN_SPECULAR_FRACTION", units="fraction of the BRDF",
+        what="…and the specular part is at least this fraction of the measured BRDF",
+        source="mechanism: the partial NDF is measured where the specular term dominates, not the diffuse "
+               "floor and the model's account of it")
+    min_pairs: int = tuned(
+        30, name="MIN_PAIRS", units="pairs",
+        what="τ pairs needed for a verdict, and direct pairs needed to measure their spread",
+        source="unrecorded: introduced with the test (5664aca); no reason for the value")
+    unpaired_spread: float = tuned(
+        0.3, name="UNPAIRED_SPREAD", units="log units",
+        what="the direct pairs' spread assumed when fewer than MIN_PAIRS of them are in the lobe",
+        source="measurement: the model's S and F miss measured materials by 20–60 %; with 0.3 the τ pairs of "
+               "blue-rubber and light-red-paint (0.13–0.18) are kept, the asymmetric satin's (0.91) broken "
+               "(2a6335a, docs/design/asymmetric.md)")
+    threshold: float = tuned(
+        2.0, name="THRESHOLD", units="ratio of RMS log ratios",
+        what="ratio of the τ pairs' RMS log ratio to the direct pairs' at and above which the data break eq. 3",
+        source="unrecorded: a ratio rather than a level because S and F miss both kinds of pair alike "
+               "(docs/design/asymmetric.md); no reason for 2 is recorded")
+    direct_floor: float = tuned(
+        0.01, name="DIRECT_FLOOR", units="log units",
+        what="floor of the direct pairs' RMS in that ratio",
+        source="mechanism: below ≈ 1 % two partial NDFs are equal to within the texel's extent")
+    test_resolution: int = tuned(
+        128, name="TEST_RESOLUTION", units="texels per face side",
+        what="working resolution of the test's bins (texels ≈ 0.9° at the pole)",
+        source="unrecorded: introduced with the test (5664aca); no reason for the resolution")
+
+
+@dataclasses.dataclass(frozen=True)
+class ConsistencyTuning:
+    """Isotropy and reciprocity across slices: a model-free shake cue (:mod:`.consistency`; §5.1)."""
+
+    module: ClassVar[str] = "reflecto.reconstruct.consistency"
+    paper: ClassVar[str] = "§5.1"
+
+    cube_n: int = tuned(
+        64, name="CUBE_N", units="texels per face side",
+        what="resolution of the view hemicube that a slice is averaged onto",
+        source="unrecorded: introduced with the cue (d589efe; texels ≈ 1.4°); no reason for the resolution")
+    isotropy_max_deg: float = tuned(
+        1.0, name="ISOTROPY_MAX_DEG", units="deg",
+        what="LEDs whose incidence angles differ by at most this are compared by isotropy",
+        source="unrecorded: introduced with the cue (d589efe); no reason for the value")
+    min_pairs_isotropy: int = tuned(
+        200, name='MIN_PAIRS["isotropy"]', units="texels",
+        what="fewer paired directions (texels of the first LED's table) give no isotropy verdict for a pair",
+        source="unrecorded: introduced with the cue (d589efe); no reason for the value")
+    min_pairs_reciprocity: int = tuned(
+        20, name='MIN_PAIRS["reciprocity"]', units="steps of Δ",
+        what="fewer paired directions (steps of the relative azimuth Δ) give no reciprocity verdict for a pair",
+        source="unrecorded: introduced with the cue (d589efe); no reason for the value")
+    reciprocity_step_deg: float = tuned(
+        0.5, name="RECIPROCITY_STEP_DEG", units="deg",
+        what="step of the relative azimuth Δ along a reciprocity curve",
+        source="unrecorded: introduced with the cue (d589efe); no reason for the value")
+    threshold_isotropy: float = tuned(
+        0.15, name='THRESHOLD["isotropy"]', units="|log ratio|",
+        what="|log ratio| of an isotropy pair above which the capture is flagged as shaken",
+        source="measurement: clean captures of the 50 shared materials reach 0.02 (ideal), 0.06 (as-built); a "
+               "shake that turns the isotropy pair differently reads 0.27–3.8 (studies/validate_shake.py). "
+               "The former hand-written table said 'tuning half'; the record measures all 50")
+    threshold_reciprocity: float = tuned(
+        0.35, name='THRESHOLD["reciprocity"]', units="|log ratio|",
+        what="|log ratio| of a reciprocity pair above which the capture is flagged as shaken",
+        source="measurement: clean captures of the 50 shared materials reach 0.30 on the ideal device (the RGL "
+               "materials' own data are not reciprocal: 0.25–0.30 on cc_ibiza_sunset and vch_golden_yellow; "
+               "MERL/NBRDF within 0.01), 0.08 as-built (studies/validate_shake.py)")
+    step_deg: float = tuned(
+        1.0, name="STEP_DEG", units="deg",
+        what="directions where the slice changes by more than MAX_STEP in log within this are left out",
+        source="mechanism: sharp lobes, where small direction errors dominate the ratio, are left out; "
+               "no reason for 1° itself is recorded")
+    max_step: float = tuned(
+        0.1, name="MAX_STEP", units="log units",
+        what="largest change of the slice within STEP_DEG for a direction to take part",
+        source="mechanism: sharp lobes, where small direction errors dominate the ratio, are left out; "
+               "no reason for 0.1 itself is recorded")
+    floor: float = tuned(
+        0.02, name="FLOOR", units="fraction of the 99th percentile",
+        what="samples below this fraction of the pair's 99th-percentile value are left out",
+        source="mechanism: their ratio is dominated by rounding and noise; no reason for 0.02 itself is recorded")
+
+
+@dataclasses.dataclass(frozen=True)
+class RepeatTuning:
+    """Check frames: the first LED fired again after the sequence (:mod:`.repeat`; a shake cue beyond the paper)."""
+
+    module: ClassVar[str] = "reflecto.reconstruct.repeat"
+    paper: ClassVar[str] = "§5.1 (beyond the paper)"
+
+    block_px: int = tuned(
+        16, name="BLOCK_PX", units="pixels",
+        what="side of the pixel blocks compared",
+        source="unrecorded: introduced with the check frames (be8823e); no reason for the size")
+    block_min_fill: float = tuned(
+        0.5, name="BLOCK_MIN_FILL", units="fraction of a block's pixels",
+        what="a block takes part when at least this fraction of its pixels is valid in both frames",
+        source="unrecorded: introduced with the check frames (be8823e); no reason for the value")
+    threshold: float = tuned(
+        0.02, name="THRESHOLD", units="|log ratio|",
+        what="|log ratio| of the whole frame above which the sample moved",
+        source="measurement: shaken captures of the 50 shared materials start at 0.06; clean ones repeat to "
+               "noise (z ≤ 2.3, as-built); above an LED's pulse-to-pulse repeatability (≈ 0.5 %)")
+    block_threshold: float = tuned(
+        0.05, name="BLOCK_THRESHOLD", units="|log ratio|",
+        what="|log ratio| of a block above which it changed",
+        source="mechanism: above an LED's pulse-to-pulse repeatability (≈ 0.5 %) and the camera noise "
+               "(docs/design/reconstruction.md); no reason for 0.05 itself is recorded")
+    min_blocks: int = tuned(
+        2, name="MIN_BLOCKS", units="blocks",
+        what="blocks that must change to count as motion",
+        source="unrecorded: introduced with the check frames (be8823e); no reason for the value")
+    min_z: float = tuned(
+        6.0, name="MIN_Z", units="standard errors of the noise",
+        what="significance a change must also reach",
+        source="measurement: clean captures repeat to noise (z ≤ 2.3, as-built); 0/50 false alarms on the ideal "
+               "and as-built devices (be8823e, for the check frames as a whole)")
+
+
+@dataclasses.dataclass(frozen=True)
+class SynthesisTuning:
+    """Example-based microfacet synthesis of the holes (:mod:`.synthesis`; §5.5 after Wang et al. 2008, AR 4.4).
+
+    The measurements are ``studies/synthesis_choices.py`` on the 21 fill sets of
+    docs/design/asymmetric.md (*The choices the paper leaves open*), each value changed
+    one at a time against the defaults. :class:`.synthesis.SynthesisOptions` takes its
+    defaults from these fields.
+    """
+
+    module: ClassVar[str] = "reflecto.reconstruct.synthesis"
+    paper: ClassVar[str] = "§5.5"
+
+    rotation_step_deg: float = tuned(
+        5.0, name="ROTATION_STEP_DEG", units="deg",
+        what="candidate rotations about n are multiples of this (71 candidates)",
+        source="measurement: AR 4.4 suggests 2–5°; 2.5° and 10° are both 1–3 % worse (docs/design/asymmetric.md)")
+    window_deg: float = tuned(
+        8.0, name="WINDOW_DEG", units="deg",
+        what="radius of the matching window (Gaussian of σ = radius / 2, cut at the radius)",
+        source="measurement: the holes lie beyond θ_h ≈ 40°, where the ratio varies over tens of degrees; 5° and "
+               "12° are 4–12 % and 9–14 % worse (docs/design/asymmetric.md)")
+    min_overlap: float = tuned(
+        0.3, name="MIN_OVERLAP", units="fraction of the window's weight",
+        what="a candidate must cover known texels holding at least this fraction of the window's weight",
+        source="measurement: Wang's 30 % of the known region (AR 4.4), applied per window; 15 % is 2–3 % worse, "
+               "50 % 10–16 % worse (docs/design/asymmetric.md)")
+    gain_penalty: float = tuned(
+        0.25, name="GAIN_PENALTY", units="weight of μ² (log units²)",
+        what="weight of the squared log gain μ² in the distance",
+        source="measurement: without the penalty 4–5 % worse (docs/design/asymmetric.md); other weights than "
+               "0 and 0.25 are not recorded")
+    blend: int = tuned(
+        3, name="BLEND", units="candidates",
+        what="candidates blended per hole texel",
+        source="measurement: AR 4.4 says k = 3–5; 1 is 5–8 % worse, 5 within 1.2 % (docs/design/asymmetric.md)")
+    max_rounds: int = tuned(
+        24, name="MAX_ROUNDS", units="rounds",
+        what="rounds of search and fill at most",
+        source="unrecorded: introduced with §5.5 (5664aca); no reason for the value")
+    resolution: int = tuned(
+        32, name="SYNTHESIS_RESOLUTION", units="texels per face side",
+        what="hemicube resolution of the search (texels ≈ 2.8° at the pole); the working NDF's holes take the "
+             "synthesized ratio interpolated from it",
+        source="measurement: at 64 the synthesized texels' error was within ±0.4 % at 7× the time "
+               "(0.1–0.4 s against 0.02–0.09 s) (docs/design/asymmetric.md)")
+    blend_eps: float = tuned(
+        1e-4, name="BLEND_EPS", units="log units²",
+        what="ε of the blending weights 1/(d + ε) (a distance of 0.01 is a 10 % misfit)",
+        source="unrecorded: introduced with §5.5 (5664aca); no reason for the value")
+    floor: float = tuned(
+        3e-3, name="SYNTHESIS_FLOOR", units="fraction of the peak",
+        what="measured texels below this are no candidates and no known region; holes where the lobe is below "
+             "it keep the plain fill",
+        source="measurement: below ≈ 1 % of the peak a measured partial NDF carries the diffuse term's error "
+               "(±30 % at 10⁻³–10⁻² on the ideal device); 10⁻² leaves the tail without candidates. Set on a "
+               "subset of the fill cases; 10⁻² and 10⁻³ not measured on all 20 sets (docs/design/asymmetric.md)")
+
+
+@dataclasses.dataclass(frozen=True)
+class AsymmetricTuning:
+    """One BRDF from captures at several rotations (:mod:`.asymmetric`; §5.5)."""
+
+    module: ClassVar[str] = "reflecto.reconstruct.asymmetric"
+    paper: ClassVar[str] = "§5.5"
+
+    duplicate_deg: float = tuned(
+        1.0, name="DUPLICATE_DEG", units="deg (modulo 360)",
+        what="two captures whose rotations differ by less than this are duplicates (refused)",
+        source="mechanism: two captures that close add no new coverage and usually mean a copied manifest "
+               "(docs/design/asymmetric.md)")
+    min_captures: int = tuned(
+        2, name="MIN_CAPTURES", units="captures",
+        what="captures needed for §5.5",
+        source="convention: §5.5 merges captures at several rotations; two is the fewest")
+    inconsistent_level: float = tuned(
+        0.15, name="INCONSISTENT_LEVEL", units="|weighted mean log ratio|",
+        what="two captures measure different materials (or carry a wrong rotation) when the weighted mean log "
+             "ratio of their partial NDFs at shared texels reaches this (a 16 % level difference)",
+        source="measurement: on the 62 single-material sets of the validation (ideal and as-built) |μ| stays "
+               "≤ 0.078; on the 8 mixed sets it is 0.09–1.98 (docs/design/asymmetric.md, 034b035)")
+    inconsistent_ratio: float = tuned(
+        3.0, name="INCONSISTENT_RATIO", units="factor of the within-capture RMS",
+        what="…or when their RMS log ratio is at least this factor of what two LEDs of one capture differ by…",
+        source="measurement: catches the one mixed set with a small level offset (acrylic_felt_green + "
+               "alum-bronze: 4.2× the within spread); measured anisotropic cm_military_green reads 3.8× at "
+               "|μ| = 0.006, kept by the level condition (docs/design/asymmetric.md)")
+    inconsistent_min: float = tuned(
+        0.15, name="INCONSISTENT_MIN", units="RMS log ratio",
+        what="…and at least this in absolute terms…",
+        source="unrecorded: introduced with §5.5 (5664aca); equal to INCONSISTENT_LEVEL, no further reason")
+    inconsistent_level_with_shape: float = tuned(
+        0.03, name="INCONSISTENT_LEVEL_WITH_SHAPE", units="|weighted mean log ratio|",
+        what="…and differ in level by at least this",
+        source="measurement: one measured anisotropic material's captures 90° apart differ in shape but not in "
+               "level (|mean| ≤ 0.01); the mixed sets' level is ≥ 0.09 (034b035, docs/design/asymmetric.md)")
+    min_cross_pairs: int = tuned(
+        30, name="MIN_CROSS_PAIRS", units="pairs",
+        what="cross-capture (and within-capture) pairs needed to judge two captures",
+        source="unrecorded: introduced with §5.5 (5664aca); no reason for the value")
+    cap_deg: float = tuned(
+        80.0, name="CAP_DEG", units="deg",
+        what="polar cap (θ_h ≤ this) over which the synthesized and hole fractions are reported",
+        source="convention: a reporting range for the summary")
+
+
+@dataclasses.dataclass(frozen=True)
+class NormalTuning:
+    """The altered normal (:mod:`.normal`; §5.4).
+
+    :mod:`.normal` still defines these as literals (another change is under way there);
+    they are to become aliases of these fields.
+    """
+
+    module: ClassVar[str] = "reflecto.reconstruct.normal"
+    paper: ClassVar[str] = "§5.4"
+
+    led_margin_deg: float = tuned(
+        10.0, name="LED_MARGIN_DEG", units="deg",
+        what="LEDs less than this far above a candidate frame's horizon take no part in its IsotropicDistance",
+        source="measurement: without it a frame that sank the worst-fitting grazing LEDs won (specular maroon "
+               "phenolic tilted 5°: 7.8° off), and counting their samples as lost biased the tilt of captures whose "
+               "LEDs truly sink (GGX α = 0.1 at 10°: found 8.97°); with it normals 23/24 within 0.5° on "
+               "validate_tilt, measured materials tilted 5–15° within 0.6° (408eb78)")
+    min_pairs: int = tuned(
+        40, name="MIN_PAIRS", units="texel pairs",
+        what="minimum number of texel pairs for a candidate normal to count",
+        source="unrecorded: introduced with the first normal search (e8e23c0); no reason for the value")
+    n_starts: int = tuned(
+        6, name="N_STARTS", units="local minima",
+        what="at most this many local minima of the coarse tilt grid are refined (multi-start)",
+        source="unrecorded: introduced with the multi-start search (80a162b, whose result is recorded for the "
+               "change as a whole: validate_tilt normals within 0.05° on 24/24); no reason for 6")
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineTuning:
+    """The §5 stages around the fits: energy check and capture acceptance (:mod:`.pipeline`).
+
+    :mod:`.pipeline` still defines these as literals (another change is under way there);
+    they are to become aliases of these fields.
+    """
+
+    module: ClassVar[str] = "reflecto.reconstruct.pipeline"
+    paper: ClassVar[str] = "§5"
+
+    albedo_angles: tuple[float, ...] = tuned(
+        (0.0, 30.0, 60.0, 75.0, 85.0, 89.0), name="ALBEDO_ANGLES", units="deg",
+        what="incidence angles at which the directional albedo is checked against 1 (limit_energy)",
+        source="mechanism: energy conservation from normal incidence up to 89° (docs/design/reconstruction.md); "
+               "the choice of the intermediate angles is not recorded")
+    albedo_quad: int = tuned(
+        48, name="ALBEDO_QUAD", units="rings = azimuths",
+        what="half-vector quadrature of the albedo check (48 × 48)",
+        source="measurement: within 1e-3 of a 400 × 512 quadrature on GGX and Beckmann lobes of α = 0.05–0.8 "
+               "(f4af55d)")
+    albedo_refine_above: float = tuned(
+        0.99, name="ALBEDO_REFINE_ABOVE", units="albedo",
+        what="where the check reads above this it is repeated on the fine quadrature and the larger value counts",
+        source="measurement: on a tabulated NDF with structure toward grazing the 48 × 48 quadrature misses up "
+               "to 2e-3 at 89° (aurora_white: 1.0000 against 1.0015–1.0022 at 96–256 rings) (dfaafac); "
+               "no reason for 0.99 itself is recorded")
+    albedo_quad_fine: int = tuned(
+        128, name="ALBEDO_QUAD_FINE", units="rings = azimuths",
+        what="the fine quadrature of the albedo check (128 × 128)",
+        source="measurement: 96–256 rings read 1.0015–1.0022 at 89° on aurora_white (dfaafac)")
+    min_samples: int = tuned(
+        100, name="MIN_SAMPLES", units="samples",
+        what="fewer valid samples than this make no capture",
+        source="unrecorded: introduced with the rebuilt pipeline (b0d5371); no reason for the value")
+
+
+POLAR = PolarTuning()
+ISOTROPIC = IsotropicFitTuning()
+ISOTROPY = IsotropyTestTuning()
+HEMICUBE_FIT = HemicubeFitTuning()
+NDF = NDFTuning()
+FRESNEL_FIT = FresnelFitTuning()
+SAMPLES = SamplesTuning()
+SYMMETRY = SymmetryTuning()
+SYMMETRY_TEST = SymmetryTestTuning()
+CONSISTENCY = ConsistencyTuning()
+REPEAT = RepeatTuning()
+SYNTHESIS = SynthesisTuning()
+ASYMMETRIC = AsymmetricTuning()
+NORMAL = NormalTuning()
+PIPELINE = PipelineTuning()
+
+#: Every stage's default instance, by the instance's name, in the paper's order.
+STAGES: dict[str, Any] = {
+    "POLAR": POLAR, "ISOTROPIC": ISOTROPIC, "ISOTROPY": ISOTROPY, "FRESNEL_FIT": FRESNEL_FIT, "SAMPLES": SAMPLES,
+    "NDF": NDF, "HEMICUBE_FIT": HEMICUBE_FIT, "NORMAL": NORMAL, "SYMMETRY": SYMMETRY, "CONSISTENCY": CONSISTENCY,
+    "REPEAT": REPEAT, "SYMMETRY_TEST": SYMMETRY_TEST, "SYNTHESIS": SYNTHESIS, "ASYMMETRIC": ASYMMETRIC,
+    "PIPELINE": PIPELINE,
+}
+
+BEGIN_MARKER = ("<!-- constants: begin (generated from reflecto/reconstruct/tuning.py by "
+                "`python -m reflecto.reconstruct.tuning --update docs/design/reconstruction.md`; do not edit) -->")
+END_MARKER = "<!-- constants: end -->"
+
+
+def _number(v: Any) -> str:
+    """A value as the table shows it: integers as they are, floats to 6 significant digits."""
+    if isinstance(v, tuple):
+        return "(" + ", ".join(_number(x) for x in v) + ")"
+    if isinstance(v, int):
+        return str(v)
+    s = f"{v:.6g}"
+    if "e" in s:
+        mantissa, exponent = s.split("e")
+        s = f"{mantissa}e{int(exponent)}"
+    return s
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def constants_table() -> str:
+    """The Markdown table of every tuned number: constant, value, units, stage field, what, source."""
+    lines = ["| constant | value | units | stage | what | source |", "|---|---|---|---|---|---|"]
+    for instance_name, stage in STAGES.items():
+        module = type(stage).module.rsplit(".", 1)[-1]
+        for f in dataclasses.fields(stage):
+            m = f.metadata
+            names = [f"{module}.{m['name']}", *m["also"]]
+            constant = "<br>".join(f"`{n}`" for n in names)
+            where = f"`{instance_name}.{f.name}` ({type(stage).paper})"
+            lines.append("| " + " | ".join([_cell(constant), _cell(_number(getattr(stage, f.name))),
+                                           _cell(m["units"]), _cell(where), _cell(m["what"]),
+                                           _cell(m["source"])]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _block() -> str:
+    return f"{BEGIN_MARKER}\n\n{constants_table()}\n{END_MARKER}"
+
+
+def document_block(text: str) -> str:
+    """The generated block of a document (markers included); ``ValueError`` when it has none."""
+    start, end = text.find(BEGIN_MARKER), text.find(END_MARKER)
+    if start < 0 or end < start:
+        raise ValueError("the document has no constants block (its begin and end markers)")
+    return text[start: end + len(END_MARKER)]
+
+
+def update_document(path: str | Path) -> bool:
+    """Rewrite the constants block of ``path`` from :func:`constants_table`; ``True`` if it changed."""
+    p = Path(path)
+    text = p.read_text(encoding="utf-8")
+    new = text.replace(document_block(text), _block())
+    if new != text:
+        p.write_text(new, encoding="utf-8")
+    return new != text
+
+
+def main(argv: list[str]) -> int:
+    """``python -m reflecto.reconstruct.tuning [--update | --check DOC]``: print, rewrite or check the table."""
+    if not argv:
+        sys.stdout.write(constants_table())
+        return 0
+    if len(argv) == 2 and argv[0] == "--update":
+        changed = update_document(argv[1])
+        print(f"{argv[1]}: constants table {'rewritten' if changed else 'already current'}")
+        return 0
+    if len(argv) == 2 and argv[0] == "--check":
+        current = document_block(Path(argv[1]).read_text(encoding="utf-8")) == _block()
+        print(f"{argv[1]}: constants table {'current' if current else 'out of date'}")
+        return 0 if current else 1
+    print("usage: python -m reflecto.reconstruct.tuning [--update DOC | --check DOC]", file=sys.stderr)
+    return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
