@@ -238,3 +238,76 @@ def test_sweep_with_the_as_built_device_calibrates_it_and_beats_the_baselines(tm
     rows = (out / "results.csv").read_text().splitlines()
     header = rows[0].split(",")
     assert len(rows) == 2 and rows[1].split(",")[header.index("device")] == "as-built"
+
+
+# ------------------------------------------------------------------ --json: values, not keys
+def test_json_values_of_info_compare_and_simulate(tmp_path, capsys):
+    """The numbers of ``--json`` against ground truth: the description file's parameters and
+    albedo; eq. 10 of two analytic BRDFs that differ by Δk_d only, whose difference is Δk_d/π
+    everywhere, so ``rmse = Δk_d/π · rms(cos θ_i)`` over the metric's weights; the device's
+    exposures. (``export --json``'s byte count is checked in test_cli.py.)"""
+    from reflecto.evaluate.metrics import max_albedo, metric_grid
+    from reflecto.instrument.device import Device
+    from reflecto.sources import load_source
+
+    src = load_source(PLASTIC)
+    desc = json.loads(PLASTIC.read_text())
+    assert main(["info", str(PLASTIC), "--json"]) == 0
+    info = _json_out(capsys)
+    p = info["parameters"]
+    assert info["kind"] == "analytic" and info["isotropic"] and p["distribution"] == desc["distribution"]
+    assert p["kd"] == desc["kd"] and p["ks"] == [desc["ks"]] * 3 and p["eta"] == [desc["eta"]] * 3
+    assert p["alpha"] == [desc["alpha"]] * 2
+    albedo = {k: np.asarray(v) for k, v in info["albedo"].items()}
+    for key, value in albedo.items():
+        assert np.allclose(value, src.albedo([float(key.removesuffix("deg"))])[0], atol=6e-6), key
+    lo, hi = info["albedo_range"]
+    assert lo == min(v.min() for v in albedo.values()) and hi == max(v.max() for v in albedo.values())
+
+    dkd = np.array([0.03, 0.02, 0.01])
+    brighter = tmp_path / "brighter.json"
+    brighter.write_text(json.dumps({**desc, "kd": (np.asarray(desc["kd"]) + dkd).tolist()}))
+    assert main(["compare", str(PLASTIC), str(brighter), "--json"]) == 0
+    cmp = _json_out(capsys)
+    g = metric_grid(1)
+    rms_cos = math.sqrt(np.sum(g.w * g.i[:, 2] ** 2) / np.sum(g.w))
+    assert np.allclose(cmp["rmse"], dkd / math.pi * rms_cos, rtol=1e-9, atol=0), cmp["rmse"]
+    assert cmp["albedo_ref"] == pytest.approx(max_albedo(src), rel=1e-12)
+    assert cmp["normalized"] == pytest.approx(np.mean(dkd / math.pi * rms_cos) / max_albedo(src), rel=1e-9)
+    assert cmp["log_rmse"] > 0 and cmp["form"] == "merl" and cmp["azimuths"] == 1
+    assert cmp["reference"] == str(PLASTIC) and cmp["test"] == str(brighter)
+    assert main(["compare", str(PLASTIC), str(PLASTIC), "--json"]) == 0
+    same = _json_out(capsys)
+    assert same["rmse"] == [0.0, 0.0, 0.0] and same["normalized"] == 0.0 and same["log_rmse"] == 0.0
+
+    assert main(["simulate", str(PLASTIC), "-o", str(tmp_path / "cap"), "--json"]) == 0
+    sim = _json_out(capsys)
+    cam = Device.builtin("ideal").camera
+    assert sim["device"] == "ideal" and sim["leds"] == 6 and sim["check_frames"] == 2
+    assert sim["exposures_ms"] == [float(t) for t in cam.exposures_ms] and sim["simulation"]["seed"] == 0
+    assert sim["simulation"]["normal"] == [0.0, 0.0, 1.0] and sim["simulation"]["tilt_deg"] == 0.0
+
+
+
+def test_json_values_of_the_calibration_commands(tmp_path, capsys):
+    """``calibrate --json`` reports how far each LED sits from its nominal direction: the
+    as-built device's hidden LED errors (0.31-0.38°), to a few thousandths of a degree; and the
+    white standard's albedo (simulate.WHITE_ALBEDO)."""
+    from reflecto.instrument import layout
+    from reflecto.instrument.device import Device
+    from reflecto.instrument.simulate import WHITE_ALBEDO
+
+    assert main(["simulate-calibration", "--device", "as-built", "--seed", "1", "-o", str(tmp_path / "calib"),
+                 "--json"]) == 0
+    sim = _json_out(capsys)
+    assert sim["device"] == "as-built" and sim["seed"] == 1 and "calibration.json" in sim["files"]
+    assert all((tmp_path / "calib" / f).is_file() for f in sim["files"])
+    assert main(["calibrate", str(tmp_path / "calib"), "-o", str(tmp_path / "cal.npz"), "--json"]) == 0
+    cal = _json_out(capsys)
+    dev = Device.builtin("as-built")
+    truth = layout.led_direction(*np.array(dev.truth.led_angles).T)
+    offsets = np.degrees(np.arccos(np.clip(np.sum(truth * dev.leds, axis=1), -1.0, 1.0)))
+    assert cal["device"] == "as-built" and cal["output"] == str(tmp_path / "cal.npz")
+    assert np.allclose(cal["report"]["led_offset_from_nominal_deg"], offsets, atol=0.005), (cal["report"], offsets)
+    assert cal["report"]["white_albedo"] == pytest.approx(WHITE_ALBEDO, abs=0.005)
+    assert cal["report"]["reprojection_rms_px"] < 0.05 and cal["report"]["spots_used"] > 1000
