@@ -359,7 +359,8 @@ def test_gallery_on_the_as_built_device_with_its_calibration(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path / "calib"), "-o", str(tmp_path / "cal.npz"), "-q"]) == 0
     out = tmp_path / "gallery"
     assert main(["gallery", str(brushed), "-o", str(out), "--device", "as-built", "--calibration", str(tmp_path / "cal.npz"),
-                 "--seed", "5", "--spp", "4", "--resolution", "32", "--rotations", "0,120,240", "-q"]) == 0
+                 "--seed", "5", "--spp", "4", "--resolution", "32", "--rotations", "0,120,240", "-q", "--json"]) == 0
+    assert _json_out(capsys)["output"] == str(out / "index.html")
     doc = json.loads((out / "gallery.json").read_text())
     st = doc["settings"]
     assert st["device"] == "as-built" and st["seed"] == 5 and st["calibration"] == str(tmp_path / "cal.npz")
@@ -382,3 +383,63 @@ def test_design_on_a_local_dask_cluster_equals_the_local_run(tmp_path, capsys):
     remote = _json_out(capsys)["designs"]
     assert [r["key"] for r in remote] == ["paper", "c70.0-t20.0-l6"]
     assert remote == local
+
+
+@pytest.mark.slow
+def test_report_renders_at_the_requested_spp(tmp_path, capsys):
+    """``report --spp 5``: the renders take the ldsampler's next power of 4, 16 spp (not the
+    default 64), and both comparisons' image differences are in the page's numbers."""
+    from reflecto.model import MicrofacetBRDF
+    from reflecto.sources import load_source
+
+    require_mitsuba()
+    ref = load_source(PLASTIC)
+    MicrofacetBRDF.from_ndf_function(ref.ndf, resolution=16, kd=ref.kd, ks=ref.ks, eta=ref.eta).save(tmp_path / "m.reflecto")
+    from reflecto.render.mitsuba import sample_count
+
+    assert main(["report", str(tmp_path / "m.reflecto"), "--ref", str(PLASTIC), "--spp", "5", "-o", str(tmp_path / "rep"),
+                 "--json"]) == 0
+    page = Path(_json_out(capsys)["output"]).read_text()
+    assert sample_count(5) == 16 and page.count(" 16 spp).") >= 4 and " 64 spp" not in page
+    for scene in ("sphere-env", "sphere-point"):
+        m = re.search(rf"<th>mean image difference, {scene} \(noise floor; corrected\)</th><td>([\d.]+) %", page)
+        assert m and 0.0 < float(m.group(1)) < 50.0, scene
+
+
+# ------------------------------------------------------------------ every option runs somewhere
+#: Options no test runs as ``[command, ..., option]`` literally, and why.
+NOT_RUN_LITERALLY = {
+    ("tabulate", "--json"): "test_cli.test_json_on_every_result_command runs it as [*argv, '--json'] (checks the output path)",
+    ("export", "--json"): "test_cli.test_json_on_every_result_command runs it as [*argv, '--json'] (checks format and bytes)",
+}
+
+
+def test_every_documented_option_is_run_by_a_test():
+    """Each subcommand's options (``reflecto CMD --help``) appear in a test's argument list
+    ``[CMD, ..., OPTION, ...]`` (test_fuzz.py's random inputs do not count), or are listed in
+    :data:`NOT_RUN_LITERALLY` with the reason."""
+    import argparse
+    import ast
+
+    from reflecto.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    run: dict[str, set[str]] = {}
+    for path in sorted(Path(__file__).parent.glob("test_*.py")):
+        if path.name == "test_fuzz.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.List) and node.elts and isinstance(node.elts[0], ast.Constant) and node.elts[0].value in sub:
+                run.setdefault(node.elts[0].value, set()).update(
+                    e.value for e in node.elts if isinstance(e, ast.Constant) and isinstance(e.value, str))
+    missing = []
+    for name, parser in sub.items():
+        for action in parser._actions:
+            if not action.option_strings or action.dest == "help":
+                continue
+            key = (name, max(action.option_strings, key=len))
+            ran = bool(set(action.option_strings) & run.get(name, set()))
+            assert not (ran and key in NOT_RUN_LITERALLY), f"{key} now runs: drop it from NOT_RUN_LITERALLY"
+            if not ran and key not in NOT_RUN_LITERALLY:
+                missing.append(key)
+    assert not missing, f"options no test runs: {missing}"
