@@ -148,7 +148,7 @@ def test_simulate_tilt_azimuth_and_shake_are_in_the_manifest_and_the_reconstruct
 def test_report_with_a_reference_shows_its_eq10_error(tmp_path, capsys):
     from reflecto.evaluate.metrics import brdf_error
     from reflecto.model import MicrofacetBRDF
-    from reflecto.sources import load_source
+    from reflecto import load_source
 
     ref = load_source(PLASTIC)
     model = MicrofacetBRDF.from_ndf_function(ref.ndf, resolution=32, kd=ref.kd, ks=ref.ks, eta=ref.eta)
@@ -261,7 +261,7 @@ def test_json_values_of_info_compare_and_simulate(tmp_path, capsys):
     exposures. (``export --json``'s byte count is checked in test_cli.py.)"""
     from reflecto.evaluate.metrics import max_albedo, metric_grid
     from reflecto.instrument.device import Device
-    from reflecto.sources import load_source
+    from reflecto import load_source
 
     src = load_source(PLASTIC)
     desc = json.loads(PLASTIC.read_text())
@@ -390,7 +390,7 @@ def test_report_renders_at_the_requested_spp(tmp_path, capsys):
     """``report --spp 5``: the renders take the ldsampler's next power of 4, 16 spp (not the
     default 64), and both comparisons' image differences are in the page's numbers."""
     from reflecto.model import MicrofacetBRDF
-    from reflecto.sources import load_source
+    from reflecto import load_source
 
     require_mitsuba()
     ref = load_source(PLASTIC)

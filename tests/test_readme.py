@@ -149,7 +149,7 @@ def _check_printed_numbers(work: Path) -> None:
     import json
 
     from reflecto.evaluate.metrics import max_albedo
-    from reflecto.sources import load_source
+    from reflecto import load_source
 
     plastic = json.loads((ROOT / "examples" / "ggx-plastic.json").read_text())
     src = load_source(ROOT / "examples" / "ggx-plastic.json")
