@@ -24,7 +24,7 @@ PLASTIC = ROOT / "examples" / "ggx-plastic.json"
 
 
 def _json_out(capsys) -> dict:
-    """stdout of the last command: exactly one JSON document."""
+    """Stdout of the last command: exactly one JSON document."""
     out = capsys.readouterr().out
     doc, end = json.JSONDecoder().raw_decode(out)
     assert out[end:].strip() == "", out[end:]
@@ -86,7 +86,8 @@ def test_design_lays_out_the_grid_and_names_the_impossible_designs(tmp_path, cap
     assert c70["cone_half_angle_deg"] == 70.0 and c70["axis_tilt_deg"] == 20.0
     csv = (out / "design.csv").read_text().splitlines()
     assert len(csv) == 3 and csv[1].startswith("paper,") and csv[2].startswith("c70.0-t20.0-l6,")
-    assert info["files"] == [str(out / "design.csv"), str(out / "design.png")] and (out / "design.png").stat().st_size > 5000
+    assert info["files"] == [str(out / "design.csv"), str(out / "design.png")]
+    assert (out / "design.png").stat().st_size > 5000
     # out-of-range grids are one error line
     assert main(["design", str(mats), "-o", str(tmp_path / "bad"), "--cones", "95", "-q"]) == 1
     assert "--cones: each value must be in [1, 88], got [95.0]" in capsys.readouterr().err
@@ -105,7 +106,8 @@ def test_design_runs_the_materials_on_each_realisable_design(tmp_path, capsys):
     paper = _json_out(capsys)["designs"][0]
     assert paper["materials"] == 1 and paper["ours_below_ct"] == 1 and paper["median_ratio"] < 0.3
     assert paper["max_eta"] == pytest.approx(1.5, abs=0.02)
-    assert main(["design", str(mats), "-o", str(out), "--cones", "70", "--tilts", "20", "--leds", "6", "--jobs", "1"]) == 0
+    assert main(["design", str(mats), "-o", str(out), "--cones", "70", "--tilts", "20", "--leds", "6",
+                 "--jobs", "1"]) == 0
     text = capsys.readouterr().out  # the rerun resumes and prints the table
     assert re.search(r"^paper\s+0\.746\s+81\.2%\s+67\.1°\s+117ms\s+1/1", text, re.M), text
     assert "c70.0-t20.0-l6     not possible: the view cone reaches below the sample plane" in text
@@ -146,9 +148,9 @@ def test_simulate_tilt_azimuth_and_shake_are_in_the_manifest_and_the_reconstruct
 
 # ------------------------------------------------------------------ report --ref
 def test_report_with_a_reference_shows_its_eq10_error(tmp_path, capsys):
+    from reflecto import load_source
     from reflecto.evaluate.metrics import brdf_error
     from reflecto.model import MicrofacetBRDF
-    from reflecto import load_source
 
     ref = load_source(PLASTIC)
     model = MicrofacetBRDF.from_ndf_function(ref.ndf, resolution=32, kd=ref.kd, ks=ref.ks, eta=ref.eta)
@@ -165,7 +167,8 @@ def test_report_with_a_reference_shows_its_eq10_error(tmp_path, capsys):
     shown = float(row(page, "eq. 10 error vs reference (normalized)"))
     assert shown == round(err.normalized, 5) and 0.0 < shown < 0.05  # the reference's own NDF, tabulated at 32²
     assert float(row(page, "log-RMSE vs reference")) == round(err.log_rmse, 5)
-    assert f"reference <code>{PLASTIC}</code>" in page.read_text() and (tmp_path / "rep" / "thd_reference.png").is_file()
+    assert f"reference <code>{PLASTIC}</code>" in page.read_text()
+    assert (tmp_path / "rep" / "thd_reference.png").is_file()
     assert main(["report", str(tmp_path / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep-none")]) == 0
     assert capsys.readouterr().out.strip() == f"wrote {tmp_path / 'rep-none' / 'index.html'}"
     assert row(tmp_path / "rep-none" / "index.html", "eq. 10 error vs reference (normalized)") is None
@@ -180,7 +183,8 @@ def test_layout_optimize_reproduces_the_devices_layout(capsys):
 
     assert main(["layout", "--optimize", "--json"]) == 0
     info = _json_out(capsys)
-    assert np.allclose(info["leds_elevation_azimuth_deg"], DEFAULT_LED_ANGLES, atol=0.01), info["leds_elevation_azimuth_deg"]
+    leds = info["leds_elevation_azimuth_deg"]
+    assert np.allclose(leds, DEFAULT_LED_ANGLES, atol=0.01), leds
     assert info["coverage"]["after_tau"] == pytest.approx(0.812, abs=5e-4)
 
 
@@ -205,7 +209,8 @@ def test_layout_seed_theta_max_resolution_and_plot(tmp_path, capsys, monkeypatch
     assert f"any layout: at most {100 * full.upper_bound_after_tau:.2f} %" in text
     # --device: a device file's LEDs and optics are what is analysed
     device = tmp_path / "three.toml"
-    device.write_text('name = "three"\nleds = [[5.0, 0.0], [10.0, 120.0], [30.0, 240.0]]\n[optics]\naxis_tilt_deg = 15.0\n')
+    device.write_text('name = "three"\nleds = [[5.0, 0.0], [10.0, 120.0], [30.0, 240.0]]\n'
+                      '[optics]\naxis_tilt_deg = 15.0\n')
     assert main(["layout", "--device", str(device), "--resolution", "32", "--json"]) == 0
     info = _json_out(capsys)
     from reflecto.instrument.device import load_device
@@ -259,9 +264,9 @@ def test_json_values_of_info_compare_and_simulate(tmp_path, capsys):
     albedo; eq. 10 of two analytic BRDFs that differ by Δk_d only, whose difference is Δk_d/π
     everywhere, so ``rmse = Δk_d/π · rms(cos θ_i)`` over the metric's weights; the device's
     exposures. (``export --json``'s byte count is checked in test_cli.py.)"""
+    from reflecto import load_source
     from reflecto.evaluate.metrics import max_albedo, metric_grid
     from reflecto.instrument.device import Device
-    from reflecto import load_source
 
     src = load_source(PLASTIC)
     desc = json.loads(PLASTIC.read_text())
@@ -358,7 +363,8 @@ def test_gallery_on_the_as_built_device_with_its_calibration(tmp_path, capsys):
     assert main(["simulate-calibration", "--device", "as-built", "-o", str(tmp_path / "calib"), "-q"]) == 0
     assert main(["calibrate", str(tmp_path / "calib"), "-o", str(tmp_path / "cal.npz"), "-q"]) == 0
     out = tmp_path / "gallery"
-    assert main(["gallery", str(brushed), "-o", str(out), "--device", "as-built", "--calibration", str(tmp_path / "cal.npz"),
+    assert main(["gallery", str(brushed), "-o", str(out), "--device", "as-built",
+                 "--calibration", str(tmp_path / "cal.npz"),
                  "--seed", "5", "--spp", "4", "--resolution", "32", "--rotations", "0,120,240", "-q", "--json"]) == 0
     assert _json_out(capsys)["output"] == str(out / "index.html")
     doc = json.loads((out / "gallery.json").read_text())
@@ -389,16 +395,17 @@ def test_design_on_a_local_dask_cluster_equals_the_local_run(tmp_path, capsys):
 def test_report_renders_at_the_requested_spp(tmp_path, capsys):
     """``report --spp 5``: the renders take the ldsampler's next power of 4, 16 spp (not the
     default 64), and both comparisons' image differences are in the page's numbers."""
-    from reflecto.model import MicrofacetBRDF
     from reflecto import load_source
+    from reflecto.model import MicrofacetBRDF
 
     require_mitsuba()
     ref = load_source(PLASTIC)
-    MicrofacetBRDF.from_ndf_function(ref.ndf, resolution=16, kd=ref.kd, ks=ref.ks, eta=ref.eta).save(tmp_path / "m.reflecto")
+    model = MicrofacetBRDF.from_ndf_function(ref.ndf, resolution=16, kd=ref.kd, ks=ref.ks, eta=ref.eta)
+    model.save(tmp_path / "m.reflecto")
     from reflecto.render.mitsuba import sample_count
 
-    assert main(["report", str(tmp_path / "m.reflecto"), "--ref", str(PLASTIC), "--spp", "5", "-o", str(tmp_path / "rep"),
-                 "--json"]) == 0
+    assert main(["report", str(tmp_path / "m.reflecto"), "--ref", str(PLASTIC), "--spp", "5",
+                 "-o", str(tmp_path / "rep"), "--json"]) == 0
     page = Path(_json_out(capsys)["output"]).read_text()
     assert sample_count(5) == 16 and page.count(" 16 spp).") >= 4 and " 64 spp" not in page
     for scene in ("sphere-env", "sphere-point"):
@@ -409,8 +416,8 @@ def test_report_renders_at_the_requested_spp(tmp_path, capsys):
 # ------------------------------------------------------------------ every option runs somewhere
 #: Options no test runs as ``[command, ..., option]`` literally, and why.
 NOT_RUN_LITERALLY = {
-    ("tabulate", "--json"): "test_cli.test_json_on_every_result_command runs it as [*argv, '--json'] (checks the output path)",
-    ("export", "--json"): "test_cli.test_json_on_every_result_command runs it as [*argv, '--json'] (checks format and bytes)",
+    ("tabulate", "--json"): "test_cli.test_json_on_every_result_command runs [*argv, '--json'] (checks the output)",
+    ("export", "--json"): "test_cli.test_json_on_every_result_command runs [*argv, '--json'] (checks format, bytes)",
 }
 
 
@@ -429,8 +436,9 @@ def test_every_documented_option_is_run_by_a_test():
         if path.name == "test_fuzz.py":
             continue
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, ast.List) and node.elts and isinstance(node.elts[0], ast.Constant) and node.elts[0].value in sub:
-                run.setdefault(node.elts[0].value, set()).update(
+            first = node.elts[0] if isinstance(node, ast.List) and node.elts else None
+            if isinstance(first, ast.Constant) and first.value in sub:
+                run.setdefault(first.value, set()).update(
                     e.value for e in node.elts if isinstance(e, ast.Constant) and isinstance(e.value, str))
     missing = []
     for name, parser in sub.items():

@@ -110,7 +110,8 @@ def test_every_compiled_kernel_has_a_twin():
     for helper, users in INLINED_INTO.items():
         module, name = helper.rsplit(".", 1)
         src = (PACKAGE / Path(*module.split(".")[1:])).with_suffix(".py").read_text(encoding="utf-8")
-        tree = {n.name: ast.get_source_segment(src, n) for n in ast.walk(ast.parse(src)) if isinstance(n, ast.FunctionDef)}
+        tree = {n.name: ast.get_source_segment(src, n) for n in ast.walk(ast.parse(src))
+                if isinstance(n, ast.FunctionDef)}
         for user in users:
             assert f"{name}(" in tree[user], (helper, user)
             # the user is a twin-tested kernel, or itself a helper inlined into one
@@ -223,8 +224,9 @@ def test_cube_lookup(n):
     rng = np.random.default_rng(n)
     values = rng.random(c.size)
     padded = c.pad_numpy(values)
-    seams = np.array([[1, 1, 1], [-1, 1, 1], [1, 0, 1], [1, 1, 0], [0, 0, 1], [1, 0, 0], [0, -1, 0], [1, 1, -0.3]], float)
-    dirs = np.concatenate([random_directions(rng, 3000), rng.normal(size=(300, 3)), seams / np.linalg.norm(seams, axis=1)[:, None]])
+    seams = np.array([[1, 1, 1], [-1, 1, 1], [1, 0, 1], [1, 1, 0], [0, 0, 1], [1, 0, 0], [0, -1, 0], [1, 1, -0.3]])
+    seams /= np.linalg.norm(seams, axis=1)[:, None]
+    dirs = np.concatenate([random_directions(rng, 3000), rng.normal(size=(300, 3)), seams])
     out = np.empty(len(dirs))
     _kernels.cube_lookup(padded, c._pad_offsets, c.n, _kernels.as_dirs(dirs), out)
     assert np.allclose(out, c.lookup_numpy(values, dirs, padded), rtol=1e-13, atol=1e-15)
@@ -533,7 +535,8 @@ def test_pair_residuals_jac():
         jac = np.empty((2, n))
         _kernels.pair_residuals_jac(*args, eta, kd / np.pi, level, jac)
         h = 1e-6
-        d_eta = (pair_residuals_numpy(*args, eta + h, kd, level) - pair_residuals_numpy(*args, eta - h, kd, level)) / (2 * h)
+        d_eta = (pair_residuals_numpy(*args, eta + h, kd, level)
+                 - pair_residuals_numpy(*args, eta - h, kd, level)) / (2 * h)
         hk = 1e-7  # in k_d/π
         d_kd = (pair_residuals_numpy(*args, eta, (kd / np.pi + hk) * np.pi, level)
                 - pair_residuals_numpy(*args, eta, (kd / np.pi - hk) * np.pi, level)) / (2 * hk)
@@ -746,7 +749,8 @@ def test_normal_equations():
     jz[np.arange(n), j + 1] += spec * t
     full = np.concatenate([jz, dcols], axis=1)
     jtj, jtr = full.T @ (w[:, None] * full), full.T @ (w * r)
-    assert np.allclose(out[0], np.diag(jtj)[:k], rtol=1e-11) and np.allclose(out[1], np.diag(jtj, 1)[: k - 1], rtol=1e-11)
+    assert np.allclose(out[0], np.diag(jtj)[:k], rtol=1e-11)
+    assert np.allclose(out[1], np.diag(jtj, 1)[: k - 1], rtol=1e-11)
     assert np.allclose(out[2], jtj[:k, k:], rtol=1e-11, atol=1e-12) and np.allclose(out[3], jtj[k:, k:], rtol=1e-11)
     assert np.allclose(out[4], jtr[:k], rtol=1e-11, atol=1e-12) and np.allclose(out[5], jtr[k:], rtol=1e-11)
 

@@ -84,8 +84,8 @@ def _run_block(kind: str, items: list, cwd: Path, env: dict[str, str]) -> list[t
         r = subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
         times.append((shown.splitlines()[0] if kind == "sh" else "python block", time.perf_counter() - t0))
         assert r.returncode == 0, f"README {kind} command failed (exit {r.returncode}):\n{shown}\n--- stderr:\n{r.stderr[-3000:]}"
-        OUTPUTS.append((kind, item if kind == "python" else item[len(_reflecto()):] if item[0] == _reflecto()[0] else item,
-                        r.stdout))
+        readme_argv = item[len(_reflecto()):] if kind == "sh" and item[0] == _reflecto()[0] else item
+        OUTPUTS.append((kind, readme_argv, r.stdout))
         if kind == "sh" and "-o" in item:  # the output it names exists
             out = cwd / item[item.index("-o") + 1]
             assert out.exists(), f"README command wrote no {out.relative_to(cwd)}:\n{shown}"
@@ -130,7 +130,7 @@ def _numbers(text: str) -> list[float]:
 
 
 def _output(*prefix: str) -> str:
-    """stdout of the README's sh command that starts with ``prefix`` (after ``reflecto``)."""
+    """The stdout of the README's sh command that starts with ``prefix`` (after ``reflecto``)."""
     hits = [out for kind, argv, out in OUTPUTS if kind == "sh" and tuple(argv[: len(prefix)]) == prefix]
     assert len(hits) == 1, (prefix, len(hits))
     return hits[0]
@@ -144,12 +144,12 @@ def _summary(line_start: str, text: str) -> dict[str, list[float]]:
 
 def _check_printed_numbers(work: Path) -> None:
     """The numbers the README's commands and Python tour print, against ground truth: the
-    analytic sources' own parameters and albedo, and the accuracy docs/ reports for them."""
+    analytic sources' own parameters and albedo, and bounds on the reconstruction's accuracy."""
     import ast
     import json
 
-    from reflecto.evaluate.metrics import max_albedo
     from reflecto import load_source
+    from reflecto.evaluate.metrics import max_albedo
 
     plastic = json.loads((ROOT / "examples" / "ggx-plastic.json").read_text())
     src = load_source(ROOT / "examples" / "ggx-plastic.json")
@@ -178,7 +178,8 @@ def _check_printed_numbers(work: Path) -> None:
     # the Python tour: its truth (parsed from the block), a 5° tilt, printed η, k_d, k_s, tilt, isotropy,
     # eq. 10 and the Cook–Torrance fit
     source, out = next((item, out) for kind, item, out in OUTPUTS if kind == "python" and "simulate_capture" in item)
-    call = next(n for n in ast.walk(ast.parse(source)) if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "AnalyticBRDF")
+    call = next(n for n in ast.walk(ast.parse(source))
+                if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "AnalyticBRDF")
     truth = {k.arg: ast.literal_eval(k.value) for k in call.keywords}
     tilt = next(ast.literal_eval(k.value) for n in ast.walk(ast.parse(source)) if isinstance(n, ast.Call)
                 for k in n.keywords if k.arg == "tilt_deg")
