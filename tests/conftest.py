@@ -27,3 +27,53 @@ def random_directions(rng: np.random.Generator, n: int, max_theta_deg: float = 9
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+# ------------------------------------------------------------ dependencies
+import importlib  # noqa: E402
+import os  # noqa: E402
+import shutil  # noqa: E402
+
+
+def in_ci() -> bool:
+    """True when the ``CI`` environment variable says so (``CI=true``, as GitHub Actions and most CIs set it)."""
+    return os.environ.get("CI", "").strip().lower() in ("true", "1", "yes")
+
+
+def missing(reason: str) -> None:
+    """A dependency that ``make test`` installs is absent: skip here, fail under ``CI=true``.
+
+    ``make test`` installs Mitsuba, ``distributed``, LLVM and Chromium (Makefile), so in CI
+    their absence is a broken install, not a reason to leave the suite green.
+    """
+    if in_ci():
+        pytest.fail(f"{reason} (CI=true: `make test` installs this dependency, so its absence fails)", pytrace=False)
+    pytest.skip(reason)
+
+
+def require(*names: str):
+    """The first of ``names`` that is available: an importable module (returned imported) or
+    an executable on the PATH (its path returned). Otherwise :func:`missing` (skip; fail in CI).
+    """
+    for name in names:
+        try:
+            return importlib.import_module(name)
+        except ImportError:
+            pass
+        if shutil.which(name):
+            return shutil.which(name)
+    missing(f"none of {', '.join(names)} is available")
+
+
+def require_mitsuba(llvm: bool = False):
+    """``(mitsuba, variant)`` from :func:`reflecto.mitsuba_support.import_mitsuba`; with ``llvm``
+    the vectorised ``llvm_ad_rgb`` variant is required (it needs LLVM >= 16, ``make sysdeps``)."""
+    try:
+        from reflecto.mitsuba_support import import_mitsuba
+
+        mi, variant = import_mitsuba("llvm_ad_rgb")
+    except ImportError as e:
+        missing(f"Mitsuba 3 cannot be imported here ({e}); install with `pip install mitsuba`")
+    if llvm and not variant.startswith("llvm"):
+        missing("needs Mitsuba's vectorised llvm_ad_rgb variant (LLVM >= 16; `make sysdeps` installs libllvm19)")
+    return mi, variant

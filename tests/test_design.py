@@ -6,6 +6,8 @@ import math
 import numpy as np
 import pytest
 
+from conftest import require
+
 from reflecto.evaluate import design as ds
 from reflecto.hemicube import hemicube
 from reflecto.instrument import layout
@@ -138,7 +140,7 @@ def test_design_study_is_resumable_and_its_paper_row_is_the_sweeps_device(tmp_pa
 
 @pytest.fixture(scope="module")
 def cluster():
-    distributed = pytest.importorskip("distributed")
+    distributed = require("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
         yield c
 
@@ -172,7 +174,7 @@ def test_an_unreachable_scheduler_is_one_error(monkeypatch):
     batch = importlib.import_module("reflecto.batch")
     from reflecto.batch import run_batch
 
-    pytest.importorskip("distributed")
+    require("distributed")
     monkeypatch.setattr(batch, "DASK_CONNECT_TIMEOUT_S", 1.0)
     with pytest.raises(ReflectoError, match="cannot reach the Dask scheduler"):
         run_batch(abs, [(1,)], ["x"], 1, lambda *a: None, scheduler="tcp://127.0.0.1:9")

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import ROOT, random_directions
+from conftest import ROOT, random_directions, require_mitsuba
 from isotropic_model import TabulatedIsotropic
 from reflecto.cli import main
 from reflecto.errors import FileFormatError
@@ -53,12 +53,7 @@ def test_rgl_export_reproduces_the_model(name, tmp_path):
 
 
 def test_rgl_export_read_by_mitsuba(tmp_path):
-    try:
-        from reflecto.mitsuba_support import import_mitsuba
-
-        mi, variant = import_mitsuba("llvm_ad_rgb")
-    except ImportError as e:
-        pytest.skip(f"Mitsuba 3 unavailable: {e}")
+    mi, variant = require_mitsuba()
     m = _model("anisotropic")
     path = export_rgl(m, tmp_path / "a.bsdf")
     rng = np.random.default_rng(5)
@@ -199,12 +194,10 @@ def test_mitsuba_evaluates_the_export_as_the_model(chrome_steel, tmp_path):
     """The hardest case: Mitsuba's ``measured`` plugin on the exported file against
     reflecto's model, eq. 10 (measured 1.15 %).
     """
-    try:
-        from reflecto.mitsuba_support import MitsubaMeasured
+    require_mitsuba()
+    from reflecto.mitsuba_support import MitsubaMeasured
 
-        mts = MitsubaMeasured(export_rgl(chrome_steel, tmp_path / "cs.bsdf"))
-    except ImportError as e:
-        pytest.skip(f"Mitsuba 3 unavailable: {e}")
+    mts = MitsubaMeasured(export_rgl(chrome_steel, tmp_path / "cs.bsdf"))
     stride = 1 if mts.variant.startswith("llvm") else 15  # scalar_rgb evaluates pair by pair
     assert brdf_error(chrome_steel, mts, stride=stride).normalized <= 0.02
 
@@ -232,14 +225,7 @@ def test_mitsuba_samples_the_export_by_its_value(theta_deg, tmp_path):
     weight 3-8× the albedo. An analytic source evaluated exactly at the horizon for
     the 90° slice once gave mean weights of 30-2000 above θ_i = 88°.
     """
-    try:
-        from reflecto.mitsuba_support import import_mitsuba
-
-        mi, variant = import_mitsuba("llvm_ad_rgb")
-    except ImportError as e:
-        pytest.skip(f"Mitsuba 3 unavailable: {e}")
-    if not variant.startswith("llvm"):
-        pytest.skip("needs a vectorised Mitsuba variant")
+    mi, variant = require_mitsuba(llvm=True)
     rng = np.random.default_rng(1)
     n = 200_000
     t = np.radians(theta_deg)

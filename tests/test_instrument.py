@@ -231,6 +231,26 @@ def test_optimizer_respects_constraints():
     leds = layout.optimize_layout(o, resolution=16, maxiter=3)
     assert layout.layout_violations(o, leds) == []
     assert np.allclose(leds[0], layout.led_direction(5.0, 0.0))
+    cosines = leds @ leds.T
+    np.fill_diagonal(cosines, -1.0)
+    assert np.degrees(np.arccos(cosines.max())) >= 12.0  # min_separation_deg
+    # it optimizes: its weighted goals beat every legal layout among 400 random draws of the
+    # same free LEDs (only a few are legal; the best scored 0.99 against the optimum's 1.16),
+    # and come within 3 % of the paper's hand-placed layout (1.17 at this resolution)
+    from reflecto.hemicube import hemicube
+
+    goals = layout.LayoutObjective(o, hemicube(16))
+    weights = np.array(layout.LAYOUT_WEIGHTS)
+
+    def score(x):
+        return float(weights @ np.array(goals.terms(x)[:3]))
+
+    rng = np.random.default_rng(1)
+    drawn = [np.concatenate([leds[:1], layout.led_direction(rng.uniform(layout.MIN_ELEVATION_DEG, 80.0, 5),
+                                                            rng.uniform(0.0, 360.0, 5))]) for _ in range(400)]
+    legal = [score(x) for x in drawn if not layout.layout_violations(o, x)]
+    assert legal and score(leds) >= max(legal) + 0.1, (score(leds), sorted(legal))
+    assert score(leds) >= 0.97 * score(Device.builtin("ideal").leds)
     with pytest.raises(ParameterError, match="inside the view cone"):
         Device("bad", o, ((5.0, 0.0), (80.0, 0.0)), Device.builtin("ideal").camera)
 

@@ -3,6 +3,8 @@
 import numpy as np
 import pytest
 
+from conftest import require_mitsuba
+
 from reflecto.cli import main
 from reflecto.render.mitsuba import (DEFAULT_SPP, SMOOTHING_PX, compare, image_difference, object_mask, render,
                                      sample_count)
@@ -16,12 +18,7 @@ MIRROR = AnalyticBRDF(distribution="beckmann", alpha=0.01, kd=0.05, ks=0.9, eta=
 
 @pytest.fixture(scope="module")
 def mitsuba():
-    try:
-        from reflecto.mitsuba_support import import_mitsuba
-
-        return import_mitsuba("llvm_ad_rgb")
-    except ImportError as e:
-        pytest.skip(f"Mitsuba 3 unavailable: {e}")
+    return require_mitsuba()
 
 
 def test_every_visible_point_of_the_sphere_is_lit():

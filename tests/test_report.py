@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from conftest import require
+
 from reflecto.cli import main
 from reflecto.evaluate.report import write_index, write_report
 from reflecto.model import MicrofacetBRDF
@@ -30,9 +32,7 @@ def _chromium() -> str | None:
 
 
 def _load_in_chromium(page: Path, screenshot: Path | None = None) -> tuple[str, list[str]]:
-    exe = _chromium()
-    if exe is None:
-        pytest.skip("no Chromium here (CI installs Debian's chromium via `make sysdeps`)")
+    exe = _chromium() or require("chromium", "chromium-browser", "google-chrome")  # skips here, fails in CI
     base = [exe, "--headless=new", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--virtual-time-budget=8000"]
     dom = subprocess.run([*base, "--enable-logging=stderr", "--v=0", "--dump-dom", page.as_uri()],
                          capture_output=True, text=True, timeout=120)

@@ -7,7 +7,7 @@ from reflecto.errors import FileFormatError
 from reflecto.sources import RGLBRDF
 from reflecto.load import load_source
 from reflecto.sources.rgl import read_tensor_file
-from conftest import random_directions
+from conftest import random_directions, require_mitsuba
 
 
 def _files(shared):
@@ -29,12 +29,7 @@ def test_all_shared_rgl_files_load_and_evaluate(shared, rng):
 
 
 def test_agrees_with_mitsuba_measured_plugin(shared):
-    try:
-        from reflecto.mitsuba_support import import_mitsuba
-
-        mi, variant = import_mitsuba("llvm_ad_rgb")
-    except ImportError as e:
-        pytest.skip(f"Mitsuba 3 cannot be imported here ({e}); install with `pip install mitsuba`")
+    mi, variant = require_mitsuba()
     rng = np.random.default_rng(7)
     n = 100_000 if variant.startswith("llvm") else 3_000
     i, o = random_directions(rng, n, 80), random_directions(rng, n, 80)

@@ -4,6 +4,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 
 from reflecto.evaluate.cooktorrance import CookTorrance, fit_cook_torrance
 from reflecto.evaluate.metrics import brdf_error, metric_grid
@@ -18,6 +19,21 @@ def test_metric_reproduces_itself_on_a_merl_tabulation(shared):
     tab = merl.MerlBRDF.from_table(merl.tabulate(src), name="blue-fabric")
     err = brdf_error(src, tab)
     assert err.normalized <= 1e-3 and err.log_rmse <= 1e-3
+    # and a metric that returned 0 would fail: a copy offset by δ has eq. 10's error δ rms(cos θ_i)
+    # on every channel (the weights of AR 6.3 only), and one scaled by 1.1 has 0.1 × the tabulation's
+    # cosine-weighted RMS; both normalized by the source's largest albedo
+    g = metric_grid(1)
+    rms_cos = math.sqrt(np.sum(g.w * g.i[:, 2] ** 2) / np.sum(g.w))
+    delta = 0.01 / math.pi
+    shifted = brdf_error(src, merl.MerlBRDF.from_table(tab.table + delta, name="shifted"))
+    assert np.allclose(shifted.rmse, delta * rms_cos, rtol=2e-3), (shifted.rmse, delta * rms_cos)
+    assert shifted.normalized == pytest.approx(delta * rms_cos / err.albedo_ref, rel=2e-3)
+    r = tab.table.reshape(-1, 3)[g.flat] * g.i[:, 2:3]  # R cos θ_i on the grid
+    scaled = brdf_error(src, merl.MerlBRDF.from_table(1.1 * tab.table, name="scaled"))
+    expect = 0.1 * np.sqrt(np.sum(g.w[:, None] * r**2, axis=0) / np.sum(g.w))
+    assert np.allclose(scaled.rmse, expect, rtol=2e-3) and scaled.rmse.min() > 0, (scaled.rmse, expect)
+    log_expect = np.sqrt(np.sum(g.w[:, None] * (np.log1p(1.1 * r) - np.log1p(r)) ** 2, axis=0) / np.sum(g.w)).mean()
+    assert scaled.log_rmse == pytest.approx(log_expect, rel=2e-2) and scaled.log_rmse > 0
 
 
 def test_lambertian_of_the_right_albedo_has_zero_error_and_the_wrong_one_does_not():

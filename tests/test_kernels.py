@@ -1,0 +1,831 @@
+"""A NumPy twin for every compiled (Numba) kernel.
+
+Each test below runs one kernel on random inputs (fixed seeds), including empty and
+boundary inputs, and compares it with a NumPy reference: the package's own ``*_numpy``
+reference where it has one, otherwise one written here from the kernel's documented
+formula (vectorized, not a transcription of its loops). ``@twin(...)`` registers the
+test as the twin of the kernels it checks; :func:`test_every_compiled_kernel_has_a_twin`
+finds every ``@njit`` function in the package (by reading the source) and fails if one
+has no twin here. Helpers compiled with ``inline="always"`` are checked through the
+kernels they are inlined into (:data:`INLINED_INTO`).
+
+The inputs use the dtypes and memory layouts of the package's own calls, so that the
+kernels' cached compilations are reused (a new signature would compile for seconds).
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import reflecto
+from conftest import random_directions
+from reflecto import _kernels
+from reflecto.colour import LUM
+from reflecto.hemicube import hemicube
+from reflecto.reconstruct import _polar_kernels
+
+PACKAGE = Path(reflecto.__file__).resolve().parent
+
+#: kernel qualname → names of the tests that compare it with NumPy
+TWINS: dict[str, list[str]] = {}
+
+
+def twin(*kernels: str):
+    """Register the decorated test as the NumPy twin of ``kernels`` (``module.function``)."""
+
+    def register(test):
+        for k in kernels:
+            TWINS.setdefault(k, []).append(test.__name__)
+        return test
+
+    return register
+
+
+#: Helpers compiled with ``inline="always"`` → the twin-tested kernels that inline them.
+INLINED_INTO = {
+    "reflecto._kernels._unit": ("bin_finish", "ct_lobe"),
+    "reflecto._kernels._face_coords": ("_cube_lookup", "_texel"),
+    "reflecto._kernels._cube_lookup": ("cube_lookup", "mirror_distances", "model_eval"),
+    "reflecto._kernels._bilinear": ("_cube_lookup", "_upsample"),
+    "reflecto._kernels._sigma_lookup": ("model_eval",),
+    "reflecto._kernels._upsample": ("upsample", "pull"),
+    "reflecto._kernels._texel": ("cube_index", "bin_accumulate", "splat"),
+    "reflecto._kernels._fresnel": ("fresnel_flat", "pair_residuals"),
+    "reflecto._kernels._fresnel_dlog": ("pair_residuals_jac",),
+}
+
+
+# ----------------------------------------------------------------------------- discovery
+def _is_compiled(decorator: ast.expr) -> tuple[bool, bool]:
+    """(a Numba decorator?, with ``inline="always"``?)"""
+    call = decorator if isinstance(decorator, ast.Call) else None
+    target = call.func if call else decorator
+    name = target.attr if isinstance(target, ast.Attribute) else getattr(target, "id", "")
+    if name not in ("njit", "jit", "vectorize", "guvectorize", "cfunc", "generated_jit"):
+        return False, False
+    inline = any(k.arg == "inline" and isinstance(k.value, ast.Constant) and k.value.value == "always"
+                 for k in (call.keywords if call else []))
+    return True, inline
+
+
+def compiled_functions() -> dict[str, bool]:
+    """Every Numba-compiled function of the package: ``module.name`` → inlined helper?"""
+    found = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        text = path.read_text(encoding="utf-8")
+        if "numba" not in text:
+            continue
+        module = ".".join(("reflecto",) + path.relative_to(PACKAGE).with_suffix("").parts).removesuffix(".__init__")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.FunctionDef):
+                for d in node.decorator_list:
+                    compiled, inline = _is_compiled(d)
+                    if compiled:
+                        found[f"{module}.{node.name}"] = inline
+    return found
+
+
+def test_every_compiled_kernel_has_a_twin():
+    from numba.core.registry import CPUDispatcher
+
+    found = compiled_functions()
+    # the source scan misses nothing the modules compile (e.g. an ``njit(f)`` call form)
+    for module in {k.rsplit(".", 1)[0] for k in found}:
+        mod = importlib.import_module(module)
+        dispatchers = {f"{module}.{name}" for name, obj in vars(mod).items()
+                       if isinstance(obj, CPUDispatcher) and obj.py_func.__module__ == module}
+        assert dispatchers == {k for k in found if k.startswith(module + ".")}, module
+    kernels = sorted(k for k, inline in found.items() if not inline)
+    helpers = sorted(k for k, inline in found.items() if inline)
+    assert len(kernels) >= 28, kernels  # issue 40 counted 28
+    assert not [k for k in kernels if k not in TWINS], "compiled kernels without a NumPy twin test"
+    assert not [k for k in TWINS if k not in found], "twins of kernels that no longer exist"
+    assert sorted(INLINED_INTO) == helpers, "inlined helpers: name the kernels that test them"
+    for helper, users in INLINED_INTO.items():
+        module, name = helper.rsplit(".", 1)
+        src = (PACKAGE / Path(*module.split(".")[1:])).with_suffix(".py").read_text(encoding="utf-8")
+        tree = {n.name: ast.get_source_segment(src, n) for n in ast.walk(ast.parse(src))
+                if isinstance(n, ast.FunctionDef)}
+        for user in users:
+            assert f"{name}(" in tree[user], (helper, user)
+            # the user is a twin-tested kernel, or itself a helper inlined into one
+            assert f"{module}.{user}" in TWINS or f"{module}.{user}" in INLINED_INTO, (helper, user)
+
+
+# ----------------------------------------------------------------------------- instrument
+@twin("reflecto._kernels.expose")
+@pytest.mark.parametrize("gamma", [0.0, 2.2])
+@pytest.mark.parametrize("noise", ["none", "read", "shot"])
+def test_expose(noise, gamma):
+    """Electrons ``e = clip(signal, 0) t`` (at most 4 wells), plus read noise ``r z`` or, with
+    shot noise, Poisson below ``gauss_above`` and ``√(e + r²) z`` above; clipped to the well;
+    then 8-bit gamma ``255 (e/well)^(1/γ)`` or linear ``black + e/gain``, rounded (half to
+    even) and clipped to the ADC range."""
+    rng = np.random.default_rng(11)
+    n = 5000
+    # negative, zero, far over the well, and half-DN ties (e = 1, 3 electrons: 64.5, 65.5 DN)
+    signal = np.concatenate([rng.exponential(40.0, n), rng.uniform(0, 20, 200), [-5.0, 0.0, 1e9, 0.5, 1.5]])
+    t, well, rn, gain, black, top, above = 2.0, 3000.0, 3.0, 2.0, 64.0, 4095.0, 30.0
+    shot = noise == "shot"
+    z = rng.standard_normal(len(signal), dtype=np.float32) if noise != "none" else np.empty(0)
+    pois = rng.poisson(np.clip(signal * t, 0, above)).astype(np.float64) if shot else np.zeros(len(signal))
+    out = np.empty(len(signal), dtype=np.uint8 if gamma > 0 else np.uint16)
+    _kernels.expose(signal, t, z, pois, well, rn, shot, above, gamma, gain, black, top, out)
+
+    e = np.minimum(np.maximum(signal, 0.0) * t, 4.0 * well)
+    z64 = z.astype(np.float64)
+    if noise == "read":
+        e = e + rn * z64
+    elif shot:
+        e = np.where(e < above, pois + rn * z64, e + np.sqrt(e + rn * rn) * z64)
+    e = np.minimum(e, well)
+    if gamma > 0:
+        ref = np.clip(np.rint(255.0 * np.maximum(e / well, 0.0) ** (1.0 / gamma)), 0, 255)
+    else:
+        ref = np.clip(np.rint(black + e / gain), 0, top)
+    assert np.array_equal(out, ref.astype(out.dtype))
+    if noise == "none" and gamma == 0:
+        assert out[-3:].tolist() == [int(black + well / gain), 64, 66]  # a full well; half-DN ties round to even
+    empty = np.empty(0, dtype=out.dtype)
+    _kernels.expose(np.empty(0), t, np.empty(0), np.empty(0), well, rn, shot, above, gamma, gain, black, top, empty)
+
+
+def _merge_linear_numpy(raw, rows, cols, t, black, sat, dark, black_limit):
+    """The linear HDR merge from its definition: per pixel, the exposures not saturated in
+    any channel; the longest of them always counts, a shorter one only if its largest
+    channel reaches ``dark`` DN above black; radiance ``Σ (z − black) / Σ t`` over those used;
+    near-black where only the longest counts and it reads below ``black_limit``."""
+    z = raw[:, :, rows, cols, :].astype(np.float64)  # (L, E, P, 3)
+    s = z - black
+    ok = z.max(axis=-1) < sat  # (L, E, P)
+    top = s.max(axis=-1)
+    order = np.argsort(-t, kind="stable")  # longest first
+    ok_sorted = ok[:, order]
+    first = np.argmax(ok_sorted, axis=1)  # index (in order) of the longest usable exposure
+    longest = np.zeros_like(ok)
+    has_any = ok_sorted.any(axis=1)
+    li, pi = np.nonzero(has_any)
+    longest[li, order[first[li, pi]], pi] = True
+    used = ok & (longest | (top >= dark))
+    t_sum = np.einsum("lep,e->lp", used, t)
+    n_used = used.sum(axis=1).astype(np.float64)
+    acc = np.einsum("lepc,lep->lpc", s, used)
+    valid = t_sum > 0
+    out = np.where(valid[..., None], acc / np.where(valid, t_sum, 1.0)[..., None], 0.0)
+    top_longest = np.where(longest, top, np.inf).min(axis=1)
+    near_black = valid & (n_used == 1) & (top_longest < black_limit)
+    return out, valid, near_black, t_sum, n_used
+
+
+@twin("reflecto._kernels.merge_linear")
+def test_merge_linear():
+    from reflecto.instrument import hdr
+
+    rng = np.random.default_rng(5)
+    n_l, n_e, h, w = 3, 3, 9, 11
+    top = 4095
+    raw = rng.integers(60, 200, (n_l, n_e, h, w, 3)).astype(np.uint16)
+    raw[rng.random((n_l, n_e, h, w)) < 0.2] = top  # saturated
+    raw[:, :, 0, :, :] = rng.integers(64, 66, (n_l, n_e, w, 3))  # near black: 0-1 DN
+    raw[:, :, 1, :2, :] = top  # saturated in every exposure: invalid
+    raw[0, :, 2, 3, 1] = top  # one channel saturates the whole pixel
+    t = np.array([4.0, 1.0, 16.0])  # exposures out of order
+    rows, cols = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    rows, cols = rows.ravel().astype(np.intp), cols.ravel().astype(np.intp)
+    black, sat = 64.0, hdr.SATURATION * top
+    shape = (n_l, len(rows))
+    out, valid, near, t_sum, n_used = (np.empty(shape + (3,)), np.empty(shape, bool), np.empty(shape, bool),
+                                       np.empty(shape), np.empty(shape))
+    _kernels.merge_linear(raw, rows, cols, t, black, sat, hdr.DARK_DN, hdr.BLACK_DN, out, valid, near, t_sum, n_used)
+    ref = _merge_linear_numpy(raw, rows, cols, t, black, sat, hdr.DARK_DN, hdr.BLACK_DN)
+    assert np.allclose(out, ref[0], rtol=1e-14, atol=0)
+    for a, b in zip((valid, near, t_sum, n_used), ref[1:]):
+        assert np.array_equal(a, b)
+    assert (~valid).any() and near.any() and (n_used >= 2).any()  # every branch was taken
+    empty = np.empty(0, np.intp)
+    e_out = np.empty((n_l, 0, 3))
+    _kernels.merge_linear(raw, empty, empty, t, black, sat, hdr.DARK_DN, hdr.BLACK_DN, e_out, np.empty((n_l, 0), bool),
+                          np.empty((n_l, 0), bool), np.empty((n_l, 0)), np.empty((n_l, 0)))
+
+
+# ----------------------------------------------------------------------------- hemicube
+@twin("reflecto._kernels.cube_lookup")
+@pytest.mark.parametrize("n", [4, 8, 16])
+def test_cube_lookup(n):
+    """Bilinear lookup: equal to :meth:`Hemicube.lookup_numpy`; the texel value at a texel
+    centre; exact on a function linear in the top face's (u, v) = (x/z, y/z) inside it."""
+    c = hemicube(n)
+    rng = np.random.default_rng(n)
+    values = rng.random(c.size)
+    padded = c.pad_numpy(values)
+    seams = np.array([[1, 1, 1], [-1, 1, 1], [1, 0, 1], [1, 1, 0], [0, 0, 1], [1, 0, 0], [0, -1, 0], [1, 1, -0.3]])
+    seams /= np.linalg.norm(seams, axis=1)[:, None]
+    dirs = np.concatenate([random_directions(rng, 3000), rng.normal(size=(300, 3)), seams])
+    out = np.empty(len(dirs))
+    _kernels.cube_lookup(padded, c._pad_offsets, c.n, _kernels.as_dirs(dirs), out)
+    assert np.allclose(out, c.lookup_numpy(values, dirs, padded), rtol=1e-13, atol=1e-15)
+    centres = np.empty(c.size)
+    _kernels.cube_lookup(padded, c._pad_offsets, c.n, np.ascontiguousarray(c.directions), centres)
+    assert np.allclose(centres, values, rtol=1e-12, atol=1e-13)
+    # linear in (u, v) on the top face: exact between the texel centres
+    top = c.directions[: n * n]
+    u, v = top[:, 0] / top[:, 2], top[:, 1] / top[:, 2]
+    lin = np.zeros(c.size)
+    lin[: n * n] = 1.0 + 2.0 * u - 3.0 * v
+    inner = 1.0 - 1.0 / n  # the outermost texel centres
+    uu, vv = rng.uniform(-inner, inner, (2, 500))
+    d = np.stack([uu, vv, np.ones(500)], axis=1)
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    got = np.empty(500)
+    _kernels.cube_lookup(c.pad_numpy(lin), c._pad_offsets, c.n, d, got)
+    assert np.allclose(got, 1.0 + 2.0 * uu - 3.0 * vv, rtol=0, atol=1e-12)
+    _kernels.cube_lookup(padded, c._pad_offsets, c.n, np.empty((0, 3)), np.empty(0))
+
+
+@twin("reflecto._kernels.pad_border")
+@pytest.mark.parametrize("n", [4, 16])
+def test_pad_border(n):
+    """The padded copy: ``Σ_j values[src_j] w_j`` at every padded texel (:meth:`Hemicube.pad_numpy`)."""
+    c = hemicube(n)
+    values = np.random.default_rng(1).random(c.size)
+    assert np.allclose(c.pad(values), c.pad_numpy(values), rtol=1e-14, atol=1e-15)
+    out = np.full(len(c._pad_src), -7.0)
+    _kernels.pad_border(values, c._pad_border, c._pad_src, c._pad_w, out)
+    ref = np.sum(values[c._pad_src] * c._pad_w, axis=1)
+    assert np.allclose(out[c._pad_border], ref[c._pad_border], rtol=1e-14, atol=1e-15)
+    inner = np.ones(len(out), bool)
+    inner[c._pad_border] = False
+    assert np.all(out[inner] == -7.0)  # only the border is written
+
+
+@twin("reflecto._kernels.scatter_add")
+def test_scatter_add():
+    """``out[index[k]] += values[k]`` row by row: ``np.add.at``."""
+    rng = np.random.default_rng(2)
+    values = rng.normal(size=(4000, 2))
+    index = rng.integers(0, 50, 4000).astype(np.intp)
+    out = rng.normal(size=(50, 2))
+    ref = out.copy()
+    np.add.at(ref, index, values)
+    _kernels.scatter_add(values, index, out)
+    assert np.allclose(out, ref, rtol=1e-12, atol=1e-12)
+    _kernels.scatter_add(np.empty((0, 2)), np.empty(0, np.intp), out)
+    assert np.allclose(out, ref, rtol=1e-12, atol=1e-12)
+    c = hemicube(16)  # the block sums of Hemicube.block_reduce
+    v = rng.random((c.size, 2))
+    assert np.allclose(c.block_reduce(v, 4), c.block_reduce_numpy(v, 4), rtol=1e-13, atol=0)
+
+
+@twin("reflecto._kernels.cube_index")
+@pytest.mark.parametrize("n", [4, 8, 64])
+def test_cube_index(n):
+    """Nearest texel: :meth:`Hemicube.index_numpy`; each texel centre is its own texel; the
+    index does not depend on the length of the direction."""
+    c = hemicube(n)
+    rng = np.random.default_rng(3)
+    dirs = np.concatenate([random_directions(rng, 5000), rng.normal(size=(500, 3)), [[0, 0, 1], [1, 1, 1], [1, 0, 0]]])
+    out = np.empty(len(dirs), np.intp)
+    _kernels.cube_index(n, _kernels.as_dirs(dirs), out)
+    assert np.array_equal(out, c.index_numpy(dirs))
+    _kernels.cube_index(n, _kernels.as_dirs(3.7 * dirs), out)
+    assert np.array_equal(out, c.index_numpy(dirs))
+    centres = np.empty(c.size, np.intp)
+    _kernels.cube_index(n, np.ascontiguousarray(c.directions), centres)
+    assert np.array_equal(centres, np.arange(c.size))
+    _kernels.cube_index(n, np.empty((0, 3)), np.empty(0, np.intp))
+
+
+@twin("reflecto._kernels.splat")
+def test_splat():
+    """``Σw`` and ``Σw v`` per nearest texel: ``np.bincount`` (:meth:`Hemicube.splat_numpy`)."""
+    c = hemicube(16)
+    rng = np.random.default_rng(4)
+    d = random_directions(rng, 6000)
+    v = rng.random((6000, 3))
+    w = np.where(rng.random(6000) < 0.1, 0.0, rng.random(6000))
+    ws, wv = c.splat(d, v, w)
+    ws0, wv0 = c.splat_numpy(d, v, w)
+    assert np.allclose(ws, ws0, rtol=1e-12, atol=1e-14) and np.allclose(wv, wv0, rtol=1e-12, atol=1e-14)
+    idx = c.index_numpy(d)
+    assert np.allclose(ws, np.bincount(idx, w, c.size), rtol=1e-12, atol=1e-14)
+    ws, wv = np.zeros(c.size), np.zeros((c.size, 3))
+    _kernels.splat(c.n, np.empty((0, 3)), np.empty((0, 3)), np.empty(0), ws, wv)
+    assert not ws.any() and not wv.any()
+
+
+@pytest.mark.xfail(strict=True, raises=ValueError, reason="bug: Hemicube.splat reshapes 0 values to (0, -1)")
+def test_splat_of_no_samples_is_empty():
+    ws, wv = hemicube(8).splat(np.empty((0, 3)), np.empty((0, 3)))
+    assert not ws.any() and not wv.any()
+
+
+def _lookup_at_fine_centres(coarse, values, m):
+    """Reference of :func:`upsample`: :meth:`Hemicube.lookup_numpy` at the directions of
+    the ``m·n`` hemicube's texel centres."""
+    return coarse.lookup_numpy(values, hemicube(m * coarse.n).directions, coarse.pad_numpy(values))
+
+
+@twin("reflecto._kernels.upsample")
+@pytest.mark.parametrize("n, m", [(4, 1), (4, 2), (8, 3), (8, 4), (16, 2)])
+def test_upsample(n, m):
+    c = hemicube(n)
+    values = np.random.default_rng(n * m).random(c.size)
+    out = np.empty(hemicube(m * n).size)
+    _kernels.upsample(c.pad_numpy(values), c._pad_offsets, n, m, out)
+    assert np.allclose(out, _lookup_at_fine_centres(c, values, m), rtol=1e-12, atol=1e-13)
+    if m == 1:
+        assert np.allclose(out, values, rtol=1e-13, atol=0)  # the same texels
+    const = np.empty_like(out)
+    _kernels.upsample(c.pad_numpy(np.full(c.size, 2.5)), c._pad_offsets, n, m, const)
+    assert np.allclose(const, 2.5, rtol=1e-14, atol=0)
+
+
+@twin("reflecto._kernels.pull")
+@pytest.mark.parametrize("min_weight", [1e-12, 0.5])
+def test_pull(min_weight):
+    """One push–pull step up: ``v/w`` where ``w > min_weight``, else the coarse estimate
+    interpolated bilinearly at the fine texel's centre."""
+    coarse, fine = hemicube(8), hemicube(16)
+    rng = np.random.default_rng(6)
+    est = rng.random(coarse.size)
+    w = np.where(rng.random(fine.size) < 0.4, 0.0, rng.random(fine.size))
+    w[:5] = min_weight  # on the threshold: a hole
+    levels = np.stack([w, rng.random(fine.size) * w], axis=1)  # as push_pull passes them: column views
+    ws, vs = levels[:, 0], levels[:, 1]
+    out = np.empty(fine.size)
+    _kernels.pull(coarse.pad_numpy(est), coarse._pad_offsets, coarse.n, ws, vs, min_weight, out)
+    measured = ws > min_weight
+    ref = np.where(measured, vs / np.where(measured, ws, 1.0), _lookup_at_fine_centres(coarse, est, 2))
+    assert np.allclose(out, ref, rtol=1e-12, atol=1e-13)
+    assert np.array_equal(out[measured], vs[measured] / ws[measured])  # measured texels are never changed
+    assert 0 < measured.sum() < fine.size
+
+
+@twin("reflecto._kernels.mirror_distances")
+def test_mirror_distances():
+    """Mirror the texels ``t`` across the plane with normal ``u = cos ψ e2 + sin ψ e1``
+    (``t − 2(t·u)u``, z floored at 1e-9); keep the texels whose mirror lands on data
+    (bilinear ``has`` > 0.999) for every ψ; ``out[ψ] = Σ (v − v(mirror))² / Σ v²`` over them,
+    ``inf`` for fewer than 50 kept texels or a zero slice."""
+    c = hemicube(16)
+    rng = np.random.default_rng(8)
+    has = (c.directions[:, 2] > math.cos(math.radians(70))).astype(np.float64)
+    light = np.array([math.sin(0.6), 0.0, math.cos(0.6)])
+    x = c.directions
+    v = np.where(has > 0, np.exp(-8 * (x[:, 0] - 0.3) ** 2 - 5 * x[:, 1] ** 2) + 0.05 * rng.random(c.size), 0.0)
+    e1 = np.array([0.0, 0.0, 1.0]) - light[2] * light
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(light, e1)
+    psis = np.radians(np.arange(-12.0, 12.5, 1.0))
+
+    def reference(t, vt, pad_v, pad_has):
+        u = np.cos(psis)[:, None] * e2 + np.sin(psis)[:, None] * e1  # (Ψ, 3)
+        mir = t[None] - 2.0 * np.einsum("kc,jc->jk", t, u)[..., None] * u[:, None, :]
+        mir[..., 2] = np.maximum(mir[..., 2], 1e-9)
+        keep = np.all(c.lookup_numpy(None, mir, pad_has) > 0.999, axis=0)
+        scale = np.sum(vt[keep] ** 2)
+        if keep.sum() < 50 or scale <= 0:
+            return np.full(len(psis), np.inf), keep
+        diff = vt[None, keep] - c.lookup_numpy(None, mir[:, keep], pad_v)
+        return np.sum(diff**2, axis=1) / scale, keep
+
+    def run(mask, values):
+        t, vt = np.ascontiguousarray(c.directions[mask > 0]), np.ascontiguousarray(values[mask > 0])
+        pad_v, pad_has = c.pad_numpy(values), c.pad_numpy(mask)
+        out = np.empty(len(psis))
+        _kernels.mirror_distances(t, vt, e1, e2, psis, pad_v, pad_has, c._pad_offsets, c.n, out)
+        return out, reference(t, vt, pad_v, pad_has)
+
+    out, (ref, keep) = run(has, v)
+    assert keep.sum() >= 50 and np.all(np.isfinite(ref))
+    assert np.allclose(out, ref, rtol=1e-12, atol=1e-15)
+    assert abs(np.argmin(out) - len(psis) // 2) <= 1  # this slice is mirror-symmetric about ψ = 0 up to its noise
+    few = np.zeros(c.size)
+    few[np.argsort(-c.directions[:, 2])[:40]] = 1.0  # 40 texels with data: too few
+    out, (ref, _) = run(few, v * few)
+    assert np.all(np.isinf(out)) and np.all(np.isinf(ref))
+    out, (ref, _) = run(has, np.zeros(c.size))  # a zero slice
+    assert np.all(np.isinf(out)) and np.all(np.isinf(ref))
+
+
+# ----------------------------------------------------------------------------- model
+@twin("reflecto._kernels.quantize_ndf")
+@pytest.mark.parametrize("normalize", [True, False])
+def test_quantize_ndf(normalize):
+    """``q = f32(d)``, ``total = Σ q psa``; normalized: ``f32(q / total)``; −1 for a negative,
+    NaN or infinite value."""
+    c = hemicube(8)
+    psa = c.projected_solid_angles
+    rng = np.random.default_rng(9)
+    d = rng.gamma(0.5, 3.0, c.size)
+    out = np.empty_like(d)
+    total = _kernels.quantize_ndf(d, psa, normalize, out)
+    q = d.astype(np.float32).astype(np.float64)
+    assert total == pytest.approx(math.fsum(q * psa), rel=1e-13)
+    ref = (q / total).astype(np.float32).astype(np.float64) if normalize else q
+    assert np.array_equal(out, ref)
+    assert not normalize or math.fsum(out * psa) == pytest.approx(1.0, rel=1e-6)
+    for bad in (-1e-30, np.nan, np.inf, -np.inf):
+        dd = d.copy()
+        dd[17] = bad
+        assert _kernels.quantize_ndf(dd, psa, normalize, np.empty_like(d)) == -1.0, bad
+    zeros = np.zeros(c.size)
+    out = np.full(c.size, 9.0)
+    assert _kernels.quantize_ndf(zeros, psa, normalize, out) == 0.0 and not out.any()
+    assert _kernels.quantize_ndf(np.empty(0), np.empty(0), normalize, np.empty(0)) == 0.0
+
+
+@twin("reflecto._kernels.shadowing_at")
+def test_shadowing_at():
+    """``S = cos θ / max(σ, cos θ)`` (0 where that is 0) with σ bilinear in (θ, φ):
+    :meth:`SigmaTable.eval` (NumPy) at the stencil's directions."""
+    from reflecto.shadowing import SigmaTable, grid_stencil
+
+    rng = np.random.default_rng(10)
+    table = SigmaTable(0.7 + 0.6 * rng.random((19, 32)))
+    dirs = np.concatenate([random_directions(rng, 4000), [[0, 0, 1], [1, 0, 0], [0, -1, 0], [0.6, 0, -0.8]]])
+    st = grid_stencil(dirs, 19, 32)
+    out = np.empty(len(dirs))
+    _kernels.shadowing_at(table._flat(), table.n_phi + 1, st.idx, st.ft, st.fp, st.cos, out)
+    cos = np.maximum(dirs[:, 2], 0.0)
+    sigma = np.maximum(table.eval_sigma(dirs), cos)
+    assert np.allclose(out, np.divide(cos, sigma, out=np.zeros_like(cos), where=sigma > 0), rtol=1e-14, atol=1e-15)
+    assert np.allclose(table.eval_at(st), table.eval(dirs), rtol=1e-14, atol=1e-15)
+    assert out[-1] == 0.0  # below the horizon
+
+
+@twin("reflecto._kernels.model_eval")
+@pytest.mark.parametrize("correlated", [False, True])
+def test_model_eval(correlated):
+    """:meth:`MicrofacetBRDF.eval` (the fused kernel) against :meth:`eval_numpy`, with
+    directions below the horizon (0) and a coloured η."""
+    from reflecto.model import MicrofacetBRDF
+
+    rng = np.random.default_rng(12)
+    c = hemicube(8)
+    m = MicrofacetBRDF(np.exp(-4 * (1 - c.directions[:, 2])) + 0.1 * rng.random(c.size), kd=(0.2, 0.1, 0.05),
+                       ks=(0.5, 0.6, 0.7), eta=(1.3, 1.5, 2.5), correlated=correlated)
+    i = np.concatenate([random_directions(rng, 2000), [[0.6, 0, -0.8], [0, 0, 1]]])
+    o = np.concatenate([random_directions(rng, 2000), [[0, 0, 1], [0, 0.6, -0.8]]])
+    fast, slow = m.eval(i, o), m.eval_numpy(i, o)
+    assert np.allclose(fast, slow, rtol=1e-12, atol=1e-15)
+    assert np.all(fast[-2:] == 0.0)
+    assert m.eval(np.empty((0, 3)), np.empty((0, 3))).shape == (0, 3)
+
+
+# ----------------------------------------------------------------------------- Fresnel
+@twin("reflecto._kernels.fresnel_flat")
+def test_fresnel_flat():
+    """Eq. 4, ``F = ½ (g−c)²/(g+c)² (1 + ((c(g+c)−1)/(c(g−c)+1))²)``, ``g = √(η² + c² − 1)``;
+    1 under total internal reflection and for η = ∞; at normal incidence ((η−1)/(η+1))²."""
+    from reflecto.fresnel import fresnel, fresnel_numpy
+
+    rng = np.random.default_rng(13)
+    c = np.concatenate([rng.random(3000), [0.0, 1.0, -0.5]])
+    eta = np.concatenate([rng.uniform(0.5, 4.0, 3000), [1.5, 1.5, 1.5]])
+    out = np.empty(len(c))
+    _kernels.fresnel_flat(c, eta, out)
+    ac = np.abs(c)
+    g = np.sqrt(np.maximum(eta**2 + ac**2 - 1.0, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ref = 0.5 * (g - ac) ** 2 / (g + ac) ** 2 * (1 + ((ac * (g + ac) - 1) / (ac * (g - ac) + 1)) ** 2)
+    ref = np.where(eta**2 + ac**2 - 1.0 <= 0, 1.0, np.clip(np.nan_to_num(ref, nan=1.0), 0.0, 1.0))
+    assert np.allclose(out, ref, rtol=1e-13, atol=1e-15)
+    assert np.array_equal(out, fresnel_numpy(c, eta))
+    assert out[-2] == pytest.approx((0.5 / 2.5) ** 2, rel=1e-14) and out[-3] == 1.0
+    assert np.array_equal(fresnel(c[:10], np.inf), np.ones(10))
+
+
+def _pair_inputs(rng, n):
+    cp, cq = rng.uniform(0.05, 1.0, n), rng.uniform(0.05, 1.0, n)
+    fp, fq = rng.uniform(0.0, 2.0, n), rng.uniform(0.0, 2.0, n)
+    ap, aq = rng.uniform(0.1, 1.0, n), rng.uniform(0.1, 1.0, n)
+    return cp, cq, fp, fq, ap, aq, rng.uniform(0.5, 1.5, n)
+
+
+@twin("reflecto._kernels.pair_residuals")
+def test_pair_residuals():
+    """Eq. 6 per bin pair: :func:`fresnel_fit.pair_residuals_numpy`."""
+    from reflecto.reconstruct.fresnel_fit import pair_residuals_numpy
+
+    rng = np.random.default_rng(14)
+    args = _pair_inputs(rng, 3000)
+    for eta, kd, level in ((1.2, 0.0, 1e-3), (1.5, 0.1, 1e-3), (3.0, 0.3, 0.5)):
+        out = np.empty(3000)
+        _kernels.pair_residuals(*args, eta, kd / np.pi, level, out)
+        assert np.allclose(out, pair_residuals_numpy(*args, eta, kd, level), rtol=1e-12, atol=1e-15)
+    _kernels.pair_residuals(*(np.empty(0),) * 7, 1.5, 0.0, 1e-3, np.empty(0))
+
+
+@twin("reflecto._kernels.pair_residuals_jac")
+def test_pair_residuals_jac():
+    """``∂r/∂η`` and ``∂r/∂(k_d/π)`` against central differences of the NumPy residual."""
+    from reflecto.reconstruct.fresnel_fit import pair_residuals_numpy
+
+    rng = np.random.default_rng(15)
+    n = 2000
+    args = _pair_inputs(rng, n)
+    for eta, kd, level in ((1.2, 0.05, 1e-3), (1.8, 0.1, 1e-3), (2.5, 0.02, 0.8)):
+        jac = np.empty((2, n))
+        _kernels.pair_residuals_jac(*args, eta, kd / np.pi, level, jac)
+        h = 1e-6
+        d_eta = (pair_residuals_numpy(*args, eta + h, kd, level)
+                 - pair_residuals_numpy(*args, eta - h, kd, level)) / (2 * h)
+        hk = 1e-7  # in k_d/π
+        d_kd = (pair_residuals_numpy(*args, eta, (kd / np.pi + hk) * np.pi, level)
+                - pair_residuals_numpy(*args, eta, (kd / np.pi - hk) * np.pi, level)) / (2 * hk)
+        assert np.allclose(jac[0], d_eta, rtol=1e-5, atol=1e-6)
+        assert np.allclose(jac[1], d_kd, rtol=1e-6, atol=1e-6)
+
+
+@twin("reflecto._kernels.overlap_pairs")
+def test_overlap_pairs():
+    """Direct and τ-symmetric bin pairs: :func:`fresnel_fit.overlap_pairs_numpy` (same order)."""
+    from reflecto.reconstruct.fresnel_fit import overlap_pairs, overlap_pairs_numpy
+
+    bins = _bins(hemicube(16))
+    for symmetric in (True, False):
+        a, b = overlap_pairs(bins, 4, symmetric), overlap_pairs_numpy(bins, 4, symmetric)
+        assert len(a) > 100
+        assert np.array_equal(a.p, b.p) and np.array_equal(a.q, b.q) and np.array_equal(a.symmetric, b.symmetric)
+
+
+# ----------------------------------------------------------------------------- samples
+def _slices(rng, n_l=4, n_p=3000):
+    light = random_directions(rng, n_l, 60)
+    view = random_directions(rng, n_p, 70)
+    values = rng.random((n_l, n_p, 3))
+    valid = rng.random((n_l, n_p)) < 0.8
+    return light, view, values, valid
+
+
+def _bins(cube):
+    from reflecto.reconstruct.samples import bin_samples
+
+    light, view, values, valid = _slices(np.random.default_rng(16))
+    return bin_samples(light, view, values, valid, cube)
+
+
+@twin("reflecto._kernels.bin_accumulate", "reflecto._kernels.bin_finish")
+def test_bin_accumulate_and_finish():
+    """Per (LED, texel of i + o): count, mean f, mean o (unit), h = (i + o)/|i + o|,
+    cos θ_d = i·h; from ``np.unique`` and ``np.bincount`` over the valid samples, and
+    :func:`samples.bin_samples_numpy`."""
+    from reflecto.reconstruct.samples import bin_samples, bin_samples_numpy
+
+    rng = np.random.default_rng(17)
+    light, view, values, valid = _slices(rng)
+    cube = hemicube(16)
+    noise = rng.random(valid.shape)
+    a = bin_samples(light, view, values, valid, cube, noise)
+    b = bin_samples_numpy(light, view, values, valid, cube, noise)
+    for name in ("led", "texel", "count", "i", "o", "h", "f", "variance"):
+        assert np.allclose(getattr(a, name), getattr(b, name), rtol=1e-13, atol=1e-15), name
+    li, pi = np.nonzero(valid)
+    key = li * cube.size + cube.index_numpy(light[li] + view[pi])
+    used, slot, count = np.unique(key, return_inverse=True, return_counts=True)
+    assert np.array_equal(a.led, used // cube.size) and np.array_equal(a.texel, used % cube.size)
+    assert np.array_equal(a.count, count)
+    f = np.stack([np.bincount(slot, values[li, pi, ch]) for ch in range(3)], axis=1) / count[:, None]
+    o = np.stack([np.bincount(slot, view[pi, ch]) for ch in range(3)], axis=1)
+    o /= np.linalg.norm(o, axis=1)[:, None]
+    h = light[a.led] + o
+    h /= np.linalg.norm(h, axis=1)[:, None]
+    assert np.allclose(a.f, f, rtol=1e-12) and np.allclose(a.o, o, rtol=1e-12, atol=1e-15)
+    assert np.allclose(a.h, h, rtol=1e-12, atol=1e-15)
+    assert np.allclose(a.cos_d, np.clip(np.sum(light[a.led] * h, axis=1), 0, 1), rtol=1e-12, atol=1e-15)
+    # the kernels directly, with no valid sample
+    none = np.zeros_like(valid)
+    used, cnt, fsum, osum, qsum = _kernels.bin_accumulate(_kernels.as_dirs(light), _kernels.as_dirs(view), values,
+                                                         none, cube.n, np.empty((0, 0)))
+    assert len(used) == len(cnt) == len(fsum) == 0
+    out = _kernels.bin_finish(_kernels.as_dirs(light), used, cnt, fsum, osum, cube.size)
+    assert all(len(x) == 0 for x in out)
+
+
+@twin("reflecto._kernels.gather_below")
+def test_gather_below():
+    """Per channel, the valid values below the threshold in their order, their count, and
+    the count of valid values equal to it (NaN is neither)."""
+    rng = np.random.default_rng(18)
+    m = 5000
+    values = np.round(rng.random((m, 3)) * 50) / 50  # quantized: ties at the thresholds
+    values[::97, 1] = np.nan
+    valid = rng.random(m) < 0.9
+    for thresholds in (np.array([0.1, 0.5, 0.9]), np.array([np.inf, -np.inf, 0.0]), values[3].copy()):
+        out = np.full((3, m), -1.0)
+        counts, equal = _kernels.gather_below(values, valid, thresholds, out)
+        for c in range(3):
+            col = values[valid, c]
+            below = col[col < thresholds[c]]
+            assert counts[c] == len(below) and np.array_equal(out[c, : counts[c]], below), (thresholds, c)
+            assert equal[c] == np.count_nonzero(col == thresholds[c])
+    counts, equal = _kernels.gather_below(values, np.zeros(m, bool), np.full(3, np.inf), np.empty((3, 0)))
+    assert counts.tolist() == equal.tolist() == [0, 0, 0]
+    counts, equal = _kernels.gather_below(np.empty((0, 3)), np.empty(0, bool), np.full(3, np.inf), np.empty((3, 0)))
+    assert counts.tolist() == [0, 0, 0]
+
+
+@twin("reflecto._kernels.partial_ndf")
+@pytest.mark.parametrize("channels", [3, 1])
+def test_partial_ndf(channels):
+    """Eq. 7: ``a = cos_io / max(S(i) S(o), 1e-12)``, ``dh = (f − k_d/π) 4a / F``, ``d_lum = dh · LUM``."""
+    rng = np.random.default_rng(19)
+    b, n_l = 3000, 6
+    f = rng.random((b, 3))
+    kd_over_pi = np.array([0.05, 0.1, 0.02])
+    cos_io = rng.random(b)
+    s_led = rng.uniform(0.5, 1.0, n_l)
+    s_led[2] = 0.0  # S(i) S(o) = 0: the 1e-12 floor
+    led = rng.integers(0, n_l, b).astype(np.intp)
+    s_o = rng.uniform(0.3, 1.0, b)
+    fres = rng.uniform(0.04, 1.0, (b, channels))
+    dh, d_lum = np.empty((b, 3)), np.empty(b)
+    _kernels.partial_ndf(f, kd_over_pi, cos_io, s_led, led, s_o, fres, LUM, dh, d_lum)
+    a = cos_io / np.maximum(s_led[led] * s_o, 1e-12)
+    ref = (f - kd_over_pi) * (4.0 * a)[:, None] / fres
+    assert np.allclose(dh, ref, rtol=1e-14, atol=0) and np.allclose(d_lum, ref @ LUM, rtol=1e-13, atol=1e-300)
+    assert np.any(led == 2)
+    _kernels.partial_ndf(np.empty((0, 3)), kd_over_pi, np.empty(0), s_led, np.empty(0, np.intp), np.empty(0),
+                         np.empty((0, channels)), LUM, np.empty((0, 3)), np.empty(0))
+
+
+@twin("reflecto._kernels.box_mean")
+def test_box_mean():
+    """Mean of the valid samples in a ``(2r + 1)²`` pixel box: :func:`samples.box_mean_numpy`
+    (SciPy's ``uniform_filter``), with holes and the image border."""
+    from reflecto.reconstruct.samples import box_mean, box_mean_numpy
+
+    rng = np.random.default_rng(20)
+    rows, cols = np.meshgrid(np.arange(23), np.arange(31), indexing="ij")
+    keep = rng.random(rows.size) < 0.7
+    pixels = np.stack([rows.ravel()[keep], cols.ravel()[keep]], axis=1)
+    values = rng.random((2, len(pixels), 3))
+    valid = rng.random((2, len(pixels))) < 0.8
+    valid[1] = False  # an LED with no valid sample: zeros
+    for radius in (1, 3, 40):  # 40: the box covers the whole image
+        got = box_mean(values, valid, pixels, radius)
+        assert np.allclose(got, box_mean_numpy(values, valid, pixels, radius), rtol=1e-12, atol=1e-14)
+        assert not got[1].any()
+    full = box_mean(values, valid, pixels, 40)[0]
+    assert np.allclose(full[valid[0]], values[0][valid[0]].mean(axis=0), rtol=1e-12)
+
+
+# ----------------------------------------------------------------------------- Cook–Torrance
+@twin("reflecto._kernels.ct_lobe")
+def test_ct_lobe():
+    """The Cook–Torrance lobe (Beckmann D, V-groove G, Schlick F): ``cooktorrance._lobe``;
+    0 below the horizon."""
+    from reflecto.evaluate.cooktorrance import _lobe
+
+    rng = np.random.default_rng(21)
+    i = np.concatenate([random_directions(rng, 3000), [[0.6, 0, -0.8]]])
+    o = np.concatenate([random_directions(rng, 3000), [[0, 0, 1]]])
+    scale = rng.random(len(i)) + 0.5
+    for f0, m in ((0.04, 0.05), (0.9, 0.4), (0.3, 1.5)):
+        out = np.empty(len(i))
+        _kernels.ct_lobe(i, o, scale, f0, m, out)
+        assert np.allclose(out, np.nan_to_num(_lobe(i, o, f0, m)) * scale, rtol=1e-12, atol=0)
+        assert out[-1] == 0.0
+
+
+@twin("reflecto._kernels.ct_residual")
+def test_ct_residual():
+    """``out[k, c] = ρ_d,c diff[k] + ρ_s,c lobe[k] − y[k, c]``."""
+    rng = np.random.default_rng(22)
+    diff, lobe, y = rng.random(1000), rng.random(1000), rng.random((1000, 3))
+    rd, rs = np.array([0.1, 0.2, 0.3]), np.array([0.5, 0.0, 2.0])
+    out = np.empty((1000, 3))
+    _kernels.ct_residual(diff, lobe, y, rd, rs, out)
+    assert np.allclose(out, np.outer(diff, rd) + np.outer(lobe, rs) - y, rtol=1e-14, atol=1e-15)
+    _kernels.ct_residual(np.empty(0), np.empty(0), np.empty((0, 3)), rd, rs, np.empty((0, 3)))
+
+
+# ----------------------------------------------------------------------------- isotropic fit
+@twin("reflecto.reconstruct._polar_kernels.bin_polar")
+def test_bin_polar():
+    """(LED, θ_h cell, θ_d cell) bins: :func:`isotropic.bin_polar_numpy` (bisection =
+    ``searchsorted``), including θ_h beyond the last edge."""
+    from reflecto.polar import polar_nodes
+    from reflecto.reconstruct import isotropic
+
+    rng = np.random.default_rng(23)
+    light, view, values, mask = _slices(rng, 3, 2000)
+    noise, bound = rng.random(mask.shape), rng.random(mask.shape)
+    nodes = polar_nodes()
+    edges = np.interp(np.arange((len(nodes) - 1) * 2 + 1) / 2, np.arange(len(nodes)), nodes)
+    n_td = int(math.ceil(0.5 * math.pi / isotropic.TD_STEP)) + 1
+    n_keys = len(light) * (len(edges) - 1) * n_td
+    count, sums, fs = np.zeros(n_keys), np.zeros((n_keys, 5)), np.zeros((n_keys, 3))
+    _polar_kernels.bin_polar(mask, light, view, values, noise, bound, edges, isotropic.TD_STEP, n_td, count, sums, fs)
+    ref = isotropic.bin_polar_numpy(mask, light, view, values, noise, bound, edges, n_td)
+    assert np.array_equal(count, ref[0]) and count.sum() == mask.sum()
+    assert np.allclose(sums, ref[1], rtol=1e-12, atol=1e-13) and np.allclose(fs, ref[2], rtol=1e-12, atol=1e-13)
+
+
+@twin("reflecto.reconstruct._polar_kernels.normal_equations")
+def test_normal_equations():
+    """``JᵀWJ`` and ``JᵀWr``: :func:`isotropic.normal_equations_numpy`, and the dense Jacobian's products."""
+    from reflecto.reconstruct import isotropic
+
+    rng = np.random.default_rng(24)
+    k, n = 12, 3000
+    j = rng.integers(0, k - 1, n).astype(np.intp)
+    t, spec, r = rng.random(n), rng.random(n), rng.standard_normal(n)
+    w = np.where(rng.random(n) < 0.2, 0.0, rng.random(n))
+    dcols = rng.standard_normal((n, 3))
+    out = [np.empty(k), np.empty(k - 1), np.empty((k, 3)), np.empty((3, 3)), np.empty(k), np.empty(3)]
+    _polar_kernels.normal_equations(j, t, spec, dcols, r, w, k, *out)
+    for a, b in zip(out, isotropic.normal_equations_numpy(j, t, spec, dcols, r, w, k)):
+        assert np.allclose(a, b, rtol=1e-11, atol=1e-12)
+    jz = np.zeros((n, k))  # the full Jacobian: JᵀWJ's blocks
+    jz[np.arange(n), j] = spec * (1 - t)
+    jz[np.arange(n), j + 1] += spec * t
+    full = np.concatenate([jz, dcols], axis=1)
+    jtj, jtr = full.T @ (w[:, None] * full), full.T @ (w * r)
+    assert np.allclose(out[0], np.diag(jtj)[:k], rtol=1e-11)
+    assert np.allclose(out[1], np.diag(jtj, 1)[: k - 1], rtol=1e-11)
+    assert np.allclose(out[2], jtj[:k, k:], rtol=1e-11, atol=1e-12) and np.allclose(out[3], jtj[k:, k:], rtol=1e-11)
+    assert np.allclose(out[4], jtr[:k], rtol=1e-11, atol=1e-12) and np.allclose(out[5], jtr[k:], rtol=1e-11)
+
+
+@twin("reflecto.reconstruct._polar_kernels.luminance_pass")
+@pytest.mark.parametrize("eta", [1.5, 3.0, np.inf])
+def test_luminance_pass(eta):
+    """``m = k_d/π + g F(c; η) e^{z(θ)} G``, ``z`` linear between nodes (its exponent capped
+    at 700), ``r = m − f`` (one-sided where not measured), cost ``Σ w r²``; the Jacobian's
+    specular column and ``∂r/∂ log(η − 1) = spec (∂F/∂η)/F (η − 1)`` (0 for η = ∞ and inactive bins)."""
+    from reflecto.fresnel import fresnel_numpy
+
+    rng = np.random.default_rng(25)
+    b, k = 3000, 10
+    j = rng.integers(0, k - 1, b).astype(np.intp)
+    t = rng.random(b)
+    z = rng.normal(0, 2, k)
+    z[4] = 800.0  # overflow guard: e^{min(z, 700)}
+    geo = rng.uniform(0.25, 3.0, b)
+    cos_d = rng.random(b)
+    f = rng.random(b) * 3
+    w = rng.random(b)
+    measured = rng.random(b) < 0.7
+    kd, g = 0.3, 0.02
+    r, spec, deta = np.empty(b), np.empty(b), np.empty(b)
+    cost = _polar_kernels.luminance_pass(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, True, r, spec, deta)
+
+    lz = np.minimum((1 - t) * z[j] + t * z[j + 1], 700.0)
+    fr = fresnel_numpy(cos_d, eta)
+    with np.errstate(over="ignore", invalid="ignore"):
+        s = g * fr * np.exp(lz) * geo
+        r0 = kd / np.pi + s - f
+    active = measured | (r0 > 0)
+    r_ref = np.where(active, r0, 0.0)
+    finite = np.isfinite(r_ref)
+    assert np.array_equal(np.isfinite(r), finite) and np.allclose(r[finite], r_ref[finite], rtol=1e-13, atol=1e-15)
+    assert np.any(~measured & (r0 <= 0)) and np.any(~measured & (r0 > 0))  # both sides of the bound
+    ok = finite & np.isfinite(s)
+    assert np.allclose(spec[ok], np.where(active, s, 0.0)[ok], rtol=1e-13, atol=1e-300)
+    if math.isfinite(eta):
+        h = 1e-5
+        dF = (fresnel_numpy(cos_d, eta + h) - fresnel_numpy(cos_d, eta - h)) / (2 * h)
+        d_ref = np.where(active, s * dF / fr * (eta - 1.0), 0.0)
+        small = ok & (np.abs(s) < 1e100)
+        # the kernel's forward difference (step 1e-6 η) is good to about 1e-5
+        assert np.allclose(deta[small], d_ref[small], rtol=1e-4, atol=1e-9 * np.abs(s[small]).max())
+    else:
+        assert not deta.any() and np.all(fr == 1.0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        assert cost == pytest.approx(np.sum(w * r_ref**2), rel=1e-12) or not math.isfinite(cost)
+    # without the overflowing node the cost is finite and equals the sum
+    z[4] = 1.0
+    cost = _polar_kernels.luminance_pass(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, False, r, spec, deta)
+    lz = (1 - t) * z[j] + t * z[j + 1]
+    r0 = kd / np.pi + g * fr * np.exp(lz) * geo - f
+    r_ref = np.where(measured | (r0 > 0), r0, 0.0)
+    assert np.allclose(r, r_ref, rtol=1e-13, atol=1e-15) and cost == pytest.approx(np.sum(w * r_ref**2), rel=1e-12)
+    assert _polar_kernels.luminance_pass(j[:0], t[:0], z, geo[:0], cos_d[:0], f[:0], w[:0], measured[:0], kd, g, eta,
+                                         True, r[:0], spec[:0], deta[:0]) == 0.0
+
+
+# ----------------------------------------------------------------------------- layout
+@twin("reflecto.instrument.layout._terms_kernel")
+def test_layout_terms_kernel():
+    """The first three layout goals in one pass: :func:`layout.layout_terms` (NumPy)."""
+    from reflecto.instrument import layout
+    from reflecto.instrument.optics import Optics
+
+    rng = np.random.default_rng(26)
+    for cone, tilt in ((48.2, 20.0), (65.0, 10.0)):
+        o = Optics(cone_half_angle_deg=cone, axis_tilt_deg=tilt)
+        cube = hemicube(32)
+        goals = layout.LayoutObjective(o, cube)
+        for _ in range(3):
+            leds = layout.led_direction(rng.uniform(5, 80, 6), rng.uniform(0, 360, 6))
+            assert np.allclose(goals.terms(leds)[:3], layout.layout_terms(o, leds, cube), rtol=0, atol=1e-12)
+        assert goals.terms(layout.led_direction([89.9], [0.0]))[0] == pytest.approx(
+            layout.layout_terms(o, layout.led_direction([89.9], [0.0]), cube)[0], abs=1e-12)
