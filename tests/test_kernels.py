@@ -319,7 +319,6 @@ def test_splat():
     assert not ws.any() and not wv.any()
 
 
-@pytest.mark.xfail(strict=True, raises=ValueError, reason="bug: Hemicube.splat reshapes 0 values to (0, -1)")
 def test_splat_of_no_samples_is_empty():
     ws, wv = hemicube(8).splat(np.empty((0, 3)), np.empty((0, 3)))
     assert not ws.any() and not wv.any()

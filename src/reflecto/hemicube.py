@@ -340,7 +340,8 @@ class Hemicube:
         w = np.ones(len(d)) if weights is None else np.ascontiguousarray(weights, dtype=np.float64).ravel()
         if len(w) != len(d) or values.shape[0] != len(d):
             raise ValueError(f"splat: {len(d)} directions, {values.shape[0]} values, {len(w)} weights")
-        v2 = np.ascontiguousarray(values.reshape(len(d), -1))
+        channels = 1 if values.ndim == 1 else int(np.prod(values.shape[1:]))  # also for M = 0
+        v2 = np.ascontiguousarray(values.reshape(len(d), channels))
         wsum = np.zeros(self.size)
         wvsum = np.zeros((self.size, v2.shape[1]))
         _kernels.splat(self.n, d, v2, w, wsum, wvsum)
