@@ -482,7 +482,8 @@ def plot_design(rows: list[dict[str, Any]], path: Path) -> Path:
             if i == 0:
                 ax.set_title(f"{n} LEDs")
             ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=7)
+    if axes[0, 0].get_legend_handles_labels()[0]:  # a grid of only unrealisable designs draws no labelled line
+        axes[0, 0].legend(fontsize=7)
     fig.tight_layout()
     make_parents(path.parent)
     return save_figure(fig, path, dpi=110)
