@@ -27,6 +27,7 @@ import dataclasses
 import io
 import json
 import math
+import os
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -573,14 +574,43 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
     return Calibration(device.nominal(), optics, leds, scale, response, report)
 
 
+#: Calibrations read by :func:`load_calibration`, by file identity (at most :data:`_CACHE_SIZE`).
+_LOADED: dict[tuple[Any, ...], Calibration] = {}
+_CACHE_SIZE = 4
+
+
+def _load_cached(path: Path) -> Calibration:
+    """:meth:`Calibration.load`, once per file identity (real path, inode, size, modification
+    and change times in ns): a batch or ``reflecto watch`` reads and checks its calibration
+    file once, not once per capture. A file replaced or rewritten is read again. The
+    cached calibration's arrays are read-only, so that no caller changes what the next
+    one gets."""
+    try:
+        st = os.stat(path)
+        key = (os.path.realpath(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+    except (OSError, ValueError):
+        return Calibration.load(path)  # it names the problem
+    cal = _LOADED.get(key)
+    if cal is None:
+        cal = Calibration.load(path)
+        for a in (cal.leds, cal.scale, cal.response):
+            if a is not None:
+                a.flags.writeable = False
+        while len(_LOADED) >= _CACHE_SIZE:
+            _LOADED.pop(next(iter(_LOADED)))
+        _LOADED[key] = cal
+    return cal
+
+
 def load_calibration(path: str | Path | None, device: Device) -> Calibration:
     """A calibration file, or the nominal calibration of ``device`` when ``path`` is None.
 
-    Refuses a calibration made for a different device design.
+    Refuses a calibration made for a different device design. A file is read and
+    checked once per process while it stays unchanged (:func:`_load_cached`).
     """
     if path is None:
         return nominal_calibration(device)
-    cal = Calibration.load(path)
+    cal = _load_cached(Path(path))
     if cal.device.n_leds != device.n_leds or cal.device.camera != device.camera:
         raise FileFormatError(path, f"calibration is for device {cal.device.name!r}, which does not match "
                               f"the capture's device {device.name!r}")
