@@ -809,3 +809,49 @@ def count_saturated(img, rows, cols, sat):
         if max(img[r, c, 0], img[r, c, 1], img[r, c, 2]) >= sat:
             n += 1
     return n
+
+
+@njit(**_OPTS)
+def merge_noise_sd(lum, t_sum, n_used, per_exposure_var, gain, shot, out):
+    """Noise model of a merged luminance: :func:`reflecto.instrument.hdr.merge_noise`.
+
+    ``out = √(n (r² + 1/12) + L Σt / g) / max(Σt, 1e-300)`` elementwise over (L, P),
+    ``per_exposure_var = r² + 1/12`` (DN²), the shot term only with ``shot``; ``lum``
+    is the clipped luminance ``max(radiance · LUM, 0)`` (DN/ms). Same operations in
+    the same order as the NumPy expression (bit-identical).
+    """
+    for l in range(lum.shape[0]):
+        for p in range(lum.shape[1]):
+            var = n_used[l, p] * per_exposure_var
+            if shot:
+                var = var + lum[l, p] * t_sum[l, p] / gain
+            out[l, p] = math.sqrt(var) / max(t_sum[l, p], 1e-300)
+
+
+@njit(**_OPTS)
+def slice_values(rad, valid, scl, scl_pos, s_lum, sigma, t_sum, black_dn, values, ok, noise, limit):
+    """Radiometric correction of merged radiance: the BRDF slices of
+    :func:`reflecto.instrument.slices.extract_slices` in one pass over (L, P).
+
+    ``ok = valid & scl_pos``; ``values = rad / scl`` (sr⁻¹, (L, P, 3)) where ok, else 0;
+    ``noise = sigma / s_lum`` and ``limit = black_dn / max(t_sum, 1e-300) / s_lum``
+    (sr⁻¹, (L, P)) where ok, else 0; ``s_lum`` is the scale's luminance ``scl · LUM``,
+    ``scl_pos`` whether every channel of ``scl`` is > 0. Same operations in the same
+    order as the NumPy expressions it replaces (bit-identical).
+    """
+    for l in range(rad.shape[0]):
+        for p in range(rad.shape[1]):
+            good = valid[l, p] and scl_pos[l, p]
+            ok[l, p] = good
+            if good:
+                values[l, p, 0] = rad[l, p, 0] / scl[l, p, 0]
+                values[l, p, 1] = rad[l, p, 1] / scl[l, p, 1]
+                values[l, p, 2] = rad[l, p, 2] / scl[l, p, 2]
+                noise[l, p] = sigma[l, p] / s_lum[l, p]
+                limit[l, p] = black_dn / max(t_sum[l, p], 1e-300) / s_lum[l, p]
+            else:
+                values[l, p, 0] = 0.0
+                values[l, p, 1] = 0.0
+                values[l, p, 2] = 0.0
+                noise[l, p] = 0.0
+                limit[l, p] = 0.0

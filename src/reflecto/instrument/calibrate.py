@@ -92,6 +92,19 @@ class Calibration:
             self.__dict__["_geom"] = cached
         return cached
 
+    def scale_luminance(self) -> tuple[NDArray[np.bool_], Array]:
+        """At the view-cone pixels of :meth:`pixel_geometry`: whether the scale is > 0 in
+        every channel ``(L, P)`` and its luminance ``scale · LUM`` ``(L, P)`` (DN/ms per
+        sr⁻¹), cached with it."""
+        cached = self.__dict__.get("_scale_lum")
+        if cached is None:
+            from ..colour import LUM
+
+            scl = self.pixel_geometry()[4]
+            cached = (np.all(scl > 0, axis=-1), scl @ LUM)
+            self.__dict__["_scale_lum"] = cached
+        return cached
+
     def save(self, path: str | Path) -> Path:
         """Write an ``.npz`` calibration file atomically (readable by ``numpy.load``).
 

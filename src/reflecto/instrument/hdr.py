@@ -91,10 +91,17 @@ def merge_noise(radiance: Array, t_sum: Array, n_used: Array, camera: Camera) ->
 
     read_dn = camera.read_noise / camera.gain
     lum = np.maximum(radiance @ LUM, 0.0)
-    var = n_used * (read_dn * read_dn + 1.0 / 12.0)
-    if camera.shot_noise:
-        var = var + lum * t_sum / camera.gain
-    return np.sqrt(var) / np.maximum(t_sum, 1e-300)
+    t_sum = np.asarray(t_sum, dtype=np.float64)
+    n_used = np.asarray(n_used, dtype=np.float64)
+    if lum.ndim != 2 or t_sum.shape != lum.shape or n_used.shape != lum.shape:
+        var = n_used * (read_dn * read_dn + 1.0 / 12.0)
+        if camera.shot_noise:
+            var = var + lum * t_sum / camera.gain
+        return np.sqrt(var) / np.maximum(t_sum, 1e-300)
+    out = np.empty(lum.shape)  # the expression above in one compiled pass
+    _kernels.merge_noise_sd(lum, t_sum, n_used, read_dn * read_dn + 1.0 / 12.0, float(camera.gain),
+                            bool(camera.shot_noise), out)
+    return out
 
 
 def dithered(camera: Camera) -> bool:
