@@ -49,7 +49,7 @@ POLL_S = 0.02
 #: A folder incomplete and unchanged for this long (seconds) is reported as damaged.
 SETTLE_S = 5.0
 #: Side of the index page's thumbnails (pixels).
-THUMB_PX = 64
+THUMB_PX = 48
 #: The last 12 bytes of every complete PNG file: the empty IEND chunk with its CRC.
 PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 
@@ -137,8 +137,8 @@ def thumbnail(model, size: int = THUMB_PX) -> bytes:  # type: ignore[no-untyped-
 
     from .render.sphere import composite, render_sphere, sphere_coverage
 
-    rad = render_sphere(model, resolution=size, supersample=2)
-    img = np.clip(composite(rad, sphere_coverage(size, 2)), 0.0, 1.0)
+    rad = render_sphere(model, resolution=size, supersample=1)
+    img = np.clip(composite(rad, sphere_coverage(size, 1)), 0.0, 1.0)
     srgb = np.where(img <= 0.0031308, 12.92 * img, 1.055 * np.power(img, 1 / 2.4) - 0.055)
     ok, buf = cv2.imencode(".png", np.ascontiguousarray((255 * srgb + 0.5).astype(np.uint8)[..., ::-1]))
     if not ok:  # pragma: no cover - OpenCV encodes any uint8 image
@@ -202,6 +202,8 @@ class Watcher:
         self._waiting: dict[str, tuple[tuple, float, str]] = {}
         #: Seconds from a capture found complete to its model, summary and index written.
         self.latency: dict[str, float] = {}
+        #: ``time.monotonic()`` at which each capture's model, summary and index were written.
+        self.finished_at: dict[str, float] = {}
 
     # ------------------------------------------------------------------ scanning
     def _candidates(self) -> list[Path]:
@@ -305,7 +307,8 @@ class Watcher:
             except ReflectoError as e:
                 self.entries[name].warnings.append(f"no thumbnail ({one_line(e)})")
         self._write_index()
-        self.latency[name] = time.monotonic() - found
+        self.finished_at[name] = time.monotonic()
+        self.latency[name] = self.finished_at[name] - found
         return True
 
     # ------------------------------------------------------------------ the page
