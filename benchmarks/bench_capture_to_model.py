@@ -52,6 +52,8 @@ from reflecto.reconstruct import Options, reconstruct  # noqa: E402
 from reflecto.sources import load_source  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
+#: The source tree of the reflecto this process runs (the fresh process runs the same one).
+SRC = Path(cli.__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 #: Measured materials (NBRDF fits of MERL materials and RGL measurements): metals, paints,
 #: plastics, phenolic, fabric.
@@ -129,7 +131,7 @@ def first_call(cap_dir: Path, cal_path: Path, runs: int) -> list[float]:
             t = time.perf_counter()
             subprocess.run([sys.executable, "-m", "reflecto.cli", "reconstruct", str(cap_dir), "--calibration",
                             str(cal_path), "-o", str(Path(tmp) / f"m{k}.reflecto"), "-q"], check=True,
-                           stdout=subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+                           stdout=subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": str(SRC)})
             times.append(time.perf_counter() - t)
     return times
 
