@@ -292,6 +292,14 @@ class Watcher:
         except MemoryError:
             self._fail(folder, "out of memory (see docs/limits.md for the input limits)")
             return False
+        except OSError as e:
+            self._fail(folder, f"{e.filename or folder}: {one_line(e.strerror or e)}")
+            return False
+        except Exception as e:  # a fault of one capture's reconstruction must not stop the watch
+            if not summary_path.exists():
+                out.unlink(missing_ok=True)
+            self._fail(folder, f"reconstruction failed ({type(e).__name__}: {one_line(e)})")
+            return False
         except BaseException:
             if not summary_path.exists():  # interrupted between the model and its summary
                 out.unlink(missing_ok=True)
