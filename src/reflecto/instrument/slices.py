@@ -17,7 +17,6 @@ from numpy.typing import NDArray
 from .. import _kernels, geometry
 from .calibrate import Calibration
 from .capture import Capture, CaptureError
-from ..colour import LUM
 from .hdr import BLACK_DN, dithered, merge_debevec, merge_linear_pixels
 
 Array = NDArray[np.float64]
@@ -153,26 +152,21 @@ def extract_slices(capture: Capture, calibration: Calibration) -> Slices:
             raise CaptureError(capture.path or "<capture>", "gamma camera: the calibration has no response curve")
     dirs, mask, rows, cols, scale = calibration.pixel_geometry()
 
-    def merge(raw: NDArray[np.integer], scl: Array, scl_pos: NDArray[np.bool_], s_lum_all: Array
+    def merge(raw: NDArray[np.integer], scl: Array, scl_pos: NDArray[np.bool_], s_lum: Array
               ) -> tuple[Array, NDArray[np.bool_], NDArray[np.bool_] | None, Array | None, Array | None]:
-        near_black = noise = limit = None
         if dev.camera.response == "gamma":
             rad, valid = merge_debevec(raw, capture.exposures_ms, calibration.response)
             rad, valid = rad[:, rows, cols], valid[:, rows, cols]
-        else:
-            rad, valid, near_black, sigma, t_sum = merge_linear_pixels(raw, capture.exposures_ms, dev.camera, rows,
-                                                                        cols, noise=True)
-            values, ok = np.empty_like(rad), np.empty(valid.shape, dtype=bool)
-            noise, limit = np.empty(valid.shape), np.empty(valid.shape)
-            _kernels.slice_values(rad, valid, scl, scl_pos, s_lum_all, sigma, t_sum, BLACK_DN, values, ok, noise,
-                                  limit)  # the expressions below in one pass
-            return values, ok, near_black, noise, limit
-        ok = valid & np.all(scl > 0, axis=-1)
-        if near_black is not None:  # the noise and the detection limit in BRDF units (sr⁻¹)
-            s_lum = np.where(ok, scl @ LUM, np.inf)
-            noise = np.where(ok, sigma / s_lum, 0.0)
-            limit = np.where(ok, BLACK_DN / np.maximum(t_sum, 1e-300) / s_lum, 0.0)
-        return np.divide(rad, scl, out=np.zeros_like(rad), where=ok[..., None]), ok, near_black, noise, limit
+            ok = valid & scl_pos
+            return np.divide(rad, scl, out=np.zeros_like(rad), where=ok[..., None]), ok, None, None, None
+        rad, valid, near_black, sigma, t_sum = merge_linear_pixels(raw, capture.exposures_ms, dev.camera, rows, cols,
+                                                                    noise=True)
+        # one compiled pass: ok = valid & scale > 0; where ok, values = rad / scale and, in BRDF units (sr⁻¹),
+        # the noise σ / s_lum and the detection limit BLACK_DN / max(Σt, 1e-300) / s_lum; 0 elsewhere
+        values, ok = np.empty_like(rad), np.empty(valid.shape, dtype=bool)
+        noise, limit = np.empty(valid.shape), np.empty(valid.shape)
+        _kernels.slice_values(rad, valid, scl, scl_pos, s_lum, sigma, t_sum, BLACK_DN, values, ok, noise, limit)
+        return values, ok, near_black, noise, limit
 
     scale_pos, scale_lum = calibration.scale_luminance()
     values, ok, near_black, noise, limit = merge(capture.raw, scale, scale_pos, scale_lum)
