@@ -23,8 +23,8 @@ warnings; the skipped folders with their problem) are rewritten atomically. A ca
 whose ``.json`` summary already exists in ``MODELS`` counts as done (a restarted watcher
 carries on); a model without its summary is redone.
 
-Ctrl-C (SIGINT) stops the watcher between two files: every file in ``MODELS`` is
-complete, and a model whose summary was not yet written is removed.
+Ctrl-C (SIGINT), or SIGTERM, stops the watcher between two files: every file in
+``MODELS`` is complete, and a model whose summary was not yet written is removed.
 """
 
 from __future__ import annotations
@@ -353,6 +353,19 @@ class Watcher:
         if once:
             self.scan(final=True)
             return
-        while stop is None or not stop():
-            if self.scan() == 0:
-                time.sleep(poll_s)
+        import signal
+        import threading
+
+        def interrupt(signum, frame):  # type: ignore[no-untyped-def]
+            raise KeyboardInterrupt
+
+        # a service manager's SIGTERM stops the watch as Ctrl-C does: between two files
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGTERM, interrupt) if main else None
+        try:
+            while stop is None or not stop():
+                if self.scan() == 0:
+                    time.sleep(poll_s)
+        finally:
+            if main:
+                signal.signal(signal.SIGTERM, previous)
