@@ -748,3 +748,111 @@ def box_mean(values, valid, rows, cols, h, w, radius, out):
             cnt = img[r, c, 3]
             for ch in range(3):
                 out[k, p, ch] = img[r, c, ch] / cnt if valid[k, p] and cnt > 0.0 else 0.0
+
+
+@njit(**_OPTS)
+def png_unfilter(data, height, rowbytes, bpp, out):
+    """Undo the PNG row filters (PNG spec §9.2) of a non-interlaced image.
+
+    ``data`` (uint8, ``height · (1 + rowbytes)``): the inflated image data, each row
+    its filter type byte (0 None, 1 Sub, 2 Up, 3 Average, 4 Paeth) then ``rowbytes``
+    filtered bytes; ``bpp`` bytes per pixel (6 for 16-bit RGB, 3 for 8-bit). Writes
+    the raw bytes into ``out`` (uint8, ``(height, rowbytes)``), exactly as libpng's
+    ``png_read_filter_row`` does. Returns the first row whose filter type is not 0–4,
+    or -1 when every row's is valid (that row and later ones are then not written).
+    """
+    for y in range(height):
+        base = y * (rowbytes + 1)
+        ft = data[base]
+        src = base + 1
+        if ft == 0:
+            for x in range(rowbytes):
+                out[y, x] = data[src + x]
+        elif ft == 1:
+            for x in range(rowbytes):
+                a = out[y, x - bpp] if x >= bpp else 0
+                out[y, x] = (data[src + x] + a) & 0xFF
+        elif ft == 2:
+            for x in range(rowbytes):
+                b = out[y - 1, x] if y > 0 else 0
+                out[y, x] = (data[src + x] + b) & 0xFF
+        elif ft == 3:
+            for x in range(rowbytes):
+                a = np.int32(out[y, x - bpp]) if x >= bpp else np.int32(0)
+                b = np.int32(out[y - 1, x]) if y > 0 else np.int32(0)
+                out[y, x] = (np.int32(data[src + x]) + ((a + b) >> 1)) & 0xFF
+        elif ft == 4:
+            for x in range(rowbytes):
+                a = np.int32(out[y, x - bpp]) if x >= bpp else np.int32(0)
+                b = np.int32(out[y - 1, x]) if y > 0 else np.int32(0)
+                c = np.int32(out[y - 1, x - bpp]) if (y > 0 and x >= bpp) else np.int32(0)
+                p = a + b - c
+                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+                if pa <= pb and pa <= pc:
+                    pred = a
+                elif pb <= pc:
+                    pred = b
+                else:
+                    pred = c
+                out[y, x] = (np.int32(data[src + x]) + pred) & 0xFF
+        else:
+            return y
+    return -1
+
+
+@njit(**_OPTS)
+def count_saturated(img, rows, cols, sat):
+    """Pixels ``(rows[p], cols[p])`` of ``img`` (H, W, 3) whose largest channel is ≥ ``sat``:
+    ``(img[rows, cols].max(axis=-1) >= sat).sum()`` without the gathered copy."""
+    n = 0
+    for p in range(rows.shape[0]):
+        r, c = rows[p], cols[p]
+        if max(img[r, c, 0], img[r, c, 1], img[r, c, 2]) >= sat:
+            n += 1
+    return n
+
+
+@njit(**_OPTS)
+def merge_noise_sd(lum, t_sum, n_used, per_exposure_var, gain, shot, out):
+    """Noise model of a merged luminance: :func:`reflecto.instrument.hdr.merge_noise`.
+
+    ``out = √(n (r² + 1/12) + L Σt / g) / max(Σt, 1e-300)`` elementwise over (L, P),
+    ``per_exposure_var = r² + 1/12`` (DN²), the shot term only with ``shot``; ``lum``
+    is the clipped luminance ``max(radiance · LUM, 0)`` (DN/ms). Same operations in
+    the same order as the NumPy expression (bit-identical).
+    """
+    for l in range(lum.shape[0]):
+        for p in range(lum.shape[1]):
+            var = n_used[l, p] * per_exposure_var
+            if shot:
+                var = var + lum[l, p] * t_sum[l, p] / gain
+            out[l, p] = math.sqrt(var) / max(t_sum[l, p], 1e-300)
+
+
+@njit(**_OPTS)
+def slice_values(rad, valid, scl, scl_pos, s_lum, sigma, t_sum, black_dn, values, ok, noise, limit):
+    """Radiometric correction of merged radiance: the BRDF slices of
+    :func:`reflecto.instrument.slices.extract_slices` in one pass over (L, P).
+
+    ``ok = valid & scl_pos``; ``values = rad / scl`` (sr⁻¹, (L, P, 3)) where ok, else 0;
+    ``noise = sigma / s_lum`` and ``limit = black_dn / max(t_sum, 1e-300) / s_lum``
+    (sr⁻¹, (L, P)) where ok, else 0; ``s_lum`` is the scale's luminance ``scl · LUM``,
+    ``scl_pos`` whether every channel of ``scl`` is > 0. Same operations in the same
+    order as the NumPy expressions it replaces (bit-identical).
+    """
+    for l in range(rad.shape[0]):
+        for p in range(rad.shape[1]):
+            good = valid[l, p] and scl_pos[l, p]
+            ok[l, p] = good
+            if good:
+                values[l, p, 0] = rad[l, p, 0] / scl[l, p, 0]
+                values[l, p, 1] = rad[l, p, 1] / scl[l, p, 1]
+                values[l, p, 2] = rad[l, p, 2] / scl[l, p, 2]
+                noise[l, p] = sigma[l, p] / s_lum[l, p]
+                limit[l, p] = black_dn / max(t_sum[l, p], 1e-300) / s_lum[l, p]
+            else:
+                values[l, p, 0] = 0.0
+                values[l, p, 1] = 0.0
+                values[l, p, 2] = 0.0
+                noise[l, p] = 0.0
+                limit[l, p] = 0.0

@@ -1,4 +1,4 @@
-"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|export|render|compare|report|fit-ct|sweep|gallery|design``.
+"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|watch|export|render|compare|report|fit-ct|sweep|gallery|design``.
 
 Each subcommand is one ``cmd_*`` handler: it takes the parsed arguments of its
 subcommand (:func:`build_parser`) and returns the exit status (0, or 1 when a batch
@@ -59,6 +59,7 @@ from .evaluate.design import best_design, design_study
 from .render.mitsuba import DEFAULT_SPP, SCENES
 from .evaluate.design import DEFAULT_CONES, DEFAULT_LED_COUNTS, DEFAULT_TILTS
 from .evaluate.gallery import GallerySettings, gallery
+from .watch import Watcher, default_reconstructor
 
 _SHOW_WARNING = warnings.showwarning
 
@@ -326,6 +327,18 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         _report_failures(failures)
         return 1
     return 0
+
+
+def cmd_watch(args: argparse.Namespace) -> int:
+    """``reflecto watch ROOT -o MODELS``: reconstruct each capture folder as it lands in ROOT
+    (:mod:`reflecto.watch`); with ``--once``, what is there, then exit (1 if any was skipped)."""
+    if not Path(args.root).is_dir():
+        raise ReflectoError(f"{args.root}: no such folder to watch")
+    check_output(args.output, folder=True)
+    recon = default_reconstructor(args.calibration, _options(args), _missing(args))
+    watcher = Watcher(args.root, args.output, recon, settle_s=args.settle)
+    watcher.run(once=args.once)
+    return 1 if args.once and watcher.failed else 0
 
 
 def _export_format(args: argparse.Namespace) -> str:
@@ -646,6 +659,20 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-q", "--quiet", action="store_true", help="no progress")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_reconstruct)
+
+    q = sub.add_parser("watch", help="reconstruct each capture folder as it lands in ROOT; keep MODELS/index.html")
+    q.add_argument("root", help="folder the capture folders land in")
+    q.add_argument("-o", "--output", required=True, help="folder of the models, their summaries and index.html")
+    how = q.add_mutually_exclusive_group()
+    how.add_argument("--calibration", help="calibration file from `reflecto calibrate` (as for reconstruct)")
+    how.add_argument("--nominal", action="store_true", help="use the device's nominal calibration (as for reconstruct)")
+    q.add_argument("--estimate-normal", action="store_true", help="estimate the altered normal (as for reconstruct)")
+    q.add_argument("--eta", type=float, help="use this η instead of fitting it")
+    q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto", help="as for reconstruct")
+    q.add_argument("--settle", type=float, default=5.0,
+                   help="seconds an incomplete capture folder may stay unchanged before it is reported and skipped")
+    q.add_argument("--once", action="store_true", help="process the capture folders there now and exit")
+    q.set_defaults(func=cmd_watch)
 
     q = sub.add_parser("export", help="write a BRDF as an RGL .bsdf (RGB, Mitsuba 3's measured plugin) or MERL .binary file",
                        description="Write a BRDF as an RGL .bsdf tensor file in the RGB variant that Mitsuba 3's "

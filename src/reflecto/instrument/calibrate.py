@@ -27,6 +27,7 @@ import dataclasses
 import io
 import json
 import math
+import os
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -49,6 +50,7 @@ from ..io import inside, read_json
 from ..io import npy_bytes
 from ..io import MAX_ARCHIVE_BYTES, npy_array, parse_json, read_input, zip_members
 import warnings
+from ..colour import LUM
 
 Array = NDArray[np.float64]
 
@@ -94,6 +96,18 @@ class Calibration:
             rows, cols = np.nonzero(mask)
             cached = (dirs, mask, rows, cols, self.scale[:, rows, cols].astype(np.float64))
             self.__dict__["_geom"] = cached
+        return cached
+
+    def scale_luminance(self) -> tuple[NDArray[np.bool_], Array]:
+        """At the view-cone pixels of :meth:`pixel_geometry`: whether the scale is > 0 in
+        every channel ``(L, P)`` and its luminance ``scale · LUM`` ``(L, P)`` (DN/ms per
+        sr⁻¹), cached with it."""
+        cached = self.__dict__.get("_scale_lum")
+        if cached is None:
+
+            scl = self.pixel_geometry()[4]
+            cached = (np.all(scl > 0, axis=-1), scl @ LUM)
+            self.__dict__["_scale_lum"] = cached
         return cached
 
     def save(self, path: str | Path) -> Path:
@@ -572,12 +586,41 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
     return Calibration(device.nominal(), optics, leds, scale, response, report)
 
 
+#: Calibrations read by :func:`load_calibration`, by file identity (at most :data:`_CACHE_SIZE`).
+_LOADED: dict[tuple[Any, ...], Calibration] = {}
+_CACHE_SIZE = 4
+
+
+def _load_cached(path: Path) -> Calibration:
+    """:meth:`Calibration.load`, once per file identity (real path, inode, size, modification
+    and change times in ns): a batch or ``reflecto watch`` reads and checks its calibration
+    file once, not once per capture. A file replaced or rewritten is read again. The
+    cached calibration's arrays are read-only, so that no caller changes what the next
+    one gets."""
+    try:
+        st = os.stat(path)
+        key = (os.path.realpath(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+    except (OSError, ValueError):
+        return Calibration.load(path)  # it names the problem
+    cal = _LOADED.get(key)
+    if cal is None:
+        cal = Calibration.load(path)
+        for a in (cal.leds, cal.scale, cal.response):
+            if a is not None:
+                a.flags.writeable = False
+        while len(_LOADED) >= _CACHE_SIZE:
+            _LOADED.pop(next(iter(_LOADED)))
+        _LOADED[key] = cal
+    return cal
+
+
 def load_calibration(path: str | Path, device: Device) -> Calibration:
     """A calibration file, checked against the capture's ``device`` design.
 
-    Refuses a calibration made for a different device design (LED count, camera).
+    Refuses a calibration made for a different device design (LED count, camera). A
+    file is read and checked once per process while it stays unchanged (:func:`_load_cached`).
     """
-    cal = Calibration.load(path)
+    cal = _load_cached(Path(path))
     if cal.device.n_leds != device.n_leds or cal.device.camera != device.camera:
         raise FileFormatError(path, f"calibration is for device {cal.device.name!r}, which does not match "
                               f"the capture's device {device.name!r}")

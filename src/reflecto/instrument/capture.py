@@ -39,9 +39,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from .. import _kernels
 from ..errors import FileFormatError, LimitError, ReflectoError, short_repr
 from ..io import inside
 from .device import MAX_EXPOSURE_MS, Device
+from ..io import read_input
+from ..io import atomic_folder
+from ..io import read_json
 
 CAPTURE_FORMAT = "reflecto-capture"
 CAPTURE_VERSION = 1
@@ -134,35 +138,45 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_CAPTURE_BYTES = 1 << 30
 
 
-def _check_png(data: bytes, path: Path, shape: tuple[int, int], depth_bits: int) -> None:
-    """Validate a PNG before decoding: header against ``shape`` and bit depth, every chunk's
-    length and CRC, the compressed image data inflating to exactly the pixel rows with valid
-    filter bytes (bounded inflation: no decompression bomb), and the end chunk.
+def _decode_png(data: bytes, path: Path, shape: tuple[int, int], depth_bits: int) -> NDArray[np.integer] | None:
+    """Validate and decode an RGB PNG in one pass: the pixels ``(height, width, 3)`` (RGB,
+    native uint16 or uint8), or ``None`` for an interlaced file (the caller decodes that).
 
-    A damaged frame is refused here, naming the file, instead of by the decoder (which
-    prints its own complaints).
+    Checks, before anything is allocated for the pixels: the header against ``shape``
+    and the bit depth (colour type 2, compression and filter method 0), every chunk's
+    length and CRC, the end chunk. Then the image data is inflated once, bounded to
+    the size of its rows plus one byte (no decompression bomb), must hold exactly
+    ``height · (1 + 3 · width · depth/8)`` bytes, and its row filters (types 0–4) are
+    undone (:func:`reflecto._kernels.png_unfilter`, the arithmetic of the PNG spec
+    §9.2; the 16-bit samples are big-endian). The result is bit-identical to
+    OpenCV's ``imdecode(…, IMREAD_UNCHANGED)`` (BGR flipped to RGB), which decodes at
+    about the cost of this inflation on top of it.
+
+    A damaged frame is refused naming the file (:class:`CaptureError`).
     """
     if len(data) < 33 or data[:8] != PNG_SIGNATURE or data[12:16] != b"IHDR":
         raise CaptureError(path, "not a readable image (frames are PNG files)")
-    width, height, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", data[16:29])
+    width, height, depth, colour, method, filt, interlace = struct.unpack(">IIBBBBB", data[16:29])
     if (height, width) != shape:
         raise CaptureError(path, f"image is {width}×{height}, the manifest says {shape[1]}×{shape[0]}")
     if colour != 2:
         raise CaptureError(path, f"expected an RGB image, got PNG colour type {colour}")
     if depth != depth_bits:
         raise CaptureError(path, f"image has {depth}-bit pixels, expected {depth_bits}-bit")
+    if method != 0 or filt != 0 or interlace > 1:
+        raise CaptureError(path, f"damaged PNG: unknown compression, filter or interlace method "
+                           f"({method}, {filt}, {interlace})")
     pos, idat, end = 8, [], False
     while pos + 12 <= len(data):
         (length,) = struct.unpack_from(">I", data, pos)
-        kind = data[pos + 4 : pos + 8]
         if length > len(data) - pos - 12:
             break
-        body = data[pos + 8 : pos + 8 + length]
         (crc,) = struct.unpack_from(">I", data, pos + 8 + length)
-        if zlib.crc32(kind + body) != crc:
-            raise CaptureError(path, f"damaged PNG: chunk {kind!r} at byte {pos} fails its CRC")
+        if zlib.crc32(data[pos + 4 : pos + 8 + length]) != crc:
+            raise CaptureError(path, f"damaged PNG: chunk {data[pos + 4 : pos + 8]!r} at byte {pos} fails its CRC")
+        kind = data[pos + 4 : pos + 8]
         if kind == b"IDAT":
-            idat.append(body)
+            idat.append(data[pos + 8 : pos + 8 + length])
         pos += 12 + length
         if kind == b"IEND":
             end = True
@@ -170,26 +184,29 @@ def _check_png(data: bytes, path: Path, shape: tuple[int, int], depth_bits: int)
     if not end:
         raise CaptureError(path, "damaged PNG: truncated (no end chunk)")
     if interlace != 0:
-        return  # Adam7 rows differ in length; the decoder checks them
-    row = 1 + width * 3 * depth // 8
-    need = row * height
+        return None  # Adam7 rows differ in length; OpenCV decodes and checks them
+    rowbytes = width * 3 * depth // 8
+    need = (1 + rowbytes) * height
     z = zlib.decompressobj()
     try:
-        rows = z.decompress(b"".join(idat), need + 1)
+        rows = z.decompress(idat[0] if len(idat) == 1 else b"".join(idat), need + 1)
     except zlib.error as e:
         raise CaptureError(path, f"damaged PNG: image data does not inflate ({e})") from None
     if len(rows) != need or not z.eof:
         raise CaptureError(path, f"damaged PNG: image data holds {len(rows)}{'+' if not z.eof else ''} bytes, "
                            f"{need} expected")
-    if max(rows[::row]) > 4:
+    out = np.empty((height, rowbytes), dtype=np.uint8)
+    if _kernels.png_unfilter(np.frombuffer(rows, np.uint8), height, rowbytes, 3 * depth // 8, out) >= 0:
         raise CaptureError(path, "damaged PNG: invalid row filter type")
+    if depth == 8:
+        return out.reshape(height, width, 3)
+    return out.view(">u2").reshape(height, width, 3).astype(np.uint16)
 
 
 def _decode_quietly(data: bytes) -> NDArray[np.integer] | None:
     """``cv2.imdecode`` without OpenCV's own warnings on stderr (a damaged file is our error to report)."""
-    try:
-        from cv2.utils import logging as cv_log
-    except ImportError:  # older OpenCV builds
+    cv_log = getattr(getattr(cv2, "utils", None), "logging", None)
+    if cv_log is None:  # older OpenCV builds
         return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     level = cv_log.getLogLevel()
     cv_log.setLogLevel(cv_log.LOG_LEVEL_SILENT)
@@ -202,18 +219,21 @@ def _decode_quietly(data: bytes) -> NDArray[np.integer] | None:
 def read_image(path: Path, shape: tuple[int, int], dtype: type) -> NDArray[np.integer]:
     """Read a 16- or 8-bit RGB PNG; refuse missing, unreadable, special or wrong-size files.
 
-    The PNG header (size, bit depth, colour type) is checked against ``shape`` and
-    ``dtype`` before the image is decoded, so a header claiming a huge image costs
-    nothing; the file itself may be at most twice the size of its pixels plus 1 MiB.
+    Returns the pixels, shape ``(height, width, 3)``, RGB, ``dtype``. The PNG header
+    (size, bit depth, colour type) is checked against ``shape`` and ``dtype`` before
+    the image is decoded, so a header claiming a huge image costs nothing; the file
+    itself may be at most twice the size of its pixels plus 1 MiB. Decoded by
+    :func:`_decode_png` (interlaced files by OpenCV).
     """
-    from ..io import read_input
 
     if not path.exists() and not path.is_symlink():
         raise CaptureError(path, "frame is missing")
     itemsize = np.dtype(dtype).itemsize
     limit = 2 * shape[0] * shape[1] * 3 * itemsize + (1 << 20)
     data = read_input(path, limit, "a frame of this size", missing="frame is missing")
-    _check_png(data, path, shape, 8 * itemsize)
+    img = _decode_png(data, path, shape, 8 * itemsize)
+    if img is not None:
+        return img
     img = _decode_quietly(data)
     if img is None:
         raise CaptureError(path, "not a readable image (damaged PNG)")
@@ -229,7 +249,6 @@ def read_image(path: Path, shape: tuple[int, int], dtype: type) -> NDArray[np.in
 def atomic_dir(path: str | Path):  # type: ignore[no-untyped-def]
     """Yield a temporary folder beside ``path``; it replaces ``path`` on success
     (see :func:`reflecto.io.atomic_folder`: umask permissions, no folder left on failure)."""
-    from ..io import atomic_folder
 
     return atomic_folder(path)
 
@@ -292,7 +311,6 @@ def read_manifest(cap_dir: Path) -> dict[str, Any]:
         Naming the folder or ``manifest.json``: no folder, no manifest, not a reflecto
         capture manifest, an unsupported version.
     """
-    from ..io import read_json
 
     mpath = cap_dir / MANIFEST
     if not cap_dir.is_dir():
@@ -412,12 +430,18 @@ def read_capture(cap_dir: str | Path) -> Capture:
 
 
 def check_saturation(cap: Capture) -> None:
-    """Refuse a capture whose every exposure of some LED is saturated over the view disc."""
+    """Refuse a capture whose every exposure of some LED is saturated over the view disc.
+
+    A pixel of the nominal optics' view disc (:meth:`Optics.view_pixels`) is saturated
+    when its largest channel reads ≥ 0.95 of the ADC range; an LED fails when more than
+    99 % of the disc is saturated in each of its exposures.
+    """
     cam = cap.device.camera
     sat = 0.95 * cam.max_value
-    dirs_mask = cap.device.optics.pixel_directions()[1]
+    rows, cols = cap.device.optics.view_pixels()
+    n = max(len(rows), 1)
     for led in range(cap.n_leds):
-        frac = [(cap.raw[led, e][dirs_mask].max(axis=-1) >= sat).mean() for e in range(cap.raw.shape[1])]
+        frac = [_kernels.count_saturated(cap.raw[led, e], rows, cols, sat) / n for e in range(cap.raw.shape[1])]
         if min(frac) > 0.99:
             where = cap.path if cap.path is not None else Path("<capture>")
             raise CaptureError(where, f"LED {led}: every exposure is saturated over the whole view disc "

@@ -26,6 +26,8 @@ from numpy.typing import NDArray
 
 from .. import _kernels
 from .device import Camera
+from ..colour import LUM
+import cv2
 
 Array = NDArray[np.float64]
 
@@ -87,14 +89,20 @@ def merge_noise(radiance: Array, t_sum: Array, n_used: Array, camera: Camera) ->
     the photon shot noise of the ``L Σt`` collected DN (variance ``DN / g`` for ``g``
     electrons per DN). ``radiance`` (L, P, 3) in DN/ms; ``t_sum``, ``n_used`` (L, P).
     """
-    from ..colour import LUM
 
     read_dn = camera.read_noise / camera.gain
     lum = np.maximum(radiance @ LUM, 0.0)
-    var = n_used * (read_dn * read_dn + 1.0 / 12.0)
-    if camera.shot_noise:
-        var = var + lum * t_sum / camera.gain
-    return np.sqrt(var) / np.maximum(t_sum, 1e-300)
+    t_sum = np.asarray(t_sum, dtype=np.float64)
+    n_used = np.asarray(n_used, dtype=np.float64)
+    if lum.ndim != 2 or t_sum.shape != lum.shape or n_used.shape != lum.shape:
+        var = n_used * (read_dn * read_dn + 1.0 / 12.0)
+        if camera.shot_noise:
+            var = var + lum * t_sum / camera.gain
+        return np.sqrt(var) / np.maximum(t_sum, 1e-300)
+    out = np.empty(lum.shape)  # the expression above in one compiled pass
+    _kernels.merge_noise_sd(lum, t_sum, n_used, read_dn * read_dn + 1.0 / 12.0, float(camera.gain),
+                            bool(camera.shot_noise), out)
+    return out
 
 
 def dithered(camera: Camera) -> bool:
@@ -122,7 +130,6 @@ def recover_response(
     LED) with E exposures each. OpenCV samples pixels on a regular grid, so ``window``
     (rows, cols) restricts it to the lit part of the image.
     """
-    import cv2
 
     cal = cv2.createCalibrateDebevec(samples=samples, lambda_=10.0, random=False)
     t = (np.asarray(exposures_ms, dtype=np.float32) / 1000.0).astype(np.float32)

@@ -219,12 +219,15 @@ class Optics:
         """View direction of every pixel and the mask of pixels inside the view cone.
 
         Returns ``(dirs, mask)`` with shapes ``(height, width, 3)`` and
-        ``(height, width)``.
+        ``(height, width)``, read-only: computed once per optics (the optics are
+        immutable; :func:`_pixel_directions` keeps the last few).
         """
-        dirs = self.pixel_to_direction(self.pixel_grid())
-        cos_axis = dirs @ self.axis
-        mask = (cos_axis >= math.cos(math.radians(self.cone_half_angle_deg))) & (dirs[..., 2] > 0)
-        return dirs, mask
+        return _pixel_directions(self)[:2]
+
+    def view_pixels(self) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """``(rows, cols)`` of the pixels inside the view cone, ``np.nonzero(mask)`` of
+        :meth:`pixel_directions`, shape ``(P,)`` each, read-only (cached like it)."""
+        return _pixel_directions(self)[2:]
 
     def pixel_solid_angles(self) -> Array:
         """Solid angle of each pixel (sr), from the numerical Jacobian of the map."""
@@ -233,6 +236,19 @@ class Optics:
         du = self.pixel_to_direction(uv + [eps, 0]) - self.pixel_to_direction(uv - [eps, 0])
         dv = self.pixel_to_direction(uv + [0, eps]) - self.pixel_to_direction(uv - [0, eps])
         return np.linalg.norm(np.cross(du, dv), axis=-1) / (4 * eps * eps)
+
+
+@functools.lru_cache(maxsize=8)
+def _pixel_directions(optics: Optics) -> tuple[Array, NDArray[np.bool_], NDArray[np.intp], NDArray[np.intp]]:
+    """``(dirs, mask, rows, cols)`` of :meth:`Optics.pixel_directions` and
+    :meth:`Optics.view_pixels`, made read-only so that the cached arrays stay as computed."""
+    dirs = optics.pixel_to_direction(optics.pixel_grid())
+    cos_axis = dirs @ optics.axis
+    mask = (cos_axis >= math.cos(math.radians(optics.cone_half_angle_deg))) & (dirs[..., 2] > 0)
+    rows, cols = np.nonzero(mask)
+    for a in (dirs, mask, rows, cols):
+        a.flags.writeable = False
+    return dirs, mask, rows, cols
 
 
 def optics_from_dict(d: dict[str, Any], where: str = "optics") -> Optics:

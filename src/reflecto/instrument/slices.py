@@ -14,10 +14,9 @@ import dataclasses
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import geometry
+from .. import _kernels, geometry
 from .calibrate import Calibration
 from .capture import Capture, CaptureError
-from ..colour import LUM
 from .hdr import BLACK_DN, dithered, merge_debevec, merge_linear_pixels
 
 Array = NDArray[np.float64]
@@ -124,8 +123,12 @@ def _check_inputs(capture: Capture, calibration: Calibration) -> None:
     scale = calibration.scale
     if scale.shape != (capture.device.n_leds, o.height, o.width, 3):
         raise CaptureError(where, f"the calibration's scale field has shape {scale.shape}")
-    if not np.all(np.isfinite(scale)) or np.any(scale < 0):
-        raise CaptureError(where, "the calibration's scale field has NaN, infinite or negative values")
+    # a read-only scale field (a calibration loaded by load_calibration) is checked once
+    if calibration.__dict__.get("_scale_checked") is not scale:
+        if not np.all(np.isfinite(scale)) or np.any(scale < 0):
+            raise CaptureError(where, "the calibration's scale field has NaN, infinite or negative values")
+        if not scale.flags.writeable:
+            calibration.__dict__["_scale_checked"] = scale
     t = np.asarray(capture.exposures_ms, dtype=np.float64)
     if t.shape != (capture.raw.shape[1],) or not np.all(np.isfinite(t)) or np.any(t <= 0):
         raise CaptureError(where, "exposure times must be positive and one per exposure slot")
@@ -149,28 +152,30 @@ def extract_slices(capture: Capture, calibration: Calibration) -> Slices:
             raise CaptureError(capture.path or "<capture>", "gamma camera: the calibration has no response curve")
     dirs, mask, rows, cols, scale = calibration.pixel_geometry()
 
-    def merge(raw: NDArray[np.integer], scl: Array) -> tuple[Array, NDArray[np.bool_], NDArray[np.bool_] | None,
-                                                             Array | None, Array | None]:
-        near_black = noise = limit = None
+    def merge(raw: NDArray[np.integer], scl: Array, scl_pos: NDArray[np.bool_], s_lum: Array
+              ) -> tuple[Array, NDArray[np.bool_], NDArray[np.bool_] | None, Array | None, Array | None]:
         if dev.camera.response == "gamma":
             rad, valid = merge_debevec(raw, capture.exposures_ms, calibration.response)
             rad, valid = rad[:, rows, cols], valid[:, rows, cols]
-        else:
-            rad, valid, near_black, sigma, t_sum = merge_linear_pixels(raw, capture.exposures_ms, dev.camera, rows,
-                                                                        cols, noise=True)
-        ok = valid & np.all(scl > 0, axis=-1)
-        if near_black is not None:  # the noise and the detection limit in BRDF units (sr⁻¹)
-            s_lum = np.where(ok, scl @ LUM, np.inf)
-            noise = np.where(ok, sigma / s_lum, 0.0)
-            limit = np.where(ok, BLACK_DN / np.maximum(t_sum, 1e-300) / s_lum, 0.0)
-        return np.divide(rad, scl, out=np.zeros_like(rad), where=ok[..., None]), ok, near_black, noise, limit
+            ok = valid & scl_pos
+            return np.divide(rad, scl, out=np.zeros_like(rad), where=ok[..., None]), ok, None, None, None
+        rad, valid, near_black, sigma, t_sum = merge_linear_pixels(raw, capture.exposures_ms, dev.camera, rows, cols,
+                                                                    noise=True)
+        # one compiled pass: ok = valid & scale > 0; where ok, values = rad / scale and, in BRDF units (sr⁻¹),
+        # the noise σ / s_lum and the detection limit BLACK_DN / max(Σt, 1e-300) / s_lum; 0 elsewhere
+        values, ok = np.empty_like(rad), np.empty(valid.shape, dtype=bool)
+        noise, limit = np.empty(valid.shape), np.empty(valid.shape)
+        _kernels.slice_values(rad, valid, scl, scl_pos, s_lum, sigma, t_sum, BLACK_DN, values, ok, noise, limit)
+        return values, ok, near_black, noise, limit
 
-    values, ok, near_black, noise, limit = merge(capture.raw, scale)
+    scale_pos, scale_lum = calibration.scale_luminance()
+    values, ok, near_black, noise, limit = merge(capture.raw, scale, scale_pos, scale_lum)
     censored = None if near_black is None or dithered(dev.camera) else near_black & ok
     check_leds: tuple[int, ...] = ()
     check_values = check_valid = None
     if capture.check is not None and dev.check_leds:
         check_leds = dev.check_leds
-        check_values, check_valid, *_ = merge(capture.check, scale[list(check_leds)])
+        k = list(check_leds)
+        check_values, check_valid, *_ = merge(capture.check, scale[k], scale_pos[k], scale_lum[k])
     return Slices(calibration.leds.copy(), dirs[rows, cols], values, ok, np.stack([rows, cols], -1), censored=censored,
                   noise=noise, limit=limit, check_leds=check_leds, check_values=check_values, check_valid=check_valid)

@@ -161,9 +161,13 @@ class _RingRegression:
     def __init__(self, r: Array, ring: NDArray[np.intp], n_rings: int, columns: list[Array]):
         x = np.stack(columns, axis=1)
         m = x.shape[1]
-        # per ring: XᵀX, Xᵀr and rᵀr, accumulated in one pass
-        self.xtx = np.stack([np.bincount(ring, x[:, a] * x[:, b], n_rings) for a in range(m) for b in range(m)],
-                            axis=1).reshape(n_rings, m, m)
+        # per ring: XᵀX, Xᵀr and rᵀr, accumulated in one pass; XᵀX is symmetric (x_a x_b = x_b x_a
+        # exactly), so the upper triangle is accumulated and mirrored
+        self.xtx = np.empty((n_rings, m, m))
+        for a in range(m):
+            for b in range(a, m):
+                self.xtx[:, a, b] = np.bincount(ring, x[:, a] * x[:, b], n_rings)
+                self.xtx[:, b, a] = self.xtx[:, a, b]
         self.xtr = np.stack([np.bincount(ring, x[:, a] * r, n_rings) for a in range(m)], axis=1)
         self.rtr = np.bincount(ring, r * r, n_rings)
         self.n = self.xtx[:, 0, 0]

@@ -1,0 +1,171 @@
+"""Benchmark of the whole capture → model path, per stage, on measured materials.
+
+Captures: :data:`MATERIALS` (measured, from ``../shared/data``) through the as-built
+device, calibrated (``simulate_calibration`` + ``calibrate``), each tilted by
+``3 + 5 u`` degrees (``u`` uniform from the material's seed, :func:`material_seed`) at
+an azimuth drawn from the same seed, written as capture folders (16-bit PNG frames +
+manifest) into ``--work`` (made once, reused).
+
+Timed per capture, after one warm-up round, :data:`REPEATS` rounds, one core:
+
+* ``read``        the frames decoded and validated (:func:`read_capture` without the saturation check),
+* ``saturation``  :func:`check_saturation` (timed on its own; ``read`` is ``read_capture`` minus it),
+* ``calibration`` :func:`load_calibration` (a batch or ``watch`` pays it once per file),
+* ``hdr+slices``  :func:`extract_slices`,
+* ``fit``         :func:`reconstruct` with the default options, incl. the normal's stage and the eq. 3 test,
+* ``write``       the model file and its JSON summary (atomic, fsync'ed),
+* ``total``       ``cli._reconstruct_one`` end to end, the path ``reflecto reconstruct`` runs.
+
+Prints per stage the median and p90 over all captures × rounds of the process's CPU
+time (the benchmark runs single-threaded on one core; on a shared machine the wall
+time also counts the other processes' turns) and the wall time beside it; then the
+first-call time of ``reflecto reconstruct`` in a fresh process (wall, median of
+``--first`` runs). The device captures 8.6 BRDFs per second (116 ms each); the
+target is ≤ 100 ms median, ≤ 150 ms p90 marginal per capture (``total``).
+
+Run: ``.venv/bin/python benchmarks/bench_capture_to_model.py [--work DIR] [--repeats N]``.
+"""
+
+from __future__ import annotations
+
+import _bench  # noqa: F401  (pins to one core before NumPy loads)
+import argparse  # noqa: E402
+import json  # noqa: E402
+import os  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from reflecto import cli  # noqa: E402
+from reflecto.evaluate.sweep import material_seed  # noqa: E402
+from reflecto.instrument.calibrate import calibrate, load_calibration  # noqa: E402
+from reflecto.instrument.capture import check_saturation, read_capture, write_capture  # noqa: E402
+from reflecto.instrument.device import Device  # noqa: E402
+from reflecto.instrument.simulate import simulate_calibration, simulate_capture  # noqa: E402
+from reflecto.instrument.slices import extract_slices  # noqa: E402
+from reflecto.io import atomic_write  # noqa: E402
+from reflecto.reconstruct import Options, reconstruct  # noqa: E402
+from reflecto.sources import load_source  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The source tree of the reflecto this process runs (the fresh process runs the same one).
+SRC = Path(cli.__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "data"
+#: Measured materials (NBRDF fits of MERL materials and RGL measurements): metals, paints,
+#: plastics, phenolic, fabric.
+MATERIALS = ("merl-nbrdf/alum-bronze.h5", "merl-nbrdf/blue-metallic-paint.h5", "merl-nbrdf/delrin.h5",
+             "merl-nbrdf/pink-felt.h5", "merl-nbrdf/red-specular-plastic.h5",
+             "merl-nbrdf/specular-maroon-phenolic.h5", "merl-nbrdf/steel.h5", "merl-nbrdf/orange-paint.h5",
+             "rgl/acrylic_felt_green_rgb.bsdf", "rgl/chm_mint_rgb.bsdf")
+REPEATS = 3
+STAGES = ("read", "saturation", "calibration", "hdr+slices", "fit", "write", "total")
+
+
+def tilt_of(name: str) -> float:
+    """The capture's tilt (degrees) in [3, 8): ``3 + 5 u``, ``u`` uniform from the material's seed."""
+    return 3.0 + 5.0 * float(np.random.default_rng(material_seed(name)).uniform())
+
+
+def prepare(work: Path) -> tuple[list[Path], Path]:
+    """Capture folders of :data:`MATERIALS` and the calibration file in ``work`` (made if absent)."""
+    dev = Device.builtin("as-built")
+    cal_path = work / "as-built.npz"
+    if not cal_path.exists():
+        calibrate(simulate_calibration(dev, work / "calib", seed=0)).save(cal_path)
+    caps = []
+    for rel in MATERIALS:
+        src = SHARED / rel
+        name = Path(rel).stem
+        out = work / "captures" / name
+        if not (out / "manifest.json").exists():
+            cap = simulate_capture(load_source(src), dev, tilt_deg=tilt_of(name), seed=material_seed(name),
+                                   source_name=str(src))
+            write_capture(cap, out)
+        caps.append(out)
+    return caps, cal_path
+
+
+def stages_once(cap_dir: Path, cal_path: Path, out: Path) -> dict[str, tuple[float, float]]:
+    """(CPU s, wall s) of each stage for one capture (module docstring)."""
+    clock = (time.process_time, time.perf_counter)
+    res: dict[str, tuple[float, float]] = {}
+
+    def run(name, fn):  # type: ignore[no-untyped-def]
+        t = [c() for c in clock]
+        v = fn()
+        res[name] = tuple(c() - t0 for c, t0 in zip(clock, t))  # type: ignore[assignment]
+        return v
+
+    cap = run("read", lambda: read_capture(cap_dir))
+    run("saturation", lambda: check_saturation(cap))
+    res["read"] = tuple(a - b for a, b in zip(res["read"], res["saturation"]))  # type: ignore[assignment]
+    cal = run("calibration", lambda: load_calibration(cal_path, cap.device))
+
+    slices = run("hdr+slices", lambda: extract_slices(cap, cal))
+
+    def fit():  # type: ignore[no-untyped-def]
+        r = reconstruct(slices, Options())
+        return r, cli._symmetry_of(slices, r)
+
+    r, sym = run("fit", fit)
+
+    def write() -> None:
+        r.model.save(out)
+        with atomic_write(out.with_suffix(".json"), "w") as fh:
+            fh.write(json.dumps({**r.summary(), "symmetry_test": sym.to_dict()}, indent=1))
+
+    run("write", write)
+    run("total", lambda: cli._reconstruct_one(str(cap_dir), str(cal_path), str(out), False, None, "auto", False))
+    return res
+
+
+def first_call(cap_dir: Path, cal_path: Path, runs: int) -> list[float]:
+    """Wall seconds of ``reflecto reconstruct CAP --calibration CAL -o M`` in fresh processes."""
+    times = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for k in range(runs):
+            t = time.perf_counter()
+            subprocess.run([sys.executable, "-m", "reflecto.cli", "reconstruct", str(cap_dir), "--calibration",
+                            str(cal_path), "-o", str(Path(tmp) / f"m{k}.reflecto"), "-q"], check=True,
+                           stdout=subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": str(SRC)})
+            times.append(time.perf_counter() - t)
+    return times
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--work", type=Path, default=ROOT / "out" / "bench-capture-to-model",
+                    help="folder of the captures and calibration (made once, reused)")
+    ap.add_argument("--repeats", type=int, default=REPEATS, help="rounds over all captures")
+    ap.add_argument("--first", type=int, default=3, help="fresh-process runs of the first call (0: skip)")
+    args = ap.parse_args()
+    caps, cal_path = prepare(args.work)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "m.reflecto"
+        for c in caps:  # warm-up: compiled kernels, caches, page cache
+            stages_once(c, cal_path, out)
+        rows: dict[str, list[tuple[float, float]]] = {s: [] for s in STAGES}
+        for _ in range(args.repeats):
+            for c in caps:
+                for k, v in stages_once(c, cal_path, out).items():
+                    rows[k].append(v)
+    print(f"capture → model, {len(caps)} measured materials × {args.repeats}, as-built device, calibrated, "
+          f"tilted 3–8°, one core (ms per capture, marginal)")
+    print(f"  {'stage':12s} {'cpu median':>10s} {'cpu p90':>8s} {'wall median':>11s} {'wall p90':>8s}")
+    for s in STAGES:
+        cpu = 1000 * np.array([v[0] for v in rows[s]])
+        wall = 1000 * np.array([v[1] for v in rows[s]])
+        print(f"  {s:12s} {np.median(cpu):10.1f} {np.percentile(cpu, 90):8.1f} {np.median(wall):11.1f} "
+              f"{np.percentile(wall, 90):8.1f}")
+    if args.first:
+        t = first_call(caps[0], cal_path, args.first)
+        print(f"first call (fresh process, `reflecto reconstruct`): median {np.median(t):.2f} s, "
+              f"max {max(t):.2f} s over {len(t)} runs")
+
+
+if __name__ == "__main__":
+    main()

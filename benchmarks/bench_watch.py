@@ -1,0 +1,107 @@
+"""Benchmark of ``reflecto watch``: 100 captures landing at the device's rate, one core.
+
+The captures of :mod:`bench_capture_to_model` (measured materials, as-built device,
+calibrated, tilted 3–8°) are copied into a watched folder from a thread at 8.6 per
+second (the device's rate), 100 in all: most renamed into place whole, every fourth
+written frame by frame with the manifest last after a pause (half-written while the
+watcher looks), and one damaged (a frame's CRC fails). The watcher
+(:class:`reflecto.watch.Watcher`, the default per-capture reconstruction, thumbnails
+and index page) runs in the main thread.
+
+Prints the latency per capture (from the folder complete to its model, summary and
+index written: median, p90, max), whether the damaged capture was reported, the
+rate kept (captures per second over the run) and the process's CPU time per capture
+(on a shared machine the wall-clock figures also count the other processes' turns;
+the CPU time says whether one core of its own keeps up). Target: latency ≤ 200 ms,
+keeping up with 8.6 captures/s.
+
+Run: ``.venv/bin/python benchmarks/bench_watch.py [--work DIR] [--count N]``.
+"""
+
+from __future__ import annotations
+
+import _bench  # noqa: F401  (pins to one core before NumPy loads)
+import argparse  # noqa: E402
+import json  # noqa: E402
+import os  # noqa: E402
+import shutil  # noqa: E402
+import tempfile  # noqa: E402
+import threading  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from bench_capture_to_model import ROOT, prepare  # noqa: E402
+from reflecto.watch import Watcher, default_reconstructor  # noqa: E402
+
+RATE = 8.6
+
+
+def land(src: Path, dst: Path, how: str) -> None:
+    """Write one capture folder into the watched folder (``whole``, ``manifest-last`` or ``damaged``)."""
+    if how == "whole":
+        tmp = dst.with_name(f".{dst.name}.part")
+        shutil.copytree(src, tmp)
+        os.replace(tmp, dst)
+        return
+    dst.mkdir()
+    frames = [f["file"] for f in json.loads((src / "manifest.json").read_text())["frames"]]
+    for k, name in enumerate(frames):
+        data = (src / name).read_bytes()
+        if how == "damaged" and k == 2:
+            data = data[:200] + bytes([data[200] ^ 0x55]) + data[201:]
+        (dst / name).write_bytes(data)
+    time.sleep(0.02)
+    shutil.copyfile(src / "manifest.json", dst / "manifest.json")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--work", type=Path, default=ROOT / "out" / "bench-capture-to-model")
+    ap.add_argument("--count", type=int, default=100)
+    args = ap.parse_args()
+    caps, cal = prepare(args.work)
+    with tempfile.TemporaryDirectory() as tmp:
+        root, models = Path(tmp) / "root", Path(tmp) / "models"
+        root.mkdir()
+        recon = default_reconstructor(str(cal))
+        # warm-up (compiled kernels, the calibration's caches) outside the timed run
+        warm = Watcher(caps[0].parent, Path(tmp) / "warm", recon, report=lambda _: None)
+        warm.run(once=True)
+        landed: dict[str, float] = {}
+        plan = [(f"c{k:03d}", caps[k % len(caps)], "damaged" if k == args.count // 2 else
+                 "manifest-last" if k % 4 == 3 else "whole") for k in range(args.count)]
+        done = threading.Event()
+
+        def device() -> None:
+            t0 = time.monotonic()
+            for k, (name, src, how) in enumerate(plan):
+                time.sleep(max(0.0, t0 + k / RATE - time.monotonic()))
+                land(src, root / name, how)
+                landed[name] = time.monotonic()
+            done.set()
+
+        reported: list[str] = []
+        watcher = Watcher(root, models, recon, settle_s=2.0, report=reported.append)
+        writer = threading.Thread(target=device)
+        t0, c0 = time.monotonic(), time.process_time()
+        writer.start()
+        n_good = args.count - 1
+        watcher.run(stop=lambda: done.is_set() and len(watcher.entries) + len(watcher.failed) >= args.count)
+        span, cpu = time.monotonic() - t0, time.process_time() - c0
+        writer.join()
+        lat = 1000 * np.array([watcher.finished_at[n] - landed[n] for n in watcher.finished_at])
+    print(f"reflecto watch: {args.count} captures landing at {RATE} per second ({len(caps)} measured materials, "
+          f"as-built, calibrated, tilted 3–8°), one core")
+    print(f"  modelled {len(lat)}/{n_good} good captures; damaged reported: {len(reported)} line(s)"
+          + (f" ({reported[0][-80:]})" if reported else ""))
+    print(f"  latency (landed → model, summary, index written): median {np.median(lat):.0f} ms, "
+          f"p90 {np.percentile(lat, 90):.0f} ms, max {lat.max():.0f} ms")
+    print(f"  rate kept: {args.count / span:.2f} captures/s over {span:.1f} s (device: {RATE}/s); the process's CPU "
+          f"time {1000 * cpu / args.count:.0f} ms per capture (watcher and copying thread; {1000 / RATE:.0f} ms "
+          "keeps up on one core of its own)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,370 @@
+"""``reflecto watch ROOT -o MODELS``: reconstruct each capture folder as it lands (the paper's
+"instant": the operator sweeps the device from sample to sample).
+
+The watcher polls ``ROOT`` (every :data:`POLL_S` seconds while idle) for capture folders
+(docs/capture-format.md). A folder counts once it is complete: ``manifest.json``
+parses as JSON and every frame it names exists and ends with the PNG end chunk
+(:func:`capture_state`). ``reflecto simulate`` and :func:`~reflecto.instrument.capture.write_capture`
+make a folder appear complete at once (written beside it under a hidden ``.NAME.*.part``
+name, then renamed); a writer that copies files in one by one (frames first,
+manifest last, or frames still growing) is waited for. A folder that stays incomplete
+and unchanged for ``settle_s`` seconds, or that the reader refuses (a damaged frame,
+a manifest that does not fit the device, a saturated capture), is reported once
+(one line naming the folder and the problem) and skipped; if it changes later it is
+looked at again.
+
+Each good capture is reconstructed once, by the function given as ``reconstruct_one``
+(capture folder, model path → summary dict; default :func:`default_reconstructor`,
+the code path of ``reflecto reconstruct``), into ``MODELS/<name>.reflecto`` and its
+``.json`` summary, both written atomically (:func:`reflecto.io.atomic_write`). After
+each model a thumbnail (``MODELS/thumbs/<name>.png``, a lit sphere,
+:func:`thumbnail`) and the index page ``MODELS/index.html`` (name, tilt, η, thumbnail,
+warnings; the skipped folders with their problem) are rewritten atomically. A capture
+whose ``.json`` summary already exists in ``MODELS`` counts as done (a restarted watcher
+carries on); a model without its summary is redone.
+
+Ctrl-C (SIGINT), or SIGTERM, stops the watcher between two files: every file in
+``MODELS`` is complete, and a model whose summary was not yet written is removed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import html
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import workflow
+from .errors import ReflectoError, one_line
+from .reconstruct import Options
+from .instrument.capture import MANIFEST
+import cv2
+from .render.sphere import composite, render_sphere, sphere_coverage
+from .fresnel import eta_from_json, format_eta
+from .io import atomic_write, make_parents
+from .model import load_model
+import signal
+import threading
+
+#: Seconds between two looks at ROOT while nothing is ready.
+POLL_S = 0.02
+#: A folder incomplete and unchanged for this long (seconds) is reported as damaged.
+SETTLE_S = 5.0
+#: Side of the index page's thumbnails (pixels).
+THUMB_PX = 48
+#: The last 12 bytes of every complete PNG file: the empty IEND chunk with its CRC.
+PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+READY, WAITING = "ready", "waiting"
+
+#: (capture folder, model path) → the summary written beside the model.
+Reconstructor = Callable[[Path, Path], dict]
+
+
+def default_reconstructor(calibration: str | None = None, options: Options | None = None,
+                          missing: workflow.Missing = "refuse") -> Reconstructor:
+    """The per-capture reconstruction of ``reflecto reconstruct`` with these settings
+    (:func:`reflecto.workflow.reconstruct_folder`): writes the model and its ``.json``
+    summary, returns the summary."""
+
+    def run(cap_dir: Path, out: Path) -> dict:
+        return workflow.reconstruct_folder(cap_dir, out, calibration, options, missing)
+
+    return run
+
+
+def _png_complete(path: Path) -> bool:
+    """Whether the file ends with the PNG end chunk (a frame still being written does not)."""
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(0, os.SEEK_END)
+            if fh.tell() < 45:  # signature + IHDR + IEND
+                return False
+            fh.seek(-12, os.SEEK_END)
+            return fh.read(12) == PNG_END
+    except OSError:
+        return False
+
+
+def capture_state(folder: Path) -> tuple[str, str]:
+    """``(READY, "")`` when the capture folder is complete, else ``(WAITING, reason)``.
+
+    Complete: ``manifest.json`` exists and parses as a JSON object, and every frame its
+    ``frames`` list names (as a plain file name) exists and ends with the PNG end chunk.
+    Whatever else is wrong with the folder (a damaged frame, a manifest that does not
+    fit its device) is the reader's to say: such a folder is ready, and refused there.
+    """
+
+    mpath = folder / MANIFEST
+    try:
+        raw = mpath.read_bytes()
+    except FileNotFoundError:
+        return WAITING, f"no {MANIFEST} yet"
+    except OSError as e:
+        return WAITING, f"{MANIFEST} cannot be read ({e.strerror or e})"
+    try:
+        manifest = json.loads(raw)
+    except ValueError:
+        return WAITING, f"{MANIFEST} is not complete JSON"
+    frames = manifest.get("frames") if isinstance(manifest, dict) else None
+    if not isinstance(frames, list):
+        return READY, ""
+    for f in frames:
+        name = f.get("file") if isinstance(f, dict) else None
+        if not isinstance(name, str) or not name or Path(name).name != name:
+            continue
+        p = folder / name
+        if not p.exists():
+            return WAITING, f"frame {name} is missing"
+        if not _png_complete(p):
+            return WAITING, f"frame {name} is incomplete (no PNG end chunk)"
+    return READY, ""
+
+
+def _signature(folder: Path) -> tuple:
+    """Names, sizes and modification times of a folder's files: a change means a writer is at work."""
+    try:
+        return tuple(sorted((e.name, e.stat().st_size, e.stat().st_mtime_ns) for e in os.scandir(folder)))
+    except OSError:
+        return ()
+
+
+def thumbnail(model, size: int = THUMB_PX) -> bytes:  # type: ignore[no-untyped-def]
+    """PNG bytes of a lit sphere of ``model`` (:func:`reflecto.render.sphere.render_sphere`:
+    key and fill point lights), ``size × size`` pixels, sRGB-encoded 8-bit RGB on the
+    renders' grey background, exposure 1."""
+
+
+    rad = render_sphere(model, resolution=size, supersample=1)
+    img = np.clip(composite(rad, sphere_coverage(size, 1)), 0.0, 1.0)
+    srgb = np.where(img <= 0.0031308, 12.92 * img, 1.055 * np.power(img, 1 / 2.4) - 0.055)
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray((255 * srgb + 0.5).astype(np.uint8)[..., ::-1]))
+    if not ok:  # pragma: no cover - OpenCV encodes any uint8 image
+        raise ReflectoError("could not encode a thumbnail")
+    return buf.tobytes()
+
+
+def warnings_of(summary: dict[str, Any]) -> list[str]:
+    """The warnings a summary carries, as plain lines: shake, broken eq. 3 symmetry, notes."""
+    out = []
+    if summary.get("shake_detected"):
+        out.append("shake detected" + (f" ({summary['motion']})" if summary.get("motion") else ""))
+    sym = summary.get("symmetry_test") or {}
+    if sym.get("decided") and not sym.get("symmetric"):
+        out.append("symmetry of eq. 3 broken (capture rotations for §5.5)")
+    out += [str(n) for n in summary.get("notes", [])]
+    return out
+
+
+@dataclasses.dataclass
+class Entry:
+    """One modelled capture on the index page."""
+
+    name: str
+    tilt_deg: float
+    eta: str
+    warnings: list[str]
+    seconds: float
+
+
+class Watcher:
+    """Polls ``root`` and reconstructs each complete capture folder into ``models`` (module docstring).
+
+    Parameters
+    ----------
+    root, models
+        The folder the captures land in, the folder the models are written to.
+    reconstruct_one
+        Capture folder, model path → summary (writes the model and its ``.json``);
+        default :func:`default_reconstructor`.
+    settle_s
+        An incomplete folder unchanged for this long is reported (seconds).
+    report
+        Receives each one-line problem (default: ``reflecto: watch: …`` on stderr).
+    thumbnails
+        Render the index page's thumbnails.
+    """
+
+    def __init__(self, root: str | Path, models: str | Path, reconstruct_one: Reconstructor | None = None,
+                 settle_s: float = SETTLE_S, report: Callable[[str], None] | None = None,
+                 thumbnails: bool = True) -> None:
+        self.root = Path(root)
+        self.models = Path(models)
+        self.reconstruct_one = reconstruct_one or default_reconstructor()
+        self.settle_s = settle_s
+        self.report = report or (lambda line: print(f"reflecto: watch: {line}", file=sys.stderr, flush=True))
+        self.thumbnails = thumbnails
+        self.entries: dict[str, Entry] = {}
+        self.failed: dict[str, str] = {}
+        self._failed_sig: dict[str, tuple] = {}
+        self._waiting: dict[str, tuple[tuple, float, str]] = {}
+        #: Seconds from a capture found complete to its model, summary and index written.
+        self.latency: dict[str, float] = {}
+        #: ``time.monotonic()`` at which each capture's model, summary and index were written.
+        self.finished_at: dict[str, float] = {}
+
+    # ------------------------------------------------------------------ scanning
+    def _candidates(self) -> list[Path]:
+        try:
+            with os.scandir(self.root) as it:
+                names = sorted(e.name for e in it if e.is_dir() and not e.name.startswith(".")
+                               and not e.name.endswith(".part"))
+        except FileNotFoundError:
+            return []
+        except OSError as e:
+            raise ReflectoError(f"{self.root}: cannot list the folder ({e.strerror or e})") from None
+        return [self.root / n for n in names if n not in self.entries]
+
+    def _done(self, name: str) -> bool:
+        return (self.models / f"{name}.json").exists() and (self.models / f"{name}.reflecto").exists()
+
+    def scan(self, final: bool = False) -> int:
+        """Look at ``root`` once: model every complete folder not yet done, report the damaged
+        ones. With ``final`` (``--once``) an incomplete folder is reported at once instead of
+        waited for. Returns the number of models written."""
+        made = 0
+        for folder in self._candidates():
+            name = folder.name
+            if name in self.failed:
+                sig = _signature(folder)
+                if sig == self._failed_sig.get(name):
+                    continue
+                del self.failed[name]  # changed since it was reported: look again
+            if self._done(name) and name not in self._waiting:
+                self._adopt(name)
+                continue
+            state, why = capture_state(folder)
+            now = time.monotonic()
+            if state == WAITING:
+                sig = _signature(folder)
+                seen = self._waiting.get(name)
+                if seen is None or seen[0] != sig:
+                    self._waiting[name] = (sig, now, why)
+                if final or now - self._waiting[name][1] >= self.settle_s:
+                    held = "" if final else f" for {self.settle_s:g} s"
+                    self._fail(folder, f"incomplete capture: {why} (unchanged{held})", sig)
+                continue
+            self._waiting.pop(name, None)
+            if self._model(folder, now):
+                made += 1
+        return made
+
+    def _fail(self, folder: Path, problem: str, sig: tuple | None = None) -> None:
+        name = folder.name
+        self._waiting.pop(name, None)
+        self.failed[name] = problem
+        self._failed_sig[name] = _signature(folder) if sig is None else sig
+        self.report(f"{folder}: {problem}" if not problem.startswith(str(folder)) else problem)
+        self._write_index()
+
+    def _adopt(self, name: str) -> None:
+        """A model made before this watcher started: listed on the page, not redone."""
+        try:
+            summary = json.loads((self.models / f"{name}.json").read_text())
+        except (OSError, ValueError):
+            return
+        self.entries[name] = self._entry(name, summary)
+
+    def _entry(self, name: str, summary: dict[str, Any]) -> Entry:
+        eta = eta_from_json(summary)
+        tilt = summary.get("normal_tilt_deg")
+        return Entry(name, float(tilt) if isinstance(tilt, (int, float)) else math.nan,
+                     "?" if eta is None else format_eta(eta), warnings_of(summary),
+                     float(summary.get("seconds") or 0.0))
+
+    def _model(self, folder: Path, found: float) -> bool:
+        """Reconstruct one capture; a refused one is reported and remembered."""
+
+        name = folder.name
+        out = self.models / f"{name}.reflecto"
+        summary_path = out.with_suffix(".json")
+        make_parents(self.models)
+        try:
+            summary = self.reconstruct_one(folder, out)
+        except ReflectoError as e:
+            self._fail(folder, one_line(e))
+            return False
+        except MemoryError:
+            self._fail(folder, "out of memory (see docs/limits.md for the input limits)")
+            return False
+        except OSError as e:
+            self._fail(folder, f"{e.filename or folder}: {one_line(e.strerror or e)}")
+            return False
+        except Exception as e:  # a fault of one capture's reconstruction must not stop the watch
+            if not summary_path.exists():
+                out.unlink(missing_ok=True)
+            self._fail(folder, f"reconstruction failed ({type(e).__name__}: {one_line(e)})")
+            return False
+        except BaseException:
+            if not summary_path.exists():  # interrupted between the model and its summary
+                out.unlink(missing_ok=True)
+            raise
+        self.entries[name] = self._entry(name, summary)
+        if self.thumbnails:
+            try:
+
+                png = thumbnail(load_model(out))
+                with atomic_write(self.models / "thumbs" / f"{name}.png") as fh:
+                    fh.write(png)
+            except ReflectoError as e:
+                self.entries[name].warnings.append(f"no thumbnail ({one_line(e)})")
+        self._write_index()
+        self.finished_at[name] = time.monotonic()
+        self.latency[name] = self.finished_at[name] - found
+        return True
+
+    # ------------------------------------------------------------------ the page
+    def _write_index(self) -> None:
+        """Rewrite ``MODELS/index.html`` atomically: one row per model, then the skipped folders."""
+
+        esc = html.escape
+        rows = []
+        for e in sorted(self.entries.values(), key=lambda e: e.name):
+            thumb = self.models / "thumbs" / f"{e.name}.png"
+            img = (f'<img src="thumbs/{esc(e.name)}.png" width="{THUMB_PX}" height="{THUMB_PX}" alt="">'
+                   if thumb.exists() else "")
+            tilt = "–" if not math.isfinite(e.tilt_deg) else f"{e.tilt_deg:.2f}°"
+            warn = "<br>".join(esc(w) for w in e.warnings) or "–"
+            rows.append(f'<tr><td><a href="{esc(e.name)}.json">{esc(e.name)}</a></td><td>{tilt}</td>'
+                        f"<td>{esc(e.eta)}</td><td>{img}</td><td>{warn}</td></tr>")
+        skipped = "".join(f"<li>{esc(n)}: {esc(p)}</li>" for n, p in sorted(self.failed.items()))
+        page = ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>reflecto watch: "
+                f"{esc(str(self.root))}</title>\n<style>body{{font-family:sans-serif}}td{{padding:2px 8px;"
+                "vertical-align:middle}</style></head><body>\n"
+                f"<h1>Models of {esc(str(self.root))}</h1>\n<p>{len(self.entries)} models, {len(self.failed)} "
+                "skipped.</p>\n<table>\n<tr><th>capture</th><th>tilt</th><th>η</th><th>sphere</th>"
+                "<th>warnings</th></tr>\n" + "\n".join(rows) + "\n</table>\n"
+                + (f"<h2>Skipped</h2>\n<ul>{skipped}</ul>\n" if skipped else "") + "</body></html>\n")
+        make_parents(self.models)
+        with atomic_write(self.models / "index.html", "w") as fh:
+            fh.write(page)
+
+    # ------------------------------------------------------------------ the loop
+    def run(self, once: bool = False, stop: Callable[[], bool] | None = None, poll_s: float = POLL_S) -> None:
+        """Scan until interrupted (or ``stop()`` is true); with ``once``, one scan that
+        reports the incomplete folders instead of waiting for them."""
+        if once:
+            self.scan(final=True)
+            return
+
+        def interrupt(signum, frame):  # type: ignore[no-untyped-def]
+            raise KeyboardInterrupt
+
+        # a service manager's SIGTERM stops the watch as Ctrl-C does: between two files
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGTERM, interrupt) if main else None
+        try:
+            while stop is None or not stop():
+                if self.scan() == 0:
+                    time.sleep(poll_s)
+        finally:
+            if main:
+                signal.signal(signal.SIGTERM, previous)

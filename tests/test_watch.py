@@ -1,0 +1,226 @@
+"""``reflecto watch``: captures copied in at the device's rate, some half-written, one damaged.
+
+Every good capture is modelled once, with the summary ``reflecto reconstruct`` gives it
+(same numbers), the damaged one reported once, and an interrupt leaves no partial file.
+Timing (latency, keeping up with 8.6 captures/s) lives in benchmarks/bench_watch.py.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reflecto.cli import _reconstruct_one
+from reflecto.instrument.capture import MANIFEST, read_capture, write_capture
+from reflecto.instrument.device import Device
+from reflecto.instrument.simulate import simulate_capture
+from reflecto.model import load_model
+from reflecto.sources import load_source
+from reflecto.watch import READY, WAITING, Watcher, capture_state
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The device's rate: one capture every 1/8.6 s.
+INTERVAL_S = 1 / 8.6
+#: Summary entries that differ between two runs of the same reconstruction.
+VOLATILE = ("seconds", "capture")
+
+
+@pytest.fixture(scope="module")
+def sources(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    """Two ideal-device captures of analytic materials (a plastic untilted, a rougher one tilted 4°)."""
+    base = tmp_path_factory.mktemp("sources")
+    dev = Device.builtin("ideal")
+    plastic = load_source(ROOT / "examples" / "ggx-plastic.json")
+    (base / "rough.json").write_text(json.dumps({"type": "analytic", "distribution": "beckmann", "alpha": 0.3,
+                                                 "kd": [0.1, 0.2, 0.3], "ks": 0.3, "eta": 1.6}))
+    rough = load_source(base / "rough.json")
+    out = []
+    for k, (src, tilt) in enumerate([(plastic, 0.0), (rough, 4.0)]):
+        out.append(write_capture(simulate_capture(src, dev, tilt_deg=tilt, seed=k + 1), base / f"src{k}"))
+    return out
+
+
+@pytest.fixture(scope="module")
+def reference(sources: list[Path], tmp_path_factory: pytest.TempPathFactory) -> list[dict]:
+    """The summaries ``reflecto reconstruct`` writes for the source captures."""
+    base = tmp_path_factory.mktemp("reference")
+    refs = []
+    for s in sources:
+        _reconstruct_one(str(s), None, str(base / f"{s.name}.reflecto"), False, None, "auto", False)
+        refs.append(json.loads((base / f"{s.name}.json").read_text()))
+    return refs
+
+
+def _frames(src: Path) -> list[str]:
+    return [f["file"] for f in json.loads((src / MANIFEST).read_text())["frames"]]
+
+
+def _copy_in(src: Path, dst: Path, how: str, pause: float) -> None:
+    """Write a capture folder the way a device's software might (``how``):
+    ``atomic`` (renamed into place), ``manifest-last`` (frames one by one, a pause, then the
+    manifest), ``truncated`` (manifest first, one frame cut short for a while, then completed),
+    ``damaged`` (one frame's pixel data altered: its CRC fails, for good)."""
+    if how == "atomic":
+        tmp = dst.with_name(f".{dst.name}.copy.part")
+        shutil.copytree(src, tmp)
+        os.replace(tmp, dst)
+        return
+    dst.mkdir()
+    frames = _frames(src)
+    if how == "manifest-last":
+        for name in frames:
+            shutil.copyfile(src / name, dst / name)
+        time.sleep(pause)
+        shutil.copyfile(src / MANIFEST, dst / MANIFEST)
+    elif how == "truncated":
+        shutil.copyfile(src / MANIFEST, dst / MANIFEST)
+        for name in frames[1:]:
+            shutil.copyfile(src / name, dst / name)
+        data = (src / frames[0]).read_bytes()
+        (dst / frames[0]).write_bytes(data[: len(data) // 2])
+        time.sleep(pause)
+        (dst / frames[0]).write_bytes(data)
+    elif how == "damaged":
+        for name in frames:
+            shutil.copyfile(src / name, dst / name)
+        data = bytearray((src / frames[2]).read_bytes())
+        data[200] ^= 0x55  # inside the image data: the chunk's CRC no longer matches
+        (dst / frames[2]).write_bytes(bytes(data))
+        shutil.copyfile(src / MANIFEST, dst / MANIFEST)
+
+
+def test_capture_state_waits_for_manifest_and_whole_frames(sources: list[Path], tmp_path: Path) -> None:
+    src = sources[0]
+    dst = tmp_path / "cap"
+    dst.mkdir()
+    assert capture_state(dst)[0] == WAITING
+    text = (src / MANIFEST).read_text()
+    (dst / MANIFEST).write_text(text[: len(text) // 2])
+    assert capture_state(dst) == (WAITING, "manifest.json is not complete JSON")
+    (dst / MANIFEST).write_text(text)
+    assert capture_state(dst)[0] == WAITING  # no frame yet
+    for name in _frames(src):
+        shutil.copyfile(src / name, dst / name)
+    first = _frames(src)[0]
+    data = (src / first).read_bytes()
+    (dst / first).write_bytes(data[:-5])
+    assert capture_state(dst) == (WAITING, f"frame {first} is incomplete (no PNG end chunk)")
+    (dst / first).write_bytes(data)
+    assert capture_state(dst) == (READY, "")
+    assert np.array_equal(read_capture(dst).raw, read_capture(src).raw)
+
+
+def test_watch_models_every_good_capture_once(sources: list[Path], reference: list[dict], tmp_path: Path) -> None:
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    ways = ["atomic", "manifest-last", "atomic", "truncated", "atomic", "damaged", "manifest-last", "atomic",
+            "truncated", "atomic"]
+    plan = [(f"cap{k:02d}", k % 2, how) for k, how in enumerate(ways)]
+    done = threading.Event()
+
+    def device() -> None:
+        try:
+            for name, which, how in plan:
+                t = time.monotonic()
+                _copy_in(sources[which], root / name, how, pause=0.3)
+                time.sleep(max(0.0, INTERVAL_S - (time.monotonic() - t)))
+        finally:
+            done.set()
+
+    reported: list[str] = []
+    calls: list[str] = []
+    default = Watcher(root, models).reconstruct_one
+
+    def counting(cap: Path, out: Path) -> dict:
+        calls.append(cap.name)
+        return default(cap, out)
+
+    watcher = Watcher(root, models, counting, settle_s=2.0, report=reported.append)
+    good = {n for n, _, how in plan if how != "damaged"}
+    writer = threading.Thread(target=device)
+    writer.start()
+    deadline = time.monotonic() + 25.0
+    watcher.run(stop=lambda: (done.is_set() and good <= set(watcher.entries) and watcher.failed)
+                or time.monotonic() > deadline)
+    writer.join()
+    assert sorted(calls) == sorted(good | {"cap05"}), "each capture reconstructed once (the damaged one tried once)"
+    assert set(watcher.entries) == good
+    assert len(reported) == 1 and "cap05" in reported[0] and "CRC" in reported[0] and "\n" not in reported[0]
+    assert watcher.failed.keys() == {"cap05"}
+    for name, which, how in plan:
+        if how == "damaged":
+            assert not (models / f"{name}.reflecto").exists() and not (models / f"{name}.json").exists()
+            continue
+        summary = json.loads((models / f"{name}.json").read_text())
+        ref = reference[which]
+        assert {k: v for k, v in summary.items() if k not in VOLATILE} == \
+            {k: v for k, v in ref.items() if k not in VOLATILE}
+        if which == 0:  # the untilted plastic against its ground truth (examples/ggx-plastic.json)
+            assert np.allclose(summary["kd"], [0.45, 0.12, 0.08], rtol=0.02)
+            assert np.allclose(summary["ks"], 0.5, rtol=0.03) and np.allclose(summary["eta"], 1.5, rtol=0.01)
+        model = load_model(models / f"{name}.reflecto")
+        assert np.allclose(model.kd, summary["kd"]) and np.allclose(model.ks, summary["ks"])
+        assert (models / "thumbs" / f"{name}.png").stat().st_size > 100
+    page = (models / "index.html").read_text()
+    assert all(f">{n}</a>" in page for n in good) and "cap05" in page and "CRC" in page
+    assert not list(models.rglob("*.part")) and not [p for p in models.iterdir() if p.name.startswith(".")]
+    # a second watcher over the same folders redoes nothing and reports the damaged one again (a new process)
+    again: list[str] = []
+    w2 = Watcher(root, models, lambda c, o: default(c, o) if c.name == "cap05" else pytest.fail(f"{c} redone"),
+                 report=again.append)
+    w2.run(once=True)
+    assert set(w2.entries) == good and len(again) == 1
+
+
+def test_once_reports_an_incomplete_folder_and_exits_1(sources: list[Path], tmp_path: Path) -> None:
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "good")
+    (root / "half").mkdir()
+    shutil.copyfile(sources[0] / _frames(sources[0])[0], root / "half" / _frames(sources[0])[0])
+    proc = subprocess.run([sys.executable, "-m", "reflecto.cli", "watch", str(root), "-o", str(models), "--once"],
+                          capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT / "src")},
+                          timeout=120)
+    assert proc.returncode == 1
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(root / "half") in lines[0] and "no manifest.json" in lines[0]
+    assert "Traceback" not in proc.stderr
+    assert (models / "good.reflecto").exists() and (models / "good.json").exists()
+
+
+def test_interrupt_leaves_no_partial_model(sources: list[Path], tmp_path: Path) -> None:
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    for k in range(12):
+        shutil.copytree(sources[k % 2], root / f"cap{k:02d}")
+    proc = subprocess.Popen([sys.executable, "-m", "reflecto.cli", "watch", str(root), "-o", str(models)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+    try:
+        deadline = time.monotonic() + 60
+        while not list(models.glob("*.json")) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.05)  # mid-way through a later capture
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and "Traceback" not in err
+    made = sorted(p.stem for p in models.glob("*.reflecto"))
+    assert made and len(made) < 12
+    assert made == sorted(p.stem for p in models.glob("*.json"))
+    for name in made:
+        load_model(models / f"{name}.reflecto")
+        json.loads((models / f"{name}.json").read_text())
+    leftovers = [p for p in models.rglob("*") if p.name.startswith(".") or p.name.endswith(".part")]
+    assert not leftovers
