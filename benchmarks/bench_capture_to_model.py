@@ -8,13 +8,13 @@ manifest) into ``--work`` (made once, reused).
 
 Timed per capture, after one warm-up round, :data:`REPEATS` rounds, one core:
 
-* ``read``        the frames decoded and validated (:func:`read_capture` without the saturation check),
-* ``saturation``  :func:`check_saturation` (timed on its own; ``read`` is ``read_capture`` minus it),
-* ``calibration`` :func:`load_calibration` (a batch or ``watch`` pays it once per file),
-* ``hdr+slices``  :func:`extract_slices`,
-* ``fit``         :func:`reconstruct` with the default options, incl. the normal's stage and the eq. 3 test,
+* ``read``        the frames decoded and validated, saturation checked (:func:`read_capture`),
+* ``hdr+slices``  the calibration (read once per file identity) and :func:`measure` (HDR, radiometry),
+* ``fit``         the §5 reconstruction with the default options, incl. the normal, isotropy and motion,
+* ``eq3 test``    the capture's symmetry test against its model,
 * ``write``       the model file and its JSON summary (atomic, fsync'ed),
-* ``total``       ``cli._reconstruct_one`` end to end, the path ``reflecto reconstruct`` runs.
+* ``total``       :func:`reflecto.workflow.reconstruct_folder` end to end, the path ``reflecto
+  reconstruct`` and ``reflecto watch`` run; the stages are its own measurements.
 
 Prints per stage the median and p90 over all captures × rounds of the process's CPU
 time (the benchmark runs single-threaded on one core; on a shared machine the wall
@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import _bench  # noqa: F401  (pins to one core before NumPy loads)
 import argparse  # noqa: E402
-import json  # noqa: E402
 import os  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -40,20 +39,16 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from reflecto import cli  # noqa: E402
+from reflecto import load_source, workflow  # noqa: E402
 from reflecto.evaluate.sweep import material_seed  # noqa: E402
-from reflecto.instrument.calibrate import calibrate, load_calibration  # noqa: E402
-from reflecto.instrument.capture import check_saturation, read_capture, write_capture  # noqa: E402
+from reflecto.instrument.calibrate import calibrate  # noqa: E402
+from reflecto.instrument.capture import write_capture  # noqa: E402
 from reflecto.instrument.device import Device  # noqa: E402
 from reflecto.instrument.simulate import simulate_calibration, simulate_capture  # noqa: E402
-from reflecto.instrument.slices import extract_slices  # noqa: E402
-from reflecto.io import atomic_write  # noqa: E402
-from reflecto.reconstruct import Options, reconstruct  # noqa: E402
-from reflecto.sources import load_source  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The source tree of the reflecto this process runs (the fresh process runs the same one).
-SRC = Path(cli.__file__).resolve().parents[1]
+SRC = Path(workflow.__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 #: Measured materials (NBRDF fits of MERL materials and RGL measurements): metals, paints,
 #: plastics, phenolic, fabric.
@@ -62,7 +57,11 @@ MATERIALS = ("merl-nbrdf/alum-bronze.h5", "merl-nbrdf/blue-metallic-paint.h5", "
              "merl-nbrdf/specular-maroon-phenolic.h5", "merl-nbrdf/steel.h5", "merl-nbrdf/orange-paint.h5",
              "rgl/acrylic_felt_green_rgb.bsdf", "rgl/chm_mint_rgb.bsdf")
 REPEATS = 3
-STAGES = ("read", "saturation", "calibration", "hdr+slices", "fit", "write", "total")
+#: Stage names of the report and the keys of ``reconstruct_folder``'s stage times: read (decode,
+#: validation, saturation check), hdr+slices (calibration choice, HDR merge, radiometry), fit (§5,
+#: the normal, isotropy and motion tests), eq3 test, write (model + summary).
+STAGE_KEYS = {"read": "read", "hdr+slices": "slices", "fit": "reconstruct", "eq3 test": "symmetry", "write": "write"}
+STAGES = (*STAGE_KEYS, "total")
 
 
 def tilt_of(name: str) -> float:
@@ -90,36 +89,14 @@ def prepare(work: Path) -> tuple[list[Path], Path]:
 
 
 def stages_once(cap_dir: Path, cal_path: Path, out: Path) -> dict[str, tuple[float, float]]:
-    """(CPU s, wall s) of each stage for one capture (module docstring)."""
-    clock = (time.process_time, time.perf_counter)
-    res: dict[str, tuple[float, float]] = {}
-
-    def run(name, fn):  # type: ignore[no-untyped-def]
-        t = [c() for c in clock]
-        v = fn()
-        res[name] = tuple(c() - t0 for c, t0 in zip(clock, t))  # type: ignore[assignment]
-        return v
-
-    cap = run("read", lambda: read_capture(cap_dir))
-    run("saturation", lambda: check_saturation(cap))
-    res["read"] = tuple(a - b for a, b in zip(res["read"], res["saturation"]))  # type: ignore[assignment]
-    cal = run("calibration", lambda: load_calibration(cal_path, cap.device))
-
-    slices = run("hdr+slices", lambda: extract_slices(cap, cal))
-
-    def fit():  # type: ignore[no-untyped-def]
-        r = reconstruct(slices, Options())
-        return r, cli._symmetry_of(slices, r)
-
-    r, sym = run("fit", fit)
-
-    def write() -> None:
-        r.model.save(out)
-        with atomic_write(out.with_suffix(".json"), "w") as fh:
-            fh.write(json.dumps({**r.summary(), "symmetry_test": sym.to_dict()}, indent=1))
-
-    run("write", write)
-    run("total", lambda: cli._reconstruct_one(str(cap_dir), str(cal_path), str(out), False, None, "auto", False))
+    """(CPU s, wall s) of each stage for one capture, as :func:`reflecto.workflow.reconstruct_folder`
+    (the path of ``reflecto reconstruct`` and ``reflecto watch``) measures them."""
+    c0, t0 = time.process_time(), time.perf_counter()
+    summary = workflow.reconstruct_folder(cap_dir, out, str(cal_path))
+    total = (time.process_time() - c0, time.perf_counter() - t0)
+    cpu, wall = summary["stage_cpu_seconds"], summary["stage_seconds"]
+    res = {name: (cpu[key], wall[key]) for name, key in STAGE_KEYS.items()}
+    res["total"] = total
     return res
 
 

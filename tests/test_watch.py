@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from reflecto.cli import _reconstruct_one
+from reflecto.workflow import reconstruct_folder
 from reflecto.instrument.capture import MANIFEST, read_capture, write_capture
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
 from reflecto.model import load_model
-from reflecto.sources import load_source
+from reflecto import load_source
 from reflecto.watch import READY, WAITING, Watcher, capture_state
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,7 +56,7 @@ def reference(sources: list[Path], tmp_path_factory: pytest.TempPathFactory) -> 
     base = tmp_path_factory.mktemp("reference")
     refs = []
     for s in sources:
-        _reconstruct_one(str(s), None, str(base / f"{s.name}.reflecto"), False, None, "auto", False)
+        reconstruct_folder(s, base / f"{s.name}.reflecto")
         refs.append(json.loads((base / f"{s.name}.json").read_text()))
     return refs
 
