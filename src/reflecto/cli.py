@@ -67,7 +67,7 @@ def _interactive() -> bool:
     return interactive()
 
 
-def _progress(total: int, desc: str, enabled: bool):  # type: ignore[no-untyped-def]
+def _progress(total: int, desc: str, enabled: bool):
     return tqdm(total=total, desc=desc, unit="bin", unit_scale=True, disable=not enabled, leave=False)
 
 
@@ -547,7 +547,7 @@ class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 class _Parser(argparse.ArgumentParser):
     """The parser of reflecto and of each subcommand: defaults shown in ``--help``."""
 
-    def __init__(self, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, *args, **kwargs) -> None:
         kwargs.setdefault("formatter_class", _HelpFormatter)
         super().__init__(*args, **kwargs)
 
@@ -808,7 +808,7 @@ def _clean_up(new: list[Path], command: str) -> None:
             pass
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None):  # type: ignore[no-untyped-def]
+def _show_warning(message, category, filename, lineno, file=None, line=None):
     if issubclass(category, ReflectoWarning):
         print(f"reflecto: warning: {one_line(message)}", file=sys.stderr)
     else:

@@ -361,7 +361,7 @@ class Hemicube:
                 [np.bincount(idx, weights=w * values[:, k], minlength=self.size) for k in range(values.shape[1])],
                 axis=1,
             )
-        return wsum, wvsum
+        return wsum, wvsum  # type: ignore[return-value]  # numpy stub: weighted bincount is float64, not intp
 
     def smooth(self, values: ArrayLike, passes: int = 1) -> Array:
         """Binomial ``[1 2 1]ᵀ[1 2 1]/16`` filter applied ``passes`` times, face by face.

@@ -226,7 +226,7 @@ def read_image(path: Path, shape: tuple[int, int], dtype: type) -> NDArray[np.in
     return img[..., ::-1]
 
 
-def atomic_dir(path: str | Path):  # type: ignore[no-untyped-def]
+def atomic_dir(path: str | Path):
     """Yield a temporary folder beside ``path``; it replaces ``path`` on success
     (see :func:`reflecto.io.atomic_folder`: umask permissions, no folder left on failure)."""
     from ..io import atomic_folder

@@ -193,7 +193,7 @@ def bin_polar_numpy(mask: NDArray[np.bool_], light: Array, view: Array, values: 
     cols = (th, c, o[:, 2], noise[li, pi] ** 2, bound[li, pi])
     sums = np.stack([np.bincount(key, x, n_keys) for x in cols], axis=1)
     fs = np.stack([np.bincount(key, values[li, pi, q], n_keys) for q in range(3)], axis=1)
-    return count, sums, fs
+    return count, sums, fs  # type: ignore[return-value]  # numpy stub: weighted bincount is float64, not intp
 
 
 # ----------------------------------------------------------------------------- the luminance fit
@@ -509,7 +509,7 @@ def normal_equations_numpy(j: NDArray[np.intp], t: Array, spec: Array, dcols: Ar
     cross = np.stack([np.bincount(j, wc[:, q] * a0, k) + np.bincount(j + 1, wc[:, q] * a1, k)
                       for q in range(dcols.shape[1])], axis=1)
     grad_z = np.bincount(j, w * a0 * r, k) + np.bincount(j + 1, w * a1 * r, k)
-    return diag, off, cross, dcols.T @ wc, grad_z, wc.T @ r
+    return diag, off, cross, dcols.T @ wc, grad_z, wc.T @ r  # type: ignore[return-value]  # numpy stub: weighted bincount is float64, not intp
 
 
 def model_error(problem: LuminanceProblem, s: LuminanceState) -> float:
