@@ -556,6 +556,7 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
     isotropic, tests = _choose_isotropic(opt.isotropic, sls, oks, reference, symmetry)
     fill: SynthesisFill | None = None
     excluded: list[tuple[int, int]] = []
+    model: IsotropicMicrofacetBRDF | MicrofacetBRDF
     if isotropic:
         stacked, ok_st = stack_isotropic([c.slices.reframe(frames[0]) for c in captures], valids)
         iso = fit_isotropic(stacked, ok_st & stacked.valid, opt.fixed_eta)

@@ -433,6 +433,7 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
             trial = _apply(problem, s, step, tie_ks)
             c = problem.cost(trial) if trial is not None else math.inf
             if np.isfinite(c) and c < cost:
+                assert trial is not None  # c is infinite for None
                 improved, rel = True, (cost - c) / cost
                 s, cost = trial, c
                 mu = max(mu / 5.0, 1e-9)
@@ -443,7 +444,7 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
     return s, cost
 
 
-def _apply(problem: LuminanceProblem, s: LuminanceState, step: Array, tie_ks: bool) -> LuminanceState | None:
+def _apply(problem: LuminanceProblem, s: LuminanceState, step: NDArray[np.floating], tie_ks: bool) -> LuminanceState | None:
     """The state after an LM step, renormalized: ``z`` shifted so that ``∫ e^z cos = 1``
     and ``g`` scaled inversely (the model is unchanged: the shift is the gauge of the
     ``(z level, g)`` pair), so ``g`` is ``k_s`` and the level cannot drift. ``None`` when
@@ -694,6 +695,7 @@ def _box_least_squares(m: Array, v: Array, xb: tuple[float, float], yb: tuple[fl
     for fixed in (yb[0], yb[1]):
         x0 = min(max((v[0] - m[0, 1] * fixed) / m[0, 0], xb[0]), xb[1])
         best = min(best or (math.inf, 0.0, 0.0), (cost(x0, fixed), x0, fixed))
+    assert best is not None  # the loop over y's two bounds always sets it
     return best[1], best[2]
 
 
