@@ -444,7 +444,8 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
     return s, cost
 
 
-def _apply(problem: LuminanceProblem, s: LuminanceState, step: NDArray[np.floating], tie_ks: bool) -> LuminanceState | None:
+def _apply(problem: LuminanceProblem, s: LuminanceState, step: NDArray[np.floating],
+           tie_ks: bool) -> LuminanceState | None:
     """The state after an LM step, renormalized: ``z`` shifted so that ``∫ e^z cos = 1``
     and ``g`` scaled inversely (the model is unchanged: the shift is the gauge of the
     ``(z level, g)`` pair), so ``g`` is ``k_s`` and the level cannot drift. ``None`` when

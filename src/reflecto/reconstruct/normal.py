@@ -42,7 +42,9 @@ class NormalDistance(Protocol):
     ``normalize(tx, ty, 1)``: :class:`ConsistencyDistance`, :class:`IsotropicDistance`,
     :class:`.asymmetric.SetDistance`."""
 
-    def __call__(self, normal_xy: Array) -> float: ...
+    def __call__(self, normal_xy: Array) -> float:
+        """The distance at the tangent offset ``normal_xy = (tx, ty)``; ``inf`` where it cannot be judged."""
+        ...
 
 
 #: LEDs less than this far above a candidate frame's horizon (degrees) take no part in
