@@ -18,6 +18,7 @@ import sys
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -103,7 +104,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     src = load_source(args.source)
     theta = np.array([0.0, 20.0, 40.0, 60.0, 80.0])
     alb = src.albedo(theta)
-    info = {
+    info: dict[str, Any] = {
         "file": str(src.path),
         "kind": src.kind,
         "isotropic": bool(src.isotropic),
@@ -507,9 +508,9 @@ def cmd_design(args: argparse.Namespace) -> int:
         rows, failures = getattr(e, "records", []), e.failures
     out = Path(args.output)
     best = best_design(rows)
-    info = {"output": str(out), "files": [str(out / "design.csv"), str(out / "design.png")], "designs": rows,
-            "best_realisable": best["key"] if best else None,
-            "failed": [{"item": f, "error": m} for f, m in failures]}
+    info: dict[str, Any] = {"output": str(out), "files": [str(out / "design.csv"), str(out / "design.png")],
+                            "designs": rows, "best_realisable": best["key"] if best else None,
+                            "failed": [{"item": f, "error": m} for f, m in failures]}
     if args.json:
         print(json.dumps(info, indent=1))
     elif not args.quiet:

@@ -153,6 +153,7 @@ def extract_slices(capture: Capture, calibration: Calibration) -> Slices:
                                                              Array | None, Array | None]:
         near_black = noise = limit = None
         if dev.camera.response == "gamma":
+            assert calibration.response is not None  # refused above for a gamma camera
             rad, valid = merge_debevec(raw, capture.exposures_ms, calibration.response)
             rad, valid = rad[:, rows, cols], valid[:, rows, cols]
         else:

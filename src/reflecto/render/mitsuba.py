@@ -220,6 +220,7 @@ def render_file(bsdf_path: Path, scene: str = "sphere-env", envmap: str | Path |
             img = part
         else:
             img[..., :3] += part[..., :3]
+    assert img is not None  # groups is never empty
     return Rendering(img[..., :3], np.clip(img[..., 3], 0.0, 1.0), scene, spp, seed, variant, time.perf_counter() - t0)
 
 
