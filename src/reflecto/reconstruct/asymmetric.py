@@ -486,7 +486,8 @@ def _fit_hemicube_set(sb: _SetBins, sls: Sequence[Slices], oks: Sequence[NDArray
 def _refuse_mixed(captures: Sequence[RotatedCapture], consistency: CaptureConsistency) -> None:
     if consistency.consistent:
         return
-    a, b = consistency.worst  # type: ignore[misc]
+    assert consistency.worst is not None  # inconsistent: there is a worst pair
+    a, b = consistency.worst
     q = consistency.ratio(a, b)
     spread = f", {q:.1f}× what two LEDs of one capture differ by" if math.isfinite(q) else ""
     raise ReflectoError(f"{captures[b].name}: does not measure the same material as {captures[a].name} (at shared "
