@@ -14,7 +14,7 @@ import abc
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -24,6 +24,24 @@ from .errors import FileFormatError, ParameterError
 from .io import MAX_BRDF_BYTES, read_input
 
 Array = NDArray[np.float64]
+
+if TYPE_CHECKING:
+
+    class ArrayField:
+        """For the type checker only: the type of a dataclass field given as any array-like and
+        held as a float64 array, converted by the class's ``__post_init__``.
+
+        The generated ``__init__`` takes an ``ArrayLike`` (the ``__set__`` value); an instance's
+        attribute reads as ``Array``. A field's default is written ``cast("ArrayField", value)``.
+        Nothing of this exists at run time: there the field is a plain dataclass field.
+        """
+
+        @overload
+        def __get__(self, obj: None, owner: type) -> ArrayField: ...
+        @overload
+        def __get__(self, obj: object, owner: type) -> Array: ...
+        def __get__(self, obj: object, owner: type) -> ArrayField | Array: ...
+        def __set__(self, obj: object, value: ArrayLike) -> None: ...
 
 
 class BRDFSource(abc.ABC):
@@ -70,6 +88,14 @@ class BRDFSource(abc.ABC):
     def albedo(self, theta_i_deg: ArrayLike, phi_i_deg: float = 0.0, **kw: Any) -> Array:
         """Directional albedo ``a(i) = ∫ f(i, o) cos θ_o dω_o`` (dimensionless), shape ``(K, 3)``."""
         return directional_albedo(self, theta_i_deg, phi_i_deg, **kw)
+
+
+class HasNDF(Protocol):
+    """Anything with a normal distribution ``D(h)``: the analytic BRDFs and the models."""
+
+    def ndf(self, h: ArrayLike) -> Array:
+        """``D(h)`` in sr⁻¹ at unit half vectors ``h`` (shape ``(..., 3)``), shape ``(...)``."""
+        ...
 
 
 def _eval_chunked(source: BRDFSource, i: Array, o: Array, chunk: int = 1 << 18) -> Array:

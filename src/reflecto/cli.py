@@ -18,6 +18,7 @@ import sys
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -68,7 +69,7 @@ def _interactive() -> bool:
     return interactive()
 
 
-def _progress(total: int, desc: str, enabled: bool):  # type: ignore[no-untyped-def]
+def _progress(total: int, desc: str, enabled: bool):
     return tqdm(total=total, desc=desc, unit="bin", unit_scale=True, disable=not enabled, leave=False)
 
 
@@ -104,7 +105,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     src = load_source(args.source)
     theta = np.array([0.0, 20.0, 40.0, 60.0, 80.0])
     alb = src.albedo(theta)
-    info = {
+    info: dict[str, Any] = {
         "file": str(src.path),
         "kind": src.kind,
         "isotropic": bool(src.isotropic),
@@ -520,9 +521,9 @@ def cmd_design(args: argparse.Namespace) -> int:
         rows, failures = getattr(e, "records", []), e.failures
     out = Path(args.output)
     best = best_design(rows)
-    info = {"output": str(out), "files": [str(out / "design.csv"), str(out / "design.png")], "designs": rows,
-            "best_realisable": best["key"] if best else None,
-            "failed": [{"item": f, "error": m} for f, m in failures]}
+    info: dict[str, Any] = {"output": str(out), "files": [str(out / "design.csv"), str(out / "design.png")],
+                            "designs": rows, "best_realisable": best["key"] if best else None,
+                            "failed": [{"item": f, "error": m} for f, m in failures]}
     if args.json:
         print(json.dumps(info, indent=1))
     elif not args.quiet:
@@ -560,7 +561,7 @@ class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 class _Parser(argparse.ArgumentParser):
     """The parser of reflecto and of each subcommand: defaults shown in ``--help``."""
 
-    def __init__(self, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, *args, **kwargs) -> None:
         kwargs.setdefault("formatter_class", _HelpFormatter)
         super().__init__(*args, **kwargs)
 
@@ -835,7 +836,7 @@ def _clean_up(new: list[Path], command: str) -> None:
             pass
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None):  # type: ignore[no-untyped-def]
+def _show_warning(message, category, filename, lineno, file=None, line=None):
     if issubclass(category, ReflectoWarning):
         print(f"reflecto: warning: {one_line(message)}", file=sys.stderr)
     else:

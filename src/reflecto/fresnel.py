@@ -71,8 +71,9 @@ def fresnel_numpy(c: ArrayLike, eta: ArrayLike) -> Array:
 CONSTANT = math.inf
 
 
-def is_constant(eta: ArrayLike) -> bool:
-    """Whether ``eta`` (a scalar or an RGB triplet) is the constant Fresnel lobe ``η = ∞``."""
+def is_constant(eta: ArrayLike | None) -> bool:
+    """Whether ``eta`` (a scalar or an RGB triplet) is the constant Fresnel lobe ``η = ∞``
+    (``None``, no η, is not)."""
     return bool(np.all(np.isposinf(np.asarray(eta, dtype=np.float64))))
 
 
@@ -95,9 +96,9 @@ def eta_from_json(record: dict[str, Any]) -> Array | None:
     return np.asarray(v, dtype=np.float64) if ok else None
 
 
-def format_eta(eta: ArrayLike) -> str:
+def format_eta(eta: ArrayLike | None) -> str:
     """η for a summary line: ``"1.500"`` (one η serves R, G, B: the first channel's), or
-    ``"∞ (constant Fresnel)"``."""
+    ``"∞ (constant Fresnel)"``; ``"nan"`` for ``None`` (a record without η, see :func:`eta_from_json`)."""
     if is_constant(eta):
         return "∞ (constant Fresnel)"
     return f"{float(np.ravel(np.asarray(eta, dtype=np.float64))[0]):.3f}"

@@ -246,7 +246,7 @@ class Hemicube:
         w = self._pad_w if values.ndim == 1 else self._pad_w[..., None]
         return np.sum(values[self._pad_src] * w, axis=1)
 
-    def lookup(self, values: ArrayLike, dirs: ArrayLike, padded: Array | None = None) -> Array:
+    def lookup(self, values: ArrayLike | None, dirs: ArrayLike, padded: Array | None = None) -> Array:
         """Bilinear interpolation of texel ``values`` at directions ``dirs``.
 
         Continuous across face seams (the faces are padded from their neighbours).
@@ -258,7 +258,8 @@ class Hemicube:
         dirs
             Unit directions, shape ``(..., 3)``; below-horizon ones are clamped.
         padded
-            ``self.pad(values)``, to skip recomputing it on repeated lookups.
+            ``self.pad(values)``, to skip recomputing it on repeated lookups (``values`` may then be
+            ``None``).
 
         Returns
         -------
@@ -273,7 +274,7 @@ class Hemicube:
             return out.reshape(np.shape(dirs)[:-1])
         return self.lookup_numpy(values, dirs, padded)
 
-    def lookup_numpy(self, values: ArrayLike, dirs: ArrayLike, padded: Array | None = None) -> Array:
+    def lookup_numpy(self, values: ArrayLike | None, dirs: ArrayLike, padded: Array | None = None) -> Array:
         """NumPy reference of :meth:`lookup` (any number of channels)."""
         values = np.asarray(values)
         padded = self.pad(values) if padded is None else padded
@@ -362,7 +363,7 @@ class Hemicube:
                 [np.bincount(idx, weights=w * values[:, k], minlength=self.size) for k in range(values.shape[1])],
                 axis=1,
             )
-        return wsum, wvsum
+        return wsum, wvsum  # type: ignore[return-value]  # numpy stub: weighted bincount is float64, not intp
 
     def smooth(self, values: ArrayLike, passes: int = 1) -> Array:
         """Binomial ``[1 2 1]ᵀ[1 2 1]/16`` filter applied ``passes`` times, face by face.

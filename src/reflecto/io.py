@@ -31,7 +31,7 @@ import shutil
 import stat
 import tempfile
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
@@ -139,6 +139,7 @@ def _depth_at_most(obj: Any, limit: int) -> bool:
     stack = [(obj, 1)]
     while stack:
         o, d = stack.pop()
+        vals: Iterable[Any]
         if isinstance(o, dict):
             vals = o.values()
         elif isinstance(o, list):
@@ -369,7 +370,7 @@ def make_parents(folder: Path) -> list[Path]:
         p = p.parent
     if p.exists() and not p.is_dir():
         raise OutputError(p, "cannot create the folder: a file of that name is in the way")
-    created = []
+    created: list[Path] = []
     for d in reversed(missing):
         try:
             d.mkdir()
@@ -460,7 +461,7 @@ def atomic_write(path: str | Path, mode: str = "wb") -> Iterator[IO[Any]]:
     fd, tmp, created = _temp_file(path, ".part")
     try:
         with os.fdopen(fd, mode) as fh:
-            yield fh  # type: ignore[misc]
+            yield fh
             fh.flush()
             os.fsync(fh.fileno())
         _rename(tmp, path)

@@ -271,7 +271,7 @@ class MicrofacetBRDF(BRDFSource):
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> MicrofacetBRDF:
+    def load(cls, path: str | Path) -> MicrofacetBRDF | IsotropicMicrofacetBRDF:
         """Read a model file written by :meth:`save`; refuse foreign, damaged or implausible files.
 
         Checks, in this order: the file (regular, at most

@@ -139,7 +139,7 @@ def grid_stencil(dirs: ArrayLike, n_theta: int = N_THETA, n_phi: int = N_PHI) ->
     np.clip(z, 0.0, 1.0, out=z)
     t = np.arccos(z, out=z)
     t *= (n_theta - 1) / (0.5 * np.pi)
-    p = np.arctan2(y, x)
+    p: Array = np.arctan2(y, x)
     p *= n_phi / (2.0 * np.pi)
     p += n_phi
     t0 = np.minimum(t.astype(np.intp), n_theta - 2)

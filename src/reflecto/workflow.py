@@ -173,7 +173,7 @@ class CaptureModel:
     provenance: dict[str, str] = dataclasses.field(default_factory=dict)
 
     @property
-    def model(self):  # type: ignore[no-untyped-def]
+    def model(self):
         """The reconstructed BRDF."""
         return self.reconstruction.model
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -32,6 +32,9 @@ from ..brdf import BRDFSource
 from .metrics import evaluate_on_grid, metric_grid
 from ..hemicube import hemicube
 from ..reconstruct.samples import bin_samples
+
+if TYPE_CHECKING:
+    from ..brdf import ArrayField
 
 Array = NDArray[np.float64]
 
@@ -44,8 +47,9 @@ STARTS_F0 = (0.05, 0.9)
 class CookTorrance(BRDFSource):
     """The Cook–Torrance model of the module docstring (sr⁻¹)."""
 
-    rho_d: ArrayLike = (0.0, 0.0, 0.0)
-    rho_s: ArrayLike = (0.0, 0.0, 0.0)
+    #: RGB albedos, any array-like broadcast to shape ``(3,)`` (float64 arrays once constructed).
+    rho_d: ArrayField = cast("ArrayField", (0.0, 0.0, 0.0))
+    rho_s: ArrayField = cast("ArrayField", (0.0, 0.0, 0.0))
     f0: float = 0.04
     m: float = 0.1
 

@@ -88,7 +88,7 @@ class GalleryRow:
         return dataclasses.asdict(self)
 
 
-def _reconstructions(src, device, cal, settings: GallerySettings):  # type: ignore[no-untyped-def]
+def _reconstructions(src, device, cal, settings: GallerySettings):
     """The symmetric path's model, the §5.5 model, and the first capture's symmetry test."""
     caps = [simulate_capture(src, device, seed=settings.seed + k, rotation_deg=r)
             for k, r in enumerate(settings.rotations_deg)]
@@ -97,13 +97,13 @@ def _reconstructions(src, device, cal, settings: GallerySettings):  # type: igno
     return first.model, reconstruct_rotations(rotated).model, first.symmetry
 
 
-def _render_png(source, out: Path, name: str, settings: GallerySettings, seed: int):  # type: ignore[no-untyped-def]
+def _render_png(source, out: Path, name: str, settings: GallerySettings, seed: int):
     r = render(source, "teapot-env", resolution=settings.resolution, spp=settings.spp, seed=seed)
     save_image(r.image(), out / name)
     return r
 
 
-def gallery_row(path: str | Path, out: Path, settings: GallerySettings, device=None, cal=None) -> GalleryRow:  # type: ignore[no-untyped-def]
+def gallery_row(path: str | Path, out: Path, settings: GallerySettings, device=None, cal=None) -> GalleryRow:
     """Reconstruct, compare and render one material into the folder ``out`` (module docstring)."""
 
     t0 = time.perf_counter()

@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..sources import merl
-from ..brdf import BRDFSource
+from ..brdf import BRDFSource, HasNDF
 from .. import geometry
 from ..hemicube import hemicube
 
@@ -232,7 +232,7 @@ def comparison_error(reference: BRDFSource, test: BRDFSource) -> Error:
     return brdf_error_all_azimuths(reference, test)
 
 
-def ndf_error(reference: BRDFSource, model: BRDFSource, resolution: int = 256, floor: float = 0.01) -> float:
+def ndf_error(reference: HasNDF, model: HasNDF, resolution: int = 256, floor: float = 0.01) -> float:
     """Mean relative error of ``model``'s NDF against ``reference``'s where the reference's
     ``D`` exceeds ``floor`` of its peak, over the texel directions of a hemicube of the
     given resolution (dimensionless). Both must have an ``ndf(h)`` method."""

@@ -34,9 +34,9 @@ from ..instrument.capture import read_capture
 from ..errors import FileFormatError
 from ..fresnel import is_constant
 from ..io import atomic_path, atomic_write, read_json
-from ..model import MicrofacetBRDF, load_model
+from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF, load_model
 from ..plotting import pyplot, save_figure
-from ..brdf import BRDFSource
+from ..brdf import BRDFSource, HasNDF
 import imageio.v3 as iio
 from .. import geometry
 from ..render.mitsuba import compare, comparison_image, render as mi_render, to_srgb8
@@ -78,7 +78,7 @@ def _save_png(fig_or_array: Any, path: Path) -> str:
 
 
 
-def ndf_figures(model: BRDFSource, out: Path) -> list[tuple[str, str]]:
+def ndf_figures(model: HasNDF, out: Path) -> list[tuple[str, str]]:
     """Plots of a model's NDF from ``model.ndf(h)``; returns ``[(file, caption)]``.
 
     A polar plot ``D(θ_h, φ_h)`` and the profile ``D(θ_h)`` (azimuthal mean, min and
@@ -148,7 +148,7 @@ def theta_h_theta_d_image(source: BRDFSource, out: Path, name: str = "thd.png", 
     return _save_png(fig, out / name)
 
 
-def slice_figure(capture_dir: Path, out: Path):  # type: ignore[no-untyped-def]
+def slice_figure(capture_dir: Path, out: Path):
     """The six slices of a capture (luminance, log scale) on the sensor, and its device; None if unreadable."""
     try:
         cap = read_capture(capture_dir)
@@ -175,7 +175,7 @@ def slice_figure(capture_dir: Path, out: Path):  # type: ignore[no-untyped-def]
     return _save_png(fig, out / "slices.png"), cap.device
 
 
-def render_figures(model: MicrofacetBRDF, ref: BRDFSource | None, out: Path,
+def render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, ref: BRDFSource | None, out: Path,
                    spp: int | None) -> tuple[list[tuple[str, str]], dict[str, Any]]:
     """The model's renders and, with a reference, the two comparisons.
 

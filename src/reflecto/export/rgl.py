@@ -400,7 +400,8 @@ def _incident_dirs(iso: bool, grid: RGLGrid) -> tuple[Array, Array, Array]:
     return phi_i, theta_i, wi
 
 
-def _slices(source: BRDFSource, tabs: _Tables, wi: Array, phi_i: Array, theta_i: Array) -> tuple[Array, Array]:
+def _slices(source: BRDFSource, tabs: _Tables, wi: Array, phi_i: Array,
+            theta_i: Array) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """``rgb`` ``(n_phi, n_theta, 3, n, n)`` and ``luminance`` ``(n_phi, n_theta, n, n)`` of every incident node."""
     n = tabs.nodes_u.shape[0]
     u = tabs.nodes_u.reshape(-1, 2)

@@ -382,7 +382,7 @@ def _optics_with(nominal: Optics, p: Array) -> Optics:
                            k2=float(p[4]), roll_deg=float(p[5]))
 
 
-def fit_optics(nominal: Optics, directions: Array, spots: list[Array]) -> tuple[Optics, dict[str, float]]:
+def fit_optics(nominal: Optics, directions: list[Array], spots: list[Array]) -> tuple[Optics, dict[str, float]]:
     """Fit f, principal point, k1, k2 and roll to spot centroids of known directions.
 
     ``directions[k]`` (shape ``(M_k, 3)``) are the rays of image ``k``, ``spots[k]``

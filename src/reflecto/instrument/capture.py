@@ -203,7 +203,7 @@ def _decode_png(data: bytes, path: Path, shape: tuple[int, int], depth_bits: int
     return out.view(">u2").reshape(height, width, 3).astype(np.uint16)
 
 
-def _decode_quietly(data: bytes) -> NDArray[np.integer] | None:
+def _decode_quietly(data: bytes) -> NDArray[Any] | None:
     """``cv2.imdecode`` without OpenCV's own warnings on stderr (a damaged file is our error to report)."""
     cv_log = getattr(getattr(cv2, "utils", None), "logging", None)
     if cv_log is None:  # older OpenCV builds
@@ -246,7 +246,7 @@ def read_image(path: Path, shape: tuple[int, int], dtype: type) -> NDArray[np.in
     return img[..., ::-1]
 
 
-def atomic_dir(path: str | Path):  # type: ignore[no-untyped-def]
+def atomic_dir(path: str | Path):
     """Yield a temporary folder beside ``path``; it replaces ``path`` on success
     (see :func:`reflecto.io.atomic_folder`: umask permissions, no folder left on failure)."""
 
@@ -272,6 +272,7 @@ def write_capture(capture: Capture, out_dir: str | Path) -> Path:
                 _write_png(tmp / name, capture.raw[led, e])
                 frames.append({"file": name, "led": led, "exposure_ms": float(t)})
         if expects_check_frames(dev, capture.kind):  # shape checked above
+            assert capture.check is not None
             for c, led in enumerate(dev.check_leds):
                 for e, t in enumerate(capture.exposures_ms):
                     name = frame_name(led, float(t), check=True)
@@ -415,12 +416,12 @@ def read_capture(cap_dir: str | Path) -> Capture:
     raw = np.empty((device.n_leds, len(times), height, width, 3), dtype=dtype)
     check = np.empty((len(check_leds), len(times), height, width, 3), dtype=dtype) if check_leds else None
     for (led, t, chk), fpath in paths.items():
-        e = int(np.flatnonzero(times == t)[0])
+        slot = int(np.flatnonzero(times == t)[0])
         img_ = read_image(fpath, (height, width), dtype)
         if chk:
-            check[check_leds.index(led), e] = img_  # type: ignore[index]
+            check[check_leds.index(led), slot] = img_  # type: ignore[index]
         else:
-            raw[led, e] = img_
+            raw[led, slot] = img_
     cap = Capture(device, raw, times, kind=kind,
                   extra={k: v for k, v in m.items() if k not in
                          {"format", "version", "kind", "device", "image", "frames", "rotation_deg"}}, path=cap_dir,

@@ -21,6 +21,8 @@ saturated).
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -47,10 +49,21 @@ BLACK_DN = 1.5
 SATURATION = 0.95
 
 
+@overload
+def merge_linear_pixels(
+    raw: NDArray[np.integer], exposures_ms: Array, camera: Camera, rows: NDArray[np.intp], cols: NDArray[np.intp],
+    noise: Literal[False] = False,
+) -> tuple[Array, NDArray[np.bool_], NDArray[np.bool_]]: ...
+@overload
+def merge_linear_pixels(
+    raw: NDArray[np.integer], exposures_ms: Array, camera: Camera, rows: NDArray[np.intp], cols: NDArray[np.intp],
+    noise: Literal[True],
+) -> tuple[Array, NDArray[np.bool_], NDArray[np.bool_], Array, Array]: ...
 def merge_linear_pixels(
     raw: NDArray[np.integer], exposures_ms: Array, camera: Camera, rows: NDArray[np.intp], cols: NDArray[np.intp],
     noise: bool = False,
-) -> tuple[Array, ...]:
+) -> (tuple[Array, NDArray[np.bool_], NDArray[np.bool_]]
+      | tuple[Array, NDArray[np.bool_], NDArray[np.bool_], Array, Array]):
     """Linear merge at the pixels ``(rows, cols)`` only: radiance ``(L, P, 3)``, valid
     and black masks ``(L, P)`` (black: the value rests on the longest usable exposure
     alone, which read below :data:`BLACK_DN` — 0 or 1 DN — in every channel); with
@@ -142,7 +155,7 @@ def recover_response(
     return cal.process(imgs, t).reshape(256, 3)[:, ::-1].astype(np.float64)
 
 
-def merge_debevec(raw: NDArray[np.uint8], exposures_ms: Array, response: Array) -> tuple[Array, NDArray[np.bool_]]:
+def merge_debevec(raw: NDArray[np.integer], exposures_ms: Array, response: Array) -> tuple[Array, NDArray[np.bool_]]:
     """Merge 8-bit gamma exposures ``(L, E, H, W, 3)`` with a recovered response.
 
     Unlike OpenCV's ``MergeDebevec`` (whose hat weight is never zero, so clipped pixels

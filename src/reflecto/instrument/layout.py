@@ -217,6 +217,7 @@ def coverage(optics: Optics, leds: ArrayLike, resolution: int = 64, theta_max_de
     total = w.sum()
     frac = lambda m: float(w[m].sum() / total)  # noqa: E731
     union = masks.any(axis=0)
+    assert isinstance(union, np.ndarray)  # masks is (leds, texels): any over axis 0 is an array
     tau = cube.permutation(geometry.TAU)
     after_tau = union | union[tau]
     mirrors = after_tau | union[cube.permutation(geometry.MIRROR_T)] | union[cube.permutation(geometry.MIRROR_B)]
@@ -266,6 +267,7 @@ def layout_terms(optics: Optics, leds: ArrayLike, cube: Hemicube, theta_max_deg:
     tau = cube.permutation(geometry.TAU)
     m = coverage_masks(optics, leds, cube)
     u = m.any(axis=0)
+    assert isinstance(u, np.ndarray)  # m is (leds, texels): any over axis 0 is an array
     cov = float(w[u | u[tau]].sum())
     td = np.degrees(np.arccos(np.clip(leds @ h.T, -1.0, 1.0)))
     seen = m | m[:, tau]

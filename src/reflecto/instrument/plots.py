@@ -33,6 +33,7 @@ def plot_coverage(optics: Optics, leds: ArrayLike, path: str | Path, resolution:
     size = 1.2 * (128 / resolution) ** 2
     for ax, completed in zip(axes, (False, True)):
         union = masks.any(axis=0)
+        assert isinstance(union, np.ndarray)  # masks is (leds, texels): any over axis 0 is an array
         if completed:
             extra = union[tau] & ~union & cap
             ax.scatter(h[extra, 0], h[extra, 1], s=size, c="0.6", marker="s", linewidths=0, label="by symmetry (eq. 3)")

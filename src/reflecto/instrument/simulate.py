@@ -104,6 +104,7 @@ def expose(signal: Array, t_ms: float, camera: Camera, rng: np.random.Generator 
     sig = np.ascontiguousarray(signal, dtype=np.float64).ravel()
     gamma = camera.gamma if camera.response == "gamma" else 0.0
     out = np.empty(sig.shape, dtype=np.uint8 if gamma > 0 else np.uint16)
+    z: NDArray[np.float32] | Array  # the normal deviates, float32 when drawn
     z = pois = np.empty(0)
     if rng is not None and not camera.noiseless:
         z = rng.standard_normal(sig.shape, dtype=np.float32)

@@ -155,6 +155,7 @@ def extract_slices(capture: Capture, calibration: Calibration) -> Slices:
     def merge(raw: NDArray[np.integer], scl: Array, scl_pos: NDArray[np.bool_], s_lum: Array
               ) -> tuple[Array, NDArray[np.bool_], NDArray[np.bool_] | None, Array | None, Array | None]:
         if dev.camera.response == "gamma":
+            assert calibration.response is not None  # refused above for a gamma camera
             rad, valid = merge_debevec(raw, capture.exposures_ms, calibration.response)
             rad, valid = rad[:, rows, cols], valid[:, rows, cols]
             ok = valid & scl_pos

@@ -473,7 +473,8 @@ def _fit_hemicube_set(sb: _SetBins, sls: Sequence[Slices], oks: Sequence[NDArray
 def _refuse_mixed(captures: Sequence[RotatedCapture], consistency: CaptureConsistency) -> None:
     if consistency.consistent:
         return
-    a, b = consistency.worst  # type: ignore[misc]
+    assert consistency.worst is not None  # inconsistent: there is a worst pair
+    a, b = consistency.worst
     q = consistency.ratio(a, b)
     spread = f", {q:.1f}× what two LEDs of one capture differ by" if math.isfinite(q) else ""
     raise ReflectoError(f"{captures[b].name}: does not measure the same material as {captures[a].name} (at shared "
@@ -543,6 +544,7 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
     isotropic, tests = _choose_isotropic(opt.isotropic, sls, oks, reference, symmetry)
     fill: SynthesisFill | None = None
     excluded: list[tuple[int, int]] = []
+    model: IsotropicMicrofacetBRDF | MicrofacetBRDF
     if isotropic:
         stacked, ok_st = stack_isotropic([c.slices.reframe(frames[0]) for c in captures], valids)
         iso = fit_isotropic(stacked, ok_st & stacked.valid, opt.fixed_eta)

@@ -43,7 +43,7 @@ from ..fresnel import fresnel
 from ..hemicube import Hemicube, hemicube
 from ..instrument.slices import Slices
 from ..model import MicrofacetBRDF
-from ..shadowing import grid_stencil, sigma_table
+from ..shadowing import GridStencil, grid_stencil, sigma_table
 from . import ndf as ndf_mod
 from .fresnel_fit import FresnelFit, Pairs, fit_fresnel, overlap_pairs
 from .samples import Bins, bin_samples, kd_bound
@@ -117,7 +117,7 @@ class Merge:
     bins: Bins
     pairs: Pairs
     w_merge: Array
-    o_cells: object
+    o_cells: GridStencil
     bin_offsets: tuple[Array, Array]
     inner_holes: bool
     lost_leds: list[int]

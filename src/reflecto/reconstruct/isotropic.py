@@ -179,7 +179,7 @@ def bin_polar_numpy(mask: NDArray[np.bool_], light: Array, view: Array, values: 
     cols = (th, c, o[:, 2], noise[li, pi] ** 2, bound[li, pi])
     sums = np.stack([np.bincount(key, x, n_keys) for x in cols], axis=1)
     fs = np.stack([np.bincount(key, values[li, pi, q], n_keys) for q in range(3)], axis=1)
-    return count, sums, fs
+    return count, sums, fs  # type: ignore[return-value]  # numpy stub: weighted bincount is float64, not intp
 
 
 # ----------------------------------------------------------------------------- the luminance fit
@@ -419,6 +419,7 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
             trial = _apply(problem, s, step, tie_ks)
             c = problem.cost(trial) if trial is not None else math.inf
             if np.isfinite(c) and c < cost:
+                assert trial is not None  # c is infinite for None
                 improved, rel = True, (cost - c) / cost
                 s, cost = trial, c
                 mu = max(mu / 5.0, 1e-9)
@@ -429,7 +430,8 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
     return s, cost
 
 
-def _apply(problem: LuminanceProblem, s: LuminanceState, step: Array, tie_ks: bool) -> LuminanceState | None:
+def _apply(problem: LuminanceProblem, s: LuminanceState, step: NDArray[np.floating],
+           tie_ks: bool) -> LuminanceState | None:
     """The state after an LM step, renormalized: ``z`` shifted so that ``∫ e^z cos = 1``
     and ``g`` scaled inversely (the model is unchanged: the shift is the gauge of the
     ``(z level, g)`` pair), so ``g`` is ``k_s`` and the level cannot drift. ``None`` when
@@ -495,7 +497,7 @@ def normal_equations_numpy(j: NDArray[np.intp], t: Array, spec: Array, dcols: Ar
     cross = np.stack([np.bincount(j, wc[:, q] * a0, k) + np.bincount(j + 1, wc[:, q] * a1, k)
                       for q in range(dcols.shape[1])], axis=1)
     grad_z = np.bincount(j, w * a0 * r, k) + np.bincount(j + 1, w * a1 * r, k)
-    return diag, off, cross, dcols.T @ wc, grad_z, wc.T @ r
+    return diag, off, cross, dcols.T @ wc, grad_z, wc.T @ r  # type: ignore[return-value]  # numpy stub: weighted bincount is float64, not intp
 
 
 def model_error(problem: LuminanceProblem, s: LuminanceState) -> float:
@@ -680,6 +682,7 @@ def _box_least_squares(m: Array, v: Array, xb: tuple[float, float], yb: tuple[fl
     for fixed in (yb[0], yb[1]):
         x0 = min(max((v[0] - m[0, 1] * fixed) / m[0, 0], xb[0]), xb[1])
         best = min(best or (math.inf, 0.0, 0.0), (cost(x0, fixed), x0, fixed))
+    assert best is not None  # the loop over y's two bounds always sets it
     return best[1], best[2]
 
 

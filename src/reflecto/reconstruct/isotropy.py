@@ -178,7 +178,7 @@ class _RingRegression:
         block = np.where(use[:, None, None], self.xtx[:, :k, :k], np.eye(k))
         return use & (np.linalg.cond(block) <= max_condition)
 
-    def coefficients(self, use: NDArray[np.bool_], k: int) -> Array:
+    def coefficients(self, use: NDArray[np.bool_], k: int) -> NDArray[np.floating]:
         xtx, xtr = self.xtx[use, :k, :k], self.xtr[use, :k]
         return np.linalg.solve(xtx + 1e-12 * np.eye(k), xtr[..., None])[..., 0]
 

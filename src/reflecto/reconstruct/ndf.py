@@ -48,7 +48,7 @@ def merge_sums(cube: Hemicube, texel: NDArray[np.intp], texel_tau: NDArray[np.in
     out = np.bincount(texel, weights=x, minlength=cube.size)
     if symmetric:
         out += np.bincount(texel_tau, weights=x, minlength=cube.size)
-    return out
+    return out  # type: ignore[return-value]  # numpy stub: weighted bincount is float64, not intp
 
 
 def bin_offsets(cube: Hemicube, h: Array) -> tuple[Array, Array]:
@@ -80,7 +80,7 @@ def top_offsets(cube: Hemicube, offsets: tuple[Array, Array], texel: NDArray[np.
         if symmetric:
             s -= np.bincount(texel_tau, weights=wd, minlength=cube.size)[: n * n]
         out.append((s * inv).reshape(n, n))
-    return out[0], out[1]
+    return out[0], out[1]  # type: ignore[return-value]  # numpy stub: weighted bincount is float64, not intp
 
 
 # Tuned numbers: what, units and provenance are in :mod:`.tuning` (ndf stage).
@@ -180,7 +180,7 @@ def fit_lobe(cube: Hemicube, wsum: Array, wvsum: Array) -> Array | None:
     x_fit, log_c4_fit = _slope_terms(n_fit)
     x, wo = x_fit[obs], w[obs]
     log_vc4 = np.log(v[obs]) + log_c4_fit[obs]
-    best: tuple[float, str, Array] | None = None
+    best: tuple[float, str, NDArray[np.floating]] | None = None
     for family in ("ggx", "beckmann"):
         if family == "ggx":
             y, ww = np.exp(-0.5 * log_vc4), wo * np.exp(log_vc4)  # δD/D = −2 δy/y

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,6 +35,17 @@ from .fresnel_fit import fit_fresnel, overlap_pairs
 from .samples import bin_samples, kd_bound
 
 Array = NDArray[np.float64]
+
+
+class NormalDistance(Protocol):
+    """A distance of the slices from consistency in the frame of the candidate normal
+    ``normalize(tx, ty, 1)``: :class:`ConsistencyDistance`, :class:`IsotropicDistance`,
+    :class:`.asymmetric.SetDistance`."""
+
+    def __call__(self, normal_xy: Array) -> float:
+        """The distance at the tangent offset ``normal_xy = (tx, ty)``; ``inf`` where it cannot be judged."""
+        ...
+
 
 #: LEDs less than this far above a candidate frame's horizon (degrees) take no part in
 #: its :class:`IsotropicDistance`: a frame that sank the worst-fitting grazing LEDs
@@ -161,7 +173,7 @@ def _tilt_grid(max_tilt_deg: float, step_deg: float) -> Array:
     return np.array(pts)
 
 
-def _grid_minima(xy: Array, e: Array, radius_deg: float) -> Array:
+def _grid_minima(xy: Array, e: Array, radius_deg: float) -> NDArray[np.intp]:
     """Indices of the grid's local minima (no finite neighbour within ``radius_deg`` is
     lower), lowest first."""
     n = np.column_stack([xy, np.ones(len(xy))])
@@ -178,7 +190,7 @@ N_STARTS = 6
 
 
 def estimate_normal_consistency(
-    coarse: ConsistencyDistance, fine: ConsistencyDistance, max_tilt_deg: float = 16.0, step_deg: float = 3.0,
+    coarse: NormalDistance, fine: NormalDistance, max_tilt_deg: float = 16.0, step_deg: float = 3.0,
     n_starts: int = N_STARTS,
 ) -> tuple[Array, float]:
     """Grid search of ``coarse`` over tilts ≤ ``max_tilt_deg``, multi-start refinement,
@@ -197,7 +209,7 @@ def estimate_normal_consistency(
     """
     limit = math.tan(math.radians(min(max_tilt_deg + step_deg, 89.0)))
 
-    def bounded(dist: ConsistencyDistance):
+    def bounded(dist: NormalDistance):
         return lambda xy: dist(xy) if float(np.hypot(xy[0], xy[1])) <= limit else float("inf")
 
     grid = _tilt_grid(max_tilt_deg, step_deg)
@@ -219,7 +231,7 @@ def estimate_normal_consistency(
     return refine_normal(fine, tilt_frame(float(best[1][0]), float(best[1][1]))[2], 0.5 * step_deg, limit)
 
 
-def refine_normal(dist: ConsistencyDistance, normal: Array, step_deg: float = 1.0,
+def refine_normal(dist: NormalDistance, normal: Array, step_deg: float = 1.0,
                   limit: float = math.inf, maxfev: int = 80, probe_deg: float = 0.0,
                   n_probe: int = 12) -> tuple[Array, float]:
     """Nelder–Mead on ``dist`` from ``normal`` (initial steps ``step_deg``); candidates

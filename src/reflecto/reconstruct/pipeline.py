@@ -40,7 +40,7 @@ from .hemicube_fit import HemicubeFit, fit_hemicube
 from .isotropic import ETA_MAX, IsotropicFit, fit_isotropic
 from .isotropy import IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
-from .normal import ConsistencyDistance, IsotropicDistance, estimate_normal_consistency, refine_normal
+from .normal import ConsistencyDistance, IsotropicDistance, NormalDistance, estimate_normal_consistency, refine_normal
 
 Array = NDArray[np.float64]
 
@@ -201,6 +201,8 @@ def estimate_frame(slices: Slices, valid: NDArray[np.bool_], max_tilt_deg: float
     ``S`` from an isotropic fit in the device frame. Both are searched on a grid of
     tilts, their local minima refined (:func:`.normal.estimate_normal_consistency`).
     """
+    coarse: NormalDistance
+    fine: NormalDistance
     if isotropic:
         coarse, fine = IsotropicDistance(slices, valid, stride=3), IsotropicDistance(slices, valid, stride=1)
         normal, _ = estimate_normal_consistency(coarse, fine, max_tilt_deg)
@@ -231,6 +233,7 @@ def limit_energy(model: IsotropicMicrofacetBRDF | MicrofacetBRDF, clamp: bool = 
     if not clamp or albedo <= 1.0:
         return model, 1.0, albedo
     scale = 1.0 / albedo
+    out: IsotropicMicrofacetBRDF | MicrofacetBRDF
     if isinstance(model, IsotropicMicrofacetBRDF):
         out = IsotropicMicrofacetBRDF(model.ndf_table, model.kd * scale, model.ks * scale, model.eta,
                                       correlated=model.correlated, metadata=model.metadata)

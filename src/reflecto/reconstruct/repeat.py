@@ -117,7 +117,7 @@ def repeat_checks(slices: Slices) -> list[RepeatCheck]:
         use = (n >= BLOCK_MIN_FILL * BLOCK_PX * BLOCK_PX) & (ba + bb > 0)
         eps = 1e-6 * (sa + sb) / max(int(use.sum()), 1)
         gj = np.abs(np.log((np.maximum(bb[use], 0.0) + eps) / (np.maximum(ba[use], 0.0) + eps)))
-        zj = _significance(bd[use], spread[use])
+        zj = _significance(bd[use], spread[use])  # type: ignore[arg-type]  # numpy stub: weighted bincount is float64, not intp
         changed = int(np.count_nonzero((gj > BLOCK_THRESHOLD) & (zj > MIN_Z)))
         moved = (abs(g) > THRESHOLD and z > MIN_Z) or changed >= MIN_BLOCKS
         out.append(RepeatCheck(int(k), g, z, changed, int(use.sum()), bool(moved)))

@@ -94,7 +94,7 @@ def bsdf_file(source: BRDFSource, folder: Path) -> Path:
     return export_rgl(source, folder / "source.bsdf")
 
 
-def _teapot_transform(mi, mesh: Path):  # type: ignore[no-untyped-def]
+def _teapot_transform(mi, mesh: Path):
     v = np.array([list(map(float, line.split()[1:4])) for line in mesh.read_text().splitlines() if line.startswith("v ")])
     lo, hi = v.min(axis=0), v.max(axis=0)
     centre = 0.5 * (lo + hi)
@@ -102,7 +102,7 @@ def _teapot_transform(mi, mesh: Path):  # type: ignore[no-untyped-def]
     return mi.ScalarTransform4f().scale(s) @ mi.ScalarTransform4f().translate((-centre).tolist())
 
 
-def scene_dict(mi, scene: str, bsdf_path: Path, envmap: Path | None, resolution: int, spp: int, seed: int = 0,  # type: ignore[no-untyped-def]
+def scene_dict(mi, scene: str, bsdf_path: Path, envmap: Path | None, resolution: int, spp: int, seed: int = 0,
                lights: tuple = LIGHTS) -> dict:
     """The Mitsuba scene description of one of :data:`SCENES` (``sphere-point``: with ``lights``)."""
     if scene not in SCENES:
@@ -220,6 +220,7 @@ def render_file(bsdf_path: Path, scene: str = "sphere-env", envmap: str | Path |
             img = part
         else:
             img[..., :3] += part[..., :3]
+    assert img is not None  # groups is never empty
     return Rendering(img[..., :3], np.clip(img[..., 3], 0.0, 1.0), scene, spp, seed, variant, time.perf_counter() - t0)
 
 

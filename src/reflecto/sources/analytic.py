@@ -27,7 +27,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -39,6 +39,9 @@ from ..io import read_description
 from ..fresnel import fresnel
 from ..brdf import BRDFSource, Reader, register_reader
 from ..brdf import rgb_triplet as _rgb
+
+if TYPE_CHECKING:
+    from ..brdf import ArrayField
 
 Array = NDArray[np.float64]
 
@@ -86,9 +89,9 @@ class AnalyticBRDF(BRDFSource):
     distribution: str = "ggx"
     alpha: float | Sequence[float] = 0.2
     rotation_deg: float = 0.0
-    kd: ArrayLike = 0.0
-    ks: ArrayLike = 1.0
-    eta: ArrayLike = 1.5
+    kd: ArrayField = cast("ArrayField", 0.0)
+    ks: ArrayField = cast("ArrayField", 1.0)
+    eta: ArrayField = cast("ArrayField", 1.5)
     asymmetry: tuple[float, float, float] | None = None
     path: Path | None = None
     lobes: tuple[Lobe, ...] = field(init=False)

@@ -48,7 +48,8 @@ def theta_h_edge(k: ArrayLike) -> Array:
     return (k / N_THETA_H) ** 2 * (0.5 * math.pi)
 
 
-def _fix_edges(idx: NDArray[np.intp], value: Array, edge: Callable[[Array], Array], n: int) -> NDArray[np.intp]:
+def _fix_edges(idx: NDArray[np.intp], value: Array, edge: Callable[[NDArray[np.intp]], Array],
+               n: int) -> NDArray[np.intp]:
     """Move ``idx`` by ±1 where rounding put ``value`` on the wrong side of a bin edge."""
     idx = np.clip(idx, 0, n - 1)
     up = (idx < n - 1) & (value >= edge(idx + 1))
@@ -225,6 +226,8 @@ class MerlBRDF(BRDFSource):
     """
 
     kind = "merl"
+    #: the ``name`` given to :meth:`from_table` (set there only)
+    _name: str
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)

@@ -273,6 +273,7 @@ class RGLBRDF(BRDFSource):
     """An RGL ``.bsdf`` tensor file (RGB version), evaluated like Mitsuba 3's ``measured``."""
 
     kind = "rgl"
+    path: Path  # always read from a file
 
     def __init__(self, path: str | Path) -> None:
         self.path = path = Path(path)
