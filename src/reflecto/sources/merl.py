@@ -253,6 +253,11 @@ class MerlBRDF(BRDFSource):
         obj._name = name
         return obj
 
+    @property
+    def name(self) -> str:
+        """The file's stem, or the name given to :meth:`from_table`."""
+        return self.path.stem if self.path is not None else getattr(self, "_name", self.kind)
+
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
         """The table's value in the MERL bin of ``(i, o)`` (MERL's bin lookup, no interpolation), sr⁻¹.
 
