@@ -828,3 +828,90 @@ def test_layout_terms_kernel():
             assert np.allclose(goals.terms(leds)[:3], layout.layout_terms(o, leds, cube), rtol=0, atol=1e-12)
         assert goals.terms(layout.led_direction([89.9], [0.0]))[0] == pytest.approx(
             layout.layout_terms(o, layout.led_direction([89.9], [0.0]), cube)[0], abs=1e-12)
+
+
+# ----------------------------------------------------------------------------- capture → slices kernels
+@twin("reflecto._kernels.count_saturated")
+def test_count_saturated_counts_the_listed_pixels_at_or_above_the_level():
+    rng = np.random.default_rng(11)
+    img = rng.integers(0, 65536, (24, 32, 3), dtype=np.uint16)
+    rows = rng.integers(0, 24, 300).astype(np.int64)
+    cols = rng.integers(0, 32, 300).astype(np.int64)
+    for sat in (0, 40000, 65535, 65536):
+        want = int((img[rows, cols].max(axis=-1) >= sat).sum())
+        assert _kernels.count_saturated(img, rows, cols, sat) == want
+    assert _kernels.count_saturated(img, rows[:0], cols[:0], 1) == 0
+
+
+@twin("reflecto._kernels.merge_noise_sd")
+@pytest.mark.parametrize("shot", [True, False])
+def test_merge_noise_sd_is_the_noise_model_of_the_merge(shot):
+    rng = np.random.default_rng(12)
+    lum = np.maximum(rng.normal(50.0, 40.0, (6, 500)), 0.0)
+    t_sum = rng.uniform(0.0, 9.0, (6, 500))
+    t_sum[0, :5] = 0.0  # no exposure used: the 1e-300 floor
+    n_used = rng.integers(0, 3, (6, 500)).astype(np.float64)
+    per_var, gain = 2.5**2 + 1.0 / 12.0, 4.0
+    out = np.empty_like(lum)
+    _kernels.merge_noise_sd(lum, t_sum, n_used, per_var, gain, shot, out)
+    var = n_used * per_var + (lum * t_sum / gain if shot else 0.0)
+    np.testing.assert_array_equal(out, np.sqrt(var) / np.maximum(t_sum, 1e-300))
+
+
+@twin("reflecto._kernels.slice_values")
+def test_slice_values_divides_by_the_scale_where_valid():
+    rng = np.random.default_rng(13)
+    L, P = 6, 400
+    rad = rng.uniform(0.0, 100.0, (L, P, 3))
+    scl = rng.uniform(-0.1, 2.0, (L, P, 3))
+    scl_pos = np.all(scl > 0, axis=-1)
+    valid = rng.uniform(size=(L, P)) > 0.2
+    s_lum = np.abs(scl @ LUM) + 1e-3
+    sigma = rng.uniform(0.0, 1.0, (L, P))
+    t_sum = rng.uniform(0.0, 5.0, (L, P))
+    black_dn = 2.0
+    values, noise, limit = np.empty_like(rad), np.empty((L, P)), np.empty((L, P))
+    ok = np.empty((L, P), dtype=np.bool_)
+    _kernels.slice_values(rad, valid, scl, scl_pos, s_lum, sigma, t_sum, black_dn, values, ok, noise, limit)
+    want_ok = valid & scl_pos
+    np.testing.assert_array_equal(ok, want_ok)
+    np.testing.assert_array_equal(values, np.where(want_ok[..., None], rad / np.where(want_ok[..., None], scl, 1.0),
+                                                   0.0))
+    np.testing.assert_array_equal(noise, np.where(want_ok, sigma / s_lum, 0.0))
+    np.testing.assert_array_equal(limit, np.where(want_ok, black_dn / np.maximum(t_sum, 1e-300) / s_lum, 0.0))
+
+
+def _png_filter(raw: np.ndarray, kinds: np.ndarray, bpp: int) -> np.ndarray:
+    """The PNG spec's forward row filters (§9.2), vectorized over each row: filtered bytes
+    with each row's filter type byte in front (what ``png_unfilter`` undoes)."""
+    h, n = raw.shape
+    x = raw.astype(np.int32)
+    a = np.zeros_like(x)
+    a[:, bpp:] = x[:, :-bpp]  # left
+    b = np.zeros_like(x)
+    b[1:] = x[:-1]  # up
+    c = np.zeros_like(x)
+    c[1:, bpp:] = x[:-1, :-bpp]  # up-left
+    p = a + b - c
+    pa, pb, pc = np.abs(p - a), np.abs(p - b), np.abs(p - c)
+    paeth = np.where((pa <= pb) & (pa <= pc), a, np.where(pb <= pc, b, c))
+    pred = np.stack([np.zeros_like(x), a, b, (a + b) >> 1, paeth])[kinds, np.arange(h)]
+    filtered = ((x - pred) & 0xFF).astype(np.uint8)
+    return np.concatenate([kinds[:, None].astype(np.uint8), filtered], axis=1).ravel()
+
+
+@twin("reflecto._kernels.png_unfilter")
+@pytest.mark.parametrize("bpp", [3, 6])
+def test_png_unfilter_inverts_every_row_filter(bpp):
+    rng = np.random.default_rng(14)
+    h, n = 40, 8 * bpp
+    raw = rng.integers(0, 256, (h, n), dtype=np.uint8)
+    kinds = np.resize(np.arange(5), h)  # every filter type, also on the first row (no row above)
+    rng.shuffle(kinds)
+    data = _png_filter(raw, kinds, bpp)
+    out = np.zeros((h, n), dtype=np.uint8)
+    assert _kernels.png_unfilter(data, h, n, bpp, out) == -1
+    np.testing.assert_array_equal(out, raw)
+    bad = data.copy()
+    bad[7 * (n + 1)] = 5  # row 7's filter type is not 0–4
+    assert _kernels.png_unfilter(bad, h, n, bpp, np.zeros((h, n), dtype=np.uint8)) == 7

@@ -224,3 +224,27 @@ def test_interrupt_leaves_no_partial_model(sources: list[Path], tmp_path: Path) 
         json.loads((models / f"{name}.json").read_text())
     leftovers = [p for p in models.rglob("*") if p.name.startswith(".") or p.name.endswith(".part")]
     assert not leftovers
+
+
+def test_watch_options_reach_the_reconstruction(sources: list[Path], tmp_path: Path) -> None:
+    """``--isotropic``, ``--eta``, ``--estimate-normal``, ``--nominal`` and ``--settle`` of ``watch`` are
+    the reconstruction's and the watcher's: a fixed η is the model's, the tilted capture's
+    tilt is found, and a calibration file that is not one is one line naming it."""
+    from reflecto.cli import main
+
+    root = tmp_path / "root"
+    root.mkdir()
+    shutil.copytree(sources[1], root / "rough")
+    models = tmp_path / "models"
+    assert main(["watch", str(root), "--output", str(models), "--once", "--settle", "0.5", "--isotropic", "yes",
+                 "--eta", "1.6", "--estimate-normal", "--nominal"]) == 0
+    summary = json.loads((models / "rough.json").read_text())
+    assert summary["isotropic"] is True and summary["eta"] == pytest.approx([1.6] * 3)
+    assert abs(summary["normal_tilt_deg"] - 4.0) < 0.5
+    bad = tmp_path / "cal.npz"
+    bad.write_bytes(b"not a calibration")
+    proc = subprocess.run([sys.executable, "-m", "reflecto.cli", "watch", str(root), "-o", str(tmp_path / "m2"),
+                           "--once", "--calibration", str(bad)], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(ROOT / "src")}, timeout=120)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert str(bad) in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
