@@ -243,8 +243,8 @@ def test_watch_options_reach_the_reconstruction(sources: list[Path], tmp_path: P
     assert abs(summary["normal_tilt_deg"] - 4.0) < 0.5
     bad = tmp_path / "cal.npz"
     bad.write_bytes(b"not a calibration")
-    proc = subprocess.run([sys.executable, "-m", "reflecto.cli", "watch", str(root), "-o", str(tmp_path / "m2"),
-                           "--once", "--calibration", str(bad)], capture_output=True, text=True,
+    argv = ["watch", str(root), "-o", str(tmp_path / "m2"), "--once", "--calibration", str(bad)]
+    proc = subprocess.run([sys.executable, "-m", "reflecto.cli", *argv], capture_output=True, text=True,
                           env={**os.environ, "PYTHONPATH": str(ROOT / "src")}, timeout=120)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     assert str(bad) in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
