@@ -197,7 +197,20 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                   f"LEDs moved by {r['led_offset_from_nominal_deg']}° from nominal"])
 
 
-def _reconstruct_one(cap_dir: str, cal_path: str | None, out: str, normal: bool, eta: float | None,
+def _normal_arg(text: str):  # type: ignore[no-untyped-def]
+    """``--normal``: ``auto``, ``device`` or ``X,Y,Z`` (a unit vector, checked by :class:`~reflecto.reconstruct.Options`)."""
+    if text in ("auto", "device"):
+        return text
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 3:
+        raise argparse.ArgumentTypeError(f"expected auto, device or X,Y,Z, got {text!r}")
+    return v
+
+
+def _reconstruct_one(cap_dir: str, cal_path: str | None, out: str, normal, eta: float | None,
                      isotropic: str, nominal: bool) -> dict:
     """Reconstruct one capture into ``out`` (+ its ``.json`` summary); returns the summary
     with the motion cues described (``motion``)."""
@@ -215,7 +228,7 @@ def _reconstruct_one(cap_dir: str, cal_path: str | None, out: str, normal: bool,
                            "differ from its nominal design: pass --calibration FILE (from `reflecto calibrate`), "
                            "or --nominal to use the nominal calibration anyway")
     cal = load_calibration(cal_path, cap.device)
-    options = Options(estimate_normal=normal, fixed_eta=eta, isotropic=isotropic)
+    options = Options(normal=normal, fixed_eta=eta, isotropic=isotropic)
     try:
         slices = extract_slices(cap, cal)
         res = reconstruct(slices, options)
@@ -287,7 +300,7 @@ def _reconstruct_asymmetric(args: argparse.Namespace) -> int:
         raise OutputError(out, "with --asymmetric the captures make one model: -o must name a .reflecto file")
     check_output(out)
     rotated = _load_rotated(caps, args.calibration, args.nominal)
-    options = Options(estimate_normal=args.estimate_normal, fixed_eta=args.eta, isotropic=args.isotropic)
+    options = Options(normal=args.normal, fixed_eta=args.eta, isotropic=args.isotropic)
     res = reconstruct_rotations(rotated, options)
     summary = {"captures": caps, **res.summary()}
     if args.calibration is None and args.nominal:
@@ -348,7 +361,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         make_parents(Path(args.output))
     from .fresnel import eta_from_json, format_eta
 
-    jobs = [(c, args.calibration, o, args.estimate_normal, args.eta, args.isotropic, args.nominal)
+    jobs = [(c, args.calibration, o, args.normal, args.eta, args.isotropic, args.nominal)
             for c, o in zip(caps, outs)]
     results: dict[int, dict] = {}
     failures: list[tuple[str, str]] = []
@@ -716,7 +729,10 @@ def build_parser() -> argparse.ArgumentParser:
     how.add_argument("--nominal", action="store_true",
                      help="use the device's nominal calibration even where it needs a measured one")
     q.add_argument("-o", "--output", required=True, help="model file (.reflecto) or, for several captures, a folder")
-    q.add_argument("--estimate-normal", action="store_true", help="estimate the altered normal (§5.4; experimental)")
+    q.add_argument("--normal", type=_normal_arg, default="auto", metavar="auto|device|X,Y,Z",
+                   help="the sample normal (§5.4): estimated from the capture (auto, default), the device axis "
+                        "(device), or a known unit vector in device coordinates")
+    q.add_argument("--estimate-normal", dest="normal", action="store_const", const="auto", help=argparse.SUPPRESS)
     q.add_argument("--eta", type=float, help="use this η instead of fitting it (default: fitted, eqs. 5–6)")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="reconstruct a 1-D isotropic NDF (yes), a hemicube NDF for an anisotropic material (no), "
