@@ -40,6 +40,7 @@ from scipy.optimize import minimize
 
 from .. import geometry
 from ..errors import ReflectoError
+from ..instrument.slices import MIN_LIGHT_COS
 from ..hemicube import hemicube
 from .fresnel_fit import fit_fresnel, overlap_pairs
 from .samples import bin_samples, kd_bound
@@ -381,9 +382,10 @@ class TiltProblem:
     (eqs. 1–2, 8; ``F`` and ``l·h`` do not depend on ``n``), the datum
     ``f_n = f (l·z)/(l·n)`` (:meth:`~reflecto.instrument.slices.Slices.reframe`), and the
     residual ``r = m − f_n`` with weight ``w = (l·n)²`` (eq. 10's cosine weight, as in
-    :func:`.isotropic.set_weights`). Samples whose LED is less than
-    :data:`LED_MARGIN_DEG` above the candidate's horizon, or whose view is within 1° of
-    it, take no part.
+    :func:`.isotropic.set_weights`). Samples whose LED has ``l·n`` below
+    :data:`~reflecto.instrument.slices.MIN_LIGHT_COS` (≈ 3° above the candidate's
+    horizon: the limit below which :meth:`Slices.reframe` does not correct ``cos θ_i``
+    either), or whose view is within 1° of the horizon, take no part.
 
     Parameters
     ----------
@@ -431,7 +433,7 @@ class TiltProblem:
         ci = self.light @ normal
         co = self.view @ normal
         ch = self.half @ normal
-        use = (ci > math.sin(math.radians(LED_MARGIN_DEG))) & (co > math.sin(math.radians(1.0)))
+        use = (ci > MIN_LIGHT_COS) & (co > math.sin(math.radians(1.0)))
         ci_s, co_s = np.maximum(ci, 1e-6), np.maximum(co, 1e-6)
         j, t = interpolation_cells(nodes, np.arccos(np.clip(ch, -1.0, 1.0)))
         log_d = (1.0 - t) * z[j] + t * z[j + 1]
