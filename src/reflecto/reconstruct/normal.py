@@ -274,8 +274,12 @@ CONVERGED_SHARE = 0.25
 #: At most this many refits.
 MAX_REFITS = 6
 #: The refits' sequence of normals is extrapolated to its limit (vector Aitken) when it
-#: shrinks by a ratio below this from one refit to the next.
-AITKEN_MAX_RATIO = 0.9
+#: shrinks by a ratio below this from one refit to the next (the limit then lies at most
+#: 3× the last move further) …
+AITKEN_MAX_RATIO = 0.75
+#: … and the move before was below this (degrees): far from the limit the moves are
+#: set by the trust region (:data:`MAX_STEP_DEG`), not by a geometric convergence.
+AITKEN_MAX_STEP_DEG = 1.5
 #: Gauss–Newton steps with the model held fixed after each refit.
 INNER_STEPS = 3
 #: Largest step of one Gauss–Newton iteration (degrees; a trust region).
@@ -284,7 +288,7 @@ MAX_STEP_DEG = 3.0
 FD_STEP = 1e-4
 #: A peak stands clear of its slice's floor when its luminance is this many times
 #: the slice's median …
-PEAK_CONTRAST = 4.0
+PEAK_CONTRAST = 2.0
 #: … and lies at least this far (degrees) inside the view cone's rim.
 PEAK_RIM_DEG = 3.0
 
@@ -636,7 +640,8 @@ def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0
             # extrapolate the sequence to its limit (vector Aitken) when its ratio is clear
             d1, d0 = xy - history[-1], history[-1] - history[-2]
             rho = float(d1 @ d0) / max(float(d0 @ d0), 1e-30)
-            if 0.05 < rho < AITKEN_MAX_RATIO and float(np.hypot(*d1)) <= 1.5 * rho * float(np.hypot(*d0)):
+            if (0.05 < rho < AITKEN_MAX_RATIO and float(np.hypot(*d1)) <= 1.5 * rho * float(np.hypot(*d0))
+                    and float(np.hypot(*d0)) < math.tan(math.radians(AITKEN_MAX_STEP_DEG))):
                 xy = xy + d1 * rho / (1.0 - rho)
         if float(np.hypot(*xy)) > limit:  # held within the searched cone
             xy = xy * limit / float(np.hypot(*xy))
