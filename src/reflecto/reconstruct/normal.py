@@ -408,8 +408,11 @@ class TiltProblem:
             ok &= ~slices.censored[:, px]
         li, pi = np.nonzero(ok)
         self.led = li
+        self.pix = pi
+        self.lights = np.ascontiguousarray(slices.light)
+        self.views = np.ascontiguousarray(slices.view[px])
         self.light = slices.light[li]
-        self.view = slices.view[px][pi]
+        self.view = self.views[pi]
         h = self.light + self.view
         self.half = h / np.linalg.norm(h, axis=1, keepdims=True)
         self.cos_d = np.clip(np.einsum("ij,ij->i", self.light, self.half), 0.0, 1.0)
@@ -434,15 +437,15 @@ class TiltProblem:
         and the samples that take part, at ``normal`` for log nodes ``z`` (``log(k_s D)``)."""
         from ..polar import interpolation_cells
 
-        ci = self.light @ normal
-        co = self.view @ normal
-        ch = self.half @ normal
+        # per LED and per view first (σ and the cosines), then per sample
+        ci_l = np.maximum(self.lights @ normal, 1e-6)
+        co_p = np.maximum(self.views @ normal, 1e-6)
+        ci, co = ci_l[self.led], co_p[self.pix]
         use = (ci > MIN_LIGHT_COS) & (co > math.sin(math.radians(1.0)))
-        ci_s, co_s = np.maximum(ci, 1e-6), np.maximum(co, 1e-6)
-        j, t = interpolation_cells(nodes, np.arccos(np.clip(ch, -1.0, 1.0)))
+        j, t = interpolation_cells(nodes, np.arccos(np.clip(self.half @ normal, -1.0, 1.0)))
         log_d = (1.0 - t) * z[j] + t * z[j + 1]
-        spec = fresnel * np.exp(np.minimum(log_d, 700.0)) / (4.0 * sigma(ci_s) * sigma(co_s))
-        r = kd / math.pi + spec - self.f_dev / ci_s
+        spec = fresnel * np.exp(np.minimum(log_d, 700.0)) / (4.0 * sigma(ci_l)[self.led] * sigma(co_p)[self.pix])
+        r = kd / math.pi + spec - self.f_dev / ci
         return r, spec, j, t, use, ci
 
     def solve(self, model, normal: Array, steps: int | None = None) -> tuple[Array, float, float]:
