@@ -271,9 +271,8 @@ FIT_OUTER_ITERATIONS = 2
 #: or by less than :data:`CONVERGED_SHARE` of its uncertainty.
 CONVERGED_DEG = 0.05
 CONVERGED_SHARE = 0.25
-#: At most this many refits (on the tuning half, 6 gave the same normals: 22/25 within
-#: 0.5°, max 1.28°, at 1.25× the time at p90).
-MAX_REFITS = 4
+#: At most this many refits.
+MAX_REFITS = 6
 #: The refits' sequence of normals is extrapolated to its limit (vector Aitken) when it
 #: shrinks by a ratio below this from one refit to the next (the limit then lies at most
 #: 3× the last move further) …
