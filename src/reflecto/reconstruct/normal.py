@@ -635,7 +635,10 @@ def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0
             break
         refits += 1
         start = normal
-        new, sd, _ = problem.solve(model, normal)
+        new, sd_new, _ = problem.solve(model, normal)
+        if not (np.all(np.isfinite(new)) and new[2] > 0):  # a degenerate step: keep what we have
+            break
+        sd = sd_new if math.isfinite(sd_new) else math.inf
         xy = new[:2] / new[2]
         history.append(start[:2] / start[2])
         if _angle_deg(new, start) >= CONVERGED_DEG and len(history) >= 2:
