@@ -58,7 +58,7 @@ demo: $(STAMP)
 	$(BIN)/reflecto simulate examples/ggx-plastic.json --device as-built --tilt 3 --seed 1 -o $(OUT)/capture -q
 	$(BIN)/reflecto simulate-calibration --device as-built -o $(OUT)/calib -q
 	$(BIN)/reflecto calibrate $(OUT)/calib -o $(OUT)/as-built.npz
-	$(BIN)/reflecto reconstruct $(OUT)/capture --calibration $(OUT)/as-built.npz --estimate-normal -o $(OUT)/ggx-plastic.reflecto
+	$(BIN)/reflecto reconstruct $(OUT)/capture --calibration $(OUT)/as-built.npz -o $(OUT)/ggx-plastic.reflecto
 	$(BIN)/reflecto info $(OUT)/ggx-plastic.reflecto
 	$(BIN)/reflecto simulate examples/brushed-asymmetric.toml -o $(OUT)/brushed -q
 	$(BIN)/reflecto reconstruct $(OUT)/brushed -o $(OUT)/brushed.reflecto

@@ -3,7 +3,7 @@
 For each material of ``../shared/data/rgl`` and ``../shared/data/merl-nbrdf``, a clean
 capture (the sweep's seed) on the ideal device and on the as-built device (with its
 virtual calibration) is reconstructed with the default options; every fifth material
-also tilted by 5°, 10° and 15° (as-built, ``--estimate-normal``). Checked per model:
+also tilted by 5°, 10° and 15° (as-built, the estimated normal). Checked per model:
 
 * η below its search bound (50) and one η for R, G, B (spread 0);
 * ``0 ≤ k_s ≤ 1`` and ``k_d ≥ 0`` per channel;
@@ -49,7 +49,7 @@ def one(job: tuple[str, str, str | None, float]) -> dict:
     name = Path(path).stem
     cap = simulate_capture(load_source(path), dev, seed=material_seed(name), tilt_deg=tilt)
     try:
-        res = reconstruct(workflow.measure(cap, cal), Options(estimate_normal=tilt > 0))
+        res = reconstruct(workflow.measure(cap, cal), Options(normal="auto" if tilt > 0 else "device"))
     except Exception as e:  # noqa: BLE001 - reported, the run goes on
         return {"name": name, "device": device, "tilt": tilt, "bad": [f"FAILED {type(e).__name__}: {e}"],
                 "eta": float("nan"), "albedo": float("nan"), "notes": [], "seconds": 0.0}

@@ -1,7 +1,7 @@
 """Tilted samples (hand tilt 0–15°) on the ideal device.
 
 Four analytic materials, tilts 5°, 10° and 15° (azimuth drawn from the seed), two
-seeds each, reconstructed with ``Options(estimate_normal=True)``. Prints per capture
+seeds each, reconstructed with ``Options(normal="auto")`` (the default). Prints per capture
 the recovered tilt and its angular error against the true normal, the LEDs lost below
 the sample's horizon, and the normalized eq. 10 error next to the same material's
 untilted error (same seed); then how many captures meet the targets (normal within
@@ -45,7 +45,7 @@ def main() -> None:
             e0 = brdf_error(src, flat.model, stride=3).normalized
             for tilt in TILTS:
                 cap = simulate_capture(src, dev, tilt_deg=tilt, seed=seed)
-                res = reconstruct(workflow.measure(cap, cal), Options(estimate_normal=True))
+                res = reconstruct(workflow.measure(cap, cal), Options(normal="auto"))
                 truth = np.array(cap.extra["simulation"]["normal"])
                 off = math.degrees(math.acos(min(1.0, float(np.dot(truth, res.frame[2])))))
                 e = brdf_error(src, res.model, stride=3).normalized

@@ -1,6 +1,6 @@
 """The commands and options no other test ran (issue 40), each with a number or a message
 checked against ground truth: ``fit-ct`` on a Cook–Torrance tabulation, ``design``,
-``simulate --tilt-azimuth`` / ``--shake`` (with ``reconstruct --estimate-normal``,
+``simulate --tilt-azimuth`` / ``--shake`` (with ``reconstruct --normal auto``,
 ``--progress``, ``--quiet``), ``report --ref``, ``layout --optimize`` / ``--seed`` /
 ``--theta-max`` / ``--plot``, ``sweep --device as-built``, ``--version``.
 """
@@ -133,7 +133,7 @@ def test_simulate_tilt_azimuth_and_shake_are_in_the_manifest_and_the_reconstruct
     assert abs(np.linalg.norm(shake["axis"]) - 1.0) < 1e-12 and manifest["normal"] == [0.0, 0.0, 1.0]
 
     # the reconstruction estimates the tilted normal (§5.4) and detects the shake; --quiet: no progress
-    assert main(["reconstruct", str(tilted), "--estimate-normal", "-o", str(tmp_path / "t.reflecto"), "--quiet",
+    assert main(["reconstruct", str(tilted), "--normal", "auto", "-o", str(tmp_path / "t.reflecto"), "--quiet",
                  "--json"]) == 0
     doc = _json_out(capsys)
     s = doc["models"][0]["summary"]

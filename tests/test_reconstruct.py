@@ -123,11 +123,12 @@ def test_cli_refuses_an_impossible_eta_without_writing(tmp_path, capsys):
 
 
 def test_tilted_capture_normal_recovered_within_half_a_degree():
-    """§5.4: the consistency distance finds the hand tilt (8°, azimuth from the seed)."""
+    """§5.4: the default options find the hand tilt (8°, azimuth from the seed) by the tilt's
+    least squares (:func:`reflecto.reconstruct.normal.estimate_normal`)."""
     src = AnalyticBRDF(distribution="ggx", alpha=0.15, kd=(0.45, 0.12, 0.08), ks=0.5, eta=1.5)
     dev = Device.builtin("ideal")
     cap = simulate_capture(src, dev, tilt_deg=8.0, seed=11)
-    res = reconstruct(extract_slices(cap, nominal_calibration(dev)), Options(estimate_normal=True))
+    res = reconstruct(extract_slices(cap, nominal_calibration(dev)))  # the default estimates the normal
     true_n = np.array(cap.extra["simulation"]["normal"])
     err = np.degrees(np.arccos(min(1.0, float(np.dot(res.frame[2], true_n)))))
     assert err < 0.5, err
@@ -142,7 +143,7 @@ def test_tilt_that_sinks_leds_below_the_horizon():
     dev = Device.builtin("ideal")
     cap = simulate_capture(src, dev, tilt_deg=10.0, seed=1)
     sl = extract_slices(cap, nominal_calibration(dev))
-    res = reconstruct(sl, Options(estimate_normal=True))
+    res = reconstruct(sl, Options(normal="auto"))
     true_n = np.array(cap.extra["simulation"]["normal"])
     assert np.degrees(np.arccos(min(1.0, float(np.dot(res.frame[2], true_n))))) < 0.5
     below = (sl.light @ res.frame[2]) < 0.05
@@ -159,7 +160,7 @@ def test_a_normal_whose_fit_underflows_the_ndf_is_rejected_not_a_crash():
     src = AnalyticBRDF(distribution="beckmann", alpha=0.2, kd=0.0, ks=0.8, eta=1.5)
     dev = Device.builtin("ideal")
     cap = simulate_capture(src, dev, tilt_deg=15.0, seed=1)
-    res = reconstruct(extract_slices(cap, nominal_calibration(dev)), Options(estimate_normal=True))
+    res = reconstruct(extract_slices(cap, nominal_calibration(dev)), Options(normal="auto"))
     true_n = np.array(cap.extra["simulation"]["normal"])
     assert np.degrees(np.arccos(min(1.0, float(np.dot(res.frame[2], true_n))))) < 0.5
     assert abs(res.eta / 1.5 - 1) < 0.01, res.eta
@@ -545,7 +546,8 @@ def test_shaken_capture_is_flagged_by_the_symmetry_planes_and_a_clean_one_is_not
     dev = dataclasses.replace(Device.builtin("ideal"), check_leds=())  # the planes alone
     cal = nominal_calibration(dev)
     src = AnalyticBRDF(distribution="ggx", alpha=0.15, kd=0.1, ks=0.7)
-    clean = reconstruct(extract_slices(simulate_capture(src, dev, seed=1), cal))
+    device = Options(normal="device")  # the planes against the known (device) normal of an untilted capture
+    clean = reconstruct(extract_slices(simulate_capture(src, dev, seed=1), cal), device)
     planes = [x for x in clean.motion.plane_offsets_deg if x is not None]
     assert len(planes) >= 2 and max(abs(x) for x in planes) < 0.3  # the steep LEDs locate their planes
     assert not clean.shake_detected
@@ -555,7 +557,7 @@ def test_shaken_capture_is_flagged_by_the_symmetry_planes_and_a_clean_one_is_not
         d = dataclasses.replace(dev, firing_order=order)
         cap = simulate_capture(src, d, seed=seed, shake=True, shake_deg=4.0)
         moved = cap.extra["simulation"]["shake"]["moved_leds"]
-        res = reconstruct(extract_slices(cap, cal))
+        res = reconstruct(extract_slices(cap, cal), device)
         off = res.motion.plane_offsets_deg
         for led in (2, 4):
             assert off[led] is not None

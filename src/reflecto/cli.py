@@ -217,9 +217,22 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                   f"LEDs moved by {r['led_offset_from_nominal_deg']}° from nominal"])
 
 
+def _normal_arg(text: str):  # type: ignore[no-untyped-def]
+    """``--normal``: ``auto``, ``device`` or ``X,Y,Z`` (a unit vector, checked by :class:`~reflecto.reconstruct.Options`)."""
+    if text in ("auto", "device"):
+        return text
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 3:
+        raise argparse.ArgumentTypeError(f"expected auto, device or X,Y,Z, got {text!r}")
+    return v
+
+
 def _options(args: argparse.Namespace) -> Options:
-    """The reconstruction settings of ``reconstruct``'s flags."""
-    return Options(estimate_normal=args.estimate_normal, fixed_eta=args.eta, isotropic=args.isotropic)
+    """The reconstruction settings of ``reconstruct``'s (and ``watch``'s) flags."""
+    return Options(normal=args.normal, fixed_eta=args.eta, isotropic=args.isotropic)
 
 
 def _missing(args: argparse.Namespace) -> workflow.Missing:
@@ -644,7 +657,10 @@ def build_parser() -> argparse.ArgumentParser:
     how.add_argument("--nominal", action="store_true",
                      help="use the device's nominal calibration even where it needs a measured one")
     q.add_argument("-o", "--output", required=True, help="model file (.reflecto) or, for several captures, a folder")
-    q.add_argument("--estimate-normal", action="store_true", help="estimate the altered normal (§5.4; experimental)")
+    q.add_argument("--normal", type=_normal_arg, default="auto", metavar="auto|device|X,Y,Z",
+                   help="the sample normal (§5.4): estimated from the capture (auto, default), the device axis "
+                        "(device), or a known unit vector in device coordinates")
+    q.add_argument("--estimate-normal", dest="normal", action="store_const", const="auto", help=argparse.SUPPRESS)
     q.add_argument("--eta", type=float, help="use this η instead of fitting it (default: fitted, eqs. 5–6)")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="reconstruct a 1-D isotropic NDF (yes), a hemicube NDF for an anisotropic material (no), "
@@ -667,7 +683,8 @@ def build_parser() -> argparse.ArgumentParser:
     how = q.add_mutually_exclusive_group()
     how.add_argument("--calibration", help="calibration file from `reflecto calibrate` (as for reconstruct)")
     how.add_argument("--nominal", action="store_true", help="use the device's nominal calibration (as for reconstruct)")
-    q.add_argument("--estimate-normal", action="store_true", help="estimate the altered normal (as for reconstruct)")
+    q.add_argument("--normal", type=_normal_arg, default="auto", metavar="auto|device|X,Y,Z",
+                   help="the sample normal (§5.4), as for reconstruct (default: auto, estimated)")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto", help="as for reconstruct")
     q.add_argument("--settle", type=float, default=5.0,

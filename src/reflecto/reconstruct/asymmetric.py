@@ -38,7 +38,7 @@ lobe can hide from the second harmonic); ``"no"`` always takes the hemicube.
 
 **The normal of the set.** The rotations turn the sample about its own normal while
 the hand holds the device's tilt (as ``reflecto simulate --tilt T --rotation R``):
-one device-frame normal for all captures. With ``estimate_normal`` it is the normal
+one device-frame normal for all captures. With ``Options(normal="auto")`` (the default) it is the normal
 in which the captures agree best with each other where they see the same half vector
 in the sample frame (:class:`SetDistance`: E(η) of the direct overlaps of all
 captures' bins, §5.1 without τ, so an asymmetric NDF does not bias it), searched as
@@ -528,7 +528,10 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
             valids.append(usable_samples(c.slices))
         except ReflectoError as e:
             raise ReflectoError(f"{c.name}: {str(e).removeprefix('capture: ')}") from None
-    normal = _set_normal(captures, valids, opt.max_tilt_deg) if opt.estimate_normal else np.array([0.0, 0.0, 1.0])
+    if isinstance(opt.normal, str):
+        normal = _set_normal(captures, valids, opt.max_tilt_deg) if opt.normal == "auto" else np.array([0.0, 0.0, 1.0])
+    else:
+        normal = np.asarray(opt.normal, dtype=np.float64)
     frames = sample_frames([c.rotation_deg for c in captures], normal)
     sls = [c.slices.reframe(f) for c, f in zip(captures, frames)]
     oks = [ok & s.valid for ok, s in zip(valids, sls)]
@@ -558,7 +561,7 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
         # reported against the reconstruction's own S and F, which fit the anisotropic lobe
         symmetry = symmetry_from_ratios(within_captures(pair_ratios(sb.bins, len(sb.light), model, pairs), sb),
                                         captures=len(captures))
-    motion = ([detect_motion(c.slices, s, ok, False, opt.estimate_normal) for c, s, ok in zip(captures, sls, oks)]
+    motion = ([detect_motion(c.slices, s, ok, False) for c, s, ok in zip(captures, sls, oks)]
               if opt.detect_shake else [MotionReport() for _ in captures])
     model, scale, albedo = limit_energy(model, opt.energy_clamp)
     synthesized = _cap_fraction(sb.cube, fill.synthesized_work) if fill else 0.0

@@ -60,7 +60,9 @@ class PairCheck:
     """One comparison between the slices of LEDs ``a`` and ``b``.
 
     ``kind`` is ``"isotropy"`` or ``"reciprocity"``; ``log_ratio`` the median of
-    ``log(f_a / f_b)`` over the ``count`` paired directions (0 for a consistent pair).
+    ``log(f_a / f_b)`` over the ``count`` paired directions (0 for a consistent pair);
+    ``allowance`` what the normal's uncertainty adds to the kind's :data:`THRESHOLD`
+    (:func:`normal_allowance`; 0 for a known normal).
     """
 
     a: int
@@ -68,11 +70,23 @@ class PairCheck:
     kind: str
     log_ratio: float
     count: int
+    allowance: float = 0.0
 
     @property
     def inconsistent(self) -> bool:
-        """Whether the ratio exceeds the kind's :data:`THRESHOLD`."""
-        return abs(self.log_ratio) > THRESHOLD[self.kind]
+        """Whether the ratio exceeds the kind's :data:`THRESHOLD` plus the allowance."""
+        return abs(self.log_ratio) > THRESHOLD[self.kind] + self.allowance
+
+
+def normal_allowance(light: Array, a: int, b: int, normal_uncertainty_deg: float, sigmas: float = 2.0) -> float:
+    """What an error of the normal does to a pair's log ratio: each LED's value is
+    divided by its ``cos θ_i`` in the sample frame, and a normal off by ``δ`` changes
+    ``log cos θ_i`` by up to ``δ tan θ_i``; both LEDs' at ``sigmas`` standard
+    uncertainties: ``sigmas · δ · (tan θ_a + tan θ_b)`` (δ in radians)."""
+    if normal_uncertainty_deg <= 0:
+        return 0.0
+    tan = lambda k: math.sqrt(max(1.0 - light[k, 2] ** 2, 0.0)) / max(float(light[k, 2]), 1e-6)  # noqa: E731
+    return sigmas * math.radians(normal_uncertainty_deg) * (tan(a) + tan(b))
 
 
 class _SliceTable:

@@ -8,12 +8,15 @@
 * Isotropy and reciprocity between LEDs (:mod:`.consistency`).
 
 The last two hold for isotropic materials only, so they are consulted only when the
-material was found (or declared) isotropic; and they judge the slices against the
-sample's normal, so they are not consulted when that normal was estimated from the
-same slices (§5.4): its error on measured materials (0.2–1°) reaches the plane
-threshold, and LEDs that a tilt brings to equal elevations are compared at grazing
-incidence, where fabrics break the pair equalities by 20–35 % without moving. The
-check frames need no normal and judge every capture. ``E(η)`` of the hemicube path's Fresnel
+material was found (or declared) isotropic; and they judge the slices in the sample
+frame, against the sample's normal: the estimated one (§5.4) for a tilted capture.
+An error ``δ`` of that normal turns an LED's mirror plane by up to ``δ / sin θ_l``
+and changes a pair's log ratio by up to ``δ (tan θ_a + tan θ_b)`` (the ``cos θ_i``
+of both slices); each cue's threshold is widened by that at two standard
+uncertainties of the normal (:attr:`MotionReport.plane_allowance_deg`,
+:func:`.consistency.normal_allowance`), so a steady tilted capture whose normal is
+known to ``δ`` is not read as motion. The check frames need no normal and judge
+every capture. ``E(η)`` of the hemicube path's Fresnel
 fit (§5.1's own cue) enters through :class:`~.hemicube_fit.HemicubeFit`.
 """
 
@@ -28,7 +31,7 @@ from numpy.typing import NDArray
 
 from ..instrument.slices import Slices
 from .consistency import THRESHOLD as PAIR_THRESHOLD
-from .consistency import PairCheck, pair_checks
+from .consistency import PairCheck, normal_allowance, pair_checks
 from .repeat import RepeatCheck, repeat_checks
 from .symmetry import PLANE_THRESHOLD_DEG, plane_offsets
 
@@ -52,12 +55,16 @@ class MotionReport:
         Isotropy and reciprocity comparisons (:class:`.consistency.PairCheck`).
     excluded_leds
         LEDs left out of the fit because they alone explained an inconsistency.
+    plane_allowance_deg
+        Per LED what the normal's uncertainty adds to :data:`PLANE_THRESHOLD_DEG`
+        (module docstring; empty: nothing).
     """
 
     repeat_checks: list[RepeatCheck] = dataclasses.field(default_factory=list)
     plane_offsets_deg: list[float | None] = dataclasses.field(default_factory=list)
     pair_checks: list[PairCheck] = dataclasses.field(default_factory=list)
     excluded_leds: list[int] = dataclasses.field(default_factory=list)
+    plane_allowance_deg: list[float] = dataclasses.field(default_factory=list)
 
     @property
     def moved_leds(self) -> list[int]:
@@ -66,8 +73,11 @@ class MotionReport:
 
     @property
     def tilted_planes(self) -> list[int]:
-        """LEDs whose slice's mirror plane is off the normal by more than :data:`PLANE_THRESHOLD_DEG`."""
-        return [k for k, x in enumerate(self.plane_offsets_deg) if x is not None and abs(x) > PLANE_THRESHOLD_DEG]
+        """LEDs whose slice's mirror plane is off the normal by more than :data:`PLANE_THRESHOLD_DEG`
+        (plus the allowance for the normal's uncertainty)."""
+        allow = self.plane_allowance_deg or [0.0] * len(self.plane_offsets_deg)
+        return [k for k, x in enumerate(self.plane_offsets_deg)
+                if x is not None and abs(x) > PLANE_THRESHOLD_DEG + allow[k]]
 
     @property
     def inconsistent_pairs(self) -> list[PairCheck]:
@@ -100,24 +110,36 @@ class MotionReport:
         return {"shake_detected": self.shake_detected,
                 "repeat_checks": [finite(dataclasses.asdict(r)) for r in self.repeat_checks],
                 "symmetry_plane_offsets_deg": self.plane_offsets_deg,
+                "symmetry_plane_allowance_deg": self.plane_allowance_deg,
                 "consistency_checks": [dataclasses.asdict(c) for c in self.pair_checks],
                 "excluded_leds": self.excluded_leds}
 
 
+#: The cues' thresholds are widened by the normal's error at this many standard uncertainties.
+NORMAL_SIGMAS = 2.0
+
+
 def detect_motion(device_frame: Slices, sample_frame: Slices, valid: NDArray[np.bool_],
-                  isotropic: bool, normal_estimated: bool = False) -> MotionReport:
+                  isotropic: bool, normal_uncertainty_deg: float = 0.0) -> MotionReport:
     """Run the cues that apply (see the module docstring).
 
     ``device_frame`` carries the check frames (compared where they were taken);
     ``sample_frame`` is the same capture in the sample's (estimated) frame, where the
-    mirror planes and the pairs are judged; ``valid`` marks the usable samples.
+    mirror planes and the pairs are judged; ``valid`` marks the usable samples;
+    ``normal_uncertainty_deg`` the standard uncertainty of that frame's normal (0 for
+    a known one), which widens the mirror-plane and pair thresholds (module docstring).
     """
     report = MotionReport(repeat_checks=repeat_checks(device_frame))
-    if isotropic and not normal_estimated:
+    if isotropic:
+        u = float(normal_uncertainty_deg) if math.isfinite(normal_uncertainty_deg) else 90.0
+        light = sample_frame.light
         ok = valid & sample_frame.valid
         meas = ok if sample_frame.censored is None else ok & ~sample_frame.censored
-        report.plane_offsets_deg = plane_offsets(sample_frame.light, sample_frame.view, sample_frame.values, ok)
-        report.pair_checks = pair_checks(sample_frame.light, sample_frame.view, sample_frame.values, meas)
+        report.plane_offsets_deg = plane_offsets(light, sample_frame.view, sample_frame.values, ok)
+        report.plane_allowance_deg = [NORMAL_SIGMAS * u / max(math.sqrt(max(1.0 - float(l[2]) ** 2, 0.0)), 1e-3)
+                                      for l in light]
+        report.pair_checks = [dataclasses.replace(c, allowance=normal_allowance(light, c.a, c.b, u, NORMAL_SIGMAS))
+                              for c in pair_checks(light, sample_frame.view, sample_frame.values, meas)]
     return report
 
 

@@ -1,21 +1,32 @@
-"""Altered-normal estimation (paper §5.4, after HLHZ08; algorithm-reference §5.2–5.3).
+"""The altered normal (paper §5.4): the sample's normal in device coordinates.
 
-:class:`ConsistencyDistance` is the symmetry criterion of HLHZ08 with the full model: for a candidate normal the slices are
-re-expressed in its frame and binned, and the distance is E(η) of §5.1 — how badly
-partial NDFs of overlapping and τ-mirrored bins disagree once S, F and k_d are
-divided out (η and k_d fitted per candidate). The sample's true frame is the only
-one in which the τ-symmetry of the NDF and the direct overlaps hold at once. It is
-sharp (on an ideal capture E falls from ≈ 0.6 at 6° off to ≈ 0.01 at the truth).
+A hand-held capture is tilted: the sample's normal ``n`` is not the device axis. The
+slices store ``f`` computed with the device normal (:mod:`reflecto.instrument.slices`),
+so in the sample frame each LED's values carry the factor ``(n₀·l)/(n·l)`` and every
+direction is rotated (:meth:`~reflecto.instrument.slices.Slices.reframe`).
 
-HLHZ08's plain form — ``log D̂`` with ``S = F = 1`` compared between ``h`` and ``τh`` —
-was tried first and found 3–6° tilts on untilted captures: the unequal S and F of the
-two samples (different θ_i, θ_d) bias it, which the full-model form divides out. As
-the paper says, only the reflection across the normal (τ) is used, applied through
-the dense views.
+**The mechanism of every reconstruction** (:func:`estimate_normal`, docs/design/normal.md):
 
-The minimum is found on a grid of tilts (every ``step_deg`` up to ``max_tilt_deg``) of
-a cheap coarse distance; its lowest local minima are refined on the coarse distance
-and the best of them by Nelder–Mead on the fine one.
+1. A first estimate from the specular peak (:func:`peak_normal`): in the steepest LED
+   slice whose peak stands clear of its floor and lies inside the view cone, the
+   half vector of the peak ``h = normalize(l + v_peak)`` is the normal (the mirror
+   direction of a lobe centred on ``n``); otherwise the device axis.
+2. The two tilt angles refined inside the isotropic fit's least squares
+   (:class:`TiltProblem`): with ``D``, ``S`` and ``η`` of an isotropic fit in the
+   current frame, Gauss–Newton on ``(t_x, t_y, k_d, k_s)`` of the residuals of eq. 10's
+   weights (``w = cos² θ_i``, the weights the fit itself uses) per sample, where
+   ``n = normalize(t_x, t_y, 1)``; the fit is repeated in the new frame until the
+   step is below :data:`CONVERGED_DEG`.
+3. Its uncertainty: the cluster-robust (sandwich) covariance of that last step with
+   the LEDs as clusters (:meth:`TiltProblem.step`): the errors that do not average
+   out within a slice (a calibration error of one LED, the model's misfit at one
+   incidence) are correlated within the slice, not between slices. The larger
+   standard deviation of the two tilt angles is reported, and never less than the
+   camera's sampling of the half vector (:func:`half_vector_pitch_deg`, ≈ 0.2°).
+
+The old §5.4 search (HLHZ08's consistency criterion on a grid of tilts, Nelder–Mead;
+:class:`ConsistencyDistance`, :class:`IsotropicDistance`,
+:func:`estimate_normal_consistency`) is kept for the several captures of §5.5.
 """
 
 from __future__ import annotations
@@ -30,6 +41,7 @@ from scipy.optimize import minimize
 
 from .. import geometry
 from ..errors import ReflectoError
+from ..instrument.slices import MIN_LIGHT_COS
 from ..hemicube import hemicube
 from .fresnel_fit import fit_fresnel, overlap_pairs
 from .samples import bin_samples, kd_bound
@@ -255,3 +267,404 @@ def refine_normal(dist: NormalDistance, normal: Array, step_deg: float = 1.0,
                                                   "initial_simplex": xy0 + np.array([[0, 0], [d, 0], [0, d]])})
     xy = res.x
     return tilt_frame(float(xy[0]), float(xy[1]))[2], float(res.fun)
+
+
+# ------------------------------------------------------------------ the altered normal of every reconstruction
+
+#: Every ``SAMPLE_STRIDE``-th pixel enters the tilt's least squares (≈ 5 300 views of
+#: the default optics, ×6 LEDs: the two angles are overdetermined by far).
+SAMPLE_STRIDE = 7
+#: Every ``FIT_STRIDE``-th pixel enters the isotropic fits inside the estimate (the
+#: final fit in the estimated frame uses all).
+FIT_STRIDE = 2
+#: Outer iterations (S from D) of those fits.
+FIT_OUTER_ITERATIONS = 2
+#: The estimate has converged when a refit moves the normal by less than this (degrees)
+#: or by less than :data:`CONVERGED_SHARE` of its uncertainty.
+CONVERGED_DEG = 0.05
+CONVERGED_SHARE = 0.25
+#: At most this many refits.
+MAX_REFITS = 6
+#: The refits' sequence of normals is extrapolated to its limit (vector Aitken) when it
+#: shrinks by a ratio below this from one refit to the next (the limit then lies at most
+#: 3× the last move further) …
+AITKEN_MAX_RATIO = 0.75
+#: … and the move before was below this (degrees): far from the limit the moves are
+#: set by the trust region (:data:`MAX_STEP_DEG`), not by a geometric convergence.
+AITKEN_MAX_STEP_DEG = 1.5
+#: Gauss–Newton steps with the model held fixed after each refit.
+INNER_STEPS = 3
+#: Largest step of one Gauss–Newton iteration (degrees; a trust region).
+MAX_STEP_DEG = 3.0
+#: Tangent offset of the finite differences of the residuals.
+FD_STEP = 1e-4
+#: A peak stands clear of its slice's floor when its luminance is this many times
+#: the slice's median …
+PEAK_CONTRAST = 2.0
+#: … and lies at least this far (degrees) inside the view cone's rim.
+PEAK_RIM_DEG = 3.0
+
+
+@dataclasses.dataclass(frozen=True)
+class NormalEstimate:
+    """The sample normal in device coordinates and how well it is known.
+
+    Attributes
+    ----------
+    normal
+        Unit normal, shape ``(3,)``.
+    uncertainty_deg
+        Standard uncertainty of its direction (degrees): the larger principal standard
+        deviation of the cluster-robust covariance (LEDs as clusters) for an estimated
+        normal; 0 for a normal imposed by the options.
+    source
+        ``"estimated"`` (§5.4 from the data), ``"device"`` (the device axis: imposed,
+        or the estimate did not differ from it significantly) or ``"given"``.
+    refits
+        Isotropic fits the estimate took.
+    tilt_estimate_deg
+        The estimated tilt before the decision for the device axis (degrees; NaN when
+        nothing was estimated).
+    """
+
+    normal: Array
+    uncertainty_deg: float
+    source: str
+    refits: int = 0
+    tilt_estimate_deg: float = math.nan
+
+    @property
+    def tilt_deg(self) -> float:
+        """Angle between the normal and the device axis, ``acos(n_z)`` (degrees)."""
+        return math.degrees(math.acos(min(1.0, float(self.normal[2]))))
+
+    @property
+    def frame(self) -> Array:
+        """Rows ``(t, b, n)`` of the sample frame; ``t`` follows device x."""
+        if self.normal[2] >= 1.0:
+            return np.eye(3)
+        return geometry.frame_from_normal(self.normal, np.array([1.0, 0.0, 0.0]))
+
+
+def _angle_deg(a: Array, b: Array) -> float:
+    return math.degrees(math.acos(min(1.0, max(-1.0, float(np.dot(a, b))))))
+
+
+def peak_normal(slices, valid: NDArray[np.bool_]) -> Array | None:
+    """First estimate of the normal from the specular peak (module docstring, step 1).
+
+    For every LED ``l`` whose slice (luminance ``Y``) peaks at least
+    :data:`PEAK_CONTRAST` times above its median, at least :data:`PEAK_RIM_DEG` inside
+    the rim of the view cone, the half vector of the peak's centroid
+    ``h = normalize(Σ w (l + v)/|l + v|)`` (weights ``w = Y − ½(Y_max + median)`` over
+    the pixels above that level); of these, the steepest LED's (its lobe's
+    off-specular shift is the smallest). ``None`` when no slice has such a peak.
+    """
+    from ..colour import LUM
+
+    view = slices.view
+    axis = geometry.normalize(view.mean(axis=0))
+    ang = np.degrees(np.arccos(np.clip(view @ axis, -1.0, 1.0)))
+    rim = float(ang.max()) - PEAK_RIM_DEG
+    best: tuple[float, Array] | None = None
+    for k in range(slices.n_leds):
+        ok = valid[k]
+        if np.count_nonzero(ok) < 100:
+            continue
+        y = slices.values[k, ok] @ LUM
+        med = float(np.median(y))
+        j = int(np.argmax(y))
+        if not (y[j] > PEAK_CONTRAST * max(med, 1e-300) and ang[ok][j] < rim):
+            continue
+        level = 0.5 * (y[j] + med)
+        top = y > level
+        h = slices.light[k] + view[ok][top]
+        h /= np.linalg.norm(h, axis=1, keepdims=True)
+        n = geometry.normalize(((y[top] - level)[:, None] * h).sum(axis=0))
+        if best is None or slices.light[k, 2] > best[0]:
+            best = (float(slices.light[k, 2]), n)
+    return None if best is None else best[1]
+
+
+class TiltProblem:
+    """The tilt's least squares with an isotropic model held fixed (module docstring, step 2).
+
+    Samples ``s`` (LED ``l``, view ``v``; every :data:`SAMPLE_STRIDE`-th pixel) in device
+    coordinates with their luminance ``f`` as stored (device normal ``z``). For a
+    candidate normal ``n`` the model is
+
+    ``m = k_d/π + k_s F(l·h; η) D(θ_h) / (4 σ(l·n) σ(v·n))``,  ``cos θ_h = h·n``
+
+    (eqs. 1–2, 8; ``F`` and ``l·h`` do not depend on ``n``), the datum
+    ``f_n = f (l·z)/(l·n)`` (:meth:`~reflecto.instrument.slices.Slices.reframe`), and the
+    residual ``r = m − f_n`` with weight ``w = (l·n)²`` (eq. 10's cosine weight, as in
+    :func:`.isotropic.set_weights`). Samples whose LED has ``l·n`` below
+    :data:`~reflecto.instrument.slices.MIN_LIGHT_COS` (≈ 3° above the candidate's
+    horizon: the limit below which :meth:`Slices.reframe` does not correct ``cos θ_i``
+    either), or whose view is within 1° of the horizon, take no part.
+
+    Parameters
+    ----------
+    slices
+        :class:`~reflecto.instrument.slices.Slices` in the device frame.
+    valid
+        Usable samples, shape ``(L, P)``.
+    """
+
+    def __init__(self, slices, valid: NDArray[np.bool_], stride: int = SAMPLE_STRIDE) -> None:
+        from ..colour import LUM
+
+        px = np.arange(0, slices.view.shape[0], stride)
+        ok = valid[:, px] & slices.valid[:, px]
+        if slices.censored is not None:
+            ok &= ~slices.censored[:, px]
+        li, pi = np.nonzero(ok)
+        self.led = li
+        self.pix = pi
+        self.lights = np.ascontiguousarray(slices.light)
+        self.views = np.ascontiguousarray(slices.view[px])
+        self.light = slices.light[li]
+        self.view = self.views[pi]
+        h = self.light + self.view
+        self.half = h / np.linalg.norm(h, axis=1, keepdims=True)
+        self.cos_d = np.clip(np.einsum("ij,ij->i", self.light, self.half), 0.0, 1.0)
+        z_dev = geometry.to_local(slices.light, slices.frame)[:, 2]  # the normal the values assume
+        self.f_dev = (slices.values[:, px] @ LUM)[li, pi] * z_dev[li]
+        self.n_leds = slices.n_leds
+        # the samples are sorted by LED (row-major nonzero): each LED's segment
+        self.starts = np.searchsorted(li, np.arange(slices.n_leds + 1))
+        self._fresnel: tuple[object, Array] | None = None
+
+    def fresnel(self, model) -> Array:
+        """``F(l·h; η)`` per sample, luminance-weighted over the channels' ``k_s`` (cached per model)."""
+        from ..colour import LUM
+
+        if self._fresnel is None or self._fresnel[0] is not model:
+            ks = float(model.ks @ LUM)
+            self._fresnel = (model, (model._fresnel_table(self.cos_d) * model.ks) @ LUM / max(ks, 1e-300))
+        return self._fresnel[1]
+
+    def _parts(self, sigma, nodes: Array, normal: Array, z: Array, kd: float, fresnel: Array):
+        """Residuals ``r`` (N,), the specular part ``s`` (N,), the cells ``j, t`` of θ_h
+        and the samples that take part, at ``normal`` for log nodes ``z`` (``log(k_s D)``)."""
+        from ..polar import interpolation_cells
+
+        # per LED and per view first (σ and the cosines), then per sample
+        ci_l = np.maximum(self.lights @ normal, 1e-6)
+        co_p = np.maximum(self.views @ normal, 1e-6)
+        ci, co = ci_l[self.led], co_p[self.pix]
+        use = (ci > MIN_LIGHT_COS) & (co > math.sin(math.radians(1.0)))
+        j, t = interpolation_cells(nodes, np.arccos(np.clip(self.half @ normal, -1.0, 1.0)))
+        log_d = (1.0 - t) * z[j] + t * z[j + 1]
+        spec = fresnel * np.exp(np.minimum(log_d, 700.0)) / (4.0 * sigma(ci_l)[self.led] * sigma(co_p)[self.pix])
+        r = kd / math.pi + spec - self.f_dev / ci
+        return r, spec, j, t, use, ci
+
+    def solve(self, model, normal: Array, steps: int | None = None) -> tuple[Array, float, float]:
+        """Gauss–Newton (Levenberg–Marquardt) on ``(t_x, t_y, k_d, z)`` with ``S``, ``F``
+        and ``η`` of ``model`` held fixed, from ``normal``; ``z`` the log of ``k_s D`` at
+        the NDF's nodes (luminance), under the fit's curvature prior on ``log D``
+        (:func:`.isotropic.prior`). The tilt columns of the Jacobian are finite differences
+        (:data:`FD_STEP`), the others analytic.
+
+        Returns the normal, its uncertainty (degrees; module docstring, step 3) and the
+        weighted RMS residual.
+        """
+        from ..colour import LUM
+        from . import isotropic
+
+        steps = INNER_STEPS if steps is None else steps
+        ndf = model.ndf_table
+        nodes = ndf.nodes
+        k = len(nodes)
+        sigma = ndf.projected_area
+        fresnel = self.fresnel(model)
+        z = ndf.log_values + math.log(max(float(model.ks @ LUM), 1e-300))
+        kd = float(model.kd @ LUM)
+        xy = np.asarray(normal[:2], dtype=np.float64) / float(normal[2])
+        curv = isotropic._curvature_matrix(nodes.tobytes())
+        lam = None
+        mu = 1e-3
+        sd, rms = math.inf, math.nan
+
+        def state_cost(xy_, z_, kd_, use_):
+            r, *_ = self._parts(sigma, nodes, tilt_frame(*xy_)[2], z_, kd_, fresnel)
+            w = np.where(use_, (self.light @ tilt_frame(*xy_)[2]) ** 2, 0.0)
+            return float(np.sum(w * r * r) + lam * z_ @ curv @ z_)
+
+        for it in range(steps + 1):
+            n = tilt_frame(*xy)[2]
+            r, spec, j, t, use, ci = self._parts(sigma, nodes, n, z, kd, fresnel)
+            w = np.where(use, ci * ci, 0.0)
+            if np.count_nonzero(w) < 100:
+                return n, math.inf, math.nan
+            if lam is None:  # the fit's curvature prior: ρ ℓ⁴ with ρ the data's weight per radian
+                m = r + self.f_dev / np.maximum(ci, 1e-6)
+                span = max(float(np.ptp(np.arccos(np.clip(self.half[use] @ n, -1, 1)))), 1e-3)
+                lam = float(np.sum(w * m * m)) / span * isotropic.SMOOTH_LENGTH ** 4
+            cols = []
+            for e in (np.array([FD_STEP, 0.0]), np.array([0.0, FD_STEP])):
+                r1, *_ = self._parts(sigma, nodes, tilt_frame(*(xy + e))[2], z, kd, fresnel)
+                cols.append((r1 - r) / FD_STEP)
+            dense = np.stack(cols + [np.full(len(r), 1.0 / math.pi)], axis=1)  # (N, 3)
+            a0, a1 = spec * (1.0 - t), spec * t
+            # per-LED scores (for the covariance) and the normal equations
+            lk = self.led * k
+            g_z_led = (np.bincount(lk + j, w * a0 * r, self.n_leds * k)
+                       + np.bincount(lk + j + 1, w * a1 * r, self.n_leds * k)).reshape(self.n_leds, k)
+            wd = dense * (w * r)[:, None]
+            g_d_led = np.stack([np.bincount(self.led, wd[:, q], self.n_leds) for q in range(3)], axis=1)
+            if it == steps:
+                break
+            a_mat = np.zeros((k + 3, k + 3))
+            wdj = dense * w[:, None]
+            a_mat[:3, :3] = dense.T @ wdj
+            cross = np.stack([np.bincount(j, wdj[:, q] * a0, k) + np.bincount(j + 1, wdj[:, q] * a1, k)
+                              for q in range(3)])
+            a_mat[:3, 3:] = cross
+            a_mat[3:, :3] = cross.T
+            diag = np.bincount(j, w * a0 * a0, k) + np.bincount(j + 1, w * a1 * a1, k)
+            off = np.bincount(j, w * a0 * a1, k)[: k - 1]
+            iz = np.arange(k)
+            a_mat[3 + iz, 3 + iz] += diag
+            a_mat[3 + iz[:-1], 4 + iz[:-1]] += off
+            a_mat[4 + iz[:-1], 3 + iz[:-1]] += off
+            a_mat[3:, 3:] += lam * curv
+            grad = np.concatenate([g_d_led.sum(axis=0), g_z_led.sum(axis=0) + lam * curv @ z])
+            dg = np.diag(a_mat).copy()
+            dg += 1e-12 * dg.max()
+            cost0 = float(np.sum(w * r * r) + lam * z @ curv @ z)
+            improved = False
+            while mu < 1e8:
+                try:
+                    step = -np.linalg.solve(a_mat + mu * np.diag(dg), grad)
+                except np.linalg.LinAlgError:
+                    mu *= 10.0
+                    continue
+                dxy = step[:2]
+                lim = math.tan(math.radians(MAX_STEP_DEG))
+                length = float(np.hypot(*dxy))
+                if length > lim:
+                    step = step * (lim / length)
+                trial = (xy + step[:2], z + step[3:], max(kd + float(step[2]), 0.0))
+                c = state_cost(*trial, use)
+                if math.isfinite(c) and c < cost0:
+                    xy, z, kd = trial
+                    mu = max(mu / 10.0, 1e-9)
+                    improved = True
+                    break
+                mu *= 10.0
+            if not improved or float(np.hypot(*step[:2])) < math.tan(math.radians(0.2 * CONVERGED_DEG)):
+                n = tilt_frame(*xy)[2]
+                r, spec, j, t, use, ci = self._parts(sigma, nodes, n, z, kd, fresnel)
+                w = np.where(use, ci * ci, 0.0)
+                a0, a1 = spec * (1.0 - t), spec * t
+                lk = self.led * k
+                g_z_led = (np.bincount(lk + j, w * a0 * r, self.n_leds * k)
+                           + np.bincount(lk + j + 1, w * a1 * r, self.n_leds * k)).reshape(self.n_leds, k)
+                cols = []
+                for e in (np.array([FD_STEP, 0.0]), np.array([0.0, FD_STEP])):
+                    r1, *_ = self._parts(sigma, nodes, tilt_frame(*(xy + e))[2], z, kd, fresnel)
+                    cols.append((r1 - r) / FD_STEP)
+                dense = np.stack(cols + [np.full(len(r), 1.0 / math.pi)], axis=1)
+                wd = dense * (w * r)[:, None]
+                g_d_led = np.stack([np.bincount(self.led, wd[:, q], self.n_leds) for q in range(3)], axis=1)
+                break
+        # cluster-robust (sandwich) covariance with the LEDs as clusters (module docstring, step 3)
+        n = tilt_frame(*xy)[2]
+        scores = np.concatenate([g_d_led, g_z_led], axis=1)  # (L, K + 3)
+        leds = [q for q in range(self.n_leds) if np.any(scores[q] != 0)]
+        if len(leds) >= 3 and 'a_mat' in locals():
+            try:
+                b = np.linalg.solve(a_mat, np.eye(k + 3)[:, :2])  # the tilt's columns of A⁻¹
+                u = scores[leds] @ b  # (L', 2)
+                cov = u.T @ u * len(leds) / (len(leds) - 1)
+                sd = math.degrees(math.atan(math.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0))))
+            except np.linalg.LinAlgError:
+                pass
+        rms = float(np.sqrt(np.sum(w * r * r) / max(np.sum(w), 1e-300)))
+        return n, sd, rms
+
+
+def _fit_model(slices, valid: NDArray[np.bool_], frame: Array, fixed_eta: float | None):
+    """A light isotropic fit (every :data:`FIT_STRIDE`-th pixel, :data:`FIT_OUTER_ITERATIONS`)
+    in ``frame``: the ``D``, ``S``, ``η``, ``k_d``, ``k_s`` (luminance) the tilt's steps hold."""
+    from ..model import IsotropicMicrofacetBRDF
+    from ..polar import polar_nodes
+    from . import isotropic
+
+    px = np.arange(0, slices.view.shape[0], FIT_STRIDE)
+    sub = dataclasses.replace(slices, view=slices.view[px], values=slices.values[:, px], valid=slices.valid[:, px],
+                              pixels=slices.pixels[px],
+                              censored=None if slices.censored is None else slices.censored[:, px],
+                              noise=None if slices.noise is None else slices.noise[:, px],
+                              limit=None if slices.limit is None else slices.limit[:, px],
+                              check_leds=(), check_values=None, check_valid=None)
+    sl = sub.reframe(frame)
+    ok = valid[:, px] & sl.valid
+    nodes = polar_nodes()
+    bins = isotropic.bin_polar(sl, nodes, ok)
+    lum = isotropic.fit_luminance(bins, nodes, fixed_eta, outer_iterations=FIT_OUTER_ITERATIONS)
+    d = np.exp(lum.state.z - lum.state.z.max())
+    return IsotropicMicrofacetBRDF((nodes, d), lum.state.kd, lum.ks, lum.state.eta)
+
+
+def half_vector_pitch_deg(slices) -> float:
+    """Half the median angle between horizontally adjacent pixels' view directions
+    (degrees): how finely the camera samples the half vector of one LED's slice
+    (≈ 0.21° on the default optics). The tilt is reported no better than this."""
+    rows, cols = slices.pixels[:, 0], slices.pixels[:, 1]
+    order = np.lexsort((cols, rows))
+    nxt = (rows[order][1:] == rows[order][:-1]) & (cols[order][1:] == cols[order][:-1] + 1)
+    if not nxt.any():
+        return 0.0
+    a, b = slices.view[order][:-1][nxt], slices.view[order][1:][nxt]
+    cos = np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0)
+    return 0.5 * math.degrees(float(np.median(np.arccos(cos))))
+
+
+def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0,
+                    fixed_eta: float | None = None) -> NormalEstimate:
+    """The altered normal of one capture (module docstring): peak, then the tilt refined
+    in the isotropic fit's least squares, with its jackknife uncertainty.
+
+    ``slices`` in the device frame, ``valid`` the usable samples ``(L, P)``; tilts are
+    held within ``max_tilt_deg`` of the device axis.
+    """
+    z = np.array([0.0, 0.0, 1.0])
+    n0 = peak_normal(slices, valid)
+    normal = z if n0 is None or _angle_deg(n0, z) > max_tilt_deg else n0
+    problem = TiltProblem(slices, valid)
+    sd = math.inf
+    refits = 0
+    history: list[Array] = []  # tangent offsets of the normal before each refit
+    limit = math.tan(math.radians(max_tilt_deg))
+    for _ in range(MAX_REFITS):
+        frame = geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
+        try:
+            model = _fit_model(slices, valid, frame, fixed_eta)
+        except ReflectoError:
+            break
+        refits += 1
+        start = normal
+        new, sd_new, _ = problem.solve(model, normal)
+        if not (np.all(np.isfinite(new)) and new[2] > 0):  # a degenerate step: keep what we have
+            break
+        sd = sd_new if math.isfinite(sd_new) else math.inf
+        xy = new[:2] / new[2]
+        history.append(start[:2] / start[2])
+        if _angle_deg(new, start) >= CONVERGED_DEG and len(history) >= 2:
+            # the refits converge geometrically (the fit's D follows the frame it is fitted in):
+            # extrapolate the sequence to its limit (vector Aitken) when its ratio is clear
+            d1, d0 = xy - history[-1], history[-1] - history[-2]
+            rho = float(d1 @ d0) / max(float(d0 @ d0), 1e-30)
+            if (0.05 < rho < AITKEN_MAX_RATIO and float(np.hypot(*d1)) <= 1.5 * rho * float(np.hypot(*d0))
+                    and float(np.hypot(*d0)) < math.tan(math.radians(AITKEN_MAX_STEP_DEG))):
+                xy = xy + d1 * rho / (1.0 - rho)
+        if float(np.hypot(*xy)) > limit:  # held within the searched cone
+            xy = xy * limit / float(np.hypot(*xy))
+        normal = tilt_frame(*xy)[2]
+        if _angle_deg(normal, start) < max(CONVERGED_DEG, CONVERGED_SHARE * sd):
+            break
+    sd = max(sd, half_vector_pitch_deg(slices))
+    return NormalEstimate(normal, sd, "estimated", refits, _angle_deg(normal, z))

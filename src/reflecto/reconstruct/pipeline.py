@@ -3,7 +3,7 @@
 ::
 
     usable_samples        finite, unsaturated samples                       (§4.3)
-    estimate_frame        the altered normal (§5.4), if asked                normal.py
+    estimate_frame        the altered normal (§5.4), by default              normal.py
     fit_isotropic         a 1-D NDF D(θ_h), η, k_d, k_s (§5.1–5.3)          isotropic.py
     azimuthal_test        isotropic? symmetric under eq. 3?                  isotropy.py
     fit_hemicube          a hemicube NDF, for an anisotropic material        hemicube_fit.py
@@ -40,7 +40,8 @@ from .hemicube_fit import HemicubeFit, fit_hemicube
 from .isotropic import ETA_MAX, IsotropicFit, fit_isotropic
 from .isotropy import IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
-from .normal import ConsistencyDistance, IsotropicDistance, NormalDistance, estimate_normal_consistency, refine_normal
+from .normal import (ConsistencyDistance, IsotropicDistance, NormalDistance, NormalEstimate, estimate_normal,
+                     estimate_normal_consistency, refine_normal)
 
 Array = NDArray[np.float64]
 
@@ -71,8 +72,14 @@ class Options:
         ``"auto"`` (decide from the capture, :mod:`.isotropy`), ``"yes"`` (a 1-D NDF
         whatever the data) or ``"no"`` (a hemicube NDF; the shake cues that assume
         isotropy are skipped).
+    normal
+        The sample normal (§5.4): ``"auto"`` (estimate it, :func:`.normal.estimate_normal`,
+        and keep the device axis where the estimate does not differ from it by more than
+        :data:`DEVICE_AXIS_SIGMAS` of its uncertainty), ``"device"`` (the device axis
+        ``(0, 0, 1)``) or a unit 3-vector in device coordinates (a known normal).
     estimate_normal
-        Run §5.4 (:mod:`.normal`); needed for hand-held (tilted) captures.
+        Former switch of §5.4, kept as an alias: ``True`` is ``normal="auto"``,
+        ``False`` ``normal="device"``; ``None`` (default) leaves ``normal`` as given.
     max_tilt_deg
         Largest tilt searched by the normal estimate (degrees).
     fixed_eta
@@ -89,7 +96,8 @@ class Options:
     """
 
     isotropic: str = "auto"
-    estimate_normal: bool = False
+    normal: Any = "auto"
+    estimate_normal: bool | None = None
     max_tilt_deg: float = 16.0
     fixed_eta: float | None = None
     detect_shake: bool = True
@@ -104,6 +112,23 @@ class Options:
 
         if self.isotropic not in ("auto", "yes", "no"):
             raise bad(f"isotropic must be 'auto', 'yes' or 'no', got {self.isotropic!r}")
+        if self.estimate_normal is not None:
+            self.normal = "auto" if self.estimate_normal else "device"
+            self.estimate_normal = None
+        if isinstance(self.normal, str):
+            if self.normal not in ("auto", "device"):
+                raise bad(f"normal must be 'auto', 'device' or a unit 3-vector, got {self.normal!r}")
+        else:
+            try:
+                n = np.asarray(self.normal, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise bad(f"normal must be 'auto', 'device' or a unit 3-vector, got {self.normal!r}") from None
+            norm = float(np.linalg.norm(n)) if n.shape == (3,) else math.nan
+            if not (n.shape == (3,) and np.all(np.isfinite(n)) and norm > 0 and abs(norm - 1.0) < 1e-3):
+                raise bad(f"a given normal must be a finite unit 3-vector, got {self.normal!r}")
+            if n[2] / norm < math.cos(math.radians(60.0)):
+                raise bad(f"a given normal must lie within 60° of the device axis, got {self.normal!r}")
+            self.normal = n / norm
         if self.resolution < 8 or (self.work_resolution is not None and self.work_resolution < 8):
             raise bad(f"hemicube resolutions must be ≥ 8, got {self.resolution} and {self.work_resolution}")
         if self.fixed_eta is not None and not (math.isfinite(self.fixed_eta) and 1.0 < self.fixed_eta <= ETA_MAX):
@@ -143,6 +168,14 @@ class Reconstruction:
         Plain statements about parameters at a bound and choices the data forced.
     seconds
         Wall time of the reconstruction.
+    normal_uncertainty_deg
+        Standard uncertainty of the normal (degrees; :class:`.normal.NormalEstimate`;
+        0 for a normal imposed by the options).
+    normal_source
+        ``"estimated"``, ``"device"`` (imposed, or the estimate did not differ from the
+        device axis significantly) or ``"given"``.
+    normal_estimate
+        The estimate behind :attr:`frame`, or ``None`` when the options imposed it.
     """
 
     model: IsotropicMicrofacetBRDF | MicrofacetBRDF
@@ -156,6 +189,9 @@ class Reconstruction:
     albedo_max: float
     notes: list[str]
     seconds: float
+    normal_uncertainty_deg: float = 0.0
+    normal_source: str = "device"
+    normal_estimate: NormalEstimate | None = None
 
     @property
     def isotropic(self) -> bool:
@@ -177,6 +213,7 @@ class Reconstruction:
         nan = (lambda x: x if math.isfinite(x) else None)
         return {"isotropic": self.isotropic, **eta_to_json(self.model.eta), "kd": self.model.kd.tolist(),
                 "ks": self.model.ks.tolist(), "normal": self.frame[2].tolist(), "normal_tilt_deg": self.normal_tilt_deg,
+                "normal_uncertainty_deg": nan(self.normal_uncertainty_deg), "normal_source": self.normal_source,
                 "isotropy_test": self.isotropy.to_dict(), **self.motion.to_dict(),
                 "model_error": nan(self.model_error), "fresnel_error": nan(self.fresnel_error),
                 "energy_scale": self.energy_scale, "albedo_max": self.albedo_max, "notes": self.notes,
@@ -217,6 +254,28 @@ def estimate_frame(slices: Slices, valid: NDArray[np.bool_], max_tilt_deg: float
     normal, _ = refine_normal(ConsistencyDistance(slices, valid, shadow, n=64, stride=1), normal, 0.5, maxfev=50,
                               probe_deg=1.5)
     return geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
+
+
+#: ``normal="auto"`` keeps the device axis when the estimated tilt is at most this many
+#: standard uncertainties (a two-sided 95 % test that the data tell the normal from it).
+DEVICE_AXIS_SIGMAS = 2.0
+
+
+def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> NormalEstimate:
+    """The sample normal the options ask for: estimated (``"auto"``, :func:`.normal.estimate_normal`,
+    the device axis where the tilt is within :data:`DEVICE_AXIS_SIGMAS` uncertainties of 0),
+    the device axis (``"device"``) or the given vector."""
+    z = np.array([0.0, 0.0, 1.0])
+    if isinstance(opt.normal, str) and opt.normal == "device":
+        return NormalEstimate(z, 0.0, "device")
+    if not isinstance(opt.normal, str):
+        return NormalEstimate(np.asarray(opt.normal, dtype=np.float64), 0.0, "given")
+    if opt.isotropic == "no":  # the estimate fits an isotropic lobe: not for a declared anisotropic one
+        return NormalEstimate(z, 0.0, "device")
+    est = estimate_normal(slices, valid, opt.max_tilt_deg, opt.fixed_eta)
+    if not (est.tilt_deg > DEVICE_AXIS_SIGMAS * est.uncertainty_deg):
+        return dataclasses.replace(est, normal=z, source="device")
+    return est
 
 
 def limit_energy(model: IsotropicMicrofacetBRDF | MicrofacetBRDF, clamp: bool = True
@@ -281,20 +340,44 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     opt = options or Options()
     t0 = time.perf_counter()
     valid = usable_samples(slices)
-    frame = estimate_frame(slices, valid, opt.max_tilt_deg, opt.isotropic != "no") if opt.estimate_normal else np.eye(3)
-    sl = slices.reframe(frame) if opt.estimate_normal else slices
+    est = resolve_normal(slices, valid, opt)
+    frame = est.frame
+    sl = slices if est.source == "device" else slices.reframe(frame)
     ok = valid & sl.valid
     iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
     test = azimuthal_test(sl, ok, iso.least_squares)
     isotropic = _choose_isotropic(opt.isotropic, test)
+    if not isotropic and est.source == "estimated":
+        # an anisotropic lobe: the estimate's isotropic fit does not hold; the device axis
+        est = dataclasses.replace(est, normal=np.array([0.0, 0.0, 1.0]), uncertainty_deg=0.0, source="device")
+        frame, sl = est.frame, slices
+        ok = valid & sl.valid
+        iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
+        test = azimuthal_test(sl, ok, iso.least_squares)
     fit: IsotropicFit | HemicubeFit = iso
     if not isotropic:
         fit = fit_hemicube(sl, ok, fixed_eta=opt.fixed_eta, work_resolution=opt.work_resolution,
                            resolution=opt.resolution, kd_bound_max_deg=opt.kd_bound_max_deg)
-    motion = detect_motion(slices, sl, ok, isotropic, opt.estimate_normal) if opt.detect_shake else MotionReport()
+    motion = (detect_motion(slices, sl, ok, isotropic, est.uncertainty_deg) if opt.detect_shake
+              else MotionReport())
     if isinstance(fit, HemicubeFit):
         motion.excluded_leds = fit.excluded_leds
     model, scale, albedo = limit_energy(fit.model, opt.energy_clamp)
+    notes = _normal_notes(est, opt, isotropic) + _notes(fit, model, isotropic, test, scale)
     return Reconstruction(model, fit.eta, test, motion, frame, iso.model_error,
                           fit.fresnel_error if isinstance(fit, HemicubeFit) else math.nan, scale, albedo,
-                          _notes(fit, model, isotropic, test, scale), time.perf_counter() - t0)
+                          notes, time.perf_counter() - t0, est.uncertainty_deg, est.source,
+                          est if isinstance(opt.normal, str) and opt.normal == "auto" else None)
+
+
+def _normal_notes(est: NormalEstimate, opt: Options, isotropic: bool) -> list[str]:
+    """A plain statement of the normal used (§5.4) when the options left it to the data."""
+    if not (isinstance(opt.normal, str) and opt.normal == "auto"):
+        return []
+    if est.source == "estimated":
+        return [f"sample normal tilted {est.tilt_deg:.2f}° from the device axis (±{est.uncertainty_deg:.2f}°, "
+                "estimated, §5.4)"]
+    if not isotropic or opt.isotropic == "no":
+        return ["sample normal: the device axis (the tilt estimate assumes an isotropic lobe; give a known "
+                "normal for a tilted capture of an anisotropic material)"]
+    return []  # the device axis holds (summary: normal_source "device")
