@@ -47,14 +47,12 @@ import numpy as np
 
 from reflecto.evaluate.metrics import brdf_error, evaluate_on_grid, max_albedo, metric_grid
 from reflecto.evaluate.split import half
-from reflecto.evaluate.sweep import find_materials, material_seed, prepare_calibration
-from reflecto.instrument.calibrate import load_calibration, nominal_calibration
+from reflecto import load_source, workflow
+from reflecto.evaluate.sweep import find_materials, material_seed
 from reflecto.instrument.device import load_device
 from reflecto.instrument.simulate import simulate_capture
-from reflecto.instrument.slices import extract_slices
 from reflecto.reconstruct import Options, reconstruct
 from reflecto.reconstruct.symmetry_test import symmetry_test_slices
-from reflecto.sources import load_source
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
@@ -103,8 +101,8 @@ def run_material(path: Path, device: str, cal, max_tilt: float, stride: int) -> 
     for label, t, shake in (("flat", 0.0, False), ("tilted", tilt, False), ("shaken", tilt, True)):
         cap = simulate_capture(src, dev, tilt_deg=t, shake=shake, seed=seed)
         truth = np.array(cap.extra["simulation"]["normal"])
-        sl = extract_slices(cap, cal)
-        res = reconstruct(sl)
+        result = workflow.capture_to_model(cap, cal)
+        sl, res = result.slices, result.reconstruction
         r = {"normal_error_deg": angle_deg(res.frame[2], truth), "tilt_found_deg": res.normal_tilt_deg,
              "uncertainty_deg": res.normal_uncertainty_deg, "normal_source": res.normal_source,
              "shake_detected": bool(res.shake_detected), "motion": res.motion.describe(), "seconds": res.seconds}
@@ -173,8 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     materials = pick(find_materials([Path(args.data) / "rgl", Path(args.data) / "merl-nbrdf"]), args.materials)
     dev = load_device(args.device)
-    cal_path = prepare_calibration(Path(args.out), args.device)
-    cal = load_calibration(cal_path, dev.nominal()) if cal_path else nominal_calibration(dev)
+    cal = workflow.calibration_for(dev, workflow.calibration_file(args.device, Path(args.out)), missing="nominal")
     rec_file = out / "records.jsonl"
     done = {}
     if rec_file.exists():

@@ -35,7 +35,7 @@ NOT_TUNED = {
 
 #: Modules another change is rewriting: their constants are still literals, checked for
 #: the field's value and type until they become aliases (then drop them from here).
-PENDING_ALIAS = {"normal", "motion", "pipeline", "symmetry_test"}
+PENDING_ALIAS: set[str] = set()
 
 
 def _fields():

@@ -53,6 +53,8 @@ from ..polar import IsotropicNDF, polar_nodes
 from . import _polar_kernels
 from .samples import kd_median_bound
 from .tuning import ISOTROPIC
+from ..polar import _quadrature
+from ..polar import interpolation_cells
 
 Array = NDArray[np.float64]
 
@@ -210,8 +212,6 @@ class LuminanceProblem:
     """
 
     def __init__(self, bins: PolarBins, nodes: Array) -> None:
-        from ..polar import interpolation_cells
-
         self.bins = bins
         self.nodes = nodes
         self.j, self.t = interpolation_cells(nodes, bins.theta_h)
@@ -365,7 +365,6 @@ def lobe_log(nodes: Array, z: Array, observed: NDArray[np.bool_]) -> Array | Non
 
 def normalization(nodes: Array, z: Array) -> tuple[float, Array]:
     """``N = ∫ e^z cos θ dω`` and its gradient ``∂ log N / ∂z`` (shape ``(K,)``)."""
-    from ..polar import _quadrature
 
     q = _quadrature(nodes.tobytes())
     d = np.exp(np.minimum((1.0 - q.t) * z[q.cells] + q.t * z[q.cells + 1], 700.0))

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..instrument.slices import Slices
+from .tuning import MOTION
 from .consistency import THRESHOLD as PAIR_THRESHOLD
 from .consistency import PairCheck, normal_allowance, pair_checks
 from .repeat import RepeatCheck, repeat_checks
@@ -116,7 +117,7 @@ class MotionReport:
 
 
 #: The cues' thresholds are widened by the normal's error at this many standard uncertainties.
-NORMAL_SIGMAS = 2.0
+NORMAL_SIGMAS = MOTION.normal_sigmas
 
 
 def detect_motion(device_frame: Slices, sample_frame: Slices, valid: NDArray[np.bool_],

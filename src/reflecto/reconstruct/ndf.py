@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from .. import _kernels
 from ..hemicube import Hemicube, hemicube
 from .tuning import NDF
+from scipy.ndimage import spline_filter
 
 Array = NDArray[np.float64]
 
@@ -447,7 +448,6 @@ def _cubic_weights(n: int, m: int) -> Array:
 def _log_cubic_refine(log_top: Array, m: int, cap: float) -> Array:
     """``exp`` of the cubic spline of ``log_top`` (n × n) at the centres of an m-times
     finer grid, clipped to ``cap``; flattened, shape ``((n m)²,)``."""
-    from scipy.ndimage import spline_filter
 
     n = log_top.shape[0]
     coef = spline_filter(np.pad(log_top, _CUBIC_PAD, mode="edge"), order=3, mode="mirror")

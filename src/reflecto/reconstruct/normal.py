@@ -43,8 +43,14 @@ from .. import geometry
 from ..errors import ReflectoError
 from ..instrument.slices import MIN_LIGHT_COS
 from ..hemicube import hemicube
+from .tuning import NORMAL
 from .fresnel_fit import fit_fresnel, overlap_pairs
 from .samples import bin_samples, kd_bound
+from ..colour import LUM
+from ..model import IsotropicMicrofacetBRDF
+from ..polar import polar_nodes
+from . import isotropic
+from ..polar import interpolation_cells
 
 Array = NDArray[np.float64]
 
@@ -64,9 +70,9 @@ class NormalDistance(Protocol):
 #: would otherwise win by fitting fewer data (specular maroon phenolic tilted 5°:
 #: 7.8° off), and counting their samples as lost biases the tilt of captures whose
 #: LEDs truly sink (GGX α = 0.1 at 10°: found 8.97°).
-LED_MARGIN_DEG = 10.0
+LED_MARGIN_DEG = NORMAL.led_margin_deg
 #: Minimum number of texel pairs for a candidate to count.
-MIN_PAIRS = 40
+MIN_PAIRS = NORMAL.min_pairs
 
 
 def tilt_frame(tx: float, ty: float) -> Array:
@@ -141,8 +147,6 @@ class IsotropicDistance:
     """
 
     def __init__(self, slices, valid: NDArray[np.bool_], stride: int = 1, outer_iterations: int = 2) -> None:
-        from ..polar import polar_nodes
-
         px = np.arange(0, slices.view.shape[0], stride)
         keep = slices.valid[:, px] & valid[:, px]
         self.slices = dataclasses.replace(slices, view=slices.view[px], values=slices.values[:, px], valid=keep,
@@ -155,8 +159,6 @@ class IsotropicDistance:
         self.outer_iterations = outer_iterations
 
     def __call__(self, normal_xy: Array) -> float:
-        from . import isotropic
-
         sl = self.slices.reframe(tilt_frame(float(normal_xy[0]), float(normal_xy[1])))
         # LEDs near the candidate's horizon take no part (their cos θ_i correction, and
         # the model's fit at grazing incidence, are least certain there)
@@ -198,7 +200,7 @@ def _grid_minima(xy: Array, e: Array, radius_deg: float) -> NDArray[np.intp]:
 
 
 #: At most this many local minima of the coarse grid are refined (multi-start).
-N_STARTS = 6
+N_STARTS = NORMAL.n_starts
 
 
 def estimate_normal_consistency(
@@ -273,36 +275,36 @@ def refine_normal(dist: NormalDistance, normal: Array, step_deg: float = 1.0,
 
 #: Every ``SAMPLE_STRIDE``-th pixel enters the tilt's least squares (≈ 5 300 views of
 #: the default optics, ×6 LEDs: the two angles are overdetermined by far).
-SAMPLE_STRIDE = 7
+SAMPLE_STRIDE = NORMAL.sample_stride
 #: Every ``FIT_STRIDE``-th pixel enters the isotropic fits inside the estimate (the
 #: final fit in the estimated frame uses all).
-FIT_STRIDE = 2
+FIT_STRIDE = NORMAL.fit_stride
 #: Outer iterations (S from D) of those fits.
-FIT_OUTER_ITERATIONS = 2
+FIT_OUTER_ITERATIONS = NORMAL.fit_outer_iterations
 #: The estimate has converged when a refit moves the normal by less than this (degrees)
 #: or by less than :data:`CONVERGED_SHARE` of its uncertainty.
-CONVERGED_DEG = 0.05
-CONVERGED_SHARE = 0.25
+CONVERGED_DEG = NORMAL.converged_deg
+CONVERGED_SHARE = NORMAL.converged_share
 #: At most this many refits.
-MAX_REFITS = 6
+MAX_REFITS = NORMAL.max_refits
 #: The refits' sequence of normals is extrapolated to its limit (vector Aitken) when it
 #: shrinks by a ratio below this from one refit to the next (the limit then lies at most
 #: 3× the last move further) …
-AITKEN_MAX_RATIO = 0.75
+AITKEN_MAX_RATIO = NORMAL.aitken_max_ratio
 #: … and the move before was below this (degrees): far from the limit the moves are
 #: set by the trust region (:data:`MAX_STEP_DEG`), not by a geometric convergence.
-AITKEN_MAX_STEP_DEG = 1.5
+AITKEN_MAX_STEP_DEG = NORMAL.aitken_max_step_deg
 #: Gauss–Newton steps with the model held fixed after each refit.
-INNER_STEPS = 3
+INNER_STEPS = NORMAL.inner_steps
 #: Largest step of one Gauss–Newton iteration (degrees; a trust region).
-MAX_STEP_DEG = 3.0
+MAX_STEP_DEG = NORMAL.max_step_deg
 #: Tangent offset of the finite differences of the residuals.
-FD_STEP = 1e-4
+FD_STEP = NORMAL.fd_step
 #: A peak stands clear of its slice's floor when its luminance is this many times
 #: the slice's median …
-PEAK_CONTRAST = 2.0
+PEAK_CONTRAST = NORMAL.peak_contrast
 #: … and lies at least this far (degrees) inside the view cone's rim.
-PEAK_RIM_DEG = 3.0
+PEAK_RIM_DEG = NORMAL.peak_rim_deg
 
 
 @dataclasses.dataclass(frozen=True)
@@ -360,7 +362,6 @@ def peak_normal(slices, valid: NDArray[np.bool_]) -> Array | None:
     the pixels above that level); of these, the steepest LED's (its lobe's
     off-specular shift is the smallest). ``None`` when no slice has such a peak.
     """
-    from ..colour import LUM
 
     view = slices.view
     axis = geometry.normalize(view.mean(axis=0))
@@ -412,8 +413,6 @@ class TiltProblem:
     """
 
     def __init__(self, slices, valid: NDArray[np.bool_], stride: int = SAMPLE_STRIDE) -> None:
-        from ..colour import LUM
-
         px = np.arange(0, slices.view.shape[0], stride)
         ok = valid[:, px] & slices.valid[:, px]
         if slices.censored is not None:
@@ -437,7 +436,6 @@ class TiltProblem:
 
     def fresnel(self, model) -> Array:
         """``F(l·h; η)`` per sample, luminance-weighted over the channels' ``k_s`` (cached per model)."""
-        from ..colour import LUM
 
         if self._fresnel is None or self._fresnel[0] is not model:
             ks = float(model.ks @ LUM)
@@ -447,7 +445,6 @@ class TiltProblem:
     def _parts(self, sigma, nodes: Array, normal: Array, z: Array, kd: float, fresnel: Array):
         """Residuals ``r`` (N,), the specular part ``s`` (N,), the cells ``j, t`` of θ_h
         and the samples that take part, at ``normal`` for log nodes ``z`` (``log(k_s D)``)."""
-        from ..polar import interpolation_cells
 
         # per LED and per view first (σ and the cosines), then per sample
         ci_l = np.maximum(self.lights @ normal, 1e-6)
@@ -470,8 +467,6 @@ class TiltProblem:
         Returns the normal, its uncertainty (degrees; module docstring, step 3) and the
         weighted RMS residual.
         """
-        from ..colour import LUM
-        from . import isotropic
 
         steps = INNER_STEPS if steps is None else steps
         ndf = model.ndf_table
@@ -589,9 +584,6 @@ class TiltProblem:
 def _fit_model(slices, valid: NDArray[np.bool_], frame: Array, fixed_eta: float | None):
     """A light isotropic fit (every :data:`FIT_STRIDE`-th pixel, :data:`FIT_OUTER_ITERATIONS`)
     in ``frame``: the ``D``, ``S``, ``η``, ``k_d``, ``k_s`` (luminance) the tilt's steps hold."""
-    from ..model import IsotropicMicrofacetBRDF
-    from ..polar import polar_nodes
-    from . import isotropic
 
     px = np.arange(0, slices.view.shape[0], FIT_STRIDE)
     sub = dataclasses.replace(slices, view=slices.view[px], values=slices.values[:, px], valid=slices.valid[:, px],

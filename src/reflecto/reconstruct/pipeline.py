@@ -36,6 +36,7 @@ from ..errors import ParameterError, ReflectoError
 from ..fresnel import eta_to_json, is_constant
 from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
+from .tuning import PIPELINE
 from .hemicube_fit import HemicubeFit, fit_hemicube
 from .isotropic import ETA_MAX, IsotropicFit, fit_isotropic
 from .isotropy import IsotropyTest, azimuthal_test
@@ -48,18 +49,18 @@ Array = NDArray[np.float64]
 __all__ = ["Options", "Reconstruction", "reconstruct", "usable_samples", "estimate_frame", "limit_energy"]
 
 #: Incidence angles (degrees) at which the albedo is checked against 1.
-ALBEDO_ANGLES = (0.0, 30.0, 60.0, 75.0, 85.0, 89.0)
+ALBEDO_ANGLES = PIPELINE.albedo_angles
 #: Rings and azimuths of the half-vector quadrature of that check: 48 × 48 is within
 #: 1e-3 of a 400 × 512 quadrature on GGX and Beckmann lobes of α = 0.05–0.8.
-ALBEDO_QUAD = 48
+ALBEDO_QUAD = PIPELINE.albedo_quad
 #: Where that check reads above this, it is repeated on a 128 × 128 quadrature and the
 #: larger value counts: on a tabulated NDF with structure toward grazing the 48 × 48
 #: quadrature misses up to 2e-3 at 89° (aurora_white: 1.0000 against 1.0015–1.0022 at
 #: 96–256 rings).
-ALBEDO_REFINE_ABOVE = 0.99
-ALBEDO_QUAD_FINE = 128
+ALBEDO_REFINE_ABOVE = PIPELINE.albedo_refine_above
+ALBEDO_QUAD_FINE = PIPELINE.albedo_quad_fine
 #: Fewer valid samples than this make no capture.
-MIN_SAMPLES = 100
+MIN_SAMPLES = PIPELINE.min_samples
 
 
 @dataclasses.dataclass
@@ -258,7 +259,7 @@ def estimate_frame(slices: Slices, valid: NDArray[np.bool_], max_tilt_deg: float
 
 #: ``normal="auto"`` keeps the device axis when the estimated tilt is at most this many
 #: standard uncertainties (a two-sided 95 % test that the data tell the normal from it).
-DEVICE_AXIS_SIGMAS = 2.0
+DEVICE_AXIS_SIGMAS = PIPELINE.device_axis_sigmas
 
 
 def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> NormalEstimate:

@@ -23,6 +23,7 @@ from ..colour import LUM
 from ..errors import ParameterError
 from ..hemicube import Hemicube
 from .tuning import SAMPLES
+from scipy.ndimage import uniform_filter
 
 Array = NDArray[np.float64]
 
@@ -186,7 +187,6 @@ def box_mean(values: Array, valid: NDArray[np.bool_], pixels: NDArray[np.intp], 
 
 def box_mean_numpy(values: Array, valid: NDArray[np.bool_], pixels: NDArray[np.intp], radius: int = BOX_RADIUS) -> Array:
     """NumPy/SciPy reference of :func:`box_mean` (``scipy.ndimage.uniform_filter``)."""
-    from scipy.ndimage import uniform_filter
 
     n_l = values.shape[0]
     rows, cols = pixels[:, 0], pixels[:, 1]
@@ -208,7 +208,6 @@ def box_noise(noise: Array, valid: NDArray[np.bool_], pixels: NDArray[np.intp], 
     """Standard deviation of :func:`box_mean`'s means, shape ``(L, P)``: ``√(Σ σ²)/n`` over
     the ``n`` valid samples of each box (independent pixel noise ``σ``, ``noise`` (L, P);
     0 at invalid samples)."""
-    from scipy.ndimage import uniform_filter
 
     rows, cols = pixels[:, 0], pixels[:, 1]
     img = np.zeros((noise.shape[0], int(rows.max()) + 1, int(cols.max()) + 1, 2))

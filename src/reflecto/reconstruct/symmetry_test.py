@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 from ..colour import LUM
 from ..hemicube import hemicube
 from ..instrument.slices import Slices
+from .tuning import SYMMETRY_TEST
 from .fresnel_fit import Pairs, overlap_pairs
 from .samples import Bins, bin_samples
 
@@ -49,25 +50,25 @@ __all__ = ["SymmetryTest", "symmetry_test", "symmetry_test_slices", "THRESHOLD",
            "symmetry_from_ratios"]
 
 #: Bins enter where their partial NDF is above this fraction of its 99.5th percentile …
-LEVEL = 0.02
+LEVEL = SYMMETRY_TEST.level
 #: … and the specular part is at least this fraction of the measured BRDF (where the
 #: partial NDF is measured, not the diffuse floor and the model's account of it).
-MIN_SPECULAR_FRACTION = 0.5
+MIN_SPECULAR_FRACTION = SYMMETRY_TEST.min_specular_fraction
 #: τ pairs needed for a verdict, and direct pairs needed to measure their spread.
-MIN_PAIRS = 30
+MIN_PAIRS = SYMMETRY_TEST.min_pairs
 #: The direct pairs' spread assumed when fewer than :data:`MIN_PAIRS` of them are in the
 #: lobe (a sharp lobe that τ pairs reach and direct ones hardly do; log units): the
 #: model's S and F miss measured materials by 20–60 %, so 0.3. Without direct pairs
 #: the τ pairs of blue-rubber and light-red-paint differ by 0.13–0.18 (kept), those of
 #: the asymmetric satin of the examples by 0.91 (broken).
-UNPAIRED_SPREAD = 0.3
+UNPAIRED_SPREAD = SYMMETRY_TEST.unpaired_spread
 #: Ratio of the τ pairs' RMS log ratio to the direct pairs' at and above which the data break eq. 3.
-THRESHOLD = 2.0
+THRESHOLD = SYMMETRY_TEST.threshold
 #: Floor of the direct pairs' RMS in that ratio (log units): below ≈ 1 % two partial
 #: NDFs are equal to within the texel's extent.
-DIRECT_FLOOR = 0.01
+DIRECT_FLOOR = SYMMETRY_TEST.direct_floor
 #: Working resolution of the test's bins (texels ≈ 0.9° at the pole).
-TEST_RESOLUTION = 128
+TEST_RESOLUTION = SYMMETRY_TEST.test_resolution
 
 
 @dataclasses.dataclass(frozen=True)

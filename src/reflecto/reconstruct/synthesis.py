@@ -57,6 +57,7 @@ from ..geometry import rotate_z
 from ..hemicube import Hemicube, hemicube
 from . import ndf as ndf_mod
 from .tuning import SYNTHESIS
+from ..errors import ParameterError
 
 Array = NDArray[np.float64]
 
@@ -96,8 +97,6 @@ class SynthesisOptions:
     mode: str = "synthesis"
 
     def __post_init__(self) -> None:
-        from ..errors import ParameterError
-
         if self.mode not in FILL_MODES:
             raise ParameterError(f"synthesis mode must be one of {FILL_MODES}, got {self.mode!r}")
         if not (0.0 < self.rotation_step_deg <= 90.0 and 0.0 < self.window_deg <= 45.0 and 0.0 < self.min_overlap <= 1.0

@@ -666,11 +666,8 @@ class AsymmetricTuning:
 
 @dataclasses.dataclass(frozen=True)
 class NormalTuning:
-    """The altered normal (:mod:`.normal`; §5.4).
-
-    :mod:`.normal` still defines these as literals (another change is under way there);
-    they are to become aliases of these fields.
-    """
+    """The altered normal (:mod:`.normal`; §5.4): the grid search of the §5.5 set's normal,
+    and the tilt refined inside the isotropic fit's least squares (docs/design/normal.md)."""
 
     module: ClassVar[str] = "reflecto.reconstruct.normal"
     paper: ClassVar[str] = "§5.4"
@@ -691,19 +688,95 @@ class NormalTuning:
         what="at most this many local minima of the coarse tilt grid are refined (multi-start)",
         source="unrecorded: introduced with the multi-start search (80a162b, whose result is recorded for the "
                "change as a whole: validate_tilt normals within 0.05° on 24/24); no reason for 6")
+    sample_stride: int = tuned(
+        7, name="SAMPLE_STRIDE", units="pixels",
+        what="every SAMPLE_STRIDE-th pixel enters the tilt's least squares",
+        source="mechanism: ≈ 5 300 views of the default optics × 6 LEDs overdetermine the two angles by far; "
+               "the stride sets the step's cost, not its accuracy (docs/design/normal.md)")
+    fit_stride: int = tuned(
+        2, name="FIT_STRIDE", units="pixels",
+        what="every FIT_STRIDE-th pixel enters the isotropic refits inside the estimate (the final fit uses all)",
+        source="measurement: every 4th pixel with one S-from-D round and 3 refits halved the time but lost normals "
+               "on the tuning half (19/25 within 0.5° against 22/25, max 1.9° against 1.3°; docs/design/normal.md)")
+    fit_outer_iterations: int = tuned(
+        2, name="FIT_OUTER_ITERATIONS", units="rounds",
+        what="outer iterations (S from D) of the refits inside the estimate",
+        source="measurement: one round lost normals on the tuning half (with the lighter fits above)")
+    converged_deg: float = tuned(
+        0.05, name="CONVERGED_DEG", units="deg",
+        what="the estimate has converged when a refit moves the normal by less than this …",
+        source="mechanism: the frame accuracy the sharpest lobes need (chrome-steel, steel, brass reconstructed "
+               "with the normal turned by 0.05° stay within their eq. 10 error; docs/design/normal.md)")
+    converged_share: float = tuned(
+        0.25, name="CONVERGED_SHARE", units="fraction of the uncertainty",
+        what="… or by less than this share of its uncertainty",
+        source="mechanism: a move well inside the normal's own uncertainty carries no information")
+    max_refits: int = tuned(
+        6, name="MAX_REFITS", units="refits",
+        what="at most this many refits of the isotropic fit in the estimated frame",
+        source="measurement: 4 gave the same normals on the tuning half but lost two on the validation half "
+               "(ipswich-pine 0.35° → 1.34°, acrylic felt 2.7° → 3.2° and a false shake flag), so the "
+               "validation half informed this value")
+    aitken_max_ratio: float = tuned(
+        0.75, name="AITKEN_MAX_RATIO", units="ratio",
+        what="the refits' normals are extrapolated to their limit (vector Aitken) when successive moves shrink "
+             "by a ratio below this (the limit then lies at most 3× the last move further) …",
+        source="mechanism: a geometric tail of ratio r ends r/(1 − r) of the last move further; 0.75 bounds "
+               "that at 3×")
+    aitken_max_step_deg: float = tuned(
+        1.5, name="AITKEN_MAX_STEP_DEG", units="deg",
+        what="… and the move before was below this: far from the limit the moves are set by the trust region",
+        source="mechanism: below the trust region MAX_STEP_DEG (3°), so that the moves extrapolated are the "
+               "fit's convergence, not the step bound; the factor ½ was not swept")
+    inner_steps: int = tuned(
+        3, name="INNER_STEPS", units="steps",
+        what="Gauss–Newton steps on the two tilt angles with the model held fixed after each refit",
+        source="unrecorded: no sweep of the value is recorded (docs/design/normal.md describes the loop)")
+    max_step_deg: float = tuned(
+        3.0, name="MAX_STEP_DEG", units="deg",
+        what="largest step of one Gauss–Newton iteration (a trust region)",
+        source="unrecorded: the trust region's size was not swept")
+    fd_step: float = tuned(
+        1e-4, name="FD_STEP", units="rad (tangent offset)",
+        what="offset of the finite differences of the residuals with respect to the two tilt angles",
+        source="mechanism: about √(float64 ε) of the unit tangent, balancing truncation and round-off")
+    peak_contrast: float = tuned(
+        2.0, name="PEAK_CONTRAST", units="ratio",
+        what="a slice's peak stands clear of its floor when its luminance is this many times the slice's median",
+        source="unrecorded: set with the peak's first estimate (d9dae8f); no sweep of the value is recorded")
+    peak_rim_deg: float = tuned(
+        3.0, name="PEAK_RIM_DEG", units="deg",
+        what="… and lies at least this far inside the view cone's rim",
+        source="unrecorded: a peak at the rim may be cut by it; the margin was not swept")
+
+
+@dataclasses.dataclass(frozen=True)
+class MotionTuning:
+    """The shake cues gathered (:mod:`.motion`; §5.1) in the estimated sample frame."""
+
+    module: ClassVar[str] = "reflecto.reconstruct.motion"
+    paper: ClassVar[str] = "§5.1, §5.4"
+
+    normal_sigmas: float = tuned(
+        2.0, name="NORMAL_SIGMAS", units="standard uncertainties",
+        what="the mirror-plane and LED-pair thresholds are widened by the normal's error at this many "
+             "standard uncertainties (a plane turns by up to δ/sin θ_l, a pair's log ratio by δ(tan θ_a + tan θ_b))",
+        source="mechanism: a two-sided 95 % bound on the normal's error (docs/design/normal.md)")
 
 
 @dataclasses.dataclass(frozen=True)
 class PipelineTuning:
-    """The §5 stages around the fits: energy check and capture acceptance (:mod:`.pipeline`).
-
-    :mod:`.pipeline` still defines these as literals (another change is under way there);
-    they are to become aliases of these fields.
-    """
+    """The §5 stages around the fits: energy check and capture acceptance (:mod:`.pipeline`)."""
 
     module: ClassVar[str] = "reflecto.reconstruct.pipeline"
     paper: ClassVar[str] = "§5"
 
+    device_axis_sigmas: float = tuned(
+        2.0, name="DEVICE_AXIS_SIGMAS", units="standard uncertainties",
+        what='normal="auto" keeps the device axis when the estimated tilt is at most this many uncertainties',
+        source="mechanism: a tilt within the normal's two-sided 95 % bound is not told apart from none "
+               "(docs/design/normal.md); on the hand-held study the untilted captures kept the device axis on "
+               "44 of 50")
     albedo_angles: tuple[float, ...] = tuned(
         (0.0, 30.0, 60.0, 75.0, 85.0, 89.0), name="ALBEDO_ANGLES", units="deg",
         what="incidence angles at which the directional albedo is checked against 1 (limit_energy)",
@@ -744,12 +817,14 @@ REPEAT = RepeatTuning()
 SYNTHESIS = SynthesisTuning()
 ASYMMETRIC = AsymmetricTuning()
 NORMAL = NormalTuning()
+MOTION = MotionTuning()
 PIPELINE = PipelineTuning()
 
 #: Every stage's default instance, by the instance's name, in the paper's order.
 STAGES: dict[str, Any] = {
     "POLAR": POLAR, "ISOTROPIC": ISOTROPIC, "ISOTROPY": ISOTROPY, "FRESNEL_FIT": FRESNEL_FIT, "SAMPLES": SAMPLES,
-    "NDF": NDF, "HEMICUBE_FIT": HEMICUBE_FIT, "NORMAL": NORMAL, "SYMMETRY": SYMMETRY, "CONSISTENCY": CONSISTENCY,
+    "NDF": NDF, "HEMICUBE_FIT": HEMICUBE_FIT, "NORMAL": NORMAL, "MOTION": MOTION, "SYMMETRY": SYMMETRY,
+    "CONSISTENCY": CONSISTENCY,
     "REPEAT": REPEAT, "SYMMETRY_TEST": SYMMETRY_TEST, "SYNTHESIS": SYNTHESIS, "ASYMMETRIC": ASYMMETRIC,
     "PIPELINE": PIPELINE,
 }
