@@ -346,7 +346,7 @@ def test_the_set_normal_is_estimated_once():
     caps = [RotatedCapture(extract_slices(simulate_capture(src, dev, seed=k + 1, rotation_deg=r, tilt_deg=6.0,
                                                            tilt_azimuth_deg=40.0), cal), float(r))
             for k, r in enumerate(ROTATIONS)]
-    res = reconstruct_rotations(caps, Options(normal="auto"))
+    res = reconstruct_rotations(caps, Options(normal="search"))
     t, a = math.radians(6.0), math.radians(40.0)
     truth = np.array([math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), math.cos(t)])
     assert math.degrees(math.acos(min(1.0, float(res.normal @ truth)))) < 0.3

@@ -219,7 +219,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 def _normal_arg(text: str):  # type: ignore[no-untyped-def]
     """``--normal``: ``auto``, ``device`` or ``X,Y,Z`` (a unit vector, checked by :class:`~reflecto.reconstruct.Options`)."""
-    if text in ("auto", "device"):
+    if text in ("auto", "device", "search"):
         return text
     try:
         v = tuple(float(x) for x in text.split(","))
@@ -657,10 +657,10 @@ def build_parser() -> argparse.ArgumentParser:
     how.add_argument("--nominal", action="store_true",
                      help="use the device's nominal calibration even where it needs a measured one")
     q.add_argument("-o", "--output", required=True, help="model file (.reflecto) or, for several captures, a folder")
-    q.add_argument("--normal", type=_normal_arg, default="auto", metavar="auto|device|X,Y,Z",
+    q.add_argument("--normal", type=_normal_arg, default="auto", metavar="auto|device|search|X,Y,Z",
                    help="the sample normal (§5.4): estimated from the capture (auto, default), the device axis "
-                        "(device), or a known unit vector in device coordinates")
-    q.add_argument("--estimate-normal", dest="normal", action="store_const", const="auto", help=argparse.SUPPRESS)
+                        "(device), or a known unit vector in device coordinates; with --asymmetric, auto keeps the "
+                        "device axis and search runs the set's own normal search (seconds per set)")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it (default: fitted, eqs. 5–6)")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="reconstruct a 1-D isotropic NDF (yes), a hemicube NDF for an anisotropic material (no), "

@@ -38,11 +38,13 @@ lobe can hide from the second harmonic); ``"no"`` always takes the hemicube.
 
 **The normal of the set.** The rotations turn the sample about its own normal while
 the hand holds the device's tilt (as ``reflecto simulate --tilt T --rotation R``):
-one device-frame normal for all captures. With ``Options(normal="auto")`` (the default) it is the normal
+one device-frame normal for all captures. With ``Options(normal="search")`` it is the normal
 in which the captures agree best with each other where they see the same half vector
 in the sample frame (:class:`SetDistance`: E(η) of the direct overlaps of all
 captures' bins, §5.1 without τ, so an asymmetric NDF does not bias it), searched as
-§5.4 does (:func:`.normal.estimate_normal_consistency`).
+§5.4 does (:func:`.normal.estimate_normal_consistency`); it costs seconds per set, so
+under the default ``"auto"`` the set takes the device axis (``"device"`` likewise, or a
+given vector).
 """
 
 from __future__ import annotations
@@ -529,7 +531,8 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
         except ReflectoError as e:
             raise ReflectoError(f"{c.name}: {str(e).removeprefix('capture: ')}") from None
     if isinstance(opt.normal, str):
-        normal = _set_normal(captures, valids, opt.max_tilt_deg) if opt.normal == "auto" else np.array([0.0, 0.0, 1.0])
+        # "auto" keeps the device axis: the set's search costs seconds; "search" runs it
+        normal = _set_normal(captures, valids, opt.max_tilt_deg) if opt.normal == "search" else np.array([0.0, 0.0, 1.0])
     else:
         normal = np.asarray(opt.normal, dtype=np.float64)
     frames = sample_frames([c.rotation_deg for c in captures], normal)

@@ -77,7 +77,10 @@ class Options:
         The sample normal (§5.4): ``"auto"`` (estimate it, :func:`.normal.estimate_normal`,
         and keep the device axis where the estimate does not differ from it by more than
         :data:`DEVICE_AXIS_SIGMAS` of its uncertainty), ``"device"`` (the device axis
-        ``(0, 0, 1)``) or a unit 3-vector in device coordinates (a known normal).
+        ``(0, 0, 1)``), ``"search"`` (for a §5.5 set: the set's own normal search,
+        :func:`.asymmetric.reconstruct_rotations`; one capture: as ``"auto"``) or a unit
+        3-vector in device coordinates (a known normal). A §5.5 set takes the device axis
+        under ``"auto"``: its search costs seconds per set.
     estimate_normal
         Former switch of §5.4, kept as an alias: ``True`` is ``normal="auto"``,
         ``False`` ``normal="device"``; ``None`` (default) leaves ``normal`` as given.
@@ -117,8 +120,8 @@ class Options:
             self.normal = "auto" if self.estimate_normal else "device"
             self.estimate_normal = None
         if isinstance(self.normal, str):
-            if self.normal not in ("auto", "device"):
-                raise bad(f"normal must be 'auto', 'device' or a unit 3-vector, got {self.normal!r}")
+            if self.normal not in ("auto", "device", "search"):
+                raise bad(f"normal must be 'auto', 'device', 'search' or a unit 3-vector, got {self.normal!r}")
         else:
             try:
                 n = np.asarray(self.normal, dtype=np.float64)
@@ -339,6 +342,8 @@ def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> li
 def reconstruct(slices: Slices, options: Options | None = None) -> Reconstruction:
     """Reconstruct the microfacet BRDF from the slices (see the module docstring)."""
     opt = options or Options()
+    if opt.normal == "search":  # the §5.5 set search; one capture estimates its normal as under "auto"
+        opt = dataclasses.replace(opt, normal="auto")
     t0 = time.perf_counter()
     valid = usable_samples(slices)
     est = resolve_normal(slices, valid, opt)
