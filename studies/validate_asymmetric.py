@@ -491,8 +491,8 @@ def part_timing() -> None:
     ratios = []
     for p in asymmetric_files():
         caps = _captures(load_source(p), dev, cal, ROTATIONS_4)
-        t_sym = _bench.timed(lambda: reconstruct(caps[0].slices, Options(isotropic="no")), repeat=3)
-        t_asym = _bench.timed(lambda: reconstruct_rotations(caps), repeat=3)
+        t_sym = _bench.timed(lambda caps=caps: reconstruct(caps[0].slices, Options(isotropic="no")), repeat=3)
+        t_asym = _bench.timed(lambda caps=caps: reconstruct_rotations(caps), repeat=3)
         ratios.append(t_asym / t_sym)
         print(f"{p.stem:20s} symmetric {1000 * t_sym:6.0f} ms   §5.5 from 4 captures {1000 * t_asym:6.0f} ms   "
               f"ratio {t_asym / t_sym:.2f}", flush=True)

@@ -913,7 +913,7 @@ def _kill_group(pid: int) -> None:
 
 
 def _start_render(case: Case, base: Path, d: Path, result_file: Path):  # type: ignore[no-untyped-def]
-    """render loads Mitsuba, which does not survive a fork: a fresh interpreter instead."""
+    """The render command loads Mitsuba, which does not survive a fork: a fresh interpreter instead."""
     import subprocess
 
     argv, read_back, what, must_refuse = prepare(case, base, d)

@@ -73,7 +73,7 @@ def _run_block(kind: str, items: list, cwd: Path, env: dict[str, str]) -> list[t
     """Run one block's commands in order; returns (command, seconds) per command and records
     each command's stdout in :data:`OUTPUTS`."""
     times = []
-    for k, item in enumerate(items):
+    for item in items:
         if kind == "python":
             script = cwd / f"readme_block_{id(item)}.py"
             script.write_text(item)

@@ -92,7 +92,7 @@ def layout_violations(optics: Optics, leds: ArrayLike, occluder_deg: float = 0.0
     out = []
     limit = math.cos(math.radians(optics.cone_half_angle_deg + TUBE_MARGIN_DEG))
     in_occ = math.cos(math.radians(occluder_deg)) if occluder_deg > 0 else 2.0
-    for k, (el, az) in enumerate(led_angles(leds)):
+    for k, (el, _az) in enumerate(led_angles(leds)):
         if leds[k] @ optics.axis >= in_occ:
             continue
         if el < MIN_ELEVATION_DEG - 1e-9:

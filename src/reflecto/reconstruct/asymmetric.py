@@ -318,6 +318,10 @@ class SetDistance:
         self.kd_bound_max_deg = kd_bound_max_deg
 
     def __call__(self, normal_xy: Array) -> float:
+        """The distance at the candidate normal ``normalize(tx, ty, 1)``, ``normal_xy = (tx, ty)``.
+
+        ``inf`` with too few samples or overlap pairs.
+        """
         normal = tilt_frame(float(normal_xy[0]), float(normal_xy[1]))[2]
         frames = sample_frames([r for _, r in self.captures], normal)
         sls = [s.reframe(f) for (s, _), f in zip(self.captures, frames)]
