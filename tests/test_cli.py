@@ -123,7 +123,8 @@ def test_json_of_calibration_and_report_commands(tmp_path, capsys):
     from reflecto.model import MicrofacetBRDF
     from reflecto.load import load_source
 
-    MicrofacetBRDF.from_ndf_function(load_source(PLASTIC).ndf, resolution=16, kd=0.1, ks=0.5).save(tmp_path / "m.reflecto")
+    MicrofacetBRDF.from_ndf_function(load_source(PLASTIC).ndf, resolution=16, kd=0.1, ks=0.5).save(
+        tmp_path / "m.reflecto")
     assert main(["report", str(tmp_path / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep"), "--json"]) == 0
     assert _json_out(capsys)["output"] == str(tmp_path / "rep" / "index.html")
 

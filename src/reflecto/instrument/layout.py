@@ -246,7 +246,8 @@ def coverage(optics: Optics, leds: ArrayLike, resolution: int = 64, theta_max_de
     )
 
 
-def layout_terms(optics: Optics, leds: ArrayLike, cube: Hemicube, theta_max_deg: float = 80.0) -> tuple[float, float, float]:
+def layout_terms(optics: Optics, leds: ArrayLike, cube: Hemicube,
+                 theta_max_deg: float = 80.0) -> tuple[float, float, float]:
     """The three goals of the layout design, each a solid-angle fraction in [0, 1].
 
     * ``coverage``: the θ_h ≤ θ_max cap covered after eq. 3;

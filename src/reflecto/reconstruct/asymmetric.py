@@ -125,7 +125,8 @@ def sample_frames(rotations_deg: Sequence[float], normal: Array | None = None) -
     """Rows ``(t, b, n)`` of each capture's sample frame in device coordinates, shape ``(C, 3, 3)``:
     the normal (device ``+z`` by default) and the tangent at azimuth ``rotation_deg``."""
     n = np.array([0.0, 0.0, 1.0]) if normal is None else np.asarray(normal, dtype=np.float64)
-    return np.stack([geometry.frame_from_normal(n, np.array([math.cos(math.radians(r)), math.sin(math.radians(r)), 0.0]))
+    return np.stack([geometry.frame_from_normal(
+                         n, np.array([math.cos(math.radians(r)), math.sin(math.radians(r)), 0.0]))
                      for r in rotations_deg])
 
 
@@ -251,7 +252,8 @@ def capture_consistency(sb: _SetBins, ratios: PairRatios) -> CaptureConsistency:
     # the least spread of one capture's own pairs: a capture of another material has a
     # large one against the reference (a 1-D fit of the first capture), which a pooled
     # value would let hide the difference between captures
-    own = [float(math.sqrt(np.sum(w[m] * ell[m] ** 2) / np.sum(w[m]))) for m in ((ca == c) & (cb == c) for c in range(n_c))
+    own = [float(math.sqrt(np.sum(w[m] * ell[m] ** 2) / np.sum(w[m])))
+           for m in ((ca == c) & (cb == c) for c in range(n_c))
            if np.count_nonzero(m) >= MIN_CROSS_PAIRS]
     within = min(own) if own else math.nan
     for a in range(n_c):

@@ -102,8 +102,8 @@ class ConsistencyDistance:
     def __init__(self, slices, valid: NDArray[np.bool_], shadowing, n: int = 64, stride: int = 1,
                  kd_bound_max_deg: float = 75.0) -> None:
         px = np.arange(0, slices.view.shape[0], stride)
-        self.slices = type(slices)(slices.light, slices.view[px], slices.values[:, px], slices.valid[:, px] & valid[:, px],
-                                   slices.pixels[px], slices.frame)
+        self.slices = type(slices)(slices.light, slices.view[px], slices.values[:, px],
+                                   slices.valid[:, px] & valid[:, px], slices.pixels[px], slices.frame)
         self.shadowing = shadowing
         self.cube = hemicube(n)
         self.n_leds = slices.n_leds
