@@ -25,7 +25,8 @@ from reflecto.sources.analytic import AnalyticBRDF  # noqa: E402
 
 def main() -> None:
     rng = np.random.default_rng(0)
-    ref = AnalyticBRDF(distribution="ggx", alpha=(0.25, 0.1), rotation_deg=20, kd=[0.3, 0.2, 0.1], ks=0.6, eta=[1.5, 1.6, 2.0])
+    ref = AnalyticBRDF(distribution="ggx", alpha=(0.25, 0.1), rotation_deg=20, kd=[0.3, 0.2, 0.1], ks=0.6,
+                       eta=[1.5, 1.6, 2.0])
     cube = hemicube(512)
     model = MicrofacetBRDF(ref.ndf(cube.directions), ref.kd, ref.ks, ref.eta)
     _ = model.sigma_table

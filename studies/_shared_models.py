@@ -67,5 +67,6 @@ def shared_models(names: list[str] | None = None, quiet: bool = False) -> Iterat
             res.model.metadata.update({"material": p.stem, "device": "ideal (simulated)"})
             res.model.save(out)
             if not quiet:
-                print(f"  reconstructed {p.stem} in {time.perf_counter() - t0:.1f} s -> {out}", file=sys.stderr, flush=True)
+                print(f"  reconstructed {p.stem} in {time.perf_counter() - t0:.1f} s -> {out}", file=sys.stderr,
+                      flush=True)
         yield p, out

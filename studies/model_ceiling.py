@@ -167,7 +167,7 @@ def fit_class(p: Problem, shadowing: str = "separable", eta_fixed: float | None 
     for it in range(outer):
         geom = p.lobe_geometry(model, shadowing)
 
-        def inner(e: np.ndarray, state=(d, kd, ks)) -> tuple:
+        def inner(e: np.ndarray, state=(d, kd, ks), geom=geom) -> tuple:
             q = geom[:, None] * fresnel(p.c[:, None], e)
             dd, kk, ss = p.solve_linear(q, state[0].copy(), state[1].copy(), state[2].copy())
             return dd, kk, ss, q

@@ -292,7 +292,8 @@ def main() -> None:
         print(f"{label:14s} median {100 * np.median(v):5.2f} %, above 25 %: {int(np.sum(v > BAR))} of {len(v)}")
     over = [r["name"] for r in rows if r["ours"] > BAR]
     both = [r["name"] for r in rows if r["ours"] > BAR and r["class ceiling"] > BAR]
-    print(f"ours above 25 %: {len(over)}; of these, the class ceiling is above 25 % too on {len(both)}: {', '.join(both)}")
+    print(f"ours above 25 %: {len(over)}; of these, the class ceiling is above 25 % too on {len(both)}: "
+          f"{', '.join(both)}")
     if args.render_fit:
         reach = [r["name"] for r in rows if r["ours"] > BAR and r["render fit"] <= BAR]
         print(f"of ours above 25 %, the class fitted to the render reaches ≤ 25 % on {len(reach)}: {', '.join(reach)}")

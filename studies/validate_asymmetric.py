@@ -122,7 +122,8 @@ def one_asym(args: tuple[str, str]) -> dict:
     res = reconstruct_rotations(caps)
     e_sym, e_asym = comparison_error(src, sym.model).normalized, comparison_error(src, res.model).normalized
     return {"name": Path(path).stem, "device": device, "error_symmetric": e_sym, "error_asymmetric": e_asym,
-            "ratio": e_asym / e_sym, "ndf_symmetric": ndf_error(src, sym.model), "ndf_asymmetric": ndf_error(src, res.model),
+            "ratio": e_asym / e_sym, "ndf_symmetric": ndf_error(src, sym.model),
+            "ndf_asymmetric": ndf_error(src, res.model),
             "single_symmetry_ratio": test1.ratio, "single_broken": not test1.symmetric,
             "set_symmetry_ratio": res.symmetry.ratio, "set_broken": not res.symmetry.symmetric,
             "isotropic_path": res.isotropic, "consistency_level": res.consistency.worst_level,
@@ -212,7 +213,8 @@ def one_sym(args: tuple[str, str | dict, int]) -> dict:
         return {"name": name, "refused": str(e), "ratio": math.inf, "single_broken": not test1.symmetric,
                 "set_broken": True, "single_symmetry_ratio": test1.ratio}
     e_sym, e_asym = comparison_error(src, sym.model).normalized, comparison_error(src, res.model).normalized
-    return {"name": name, "refused": "", "error_symmetric": e_sym, "error_asymmetric": e_asym, "ratio": e_asym / max(e_sym, 1e-12),
+    return {"name": name, "refused": "", "error_symmetric": e_sym, "error_asymmetric": e_asym,
+            "ratio": e_asym / max(e_sym, 1e-12),
             "single_symmetry_ratio": test1.ratio, "single_broken": not test1.symmetric,
             "set_symmetry_ratio": res.symmetry.ratio, "set_broken": not res.symmetry.symmetric,
             "isotropic_path": res.isotropic, "consistency_ratio": res.consistency.worst_ratio,
@@ -315,7 +317,8 @@ def part_sym(jobs: int) -> list[dict]:
             print(f"{r['name']:28s} REFUSED: {r['refused']}", flush=True)
             continue
         print(f"{r['name']:28s} compare: symmetric {100 * r['error_symmetric']:7.3f} %  §5.5 "
-              f"{100 * r['error_asymmetric']:7.3f} %  ratio {r['ratio']:.3f}  ({'1-D' if r['isotropic_path'] else 'hemicube'})"
+              f"{100 * r['error_asymmetric']:7.3f} %  ratio {r['ratio']:.3f}  "
+              f"({'1-D' if r['isotropic_path'] else 'hemicube'})"
               f"   eq. 3: single {r['single_symmetry_ratio']:4.2f}× {'BROKEN' if r['single_broken'] else 'kept'}, set "
               f"{r['set_symmetry_ratio']:4.2f}× {'BROKEN' if r['set_broken'] else 'kept'}   captures agree "
               f"{r['consistency_ratio']:.2f}×, level {r['consistency_level']:.3f}", flush=True)
@@ -378,7 +381,8 @@ def one_noise(path: str) -> dict:
     out = {"name": Path(path).stem}
     for label in NOISE_VARIANTS:
         dev, cal = _noise_variant(label)
-        out[label] = comparison_error(src, reconstruct_rotations(_captures(src, dev, cal, ROTATIONS_4)).model).normalized
+        out[label] = comparison_error(
+            src, reconstruct_rotations(_captures(src, dev, cal, ROTATIONS_4)).model).normalized
     return out
 
 
@@ -417,7 +421,8 @@ def one_photons(path: str) -> dict:
         out[str(k)] = comparison_error(src, reconstruct_rotations(
             _captures(src, dev, workflow.calibration_for(dev, missing="nominal"), ROTATIONS_4)).model).normalized
     dev, cal = _as_built_bright()
-    out["as-built ×64"] = comparison_error(src, reconstruct_rotations(_captures(src, dev, cal, ROTATIONS_4)).model).normalized
+    out["as-built ×64"] = comparison_error(
+        src, reconstruct_rotations(_captures(src, dev, cal, ROTATIONS_4)).model).normalized
     return out
 
 
@@ -451,8 +456,8 @@ def part_photons(jobs: int) -> None:
     light) or a bias (stays): the §5.5 error on the ideal optics with the as-built
     camera at :data:`PHOTON_FACTORS` × its electrons, against the noiseless ideal device."""
     ideal_file = OUT / "asym.json"
-    ideal = {r["name"]: r["error_asymmetric"] for r in json.loads(ideal_file.read_text())} if ideal_file.is_file() else {
-        r["name"]: r["error_asymmetric"] for r in part_asym(jobs)}
+    ideal = ({r["name"]: r["error_asymmetric"] for r in json.loads(ideal_file.read_text())} if ideal_file.is_file()
+             else {r["name"]: r["error_asymmetric"] for r in part_asym(jobs)})
     _as_built_bright()  # its calibration, once, before the workers read it
     rows = _map(one_photons, [str(p) for p in asymmetric_files()], jobs)
     for r in rows:
@@ -491,8 +496,8 @@ def part_timing() -> None:
     ratios = []
     for p in asymmetric_files():
         caps = _captures(load_source(p), dev, cal, ROTATIONS_4)
-        t_sym = _bench.timed(lambda: reconstruct(caps[0].slices, Options(isotropic="no")), repeat=3)
-        t_asym = _bench.timed(lambda: reconstruct_rotations(caps), repeat=3)
+        t_sym = _bench.timed(lambda caps=caps: reconstruct(caps[0].slices, Options(isotropic="no")), repeat=3)
+        t_asym = _bench.timed(lambda caps=caps: reconstruct_rotations(caps), repeat=3)
         ratios.append(t_asym / t_sym)
         print(f"{p.stem:20s} symmetric {1000 * t_sym:6.0f} ms   §5.5 from 4 captures {1000 * t_asym:6.0f} ms   "
               f"ratio {t_asym / t_sym:.2f}", flush=True)
@@ -502,7 +507,8 @@ def part_timing() -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--part", default="all",
-                    choices=("all", "asym", "fill", "fill-summary", "sym", "asbuilt", "noise", "photons", "mixed", "timing"))
+                    choices=("all", "asym", "fill", "fill-summary", "sym", "asbuilt", "noise", "photons", "mixed",
+                             "timing"))
     ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
     args = ap.parse_args()
     t0 = time.perf_counter()

@@ -1,11 +1,11 @@
-"""`reflecto sweep --scheduler` on a Dask LocalCluster writes the local run's table (issue 27, item 4).
+r"""`reflecto sweep --scheduler` on a Dask LocalCluster writes the local run's table (issue 27, item 4).
 
 Runs the sweep twice on the same materials, once in local processes and once on a
 ``distributed.LocalCluster`` of ``--jobs`` single-threaded worker processes, and compares
 the two ``results.csv`` in every column but the ``seconds_*`` ones (timings), and every
 material record but its ``timings`` (and the temporary path it was read from). Prints the verdict and both wall times.
 
-    .venv/bin/python studies/validate_dask.py ../shared/data/rgl ../shared/data/merl-nbrdf \\
+    .venv/bin/python studies/validate_dask.py ../shared/data/rgl ../shared/data/merl-nbrdf \
         --device wide --only pvc yellow-paint cm_military_green_rgb -o out/dask-check
 
 Resumable like the sweep: a rerun into the same folder reuses finished records.

@@ -106,7 +106,8 @@ def analytic(reader: str) -> None:
     print(f"analytic sources and their 512 hemicube models ({label}): eq. 10; per-pair relative difference, θ ≤ 80°")
     with tempfile.TemporaryDirectory() as tmp:
         for name, a in models.items():
-            for kind, src in (("analytic", a), ("hemicube", MicrofacetBRDF.from_ndf_function(a.ndf, kd=a.kd, ks=a.ks, eta=a.eta))):
+            for kind, src in (("analytic", a),
+                              ("hemicube", MicrofacetBRDF.from_ndf_function(a.ndf, kd=a.kd, ks=a.ks, eta=a.eta))):
                 path = export_rgl(src, Path(tmp) / "m.bsdf")
                 r = read(path)
                 rel = relative_difference(r.eval(i, o) * o[:, 2:3], src.eval(i, o) * o[:, 2:3])

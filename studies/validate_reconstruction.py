@@ -53,13 +53,14 @@ def main() -> None:
                     e_brdf = brdf_error(src, m, stride=3).normalized
                     ok += [e_eta <= 0.02, e_ndf <= 0.05, e_brdf <= 0.01]
                     n += 1
-                    print(f"{dist:8s} α={alpha:<4} η={eta:<3} k_d={kd:<3}  η err {100 * e_eta:4.1f} %  NDF {100 * e_ndf:4.1f} %  "
-                          f"BRDF {100 * e_brdf:5.2f} %  ε {res.model_error:.4f}  {'iso' if res.isotropic else 'ANISO'}  "
-                          f"{1000 * t:5.0f} ms", flush=True)
+                    print(f"{dist:8s} α={alpha:<4} η={eta:<3} k_d={kd:<3}  η err {100 * e_eta:4.1f} %  "
+                          f"NDF {100 * e_ndf:4.1f} %  BRDF {100 * e_brdf:5.2f} %  ε {res.model_error:.4f}  "
+                          f"{'iso' if res.isotropic else 'ANISO'}  {1000 * t:5.0f} ms", flush=True)
     print(f"within target: η {ok[0]}/{n}, NDF {ok[1]}/{n}, BRDF {ok[2]}/{n}")
     # acceptance 2: anisotropic GGX, α_x/α_y up to 4, rotated tangents; NDF within 8 %
     n_ok = 0
-    cases = [((0.1, 0.2), 0), ((0.05, 0.2), 75), ((0.2, 0.05), 120), ((0.1, 0.4), 30), ((0.4, 0.1), 0), ((0.1, 0.4), 60)]
+    cases = [((0.1, 0.2), 0), ((0.05, 0.2), 75), ((0.2, 0.05), 120), ((0.1, 0.4), 30), ((0.4, 0.1), 0),
+             ((0.1, 0.4), 60)]
     for alpha, rot in cases:
         src = AnalyticBRDF(distribution="ggx", alpha=alpha, rotation_deg=rot, kd=0.1, ks=0.7, eta=1.5)
         res = reconstruct(workflow.measure(simulate_capture(src, dev, seed=1), cal))
@@ -67,7 +68,8 @@ def main() -> None:
         e_ndf = ndf_error(src, m, resolution=512)
         n_ok += e_ndf <= 0.08 and not res.isotropic
         print(f"anisotropic GGX α={alpha} rotated {rot:3d}°  {'iso' if res.isotropic else 'aniso'} "
-              f"(2nd harmonic {100 * res.isotropy.anisotropy:.0f} %)  NDF {100 * e_ndf:4.1f} %  k_s {m.ks[1]:.3f} (0.7)  "
+              f"(2nd harmonic {100 * res.isotropy.anisotropy:.0f} %)  NDF {100 * e_ndf:4.1f} %  "
+              f"k_s {m.ks[1]:.3f} (0.7)  "
               f"BRDF {100 * brdf_error(src, m, stride=3).normalized:5.2f} %", flush=True)
     print(f"anisotropic, detected and within 8 %: {n_ok}/{len(cases)}")
 

@@ -54,10 +54,14 @@ def main() -> None:
                 ok_error += e <= 1.2 * e0
                 flagged += res.shake_detected
                 below = np.flatnonzero(dev.leds @ res.frame[2] < 0.05).tolist()
-                print(f"{label:30s} seed {seed} tilt {tilt:4.1f}°  found {res.normal_tilt_deg:5.2f}° (off {off:4.2f}°)  "
-                      f"LEDs below the horizon {below}  error {100 * e:5.2f} % (untilted {100 * e0:5.2f} %, ×{e / e0:4.2f})  "
-                      f"η {res.eta:.3f}{'  SHAKE FLAGGED: ' + res.motion.describe() if res.shake_detected else ''}", flush=True)
-    print(f"normal within 0.5°: {ok_normal}/{n}; error within 20 % of untilted: {ok_error}/{n}; flagged as shaken: {flagged}/{n}")
+                print(f"{label:30s} seed {seed} tilt {tilt:4.1f}°  "
+                      f"found {res.normal_tilt_deg:5.2f}° (off {off:4.2f}°)  "
+                      f"LEDs below the horizon {below}  error {100 * e:5.2f} % "
+                      f"(untilted {100 * e0:5.2f} %, ×{e / e0:4.2f})  "
+                      f"η {res.eta:.3f}{'  SHAKE FLAGGED: ' + res.motion.describe() if res.shake_detected else ''}",
+                      flush=True)
+    print(f"normal within 0.5°: {ok_normal}/{n}; error within 20 % of untilted: {ok_error}/{n}; "
+          f"flagged as shaken: {flagged}/{n}")
 
 
 if __name__ == "__main__":

@@ -29,7 +29,8 @@ class TabulatedIsotropic(BRDFSource):
     def __init__(self, theta, d, kd, ks, eta, name: str = "tabulated") -> None:
         self.theta = np.asarray(theta, dtype=np.float64)
         d = np.maximum(np.asarray(d, dtype=np.float64), 0.0)
-        self.kd, self.ks, self.eta = (np.broadcast_to(np.asarray(v, dtype=np.float64), (3,)).copy() for v in (kd, ks, eta))
+        self.kd, self.ks, self.eta = (np.broadcast_to(np.asarray(v, dtype=np.float64), (3,)).copy()
+                                      for v in (kd, ks, eta))
         # normalization and σ on a fine polar grid (midpoint rule in u, θ = π/2·u²)
         u = (np.arange(2048) + 0.5) / 2048
         th = 0.5 * math.pi * u * u

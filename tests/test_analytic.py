@@ -68,11 +68,13 @@ def test_invalid_parameters():
 
 def test_description_files(tmp_path):
     p = tmp_path / "m.json"
-    p.write_text(json.dumps({"type": "analytic", "distribution": "beckmann", "alpha": [0.2, 0.1], "kd": 0.1, "ks": 0.5}))
+    p.write_text(json.dumps({"type": "analytic", "distribution": "beckmann", "alpha": [0.2, 0.1], "kd": 0.1,
+                             "ks": 0.5}))
     src = load_source(p)
     assert isinstance(src, AnalyticBRDF) and src.distribution == "beckmann"
     t = tmp_path / "m.toml"
-    t.write_text('type = "analytic"\ndistribution = "ggx"\nalpha = 0.3\nasymmetry = { shift = [0.2, 0.0], weight = 0.4 }\n')
+    t.write_text('type = "analytic"\ndistribution = "ggx"\nalpha = 0.3\n'
+                 'asymmetry = { shift = [0.2, 0.0], weight = 0.4 }\n')
     src = load_source(t)
     assert src.asymmetry == (0.2, 0.0, 0.4)
     bad = tmp_path / "bad.json"

@@ -64,7 +64,7 @@ PLASTIC = ROOT / "examples" / "ggx-plastic.json"
 
 
 def _json_out(capsys) -> dict:
-    """stdout of the last command: exactly one JSON document, nothing around it."""
+    """The stdout of the last command: exactly one JSON document, nothing around it."""
     out = capsys.readouterr().out
     doc, end = json.JSONDecoder().raw_decode(out)
     assert out[end:].strip() == "", out[end:]
@@ -89,7 +89,7 @@ def test_every_option_has_help_and_defaults_are_shown(monkeypatch):
     assert "samples per pixel of the renders (default: 64)" in text("report")
     assert "shake (default: 0)" in text("simulate")  # --seed
     assert "(default: sphere-env)" in text("render") and "pixels (default: 256)" in text("render")
-    for name, parser in _subparsers().items():  # a None default is never shown as such
+    for name in _subparsers():  # a None default is never shown as such
         assert "(default: None)" not in text(name), name
 
 
@@ -123,7 +123,8 @@ def test_json_of_calibration_and_report_commands(tmp_path, capsys):
     from reflecto.model import MicrofacetBRDF
     from reflecto.load import load_source
 
-    MicrofacetBRDF.from_ndf_function(load_source(PLASTIC).ndf, resolution=16, kd=0.1, ks=0.5).save(tmp_path / "m.reflecto")
+    MicrofacetBRDF.from_ndf_function(load_source(PLASTIC).ndf, resolution=16, kd=0.1, ks=0.5).save(
+        tmp_path / "m.reflecto")
     assert main(["report", str(tmp_path / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep"), "--json"]) == 0
     assert _json_out(capsys)["output"] == str(tmp_path / "rep" / "index.html")
 

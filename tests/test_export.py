@@ -206,13 +206,15 @@ def test_rgl_description_names_material_capture_parameters_and_version(tmp_path)
     import reflecto
 
     cap, model, out = tmp_path / "cap", tmp_path / "m.reflecto", tmp_path / "m.bsdf"
-    assert main(["simulate", str(ROOT / "examples" / "ggx-plastic.json"), "--device", "ideal", "-o", str(cap), "-q"]) == 0
+    assert main(["simulate", str(ROOT / "examples" / "ggx-plastic.json"), "--device", "ideal", "-o", str(cap),
+                 "-q"]) == 0
     assert main(["reconstruct", str(cap), "-o", str(model)]) == 0
     assert main(["export", str(model), "-o", str(out), "-q"]) == 0
     desc = RGLBRDF(out).description
     m = MicrofacetBRDF.load(model)
-    for part in (f"reflecto {reflecto.__version__}", "material ggx-plastic (simulated capture)", f"capture {cap}", "device ideal",
-                 "k_d (R,G,B) " + " ".join(f"{v:.4g}" for v in m.kd), "eta (R,G,B) " + " ".join(f"{v:.4g}" for v in m.eta)):
+    for part in (f"reflecto {reflecto.__version__}", "material ggx-plastic (simulated capture)", f"capture {cap}",
+                 "device ideal", "k_d (R,G,B) " + " ".join(f"{v:.4g}" for v in m.kd),
+                 "eta (R,G,B) " + " ".join(f"{v:.4g}" for v in m.eta)):
         assert part in desc, (part, desc)
 
 

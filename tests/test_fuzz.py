@@ -104,9 +104,11 @@ def build_base(folder: Path) -> Path:
            "firing_order": [0, 1, 3, 5, 4, 2], "check_leds": [0]}
     (folder / "device.json").write_text(json.dumps(dev, indent=1))
     (folder / "device.toml").write_text('name = "fuzz"\nleds = [[5.0, 0.0], [10.0, 120.0], [10.0, 240.0]]\n'
-                                        '[optics]\naxis_tilt_deg = 15.0\n[camera]\nbits = 14\nexposures_ms = [0.5, 4.0]\n')
+                                        '[optics]\naxis_tilt_deg = 15.0\n'
+                                        '[camera]\nbits = 14\nexposures_ms = [0.5, 4.0]\n')
     assert main(["simulate", str(folder / "analytic.json"), "-o", str(folder / "cap"), *q]) == 0
-    assert main(["simulate", str(folder / "analytic.json"), "--device", "as-built", "-o", str(folder / "cap-ab"), *q]) == 0
+    assert main(["simulate", str(folder / "analytic.json"), "--device", "as-built", "-o", str(folder / "cap-ab"),
+                 *q]) == 0
     from reflecto.instrument.device import Device
     from reflecto.instrument.simulate import simulate_calibration
 
@@ -116,7 +118,8 @@ def build_base(folder: Path) -> Path:
     mats.mkdir()
     shutil.copy(folder / "analytic.json", mats / "plastic.json")
     fake_run_material(str(mats / "plastic.json"), str(folder / "res"))
-    sw.write_table([json.loads((folder / "res" / "materials" / "plastic.json").read_text())], folder / "res" / "results.csv")
+    sw.write_table([json.loads((folder / "res" / "materials" / "plastic.json").read_text())],
+                   folder / "res" / "results.csv")
     (folder / ".complete").write_text("")
     return folder
 
@@ -214,7 +217,8 @@ def mutate_toml(rng: random.Random, text: str) -> tuple[str, str]:
 
 def mutate_bytes(rng: random.Random, raw: bytes) -> tuple[bytes, str]:
     n = len(raw)
-    op = rng.choice(["truncate", "truncate", "flip", "flip", "flip", "zero", "tail", "insert", "dup", "empty", "random"])
+    op = rng.choice(["truncate", "truncate", "flip", "flip", "flip", "zero", "tail", "insert", "dup", "empty",
+                     "random"])
     if op == "truncate" and n:
         return raw[: rng.randrange(n)], "bytes:truncate"
     if op == "flip" and n:
@@ -224,7 +228,8 @@ def mutate_bytes(rng: random.Random, raw: bytes) -> tuple[bytes, str]:
         return bytes(b), "bytes:flip"
     if op == "zero" and n:
         s = rng.randrange(n)
-        return raw[:s] + bytes(min(rng.randint(1, 4096), n - s)) + raw[s + rng.randint(1, 4096):][: max(0, n - s)], "bytes:zero-block"
+        return (raw[:s] + bytes(min(rng.randint(1, 4096), n - s)) + raw[s + rng.randint(1, 4096):][: max(0, n - s)],
+                "bytes:zero-block")
     if op == "tail":
         return raw + rng.randbytes(rng.randint(1, 4096)), "bytes:garbage-tail"
     if op == "insert" and n:
@@ -513,7 +518,8 @@ KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], bool]] = {
     "NBRDF .h5": (("info", "tabulate"), ("nbrdf.h5", "nbrdf.json"), False),
     "NBRDF .json": (("info",), ("nbrdf.h5", "nbrdf.json"), False),
     "model .reflecto": (("info", "export", "report", "tabulate"), ("model",), True),
-    "device file": (("layout", "simulate", "simulate-calibration"), ("device.json", "device.toml", "analytic.json"), False),
+    "device file": (("layout", "simulate", "simulate-calibration"), ("device.json", "device.toml", "analytic.json"),
+                    False),
     "capture manifest": (("reconstruct",), ("cap",), False),
     "capture frame": (("reconstruct",), ("cap",), False),
     "calibration .npz": (("reconstruct",), ("cap-ab", "cal.npz"), True),
@@ -711,10 +717,12 @@ def command_argv(command: str, src: Path, d: Path, out: Path, rng: random.Random
     if command == "fit-ct":
         return ["fit-ct", str(src), "--json"]
     if command == "render":
-        return ["render", str(src), "--scene", "sphere-point", "--spp", "4", "--resolution", "32", "-o", str(out / "r.png")]
+        return ["render", str(src), "--scene", "sphere-point", "--spp", "4", "--resolution", "32",
+                "-o", str(out / "r.png")]
     if command == "reconstruct":
         if (d / "cal.npz").exists() or src.name == "cap-ab":
-            return ["reconstruct", str(src), "--calibration", str(d / "cal.npz"), "--eta", "1.5", "-o", str(out / "m.reflecto")]
+            return ["reconstruct", str(src), "--calibration", str(d / "cal.npz"), "--eta", "1.5",
+                    "-o", str(out / "m.reflecto")]
         return ["reconstruct", str(src), "--eta", "1.5", "-o", str(out / "m.reflecto")]
     if command == "calibrate":
         return ["calibrate", str(src), "-o", str(out / "cal.npz"), "-q"]
@@ -913,7 +921,7 @@ def _kill_group(pid: int) -> None:
 
 
 def _start_render(case: Case, base: Path, d: Path, result_file: Path):  # type: ignore[no-untyped-def]
-    """render loads Mitsuba, which does not survive a fork: a fresh interpreter instead."""
+    """The render command loads Mitsuba, which does not survive a fork: a fresh interpreter instead."""
     import subprocess
 
     argv, read_back, what, must_refuse = prepare(case, base, d)
@@ -963,7 +971,8 @@ def classify(rec: dict, case: Case, d: Path, base_prints: dict[str, str | None])
     err = rec.get("stderr", "")
     if rec.get("hang"):
         return "hang"
-    if "out of memory" in err or "MemoryError" in str(rec.get("traceback", "")) or rec.get("peak_rss", 0) > MEMORY_LIMIT:
+    if ("out of memory" in err or "MemoryError" in str(rec.get("traceback", ""))
+            or rec.get("peak_rss", 0) > MEMORY_LIMIT):
         return "memory"
     if rec.get("signal"):
         return "crash"
@@ -1031,8 +1040,8 @@ def campaign(cases: list[Case], base: Path, work: Path, jobs: int = 2, timeout: 
             p = dict(prints)
             name = base_choice(r.case)
             if name is not None:  # compared with whichever valid file the case drew
-                p[r.case.kind] = fingerprint(r.case.kind, base / ("model" if r.case.kind.startswith("model") else "") / name,
-                                             base)
+                p[r.case.kind] = fingerprint(r.case.kind,
+                                             base / ("model" if r.case.kind.startswith("model") else "") / name, base)
             results.append(_finish(r, rec, p))
             if log:
                 log(results[-1])

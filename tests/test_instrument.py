@@ -300,7 +300,8 @@ def test_cli_simulate_calibrate_and_errors(tmp_path, capsys):
     assert main(["simulate", str(src), "--device", "as-built", "--tilt", "5", "-o", str(tmp_path / "c"), "-q"]) == 0
     # 6 LEDs × 2 exposures, and the check frames of LED 0 fired again at the end
     assert len(list((tmp_path / "c").glob("*.png"))) == 14
-    assert sorted(p.name for p in (tmp_path / "c").glob("*_check.png")) == ["led0_t1ms_check.png", "led0_t8ms_check.png"]
+    assert (sorted(p.name for p in (tmp_path / "c").glob("*_check.png"))
+            == ["led0_t1ms_check.png", "led0_t8ms_check.png"])
     assert main(["simulate", str(src), "--tilt", "45", "-o", str(tmp_path / "t")]) == 1
     assert "tilt" in capsys.readouterr().err and not (tmp_path / "t").exists()
     assert main(["simulate", str(src), "--device", str(tmp_path / "nodev.toml"), "-o", str(tmp_path / "u")]) == 1
@@ -373,7 +374,8 @@ def test_shake_moves_the_leds_fired_after_it():
             clean = extract_slices(simulate_capture(SRC, dev, seed=seed), nominal_calibration(dev))
             cap = simulate_capture(SRC, dev, seed=seed, shake=True)
             info = cap.extra["simulation"]["shake"]
-            assert info["moved_leds"] == sorted(order[info["from_position"]:]) and info["from_led"] == order[info["from_position"]]
+            assert (info["moved_leds"] == sorted(order[info["from_position"]:])
+                    and info["from_led"] == order[info["from_position"]])
             shaken = extract_slices(cap, nominal_calibration(dev))
             for k in range(dev.n_leds):
                 same = np.array_equal(shaken.values[k], clean.values[k])

@@ -37,8 +37,9 @@ def test_azimuthal_kernel_matches_a_quadrature():
     rng = np.random.default_rng(0)
     tk, th = rng.uniform(0, 0.5 * math.pi, 7), rng.uniform(0, 0.5 * math.pi, 9)
     phi = (np.arange(20000) + 0.5) * (2 * math.pi / 20000)
-    brute = np.maximum(0.0, np.cos(tk)[:, None, None] * np.cos(th)[None, :, None]
-                       + np.sin(tk)[:, None, None] * np.sin(th)[None, :, None] * np.cos(phi)).sum(-1) * (2 * math.pi / 20000)
+    brute = (np.maximum(0.0, np.cos(tk)[:, None, None] * np.cos(th)[None, :, None]
+                        + np.sin(tk)[:, None, None] * np.sin(th)[None, :, None] * np.cos(phi)).sum(-1)
+             * (2 * math.pi / 20000))
     assert np.allclose(azimuthal_kernel(tk, th), brute, atol=1e-6)
 
 

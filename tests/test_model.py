@@ -130,4 +130,5 @@ def test_compiled_eval_matches_numpy_reference(pair, rng, correlated):
     assert np.all(fast[:10] == 0)
     np.testing.assert_allclose(fast, slow, rtol=1e-12, atol=1e-14)
     # broadcasting a single light against many views, as the instrument does
-    np.testing.assert_allclose(m.eval(i[20], o[:100]), m.eval_numpy(np.broadcast_to(i[20], (100, 3)), o[:100]), rtol=1e-12)
+    np.testing.assert_allclose(m.eval(i[20], o[:100]), m.eval_numpy(np.broadcast_to(i[20], (100, 3)), o[:100]),
+                               rtol=1e-12)

@@ -97,6 +97,7 @@ def test_invalid_filter_type_is_refused() -> None:
     raw = bytearray(_filter_rows(img.astype(">u2").view(np.uint8).reshape(h, -1), [0] * 4, 6))
     raw[(1 + w * 6) * 2] = 5
     ihdr = struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0)
-    bad = b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", ihdr) + _chunk(b"IDAT", zlib.compress(bytes(raw))) + _chunk(b"IEND", b"")
+    bad = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", ihdr) + _chunk(b"IDAT", zlib.compress(bytes(raw)))
+           + _chunk(b"IEND", b""))
     with pytest.raises(CaptureError, match="filter type"):
         _decode_png(bad, Path("f.png"), (4, 4), 16)

@@ -73,7 +73,7 @@ def _run_block(kind: str, items: list, cwd: Path, env: dict[str, str]) -> list[t
     """Run one block's commands in order; returns (command, seconds) per command and records
     each command's stdout in :data:`OUTPUTS`."""
     times = []
-    for k, item in enumerate(items):
+    for item in items:
         if kind == "python":
             script = cwd / f"readme_block_{id(item)}.py"
             script.write_text(item)
@@ -83,7 +83,8 @@ def _run_block(kind: str, items: list, cwd: Path, env: dict[str, str]) -> list[t
         t0 = time.perf_counter()
         r = subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
         times.append((shown.splitlines()[0] if kind == "sh" else "python block", time.perf_counter() - t0))
-        assert r.returncode == 0, f"README {kind} command failed (exit {r.returncode}):\n{shown}\n--- stderr:\n{r.stderr[-3000:]}"
+        assert r.returncode == 0, (f"README {kind} command failed (exit {r.returncode}):\n{shown}\n"
+                                   f"--- stderr:\n{r.stderr[-3000:]}")
         readme_argv = item[len(_reflecto()):] if kind == "sh" and item[0] == _reflecto()[0] else item
         OUTPUTS.append((kind, readme_argv, r.stdout))
         if kind == "sh" and "-o" in item:  # the output it names exists

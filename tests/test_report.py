@@ -80,7 +80,8 @@ def test_report_refuses_a_bad_model_summary(tmp_path):
     from reflecto.errors import FileFormatError
 
     a = AnalyticBRDF(distribution="ggx", alpha=0.3, kd=0.3, ks=0.5, eta=1.5)
-    path = MicrofacetBRDF.from_ndf_function(a.ndf, resolution=16, kd=a.kd, ks=a.ks, eta=a.eta).save(tmp_path / "m.reflecto")
+    path = MicrofacetBRDF.from_ndf_function(a.ndf, resolution=16, kd=a.kd, ks=a.ks, eta=a.eta).save(
+        tmp_path / "m.reflecto")
     summary = tmp_path / "m.json"
     for text in ("{not json", "[1, 2]"):
         summary.write_text(text)

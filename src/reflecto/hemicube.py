@@ -381,7 +381,8 @@ class Hemicube:
                 start = self._pad_offsets[face]
                 a = padded[start : start + (rows + 2) * (cols + 2)].reshape(rows + 2, cols + 2)
                 h = a[:, :-2] + 2.0 * a[:, 1:-1] + a[:, 2:]
-                out[self.offsets[face] : self.offsets[face] + rows * cols] = ((h[:-2] + 2.0 * h[1:-1] + h[2:]) / 16.0).ravel()
+                out[self.offsets[face] : self.offsets[face] + rows * cols] = (
+                    (h[:-2] + 2.0 * h[1:-1] + h[2:]) / 16.0).ravel()
             v = out
         return v
 

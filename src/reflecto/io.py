@@ -97,7 +97,8 @@ def read_input(path: str | Path, limit: int, what: str = "this kind of file", mi
     fd, st = _open_regular(path, missing)
     try:
         if st.st_size > limit:
-            raise LimitError(path, f"{st.st_size} bytes, more than the {limit} bytes allowed for {what} (docs/limits.md)")
+            raise LimitError(path, f"{st.st_size} bytes, more than the {limit} bytes allowed for {what} "
+                                   "(docs/limits.md)")
         chunks, total = [], 0
         while True:
             chunk = os.read(fd, min(1 << 24, limit + 1 - total))
@@ -259,15 +260,18 @@ def zip_members(raw: bytes, path: str | Path, max_unpacked: int = MAX_UNPACKED_B
             if i.flag_bits & 0x1:
                 raise FileFormatError(path, f"archive member {i.filename!r} is encrypted")
             if i.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
-                raise FileFormatError(path, f"archive member {i.filename!r} uses unsupported compression {i.compress_type}")
+                raise FileFormatError(path, f"archive member {i.filename!r} uses unsupported compression "
+                                            f"{i.compress_type}")
             try:
                 data = z.read(i)
             except MemoryError:
                 raise
             except Exception as e:  # noqa: BLE001 — BadZipFile, zlib.error, EOFError, ...
-                raise FileFormatError(path, f"damaged archive member {i.filename!r} ({type(e).__name__}: {e})") from None
+                raise FileFormatError(path, f"damaged archive member {i.filename!r} "
+                                            f"({type(e).__name__}: {e})") from None
             if len(data) != i.file_size:
-                raise FileFormatError(path, f"damaged archive member {i.filename!r} (size differs from the directory's)")
+                raise FileFormatError(path, f"damaged archive member {i.filename!r} "
+                                            "(size differs from the directory's)")
             out[i.filename] = data
     return out
 
@@ -279,7 +283,8 @@ def npy_bytes(array: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def npy_array(raw: bytes, path: str | Path, member: str, dtype: Any = None, shape: tuple[int, ...] | None = None) -> np.ndarray:
+def npy_array(raw: bytes, path: str | Path, member: str, dtype: Any = None,
+              shape: tuple[int, ...] | None = None) -> np.ndarray:
     """The numeric array in ``.npy`` bytes ``raw``; its header is checked before allocating.
 
     ``dtype`` and ``shape``, when given, are required exactly; in any case the bytes
@@ -309,7 +314,8 @@ def npy_array(raw: bytes, path: str | Path, member: str, dtype: Any = None, shap
     need = count * dt.itemsize
     have = len(raw) - bio.tell()
     if need != have:
-        raise FileFormatError(path, f"{member}: header says {tuple(shp)} {dt} ({need} bytes), the data has {have} bytes")
+        raise FileFormatError(path, f"{member}: header says {tuple(shp)} {dt} ({need} bytes), "
+                                    f"the data has {have} bytes")
     arr = np.frombuffer(raw, dtype=dt, count=count, offset=bio.tell())
     return np.array(arr.reshape(shp, order="F" if fortran else "C"), order="C")
 

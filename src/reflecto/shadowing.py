@@ -182,7 +182,7 @@ N_PHI_QUAD = 256
 
 @functools.lru_cache(maxsize=4)
 def _kernel_spectrum(n_theta: int, n_u: int, n_phi: int) -> tuple[Array, Array, Array]:
-    """rFFT over Δφ of ``K(θ_k, θ_h, Δφ) = max(0, sinθ_k sinθ_h cosΔφ + cosθ_k cosθ_h)``.
+    """The rFFT over Δφ of ``K(θ_k, θ_h, Δφ) = max(0, sinθ_k sinθ_h cosΔφ + cosθ_k cosθ_h)``.
 
     Returns the (real) spectrum (shape ``(n_phi//2 + 1, n_theta, n_u)``), the ring polar
     angles θ_h and the ring weights ``sinθ_h dθ_h dφ`` (sr per quadrature node).

@@ -62,7 +62,8 @@ class GallerySettings:
 
     def __post_init__(self) -> None:
         if len(self.rotations_deg) < 2:
-            raise ParameterError(f"the gallery's §5.5 path needs at least two rotations, got {list(self.rotations_deg)}")
+            raise ParameterError("the gallery's §5.5 path needs at least two rotations, "
+                                 f"got {list(self.rotations_deg)}")
 
 
 @dataclasses.dataclass
@@ -164,7 +165,8 @@ def write_gallery(rows: Sequence[GalleryRow], out: Path, settings: GallerySettin
             f"</h1>\n<p>Device {html.escape(settings.device)}; teapot under the environment map, {settings.spp} spp, "
             f"{settings.resolution}²; BRDF error: {html.escape(form)}, normalized; image difference: mean |Δ| over "
             "the teapot's pixels relative to the reference's mean (both smoothed by 1 px), beside the same between "
-            f"two renders of the reference (noise floor) and √(difference² − floor²) (noise-corrected).</p>\n<table>\n{head}\n" + "\n".join(body) + "\n</table>\n"
+            f"two renders of the reference (noise floor) and √(difference² − floor²) (noise-corrected).</p>\n"
+            f"<table>\n{head}\n" + "\n".join(body) + "\n</table>\n"
             "</body></html>\n")
     with atomic_write(out / "gallery.json", "w") as fh:
         fh.write(json.dumps({"settings": dataclasses.asdict(settings), "rows": [r.to_dict() for r in rows]}, indent=1))

@@ -19,14 +19,16 @@ def plot_errors(records: list[dict[str, Any]], path: str | Path) -> Path:
     recs = sorted(records, key=lambda r: r["cook_torrance"]["error"])
     x = np.arange(len(recs))
     fig, ax = plt.subplots(figsize=(max(7.0, 0.2 * len(recs) + 3), 4.2))
-    for key, label, style in (("cook_torrance", "Cook–Torrance (dense fit)", "s-"), ("earlier", "earlier device [DWT*10]", "^-"),
+    for key, label, style in (("cook_torrance", "Cook–Torrance (dense fit)", "s-"),
+                              ("earlier", "earlier device [DWT*10]", "^-"),
                               ("ours", "ours (this device + §5)", "o-")):
         ax.semilogy(x, [max(r[key]["error"], 1e-6) for r in recs], style, ms=4, lw=1, label=label)
     ax.set_xticks(x)
     ax.set_xticklabels([r["name"] for r in recs], rotation=90, fontsize=6)
     ax.set_ylabel("normalized error (eq. 10), log scale")
     dev = recs[0]["device"] if recs else ""
-    ax.set_title(f"Error per material, sorted by Cook–Torrance error ({len(recs)} materials, device {dev})", fontsize=10)
+    ax.set_title(f"Error per material, sorted by Cook–Torrance error ({len(recs)} materials, device {dev})",
+                 fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()

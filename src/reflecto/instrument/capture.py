@@ -323,7 +323,8 @@ def read_manifest(cap_dir: Path) -> dict[str, Any]:
         raise FileFormatError(mpath, "not a reflecto capture manifest")
     v = m.get("version")
     if not isinstance(v, int) or isinstance(v, bool) or not 1 <= v <= CAPTURE_VERSION:
-        raise FileFormatError(mpath, f"capture format version {short_repr(v)} is not supported (1 to {CAPTURE_VERSION})")
+        raise FileFormatError(mpath, f"capture format version {short_repr(v)} is not supported "
+                                     f"(1 to {CAPTURE_VERSION})")
     return m
 
 
@@ -334,7 +335,8 @@ def _frame_key(f: Any, mpath: Path) -> tuple[tuple[int, float, bool], str]:
           and math.isfinite(f["exposure_ms"]) and isinstance(f.get("check", False), bool)
           and isinstance(f.get("file"), str))
     if not ok:
-        raise FileFormatError(mpath, f"invalid frame entry {short_repr(f)} (needs file, led, exposure_ms; check true/false)")
+        raise FileFormatError(mpath, f"invalid frame entry {short_repr(f)} "
+                                     "(needs file, led, exposure_ms; check true/false)")
     return (f["led"], float(f["exposure_ms"]), f.get("check", False)), f["file"]
 
 
@@ -411,7 +413,8 @@ def read_capture(cap_dir: str | Path) -> Capture:
     dtype = np.uint8 if device.camera.bits == 8 else np.uint16
     nbytes = len(got) * height * width * 3 * np.dtype(dtype).itemsize
     if nbytes > MAX_CAPTURE_BYTES:
-        raise LimitError(mpath, f"the capture's frames hold {nbytes} bytes, more than {MAX_CAPTURE_BYTES} (docs/limits.md)")
+        raise LimitError(mpath, f"the capture's frames hold {nbytes} bytes, more than {MAX_CAPTURE_BYTES} "
+                                "(docs/limits.md)")
     paths = {key: inside(cap_dir, name, mpath, "frame file") for key, name in got.items()}
     raw = np.empty((device.n_leds, len(times), height, width, 3), dtype=dtype)
     check = np.empty((len(check_leds), len(times), height, width, 3), dtype=dtype) if check_leds else None

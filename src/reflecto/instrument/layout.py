@@ -92,7 +92,7 @@ def layout_violations(optics: Optics, leds: ArrayLike, occluder_deg: float = 0.0
     out = []
     limit = math.cos(math.radians(optics.cone_half_angle_deg + TUBE_MARGIN_DEG))
     in_occ = math.cos(math.radians(occluder_deg)) if occluder_deg > 0 else 2.0
-    for k, (el, az) in enumerate(led_angles(leds)):
+    for k, (el, _az) in enumerate(led_angles(leds)):
         if leds[k] @ optics.axis >= in_occ:
             continue
         if el < MIN_ELEVATION_DEG - 1e-9:
@@ -246,7 +246,8 @@ def coverage(optics: Optics, leds: ArrayLike, resolution: int = 64, theta_max_de
     )
 
 
-def layout_terms(optics: Optics, leds: ArrayLike, cube: Hemicube, theta_max_deg: float = 80.0) -> tuple[float, float, float]:
+def layout_terms(optics: Optics, leds: ArrayLike, cube: Hemicube,
+                 theta_max_deg: float = 80.0) -> tuple[float, float, float]:
     """The three goals of the layout design, each a solid-angle fraction in [0, 1].
 
     * ``coverage``: the θ_h ≤ θ_max cap covered after eq. 3;

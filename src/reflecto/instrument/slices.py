@@ -115,7 +115,8 @@ def _check_inputs(capture: Capture, calibration: Calibration) -> None:
     where = capture.path or "<capture>"
     leds = np.asarray(calibration.leds, dtype=np.float64)
     if leds.shape != (capture.device.n_leds, 3):
-        raise CaptureError(where, f"calibration has {leds.shape} LED directions, the capture {capture.device.n_leds} LEDs")
+        raise CaptureError(where, f"calibration has {leds.shape} LED directions, "
+                                  f"the capture {capture.device.n_leds} LEDs")
     if (not np.all(np.abs(leds) <= 1.0 + 1e-5) or np.any(np.abs(np.linalg.norm(leds, axis=1) - 1.0) > 1e-5)
             or np.any(leds[:, 2] <= 0)):
         raise CaptureError(where, "the calibration's LED directions are not finite unit vectors above the horizon")

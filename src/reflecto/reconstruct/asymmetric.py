@@ -127,7 +127,8 @@ def sample_frames(rotations_deg: Sequence[float], normal: Array | None = None) -
     """Rows ``(t, b, n)`` of each capture's sample frame in device coordinates, shape ``(C, 3, 3)``:
     the normal (device ``+z`` by default) and the tangent at azimuth ``rotation_deg``."""
     n = np.array([0.0, 0.0, 1.0]) if normal is None else np.asarray(normal, dtype=np.float64)
-    return np.stack([geometry.frame_from_normal(n, np.array([math.cos(math.radians(r)), math.sin(math.radians(r)), 0.0]))
+    return np.stack([geometry.frame_from_normal(
+                         n, np.array([math.cos(math.radians(r)), math.sin(math.radians(r)), 0.0]))
                      for r in rotations_deg])
 
 
@@ -253,7 +254,8 @@ def capture_consistency(sb: _SetBins, ratios: PairRatios) -> CaptureConsistency:
     # the least spread of one capture's own pairs: a capture of another material has a
     # large one against the reference (a 1-D fit of the first capture), which a pooled
     # value would let hide the difference between captures
-    own = [float(math.sqrt(np.sum(w[m] * ell[m] ** 2) / np.sum(w[m]))) for m in ((ca == c) & (cb == c) for c in range(n_c))
+    own = [float(math.sqrt(np.sum(w[m] * ell[m] ** 2) / np.sum(w[m])))
+           for m in ((ca == c) & (cb == c) for c in range(n_c))
            if np.count_nonzero(m) >= MIN_CROSS_PAIRS]
     within = min(own) if own else math.nan
     for a in range(n_c):
@@ -320,6 +322,10 @@ class SetDistance:
         self.kd_bound_max_deg = kd_bound_max_deg
 
     def __call__(self, normal_xy: Array) -> float:
+        """The distance at the candidate normal ``normalize(tx, ty, 1)``, ``normal_xy = (tx, ty)``.
+
+        ``inf`` with too few samples or overlap pairs.
+        """
         normal = tilt_frame(float(normal_xy[0]), float(normal_xy[1]))[2]
         frames = sample_frames([r for _, r in self.captures], normal)
         sls = [s.reframe(f) for (s, _), f in zip(self.captures, frames)]

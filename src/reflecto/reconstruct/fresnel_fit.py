@@ -270,7 +270,8 @@ def fit_fresnel(
 
         def parts(x: Array, hi: float = hi) -> tuple[float, float]:
             # η = 1 + e^x₀ > 1; k_d = hi·sigmoid(x₁) ∈ (0, hi): no bounds needed by LM
-            e = float(fixed_eta) if fixed_eta is not None else min(1.0 + max(math.exp(min(float(x[0]), 10.0)), 1e-3), ETA_MAX)
+            e = (float(fixed_eta) if fixed_eta is not None
+                 else min(1.0 + max(math.exp(min(float(x[0]), 10.0)), 1e-3), ETA_MAX))
             return e, hi / (1.0 + math.exp(-float(np.clip(x[-1], -40.0, 40.0))))
 
         @_remember_last
@@ -308,7 +309,8 @@ def fit_fresnel(
             # full_output: a fit that runs out of evaluations (maxfev = 600, as
             # least_squares) keeps its last iterate without a warning; its fvec is
             # r at that iterate
-            sol, _, info, *_ = leastsq(r, x, Dfun=jac, col_deriv=True, ftol=1e-8, xtol=1e-8, gtol=1e-8, full_output=True)
+            sol, _, info, *_ = leastsq(r, x, Dfun=jac, col_deriv=True, ftol=1e-8, xtol=1e-8, gtol=1e-8,
+                                       full_output=True)
             if np.all(np.isfinite(sol)) and np.all(np.isfinite(info["fvec"])):
                 x, rx = np.atleast_1d(sol), info["fvec"]
         eta[ch], kd[ch] = parts(x)

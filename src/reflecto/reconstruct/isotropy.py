@@ -113,7 +113,8 @@ class IsotropyTest:
     def to_dict(self) -> dict[str, float | int | bool]:
         """The test's fractions, ring count and verdicts (``isotropic``, ``symmetric``) as JSON-ready data."""
         return {"anisotropy": self.anisotropy, "asymmetry": self.asymmetry, "amplitude": self.amplitude,
-                "rings": self.rings, "conditional": self.conditional, "isotropic": self.isotropic, "symmetric": self.symmetric}
+                "rings": self.rings, "conditional": self.conditional, "isotropic": self.isotropic,
+                "symmetric": self.symmetric}
 
 
 def azimuthal_test(slices: Slices, valid: NDArray[np.bool_], model) -> IsotropyTest:

@@ -102,14 +102,18 @@ class ConsistencyDistance:
     def __init__(self, slices, valid: NDArray[np.bool_], shadowing, n: int = 64, stride: int = 1,
                  kd_bound_max_deg: float = 75.0) -> None:
         px = np.arange(0, slices.view.shape[0], stride)
-        self.slices = type(slices)(slices.light, slices.view[px], slices.values[:, px], slices.valid[:, px] & valid[:, px],
-                                   slices.pixels[px], slices.frame)
+        self.slices = type(slices)(slices.light, slices.view[px], slices.values[:, px],
+                                   slices.valid[:, px] & valid[:, px], slices.pixels[px], slices.frame)
         self.shadowing = shadowing
         self.cube = hemicube(n)
         self.n_leds = slices.n_leds
         self.kd_bound_max_deg = kd_bound_max_deg
 
     def __call__(self, normal_xy: Array) -> float:
+        """E(η) in the frame of the candidate normal ``normalize(tx, ty, 1)``, ``normal_xy = (tx, ty)``.
+
+        ``inf`` with too few samples or overlap pairs.
+        """
         sl = self.slices.reframe(tilt_frame(float(normal_xy[0]), float(normal_xy[1])))
         ok = sl.valid
         if ok.sum() < 1000:
@@ -159,6 +163,10 @@ class IsotropicDistance:
         self.outer_iterations = outer_iterations
 
     def __call__(self, normal_xy: Array) -> float:
+        """The isotropic fit's ``ε`` in the frame of the candidate normal ``normalize(tx, ty, 1)``.
+
+        ``normal_xy = (tx, ty)``; ``inf`` with too few samples or where the fit fails.
+        """
         sl = self.slices.reframe(tilt_frame(float(normal_xy[0]), float(normal_xy[1])))
         # LEDs near the candidate's horizon take no part (their cos θ_i correction, and
         # the model's fit at grazing incidence, are least certain there)

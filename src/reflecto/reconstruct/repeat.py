@@ -2,7 +2,8 @@
 
 The device fires its check LEDs once more after the whole sequence (the capture's
 ``check_leds``, from the device: :data:`reflecto.instrument.device.DEFAULT_CHECK_LEDS`
-for the default layout, the first LED fired for :meth:`~reflecto.instrument.device.Device.design`). If the sample did not move,
+for the default layout, the first LED fired for
+:meth:`~reflecto.instrument.device.Device.design`). If the sample did not move,
 a check slice repeats its LED's slice up to camera noise; if the hand turned the
 device at any point of the sequence (§5.1's "shaking or moving the device"), the
 LED's incidence angle and every view direction changed between the two firings.

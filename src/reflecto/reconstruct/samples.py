@@ -101,8 +101,8 @@ def bin_samples(light: Array, view: Array, values: Array, valid: NDArray[np.bool
     view = _kernels.as_dirs(view)
     vals = np.ascontiguousarray(values, dtype=np.float64)
     sq = np.zeros((0, 0)) if noise is None else np.ascontiguousarray(noise, dtype=np.float64) ** 2
-    used, cnt, fsum, osum, qsum = _kernels.bin_accumulate(light, view, vals, np.ascontiguousarray(valid, dtype=np.bool_),
-                                                          cube.n, sq)
+    used, cnt, fsum, osum, qsum = _kernels.bin_accumulate(light, view, vals,
+                                                          np.ascontiguousarray(valid, dtype=np.bool_), cube.n, sq)
     led, texel, i, o, h, f, cos_d = _kernels.bin_finish(light, used, cnt, fsum, osum, cube.size)
     tau = cube.permutation(geometry.TAU)
     return Bins(cube, led, texel, tau[texel], cnt, i, o, h, f, cos_d, None if noise is None else qsum / (cnt * cnt))
@@ -185,7 +185,8 @@ def box_mean(values: Array, valid: NDArray[np.bool_], pixels: NDArray[np.intp], 
     return out
 
 
-def box_mean_numpy(values: Array, valid: NDArray[np.bool_], pixels: NDArray[np.intp], radius: int = BOX_RADIUS) -> Array:
+def box_mean_numpy(values: Array, valid: NDArray[np.bool_], pixels: NDArray[np.intp],
+                   radius: int = BOX_RADIUS) -> Array:
     """NumPy/SciPy reference of :func:`box_mean` (``scipy.ndimage.uniform_filter``)."""
 
     n_l = values.shape[0]

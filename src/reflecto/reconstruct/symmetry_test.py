@@ -117,7 +117,8 @@ class SymmetryTest:
 
     def to_dict(self) -> dict[str, float | int | bool]:
         """The test as JSON-ready numbers."""
-        return {"asymmetry": self.asymmetry, "ratio": self.ratio, "tau_rms": self.tau_rms, "direct_rms": self.direct_rms,
+        return {"asymmetry": self.asymmetry, "ratio": self.ratio, "tau_rms": self.tau_rms,
+                "direct_rms": self.direct_rms,
                 "tau_pairs": self.tau_pairs, "direct_pairs": self.direct_pairs, "captures": self.captures,
                 "threshold": THRESHOLD, "decided": self.decided, "symmetric": self.symmetric}
 

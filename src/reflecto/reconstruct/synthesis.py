@@ -301,6 +301,11 @@ class SynthesisFill:
 
     def __call__(self, work: Hemicube, wsum: Array, wv: Array, last: bool, inner_holes: bool
                  ) -> tuple[Array, Array | None]:
+        """The pass's filled NDF on ``work`` and its log lobe (the :data:`.hemicube_fit.HoleFill` call).
+
+        Lobe-guided fill, except in the last outer iteration's passes (``last``), where
+        ``options.mode`` decides (``"push-pull"``, or the rotation synthesis of :meth:`complete`).
+        """
         d, log_lobe = ndf_mod.fill_holes_and_lobe(work, wsum, wv)
         if not last or log_lobe is None:
             return d, log_lobe
