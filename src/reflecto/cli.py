@@ -24,7 +24,8 @@ import numpy as np
 import os
 import time
 
-from . import __version__, workflow
+from . import __version__, kinds, workflow
+from .instrument.device import BUILTINS as DEVICE_BUILTINS
 from .fresnel import eta_from_json, format_eta
 from .io import make_parents
 from .reconstruct import Options
@@ -51,7 +52,7 @@ import imageio.v3 as iio
 from .evaluate.metrics import comparison_error
 from .evaluate.report import write_report
 from .io import read_json
-from .errors import FileFormatError
+from .errors import FileFormatError, ParameterError
 from .evaluate.cooktorrance import fit_cook_torrance
 from .evaluate.metrics import brdf_error
 from .evaluate.sweep import summarize, sweep
@@ -94,6 +95,85 @@ def _check_suffix(output: str | Path, kind: str, hint: str = "") -> None:
     if other is not None and other != kind:
         raise OutputError(output, f"this writes {_KIND_WORDS[kind]}, but a {suffix} file is read as {_KIND_WORDS[other]}"
                           + (f": {hint}" if hint else ""))
+
+
+_BRDF = "a BRDF file (.binary, .bsdf, .h5, .json/.toml) or a model (.reflecto)"
+_DEVICE = "a device: ideal, as-built, earlier, wide, wide-as-built, or a device file (.json/.toml)"
+_FILE_SUFFIXES = (".reflecto", ".binary", ".bsdf", ".h5", ".npz", ".json", ".toml", ".png", ".exr", ".hdr")
+
+#: Per command: (argument, what it reads, its kinds) for every input (kinds.KINDS).
+_INPUTS: dict[str, list[tuple[str, str, tuple[str, ...]]]] = {
+    "info": [("source", _BRDF, kinds.BRDF_KINDS)],
+    "tabulate": [("source", _BRDF, kinds.BRDF_KINDS)],
+    "simulate": [("source", _BRDF, kinds.BRDF_KINDS), ("device", _DEVICE, ("device",))],
+    "simulate-calibration": [("device", _DEVICE, ("device",))],
+    "layout": [("device", _DEVICE, ("device",))],
+    "calibrate": [("calib_dir", kinds.KINDS["calibration-folder"], ("calibration-folder", "folder"))],
+    "reconstruct": [("captures", kinds.KINDS["capture"], ("capture",)),
+                    ("calibration", kinds.KINDS["calibration"], ("calibration",))],
+    "export": [("source", _BRDF, kinds.BRDF_KINDS)],
+    "render": [("source", _BRDF, kinds.BRDF_KINDS), ("compare", _BRDF, kinds.BRDF_KINDS)],
+    "compare": [("reference", _BRDF, kinds.BRDF_KINDS), ("test", _BRDF, kinds.BRDF_KINDS)],
+    "report": [("model", kinds.KINDS["model"], ("model",)), ("ref", _BRDF, kinds.BRDF_KINDS)],
+    "fit-ct": [("source", _BRDF, kinds.BRDF_KINDS)],
+    "gallery": [("materials", _BRDF, kinds.BRDF_KINDS), ("device", _DEVICE, ("device",)),
+                ("calibration", kinds.KINDS["calibration"], ("calibration",))],
+    "sweep": [("folders", "folders or files of materials (BRDF files)", ("folder", *kinds.BRDF_KINDS)),
+              ("device", _DEVICE, ("device",))],
+    "design": [("folders", "folders or files of materials (BRDF files)", ("folder", *kinds.BRDF_KINDS))],
+}
+
+#: Per command: (output argument, suffixes it may have, what it writes); ``None``: a folder.
+_OUTPUTS: dict[str, tuple[str, tuple[str, ...] | None, str]] = {
+    "tabulate": ("output", (".binary",), "a MERL table (.binary)"),
+    "calibrate": ("output", (".npz",), "a calibration file (.npz)"),
+    "render": ("output", (".png", ".exr", ".hdr"), "an image (.png, .exr or .hdr)"),
+    "layout": ("plot", (".png",), "a plot (.png)"),
+    "simulate": ("output", None, "a capture folder"),
+    "simulate-calibration": ("output", None, "a calibration folder"),
+    "report": ("output", None, "a report folder (index.html and images)"),
+    "gallery": ("output", None, "a gallery folder (index.html and renders)"),
+    "sweep": ("output", None, "a results folder"),
+    "design": ("output", None, "a results folder"),
+}
+
+
+def check_inputs(args: argparse.Namespace) -> None:
+    """Refuse at once an input or output of the wrong kind (:mod:`reflecto.kinds`).
+
+    Each input named on the command line is identified (model, capture folder,
+    calibration, BRDF file, device, ...); one of another kind than the command reads
+    gives ``FILE is KIND; COMMAND needs KIND (what to run instead)``. Output suffixes
+    are checked against what the command writes.
+
+    Raises
+    ------
+    reflecto.kinds.KindError
+    """
+    command = args.command
+    for name, need, accept in _INPUTS.get(command, []):
+        value = getattr(args, name, None)
+        values = value if isinstance(value, list) else [value]
+        for v in values:
+            if v is None or (name == "device" and str(v) in DEVICE_BUILTINS):
+                continue
+            label = command if name in ("source", "model", "captures", "calib_dir", "materials", "folders",
+                                        "reference", "test") else f"{command} --{name.replace('_', '-')}"
+            kinds.require(v, label, accept, need)
+    spec = _OUTPUTS.get(command)
+    if spec is None:
+        return
+    name, suffixes, what = spec
+    out = getattr(args, name, None)
+    if out is None:
+        return
+    if command == "render" and getattr(args, "compare", None):
+        suffixes, what = (".png",), "a comparison image (.png)"
+    if suffixes is not None:
+        kinds.require_output_suffix(out, command, suffixes, what, "--plot" if name == "plot" else "-o")
+    elif Path(out).suffix.lower() in _FILE_SUFFIXES and not Path(out).is_dir():
+        raise kinds.KindError(out, f"a {Path(out).suffix} file name", command, what,
+                              f"use -o {Path(out).with_suffix('')}", verb="writes")
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -271,7 +351,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     if len(caps) > 1 and not Path(args.output).suffix == "":
         raise OutputError(args.output, "with several captures, -o must be a folder")
     if len(caps) == 1 and Path(args.output).suffix:
-        _check_suffix(args.output, "model", f"use -o {Path(args.output).with_suffix('.reflecto')}")
+        kinds.require_output_suffix(args.output, "reconstruct", (".reflecto",), "a model file (.reflecto)")
         check_output(args.output)
         outs = [args.output]
     else:
@@ -332,10 +412,14 @@ def _export_format(args: argparse.Namespace) -> str:
     """``--format``, or the one the ``-o`` suffix names; the two must agree."""
     suffix = Path(args.output).suffix.lower()
     by_suffix = {".bsdf": "rgl", ".binary": "merl"}.get(suffix)
+    if args.format is None and by_suffix is None:
+        kinds.require_output_suffix(args.output, "export", (".bsdf", ".binary"),
+                                    "an RGL .bsdf or a MERL .binary file (or name one with --format rgl|merl)")
     fmt = args.format or by_suffix or "rgl"
-    if args.format is None and by_suffix is None and suffix in _SUFFIX_KINDS:
-        raise OutputError(args.output, f"a {suffix} file is read as {_KIND_WORDS[_SUFFIX_KINDS[suffix]]}: "
-                          "use -o NAME.bsdf (RGL) or NAME.binary (MERL)")
+    if suffix in kinds._SUFFIX and kinds._SUFFIX[suffix] not in (None, fmt):
+        raise kinds.KindError(args.output, f"a {suffix} file name", f"export --format {fmt}",
+                              f"{kinds.KINDS[fmt]}", f"use -o {Path(args.output).with_suffix('.bsdf' if fmt == 'rgl' else '.binary')}",
+                              verb="writes")
     right = {"rgl": ".bsdf", "merl": ".binary"}[fmt]
     _check_suffix(args.output, fmt, f"use -o {Path(args.output).with_suffix(right)}, or --format "
                   f"{by_suffix or ('merl' if fmt == 'rgl' else 'rgl')}")
@@ -357,8 +441,13 @@ def cmd_export(args: argparse.Namespace) -> int:
         export_rgl(src, out, isotropic=iso)
     else:
 
-        with _progress(merl_bins(), f"tabulating {src.name}", not args.quiet and not args.json and _interactive()) as bar:
-            export_merl(src, out, allow_anisotropic=args.isotropic == "yes", progress=bar.update)
+        try:
+            with _progress(merl_bins(), f"tabulating {src.name}", not args.quiet and not args.json and _interactive()) as bar:
+                export_merl(src, out, allow_anisotropic=args.isotropic == "yes", progress=bar.update)
+        except ParameterError:
+            raise ReflectoError(f"{args.source} is anisotropic; a MERL table holds an isotropic BRDF: add "
+                                f"--isotropic yes to write its φ_h = 0 slice, or write -o {out.with_suffix('.bsdf')} "
+                                "(RGL, anisotropic)") from None
     size = out.stat().st_size
     return _emit(args, {"source": str(args.source), "output": str(out), "format": fmt, "bytes": size},
                  [f"wrote {out} ({size} bytes, {fmt})"])
@@ -841,6 +930,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         warnings.simplefilter("ignore", RuntimeWarning)
         warnings.showwarning = _show_warning
         try:
+            check_inputs(args)
             rc = int(args.func(args))
             sys.stdout.flush()
         except BrokenPipeError:
