@@ -398,6 +398,9 @@ def fit_optics(nominal: Optics, directions: Array, spots: list[Array]) -> tuple[
             idx = np.flatnonzero(ok)[first]
             pd.append(d[idx])
             ps.append(s[j[idx]])
+        if not pd:
+            raise CaptureError(Path("<grid>"), "no pinhole spot in any grid image (are the grid frames dark?); "
+                               "cannot calibrate geometry")
         pairs_d, pairs_s = np.concatenate(pd), np.concatenate(ps)
         if len(pairs_d) < 12:
             raise CaptureError(Path("<grid>"), f"only {len(pairs_d)} pinhole spots matched; cannot calibrate geometry")
