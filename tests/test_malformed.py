@@ -171,3 +171,30 @@ def test_sweep_record_path_that_is_a_folder_names_the_material(tmp_path, fake_sw
                    "is a folder; remove it (or choose another -o) to evaluate this material")
     assert (out / "materials" / "m1.json").is_file()  # the other material finished
     shutil.rmtree(out)
+
+
+# ------------------------------------------------------------------ what reflecto writes, reflecto reads
+@pytest.mark.slow
+@pytest.mark.parametrize("material", ["examples/ggx-plastic.json", "rgl/chm_mint_rgb.bsdf"])
+def test_round_trip_of_a_reconstruction(tmp_path, capsys, shared, material):
+    """Capture → model + summary → .bsdf and .binary → each read back by `info`; a
+    calibration file read back by `reconstruct` (studies/roundtrip.py: all 50)."""
+    src = ROOT / material if material.startswith("examples") else shared / material
+    assert main(["simulate", str(src), "-o", str(tmp_path / "cap"), "-q"]) == 0
+    assert main(["simulate-calibration", "--device", "ideal", "-o", str(tmp_path / "calib"), "-q"]) == 0
+    assert main(["calibrate", str(tmp_path / "calib"), "-o", str(tmp_path / "cal.npz"), "-q"]) == 0
+    assert main(["reconstruct", str(tmp_path / "cap"), "--calibration", str(tmp_path / "cal.npz"),
+                 "-o", str(tmp_path / "m.reflecto"), "-q"]) == 0
+    assert main(["export", str(tmp_path / "m.reflecto"), "-o", str(tmp_path / "m.bsdf"), "-q"]) == 0
+    assert main(["export", str(tmp_path / "m.reflecto"), "--isotropic", "yes", "-o", str(tmp_path / "m.binary"),
+                 "-q"]) == 0
+    capsys.readouterr()
+    kinds_read = {}
+    for name in ("m.reflecto", "m.bsdf", "m.binary"):
+        assert main(["info", str(tmp_path / name), "--json"]) == 0, capsys.readouterr().err
+        kinds_read[name] = json.loads(capsys.readouterr().out)["kind"]
+    assert kinds_read == {"m.reflecto": "model", "m.bsdf": "rgl", "m.binary": "merl"}
+    summary = json.loads((tmp_path / "m.json").read_text())
+    assert summary["calibration"].endswith("cal.npz") and summary["kd"]
+    t = merl.read_merl_table(tmp_path / "m.binary")
+    assert (np.maximum(t, 0) * merl._cos_cos()[..., None]).max() < brdf.MAX_PROJECTED_BRDF / 100
