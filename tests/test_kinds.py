@@ -142,3 +142,62 @@ def test_right_kinds_pass_the_check(files, capsys):
     assert json.loads(capsys.readouterr().out)["kind"] == "analytic"
     assert main(["info", str(files["model"]), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["kind"] == "model"
+
+
+# ------------------------------------------------------------------ choices, units, order, public names
+def test_device_help_lists_every_builtin_and_options_state_units(capsys):
+    from reflecto.cli import build_parser
+    from reflecto.instrument.device import BUILTINS
+
+    helps = {}
+    for command in ("simulate", "layout", "gallery"):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        helps[command] = " ".join(capsys.readouterr().out.split())
+    for text in helps.values():
+        assert all(f"{name} (" in text for name in BUILTINS), text
+    assert "azimuth of the tilt, degrees" in helps["simulate"]
+    assert "cells along each edge of a hemicube face" in helps["layout"]
+    assert "rotations of the §5.5 captures, degrees; values separated by spaces" in helps["gallery"]
+    assert "(default: 0 90 180 270)" in helps["gallery"]
+    args = build_parser().parse_args(["gallery", "x.json", "-o", "g", "--rotations", "0,120", "240"])
+    from reflecto.cli import _lists
+
+    _lists(args)
+    assert args.rotations == [0.0, 120.0, 240.0]
+
+
+def test_reference_first_everywhere():
+    import inspect
+
+    from reflecto.evaluate.metrics import brdf_error
+    from reflecto.render.mitsuba import compare
+
+    assert list(inspect.signature(compare).parameters)[:2] == ["reference", "test"]
+    assert list(inspect.signature(brdf_error).parameters)[:2] == ["reference", "test"]
+
+
+def test_public_names_albedo_shape_and_help():
+    import pydoc
+
+    import reflecto.sources
+    from reflecto.reconstruct import reconstruct
+    from reflecto.sources.analytic import AnalyticBRDF
+
+    assert dir(reflecto.sources) == ["AnalyticBRDF", "MerlBRDF", "NBRDF", "RGLBRDF", "analytic", "load_analytic",
+                                     "merl", "nbrdf", "rgl"]
+    a = AnalyticBRDF(kd=0.5, ks=0.0)
+    assert a.albedo(0).shape == (3,) and a.albedo([0, 30]).shape == (2, 3)
+    assert a.albedo(0) == pytest.approx([0.5] * 3, abs=2e-3)
+    text = pydoc.render_doc(reconstruct, renderer=pydoc.plaintext)
+    assert "Parameters" in text and "options" in text and "Returns" in text and "Reconstruction" in text
+
+
+def test_wide_capture_reconstructs_without_nominal(tmp_path, capsys):
+    assert main(["simulate", str(PLASTIC), "--device", "wide", "-o", str(tmp_path / "cap"), "-q"]) == 0
+    assert main(["reconstruct", str(tmp_path / "cap"), "--eta", "1.5", "-o", str(tmp_path / "m.reflecto"),
+                 "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["models"][0]["summary"]["kd"][0] == pytest.approx(0.45, abs=0.03)
+    assert main(["simulate", str(PLASTIC), "--device", "wide-as-built", "-o", str(tmp_path / "cab"), "-q"]) == 0
+    assert main(["reconstruct", str(tmp_path / "cab"), "-o", str(tmp_path / "n.reflecto")]) == 1
+    assert "captured with device 'wide-as-built'" in capsys.readouterr().err

@@ -83,7 +83,7 @@ def test_comparison_tells_brdfs_apart_beyond_the_floor(mitsuba):
     """Two GGX plastics whose roughness differs by 20 %: the difference is many floors."""
     a = AnalyticBRDF(distribution="ggx", alpha=0.2, kd=(0.4, 0.2, 0.1), ks=0.5, eta=1.5)
     b = AnalyticBRDF(distribution="ggx", alpha=0.24, kd=(0.4, 0.2, 0.1), ks=0.5, eta=1.5)
-    c = compare(b, a, "sphere-point", resolution=128)
+    c = compare(a, b, "sphere-point", resolution=128)
     assert c.resolved and c.difference > 10 * c.noise_floor
     # the corrected value is the difference itself when the floor is negligible
     assert abs(c.corrected - c.difference) < 0.01 * c.difference

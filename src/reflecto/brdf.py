@@ -68,8 +68,24 @@ class BRDFSource(abc.ABC):
         return self.path.stem if self.path is not None else self.kind
 
     def albedo(self, theta_i_deg: ArrayLike, phi_i_deg: float = 0.0, **kw: Any) -> Array:
-        """Directional albedo ``a(i) = ∫ f(i, o) cos θ_o dω_o`` (dimensionless), shape ``(K, 3)``."""
-        return directional_albedo(self, theta_i_deg, phi_i_deg, **kw)
+        """Directional albedo ``a(i) = ∫ f(i, o) cos θ_o dω_o`` (dimensionless).
+
+        Parameters
+        ----------
+        theta_i_deg
+            Incident polar angle(s), degrees: one number or a sequence of ``K``.
+        phi_i_deg
+            Incident azimuth, degrees.
+        **kw
+            Quadrature sizes ``n_u``, ``n_phi`` (:func:`directional_albedo`).
+
+        Returns
+        -------
+        ndarray
+            Shape ``(3,)`` (RGB) for one angle, ``(K, 3)`` for a sequence.
+        """
+        a = directional_albedo(self, theta_i_deg, phi_i_deg, **kw)
+        return a[0] if np.ndim(theta_i_deg) == 0 else a
 
 
 def _eval_chunked(source: BRDFSource, i: Array, o: Array, chunk: int = 1 << 18) -> Array:

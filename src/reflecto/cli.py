@@ -138,6 +138,27 @@ _OUTPUTS: dict[str, tuple[str, tuple[str, ...] | None, str]] = {
 }
 
 
+#: The list options and the type of their values: one syntax, values separated by spaces or commas.
+_LIST_OPTIONS = {"rotations": float, "cones": float, "tilts": float, "leds": int}
+
+
+def _lists(args: argparse.Namespace) -> None:
+    """Turn every list option's words (``0 90`` or ``0,90``) into numbers; one line naming the option otherwise."""
+    for name, typ in _LIST_OPTIONS.items():
+        words = getattr(args, name, None)
+        if words is None:
+            continue
+        items = [w for word in words for w in str(word).split(",") if w.strip()]
+        try:
+            values = [typ(w) for w in items]
+        except ValueError:
+            raise ReflectoError(f"--{name}: expected {'integers' if typ is int else 'numbers'} separated by spaces, "
+                                f"got {' '.join(map(str, words))!r}") from None
+        if not values:
+            raise ReflectoError(f"--{name}: expected at least one value")
+        setattr(args, name, values)
+
+
 def check_inputs(args: argparse.Namespace) -> None:
     """Refuse at once an input or output of the wrong kind (:mod:`reflecto.kinds`).
 
@@ -477,7 +498,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".png":
         raise ReflectoError(f"{out}: a comparison image must be .png")
     ref = load_source(args.compare)
-    c = compare(src, ref, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
+    c = compare(ref, src, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
 
 
     with atomic_path(out, suffix=".png") as tmp:
@@ -630,6 +651,8 @@ class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         d = action.default
         if "%(default)" in text or d is None or d is argparse.SUPPRESS or isinstance(d, bool) or not action.option_strings:
             return text
+        if isinstance(d, list):
+            return text + " (default: " + " ".join(map(str, d)).replace("%", "%%") + ")"
         return text + " (default: %(default)s)"
 
 
@@ -642,6 +665,12 @@ class _Parser(argparse.ArgumentParser):
 
 
 _JSON_HELP = "print one JSON document on stdout instead of text"
+_DEVICE_HELP = ("the device: ideal (the paper's design, nominal optics, noiseless camera), as-built (the same "
+                "design with seeded LED, optics and vignetting errors and camera noise: needs a calibration), "
+                "earlier (the [DWT*10] baseline: condenser on the normal, sparse LEDs), wide (the design study's "
+                "60° cone about a 20° axis, ten LEDs, ideal optics), wide-as-built (wide with as-built errors), "
+                "or a device file (.json/.toml, docs/instrument.md)")
+_LIST_HELP = "; values separated by spaces (commas also accepted)"
 _SCHEDULER_HELP = ("run the work on the Dask cluster of this scheduler (tcp://host:8786; needs reflecto[dask]) "
                    "instead of local processes; the output folder must be a path every worker sees")
 
@@ -674,10 +703,11 @@ def build_parser() -> argparse.ArgumentParser:
     q.set_defaults(func=cmd_tabulate)
 
     q = sub.add_parser("layout", help="coverage of a device's LED layout (paper §4.1); optionally re-optimise it")
-    q.add_argument("--device", default="ideal", help="ideal | as-built | device file (JSON/TOML)")
+    q.add_argument("--device", default="ideal", help=_DEVICE_HELP)
     q.add_argument("--optimize", action="store_true", help="run the layout optimizer instead of using the device's LEDs")
     q.add_argument("--seed", type=int, default=0, help="random seed of the layout optimizer")
-    q.add_argument("--resolution", type=int, default=64, help="hemicube resolution of the analysis")
+    q.add_argument("--resolution", type=int, default=64, help="hemicube resolution of the analysis: cells along "
+                   "each edge of a hemicube face (the NDF's texels; the plot uses at least 128)")
     q.add_argument("--theta-max", type=float, default=80.0, help="NDF cap θ_h ≤ this (degrees)")
     q.add_argument("--plot", type=Path, help="write the Fig. 2(c)(d) analogue to this PNG (default: no plot)")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
@@ -685,9 +715,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     q = sub.add_parser("simulate", help="raw frames of a virtual capture of a BRDF source")
     q.add_argument("source", help="BRDF file")
-    q.add_argument("--device", default="ideal", help="ideal | as-built | device file (JSON/TOML)")
+    q.add_argument("--device", default="ideal", help=_DEVICE_HELP)
     q.add_argument("--tilt", type=float, default=0.0, help="hand tilt of the sample normal, degrees (≤ 30)")
-    q.add_argument("--tilt-azimuth", type=float, default=None, help="azimuth of the tilt (default: from the seed)")
+    q.add_argument("--tilt-azimuth", type=float, default=None, help="azimuth of the tilt, degrees (default: from the seed)")
     q.add_argument("--rotation", type=float, default=0.0, help="rotation of the sample about its normal, degrees")
     q.add_argument("--shake", action="store_true", help="move the sample between two LEDs' frames")
     q.add_argument("--seed", type=int, default=0, help="random seed of the camera noise, tilt azimuth and shake")
@@ -697,7 +727,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.set_defaults(func=cmd_simulate)
 
     q = sub.add_parser("simulate-calibration", help="virtual calibration captures (white target, pinhole grid, mirror)")
-    q.add_argument("--device", default="as-built", help="ideal | as-built | device file (JSON/TOML)")
+    q.add_argument("--device", default="as-built", help=_DEVICE_HELP)
     q.add_argument("--seed", type=int, default=0, help="random seed of the camera noise")
     q.add_argument("-o", "--output", required=True, help="calibration folder to write")
     q.add_argument("-q", "--quiet", action="store_true", help="no summary line")
@@ -800,11 +830,12 @@ def build_parser() -> argparse.ArgumentParser:
                                    "index.html into the output folder.")
     q.add_argument("materials", nargs="+", help="material files (.json/.toml analytic descriptions or any BRDF file)")
     q.add_argument("-o", "--output", required=True, help="folder to write index.html and the renders into")
-    q.add_argument("--device", default="ideal", help="ideal | as-built | device file")
+    q.add_argument("--device", default="ideal", help=_DEVICE_HELP)
     q.add_argument("--calibration", help="calibration file for a device that needs one (default: simulated)")
-    q.add_argument("--rotations", default="0,90,180,270", help="rotations of the §5.5 captures, degrees")
+    q.add_argument("--rotations", nargs="+", default=["0", "90", "180", "270"],
+                   help="rotations of the §5.5 captures, degrees" + _LIST_HELP)
     q.add_argument("--spp", type=int, default=64, help="samples per pixel of the renders")
-    q.add_argument("--resolution", type=int, default=256, help="render resolution")
+    q.add_argument("--resolution", type=int, default=256, help="image width and height of the renders, pixels")
     q.add_argument("--seed", type=int, default=1, help="seed of the first capture and render")
     q.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
@@ -813,7 +844,7 @@ def build_parser() -> argparse.ArgumentParser:
     q = sub.add_parser("sweep", help="validation (paper §6): simulate → reconstruct → evaluate, ours vs baselines")
     q.add_argument("folders", nargs="+", help="folders (or files) of materials: .binary .bsdf .h5 .json .toml")
     q.add_argument("-o", "--output", required=True, help="results folder (resumable: finished materials are skipped)")
-    q.add_argument("--device", default="ideal", help="our device: ideal | as-built | device file")
+    q.add_argument("--device", default="ideal", help="our device: " + _DEVICE_HELP[len("the device: "):])
     _batch_options(q)
     q.set_defaults(func=cmd_sweep)
 
@@ -825,9 +856,12 @@ def build_parser() -> argparse.ArgumentParser:
                                    "Writes design.csv and design.png; resumable. See docs/design-study.md.")
     q.add_argument("folders", nargs="+", help="folders (or files) of materials")
     q.add_argument("-o", "--output", required=True, help="results folder (resumable: finished work is skipped)")
-    q.add_argument("--cones", type=float, nargs="+", default=list(DEFAULT_CONES), help="cone half-angles (degrees)")
-    q.add_argument("--tilts", type=float, nargs="+", default=list(DEFAULT_TILTS), help="axis tilts (degrees)")
-    q.add_argument("--leds", type=int, nargs="+", default=list(DEFAULT_LED_COUNTS), help="LED counts")
+    q.add_argument("--cones", nargs="+", default=[str(v) for v in DEFAULT_CONES],
+                   help="cone half-angles (degrees)" + _LIST_HELP)
+    q.add_argument("--tilts", nargs="+", default=[str(v) for v in DEFAULT_TILTS],
+                   help="axis tilts (degrees)" + _LIST_HELP)
+    q.add_argument("--leds", nargs="+", default=[str(v) for v in DEFAULT_LED_COUNTS],
+                   help="LED counts" + _LIST_HELP)
     q.add_argument("--layout-only", action="store_true", help="lay out the designs only (no materials)")
     _batch_options(q)
     q.set_defaults(func=cmd_design)
@@ -849,10 +883,7 @@ def cmd_gallery(args: argparse.Namespace) -> int:
     (:func:`reflecto.evaluate.gallery.gallery`, the paper's Fig. 6); returns exit status 0."""
 
     check_output(args.output, folder=True)
-    try:
-        rotations = tuple(float(r) for r in args.rotations.split(","))
-    except ValueError:
-        raise ReflectoError(f"--rotations: expected degrees separated by commas, got {args.rotations!r}") from None
+    rotations = tuple(args.rotations)
     settings = GallerySettings(args.device, args.calibration, rotations, args.spp, args.resolution, args.seed)
 
     def progress(name: str, seconds: float) -> None:
@@ -930,6 +961,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         warnings.simplefilter("ignore", RuntimeWarning)
         warnings.showwarning = _show_warning
         try:
+            _lists(args)
             check_inputs(args)
             rc = int(args.func(args))
             sys.stdout.flush()

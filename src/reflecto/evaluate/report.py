@@ -194,7 +194,7 @@ def render_figures(model: MicrofacetBRDF, ref: BRDFSource | None, out: Path,
             items.append((_save_png(to_srgb8(r.image()), out / f"render_{scene}.png"),
                           f"{what} (Mitsuba 3, {r.variant}, {r.spp} spp)."))
             continue
-        c = comparisons[scene] = compare(model, ref, scene, spp=spp)
+        c = comparisons[scene] = compare(ref, model, scene, spp=spp)
         items.append((_save_png(to_srgb8(c.test.image()), out / f"render_{scene}.png"),
                       f"{what} (Mitsuba 3, {c.test.variant}, {c.test.spp} spp)."))
         note = ("" if c.resolved else " The difference is within the noise floor: the two render alike at this spp."

@@ -268,12 +268,17 @@ def needs_calibration(device: Device) -> bool:
     """Whether captures of ``device`` need a measured calibration to be read correctly.
 
     Only the built-in simulated devices whose nominal description is exactly what
-    they are (``ideal``, ``earlier``) can use the nominal calibration; ``as-built``,
-    device files and real devices differ from their nominal optics, LEDs and
-    vignetting in ways only a calibration recovers.
+    they are (:data:`NOMINAL_DEVICES`: ``ideal``, ``earlier``, ``wide``) can use the
+    nominal calibration; ``as-built``, ``wide-as-built``, device files and real devices
+    differ from their nominal optics, LEDs and vignetting in ways only a calibration
+    recovers.
     """
     nominal = device.nominal()
-    return all(nominal != Device.builtin(name).nominal() for name in ("ideal", "earlier"))
+    return all(nominal != Device.builtin(name).nominal() for name in NOMINAL_DEVICES)
+
+
+#: The built-in devices whose optics are ideal: their captures are read with the nominal calibration.
+NOMINAL_DEVICES = ("ideal", "earlier", "wide")
 
 
 def nominal_calibration(device: Device) -> Calibration:

@@ -322,11 +322,34 @@ class Comparison:
                 f"noise-corrected {100 * self.corrected:.2f} %; {self.test.scene}, {self.test.spp} spp)")
 
 
-def compare(test: BRDFSource, reference: BRDFSource, scene: str = "sphere-env", envmap: str | Path | None = None,
+def compare(reference: BRDFSource, test: BRDFSource, scene: str = "sphere-env", envmap: str | Path | None = None,
             resolution: int = 256, spp: int | None = None, seed: int = 0, smoothing: float = SMOOTHING_PX) -> Comparison:
-    """Render ``test`` (seed ``seed``) and ``reference`` twice (seeds ``seed + 1``, ``seed + 2``); see :class:`Comparison`.
+    """Render ``test`` (seed ``seed``) and ``reference`` twice (seeds ``seed + 1``, ``seed + 2``).
 
-    ``smoothing=0`` compares the renders pixel by pixel.
+    The reference comes first, as in :func:`reflecto.evaluate.metrics.brdf_error` and
+    ``reflecto compare REF TEST``.
+
+    Parameters
+    ----------
+    reference, test
+        The BRDFs to render.
+    scene
+        One of :data:`SCENES`.
+    envmap
+        Environment map of the ``*-env`` scenes (default: the shared studio map).
+    resolution
+        Image width and height, pixels.
+    spp
+        Samples per pixel (default: the scene's, :data:`DEFAULT_SPP`).
+    seed
+        Seed of the test's render (the reference's: ``seed + 1``, ``seed + 2``).
+    smoothing
+        Gaussian smoothing (pixels) before the difference; 0 compares pixel by pixel.
+
+    Returns
+    -------
+    Comparison
+        The mean image difference, its noise floor and the three renders.
     """
     _check(scene, resolution, spp)
     with tempfile.TemporaryDirectory(prefix="reflecto-compare-") as tmp:
