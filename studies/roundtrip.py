@@ -30,7 +30,8 @@ from reflecto import brdf, kinds  # noqa: E402
 from reflecto.errors import ReflectoError  # noqa: E402
 from reflecto.export.merl import export_merl  # noqa: E402
 from reflecto.export.rgl import export_rgl  # noqa: E402
-from reflecto.instrument.calibrate import Calibration, calibrate, nominal_calibration  # noqa: E402
+from reflecto import workflow  # noqa: E402
+from reflecto.instrument.calibrate import Calibration, calibrate  # noqa: E402
 from reflecto.instrument.device import Device  # noqa: E402
 from reflecto.instrument.simulate import simulate_calibration  # noqa: E402
 from reflecto.io import read_json  # noqa: E402
@@ -72,7 +73,7 @@ def roundtrip_calibrations(folder: Path) -> list[str]:
     """A measured (as-built) and a nominal (ideal) calibration file, written and read back."""
     refused = []
     simulate_calibration(Device.builtin("as-built"), folder / "calib", seed=3, white_repeats=1)
-    for name, cal in (("as-built", calibrate(folder / "calib")), ("ideal", nominal_calibration(Device.builtin("ideal")))):
+    for name, cal in (("as-built", calibrate(folder / "calib")), ("ideal", workflow.calibration_for(Device.builtin("ideal"), missing="nominal"))):
         p = cal.save(folder / f"{name}.npz")
         try:
             Calibration.load(p)
