@@ -502,13 +502,13 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
     with atomic_path(out, suffix=".png") as tmp:
-        iio.imwrite(tmp, comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha,
-                                          alpha_test=c.test.alpha))
+        iio.imwrite(tmp, comparison_image(c.reference.radiance, c.test.radiance, (f"reference\n{ref.name}", f"test\n{src.name}"),
+                                          alpha=c.reference.alpha, alpha_test=c.test.alpha, difference=c.difference))
     seconds = c.test.seconds + c.reference.seconds + c.reference_repeat.seconds
     lines = [f"rendered {src.name} and {ref.name} twice ({args.scene}, {args.resolution}², {c.test.spp} spp, "
              f"{c.test.variant}) in {seconds:.1f} s; {c.summary()}; wrote {out} (reference | {src.name} | difference)"]
     if c.within_noise:
-        lines.append("note: the difference is within the noise floor: at this spp the two render alike")
+        lines.append("note: the difference is within the noise floor: at this spp the two renders look alike")
     elif not c.resolved:
         lines.append(f"note: the noise floor is more than a third of the difference; about --spp {c.spp_to_resolve()} "
                      "would bring it there")

@@ -197,11 +197,12 @@ def render_figures(model: MicrofacetBRDF, ref: BRDFSource | None, out: Path,
         c = comparisons[scene] = compare(ref, model, scene, spp=spp)
         items.append((_save_png(to_srgb8(c.test.image()), out / f"render_{scene}.png"),
                       f"{what} (Mitsuba 3, {c.test.variant}, {c.test.spp} spp)."))
-        note = ("" if c.resolved else " The difference is within the noise floor: the two render alike at this spp."
+        note = ("" if c.resolved else " The difference is within the noise floor: the two renders look alike at this spp."
                 if c.within_noise else " The noise floor is more than a third of the difference: render with more "
                 f"samples (about {c.spp_to_resolve()} spp) to resolve it.")
-        items.append((_save_png(comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha,
-                                                 alpha_test=c.test.alpha),
+        items.append((_save_png(comparison_image(c.reference.radiance, c.test.radiance, ("reference\n" + ref.name, "model\n" + model.name),
+                                                 alpha=c.reference.alpha, alpha_test=c.test.alpha,
+                                                 difference=c.difference),
                                 out / f"compare_{scene}.png"),
                       f"{what}: reference | model | relative difference (0–20 %). Mean image difference "
                       f"{100 * c.difference:.2f} % over the object's pixels; noise floor {100 * c.noise_floor:.2f} % "

@@ -396,24 +396,62 @@ def save_image(img: Array, path: str | Path) -> Path:
 
 def comparison_image(reference: Array, test: Array, labels: tuple[str, str] = ("reference", "ours"),
                      alpha: Array | None = None, alpha_test: Array | None = None,
-                     exposure: float = 1.0) -> NDArray[np.uint8]:
-    """Side by side: reference | test | relative-difference heat map (0–20 %), 8-bit sRGB.
+                     exposure: float = 1.0, difference: float | None = None,
+                     max_relative: float = 0.2) -> NDArray[np.uint8]:
+    """Labelled side by side, 8-bit sRGB: reference | test | false-colour relative difference.
+
+    The third panel is ``Σ_c |t − r|`` per pixel over the object's mean ``Σ_c r`` (its
+    mean over the object is :func:`image_difference` without smoothing), from 0 to
+    ``max_relative`` (raised to the 99th percentile where that is higher), with its
+    colour bar; off the object it is white. Each panel is titled (``labels``); with
+    ``difference`` (the mean image difference, :func:`image_difference`) the third
+    panel's title states it.
 
     With ``alpha`` (the reference's coverage; ``alpha_test`` the test's, default the
-    same) both renders are composited onto the grey background and the heat map is
-    black off the object.
+    same) both renders are composited onto the grey background.
     """
+    import matplotlib
 
-    lum = lambda a: a @ LUM  # noqa: E731
-    rel = np.abs(lum(test) - lum(reference)) / np.maximum(lum(reference), 0.02 * max(float(lum(reference).max()), 1e-12))
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    on = np.ones(reference.shape[:2], bool)
     if alpha is not None:
         a_test = alpha if alpha_test is None else alpha_test
-        rel = np.where((alpha >= 1.0 - 1e-6) & (a_test >= 1.0 - 1e-6), rel, 0.0)
+        on = (alpha >= 1.0 - 1e-6) & (a_test >= 1.0 - 1e-6)
+    # per pixel Σ_c |t − r| over the object's mean Σ_c r: its mean over the object is image_difference
+    rel = np.abs(test - reference).sum(-1) / max(float(np.abs(reference[on]).sum(-1).mean()) if on.any() else 0.0, 1e-300)
+    if alpha is not None:
         reference, test = composite(reference, alpha, exposure), composite(test, a_test, exposure)
         exposure = 1.0
-    heat = (colormaps["inferno"](np.clip(rel / 0.2, 0.0, 1.0))[..., :3] * 255).astype(np.uint8)
-    gap = np.full((reference.shape[0], 4, 3), 255, np.uint8)
-    return np.concatenate([to_srgb8(reference, exposure), gap, to_srgb8(test, exposure), gap, heat], axis=1)
+    if on.any():
+        p99 = float(np.percentile(rel[on], 99))
+        if p99 > max_relative:
+            max_relative = float(np.ceil(p99 * 10) / 10)
+    shown = np.ma.masked_where(~on, rel * 100.0)
+    cmap = colormaps["inferno"].copy()
+    cmap.set_bad("white")
+    h, w = rel.shape
+    fig_w = 3 * w / 100 + 1.4
+    fig_h = h / 100 + 0.45
+    fig = plt.figure(figsize=(fig_w, fig_h), dpi=100)
+    pw = (w / 100) / fig_w
+    axes = [fig.add_axes((0.005 + k * (pw + 0.005), 0.01, pw, (h / 100) / fig_h)) for k in range(3)]
+    axes[0].imshow(to_srgb8(reference, exposure))
+    axes[1].imshow(to_srgb8(test, exposure))
+    im = axes[2].imshow(shown, cmap=cmap, vmin=0.0, vmax=100.0 * max_relative)
+    title = "difference" + (f"\nmean {100 * difference:.2f} %" if difference is not None else "")
+    for ax, t in zip(axes, (labels[0], labels[1], title)):
+        ax.set_title(t, fontsize=8, pad=2)
+        ax.set_axis_off()
+    cax = fig.add_axes((3 * (pw + 0.005) + 0.02, 0.1, 0.02, 0.7))
+    bar = fig.colorbar(im, cax=cax)
+    bar.set_label("|test − ref| / mean ref, %", fontsize=8)
+    bar.ax.tick_params(labelsize=7)
+    fig.canvas.draw()
+    img = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    plt.close(fig)
+    return img
 
 
 def exposure_for(img: Array) -> float:
