@@ -201,3 +201,14 @@ def test_wide_capture_reconstructs_without_nominal(tmp_path, capsys):
     assert main(["simulate", str(PLASTIC), "--device", "wide-as-built", "-o", str(tmp_path / "cab"), "-q"]) == 0
     assert main(["reconstruct", str(tmp_path / "cab"), "-o", str(tmp_path / "n.reflecto")]) == 1
     assert "captured with device 'wide-as-built'" in capsys.readouterr().err
+
+
+def test_teapot_is_welded_and_smooth(shared):
+    from reflecto.render.mitsuba import smooth_mesh
+
+    text = smooth_mesh(shared / "meshes" / "teapot.obj").read_text().splitlines()
+    v = np.array([[float(x) for x in l.split()[1:]] for l in text if l.startswith("v ")])
+    vn = np.array([[float(x) for x in l.split()[1:]] for l in text if l.startswith("vn ")])
+    assert len(v) == len(vn) < 6320  # the seam's repeated vertices merged
+    assert len(np.unique(np.round(v, 5), axis=0)) == len(v)
+    assert np.allclose(np.linalg.norm(vn, axis=1), 1.0, atol=1e-5)

@@ -102,6 +102,53 @@ def _teapot_transform(mi, mesh: Path):  # type: ignore[no-untyped-def]
     return mi.ScalarTransform4f().scale(s) @ mi.ScalarTransform4f().translate((-centre).tolist())
 
 
+def smooth_mesh(mesh: Path) -> Path:
+    """A welded, smooth-shaded copy of an OBJ triangle mesh (the shared data is never edited).
+
+    The shared ``teapot.obj`` has no normals and repeats the vertices of its patch
+    seams, so a renderer shades it faceted with a seam. Vertices at the same position
+    (to 10⁻⁵ of the mesh size) are merged, triangles that collapse are dropped, and
+    each vertex gets the angle-weighted mean of its triangles' normals. The copy is
+    cached in the temporary folder under the hash of the source mesh.
+    """
+    import hashlib
+
+    raw = mesh.read_bytes()
+    cached = Path(tempfile.gettempdir()) / f"reflecto-smooth-{hashlib.sha256(raw).hexdigest()[:16]}.obj"
+    if cached.is_file():
+        return cached
+    v, faces = [], []
+    for line in raw.decode().splitlines():
+        if line.startswith("v "):
+            v.append([float(x) for x in line.split()[1:4]])
+        elif line.startswith("f "):
+            idx = [int(w.split("/")[0]) for w in line.split()[1:]]
+            faces += [(idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1)]
+    pos = np.array(v)
+    f = np.array(faces) - 1
+    scale = float(np.max(pos.max(0) - pos.min(0)))
+    _, weld, inverse = np.unique(np.round(pos / (1e-5 * scale)).astype(np.int64), axis=0, return_index=True,
+                                 return_inverse=True)
+    pos = pos[weld]
+    f = inverse.reshape(-1)[f]
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    tri = pos[f]
+    normals = np.zeros_like(pos)
+    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    face_n /= np.maximum(np.linalg.norm(face_n, axis=1, keepdims=True), 1e-300)
+    for k in range(3):
+        a = tri[:, (k + 1) % 3] - tri[:, k]
+        b = tri[:, (k + 2) % 3] - tri[:, k]
+        cosang = np.sum(a * b, 1) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
+        np.add.at(normals, f[:, k], face_n * np.arccos(np.clip(cosang, -1, 1))[:, None])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in pos] + [f"vn {x:.6f} {y:.6f} {z:.6f}" for x, y, z in normals]
+    lines += [f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in f + 1]
+    with atomic_path(cached, suffix=".obj") as tmp:
+        Path(tmp).write_text("\n".join(lines) + "\n")
+    return cached
+
+
 def scene_dict(mi, scene: str, bsdf_path: Path, envmap: Path | None, resolution: int, spp: int, seed: int = 0,  # type: ignore[no-untyped-def]
                lights: tuple = LIGHTS) -> dict:
     """The Mitsuba scene description of one of :data:`SCENES` (``sphere-point``: with ``lights``)."""
@@ -138,7 +185,7 @@ def scene_dict(mi, scene: str, bsdf_path: Path, envmap: Path | None, resolution:
         mesh = SHARED / "meshes" / "teapot.obj"
         if not mesh.is_file():
             raise FileFormatError(mesh, "teapot mesh not found (shared data missing)")
-        d["shape"] = {"type": "obj", "filename": str(mesh), "to_world": _teapot_transform(mi, mesh),
+        d["shape"] = {"type": "obj", "filename": str(smooth_mesh(mesh)), "to_world": _teapot_transform(mi, mesh),
                       "bsdf": {"type": "twosided", "material": bsdf}}
     else:
         d["shape"] = {"type": "sphere", "bsdf": bsdf}
