@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 OUT ?= out/demo
 SHARED ?= ../shared/data
 
-.PHONY: all demo test test-slow fuzz bench sysdeps clean
+.PHONY: all demo test test-slow fuzz bench sysdeps clean docs
 
 all: demo
 
@@ -91,3 +91,7 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) out .pytest_cache
+
+# The numbers README.md and docs/ quote, rewritten from the result files (docs/sweep-*.csv)
+docs: $(STAMP)
+	$(BIN)/python studies/docs_numbers.py

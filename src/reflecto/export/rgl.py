@@ -238,7 +238,7 @@ def _floor(source: BRDFSource, ring: Array, u0: Array, scale: float, min_floor: 
     Where ``D = 4 k_d/(π k_s F(0))`` the diffuse term of a microfacet BRDF equals the
     specular one at normal incidence. Away from it the balance moves (at θ_d = 60° the
     specular term is ≈ 2–3× larger relative to the diffuse one), so the floor sits
-    below it: ``scale = 0.5`` gave the lowest eq. 10 error over today's 50 shared
+    below it: ``scale = 0.5`` gives the lowest eq. 10 error over the 50 shared
     reconstructions (1.1 % worst, against 1.6 % with 1 and 1.3 % with 0.3).
 
     A source without ``kd``/``ks``/``eta`` has the back-scattering estimate for D

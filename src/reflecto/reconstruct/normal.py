@@ -8,7 +8,7 @@ one in which the τ-symmetry of the NDF and the direct overlaps hold at once. It
 sharp (on an ideal capture E falls from ≈ 0.6 at 6° off to ≈ 0.01 at the truth).
 
 HLHZ08's plain form — ``log D̂`` with ``S = F = 1`` compared between ``h`` and ``τh`` —
-was tried first and found 3–6° tilts on untilted captures: the unequal S and F of the
+finds 3–6° tilts on untilted captures: the unequal S and F of the
 two samples (different θ_i, θ_d) bias it, which the full-model form divides out. As
 the paper says, only the reflection across the normal (τ) is used, applied through
 the dense views.
