@@ -39,7 +39,8 @@ from ..plotting import pyplot, save_figure
 from ..brdf import BRDFSource
 import imageio.v3 as iio
 from .. import geometry
-from ..render.mitsuba import compare, comparison_image, render as mi_render, to_srgb8
+from ..render.mitsuba import compare, comparison_image, default_envmap, render as mi_render, to_srgb8
+from .viewer import write_viewer
 from ..instrument.device import load_device
 from ..instrument.plots import plot_coverage
 from ..load import load_source
@@ -263,6 +264,8 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     items.insert(0, (cov.name, f"Half-vector coverage per LED of device {html.escape(dev.name)} (paper Fig. 2(c)(d))."))
     figs.append(("Capture", items))
 
+    viewer_sources = [("model: " + model_path.stem, model)] + ([("reference: " + ref.name, ref)] if ref is not None else [])
+    write_viewer(viewer_sources, out / "viewer.html", envmap=default_envmap())
     rows = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>" for k, v in numbers.items())
     sections = []
     for title, its in figs:
@@ -273,6 +276,9 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     page = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{title}</title>{_STYLE}</head>\n"
             f"<body data-images=\"pending\">\n<h1>{title}</h1>\n<p>Model file <code>{html.escape(str(model_path))}</code>"
             + (f", reference <code>{html.escape(str(reference))}</code>" if reference else "") + "</p>\n"
+            "<p><a href=\"viewer.html\">Interactive BRDF viewer</a>: lit sphere with a draggable light, θ_h–θ_d "
+            "slice with read-outs, incidence-plane plots" + (", model and reference side by side" if ref is not None else "")
+            + " (a static page; works from file://).</p>\n"
             f"<h2>Numbers</h2>\n<table>\n{rows}\n</table>\n" + "\n".join(sections) + f"\n{_CHECK_SCRIPT}\n</body></html>\n")
     index = out / "index.html"
     with atomic_write(index, "w") as fh:
