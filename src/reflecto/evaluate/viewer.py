@@ -6,9 +6,10 @@ no network. It shows, for each BRDF side by side (a model and its reference, or 
 models):
 
 * a sphere lit by the point lights of Mitsuba's ``sphere-point`` scene (same camera,
-  lights and sphere as :mod:`reflecto.render.sphere`); dragging on the sphere moves the
-  key light; "environment" lights it by the embedded environment map instead (a
-  32 × 16 latitude–longitude reduction of the studio map; dragging turns it);
+  lights and sphere as :mod:`reflecto.render.sphere`, exposure 1); dragging on the sphere
+  moves the key light; "environment" lights it by the embedded environment map instead
+  (a 32 × 16 latitude–longitude reduction of the studio map, exposed so that the 99th
+  luminance percentile shows at 0.9; dragging turns it);
 * the θ_h–θ_d slice at a chosen φ_d (log scale), with the BRDF's value under the pointer;
 * polar plots of the incidence plane (f·cos θ_o against θ_o) for a chosen θ_i.
 
@@ -235,10 +236,18 @@ function renderSphere(T, res, ss) {
   return { rad, cov };
 }
 const srgb = x => { x = Math.min(1, Math.max(0, x)); return 255 * (x <= 0.0031308 ? 12.92 * x : 1.055 * Math.pow(x, 1 / 2.4) - 0.055); };
+function autoExposure(img) {  // environment light: the 99th luminance percentile to 0.9, as reflecto's previews
+  const lum = [];
+  for (let k = 0; k < img.cov.length; k++) if (img.cov[k] >= 1)
+    lum.push(0.2126 * img.rad[3 * k] + 0.7152 * img.rad[3 * k + 1] + 0.0722 * img.rad[3 * k + 2]);
+  lum.sort((a, b) => a - b);
+  const p = lum.length ? lum[Math.floor(0.99 * (lum.length - 1))] : 0;
+  return p > 0 ? 0.9 / p : 1;
+}
 function drawSphere(ctx, img, res) {
-  const id = ctx.createImageData(res, res);
+  const id = ctx.createImageData(res, res), e = state.exposure * (state.mode === "env" ? autoExposure(img) : 1);
   for (let k = 0; k < res * res; k++) for (let ch = 0; ch < 3; ch++)
-    id.data[4 * k + ch] = srgb(state.exposure * img.rad[3 * k + ch] + (1 - img.cov[k]) * D.background);
+    id.data[4 * k + ch] = srgb(e * img.rad[3 * k + ch] + (1 - img.cov[k]) * D.background);
   for (let k = 0; k < res * res; k++) id.data[4 * k + 3] = 255;
   ctx.putImageData(id, 0, 0);
 }
@@ -267,8 +276,9 @@ function drawSlice(ctx, T, size, readout) {
   };
 }
 function drawPolar(ctx, T, size) {
-  ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, size, size);
-  const cx = size / 2, cy = size - 20, R = size / 2 - 24, ti = state.thetai * Math.PI / 180;
+  const H = ctx.canvas.height;
+  ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, size, H);
+  const cx = size / 2, cy = H - 18, R = Math.min(size / 2 - 10, H - 50), ti = state.thetai * Math.PI / 180;
   const i = [Math.sin(ti), 0, Math.cos(ti)], v = [0, 0, 0], curves = [[], [], []];
   let vmax = 1e-12;
   for (let k = -89; k <= 89; k++) {
@@ -278,7 +288,7 @@ function drawPolar(ctx, T, size) {
   }
   ctx.strokeStyle = "#bbb"; ctx.beginPath(); ctx.arc(cx, cy, R, Math.PI, 2 * Math.PI); ctx.stroke();
   ctx.fillStyle = "#444"; ctx.font = "11px sans-serif";
-  ctx.fillText("θ_o = −90°", 2, cy + 14); ctx.fillText("+90°", size - 30, cy + 14); ctx.fillText("0°", cx - 6, cy - R - 6);
+  ctx.fillText("θ_o = −90°", 2, cy + 14); ctx.fillText("+90°", size - 30, cy + 14); ctx.fillText("0°", cx - 6, cy - R - 4);
   ctx.fillText(`f·cos θ_o, max ${vmax.toPrecision(3)}`, 4, 12);
   ["#d33", "#3a3", "#33d"].forEach((col, ch) => {
     ctx.strokeStyle = col; ctx.beginPath();
@@ -287,14 +297,14 @@ function drawPolar(ctx, T, size) {
     ctx.stroke();
   });
   ctx.strokeStyle = "#000"; ctx.setLineDash([4, 3]); ctx.beginPath();
-  ctx.moveTo(cx, cy); ctx.lineTo(cx - R * Math.sin(ti), cy - R * Math.cos(ti)); ctx.stroke(); ctx.setLineDash([]);
+  ctx.moveTo(cx, cy); ctx.lineTo(cx + R * Math.sin(ti), cy - R * Math.cos(ti)); ctx.stroke(); ctx.setLineDash([]);
 }
 const RES = 192, cols = [];
 D.brdfs.forEach((b, idx) => {
   const col = document.createElement("div"); col.className = "col";
   col.innerHTML = `<h2>${b.label.replace(/[<>&]/g, "")}</h2><canvas class="sphere" width="${RES}" height="${RES}"></canvas>` +
     `<div>θ_h–θ_d slice: θ_h 0–90° left to right, θ_d 0–90° bottom to top; log f, black 10⁻³, white 10³ sr⁻¹</div><canvas class="slice" width="180" height="180"></canvas>` +
-    `<div class="readout"></div><div>incidence plane</div><canvas class="polar" width="220" height="130"></canvas>`;
+    `<div class="readout"></div><div>incidence plane at the θ_i above (dashed: the light; R, G, B: f·cos θ_o, linear)</div><canvas class="polar" width="220" height="140"></canvas>`;
   document.getElementById("cols").appendChild(col);
   cols.push(col);
 });
