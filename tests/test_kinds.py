@@ -212,3 +212,27 @@ def test_teapot_is_welded_and_smooth(shared):
     assert len(v) == len(vn) < 6320  # the seam's repeated vertices merged
     assert len(np.unique(np.round(v, 5), axis=0)) == len(v)
     assert np.allclose(np.linalg.norm(vn, axis=1), 1.0, atol=1e-5)
+
+
+def test_model_names_its_calibration_and_the_report_reads_the_slices_with_it(tmp_path, capsys):
+    """As-built capture + its calibration: the model records both; the report's slices use the
+    calibration, and a moved model says that its capture is not found."""
+    import shutil
+
+    assert main(["simulate", str(PLASTIC), "--device", "as-built", "-o", str(tmp_path / "cap"), "-q"]) == 0
+    assert main(["simulate-calibration", "--device", "as-built", "-o", str(tmp_path / "calib"), "-q"]) == 0
+    assert main(["calibrate", str(tmp_path / "calib"), "-o", str(tmp_path / "cal.npz"), "-q"]) == 0
+    assert main(["reconstruct", str(tmp_path / "cap"), "--calibration", str(tmp_path / "cal.npz"), "--eta", "1.5",
+                 "-o", str(tmp_path / "m.reflecto"), "-q"]) == 0
+    from reflecto.model import load_model
+
+    meta = load_model(tmp_path / "m.reflecto").metadata
+    assert meta["calibration"] == str(tmp_path / "cal.npz") and meta["capture"] == str(tmp_path / "cap")
+    assert main(["report", str(tmp_path / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep")]) == 0
+    assert "The slices of" in (tmp_path / "rep" / "index.html").read_text()
+    assert "(calibration cal.npz)" in (tmp_path / "rep" / "index.html").read_text()
+    (tmp_path / "moved").mkdir()
+    shutil.copy(tmp_path / "m.reflecto", tmp_path / "moved")
+    assert main(["report", str(tmp_path / "moved" / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep2")]) == 0
+    assert "not shown: the model names the capture cap, which is not a readable capture folder" in (tmp_path / "rep2" / "index.html").read_text()
+    capsys.readouterr()

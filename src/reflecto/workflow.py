@@ -251,10 +251,12 @@ def capture_to_model(capture: Capture | str | Path, calibration: str | Path | Ca
                         StageSeconds(read=t1 - t0, slices=t2 - t1, reconstruct=t3 - t2, symmetry=t4 - t3))
 
 
-def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path | None = None) -> dict[str, Any]:
+def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path | None = None,
+               calibration: str | Path | None = None) -> dict[str, Any]:
     """Write the model file and its ``.json`` summary beside it (each atomically); returns the summary.
 
-    The model names its capture relative to its own folder, where readers look for it.
+    The model names its capture folder and its calibration file (when one was given)
+    relative to its own folder, where readers (``reflecto report``) look for them.
     """
     out = Path(output)
     summary = result.summary()
@@ -262,6 +264,8 @@ def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path
         summary = {"capture": str(capture_dir), **summary}
         rel = os.path.relpath(Path(capture_dir).resolve(), out.resolve().parent)
         result.model.metadata.update({"capture": rel})
+    if isinstance(calibration, (str, Path)):
+        result.model.metadata.update({"calibration": os.path.relpath(Path(calibration).resolve(), out.resolve().parent)})
     result.model.metadata.update({"model_error": summary["model_error"]})
     result.model.save(out)
     with atomic_write(out.with_suffix(".json"), "w") as fh:
@@ -279,7 +283,7 @@ def reconstruct_folder(capture_dir: str | Path, output: str | Path, calibration:
     """
     result = capture_to_model(capture_dir, calibration, options, missing=missing)
     t0 = time.perf_counter()
-    summary = save_model(result, output, capture_dir)
+    summary = save_model(result, output, capture_dir, calibration if isinstance(calibration, (str, Path)) else None)
     seconds = dataclasses.replace(result.seconds, write=time.perf_counter() - t0)
     return {**summary, "motion": result.reconstruction.motion.describe(),
             "stage_seconds": {**dataclasses.asdict(seconds), "total": seconds.total}}

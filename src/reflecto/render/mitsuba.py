@@ -476,8 +476,7 @@ def comparison_image(reference: Array, test: Array, labels: tuple[str, str] = ("
         if p99 > max_relative:
             max_relative = float(np.ceil(p99 * 10) / 10)
     shown = np.ma.masked_where(~on, rel * 100.0)
-    cmap = colormaps["inferno"].copy()
-    cmap.set_bad("white")
+    cmap = colormaps["inferno"].with_extremes(bad="white")
     h, w = rel.shape
     fig_w = 3 * w / 100 + 1.4
     fig_h = h / 100 + 0.45
