@@ -528,7 +528,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return _emit(args, {"reference": str(args.reference), "test": str(args.test), **err.to_dict()}, [
         f"{args.test} against {args.reference} ({err.describe()}):",
         f"  RMSE (R, G, B)      {err.rmse[0]:.5f} {err.rmse[1]:.5f} {err.rmse[2]:.5f} sr⁻¹",
-        f"  normalized error    {err.normalized:.5f}  (channel mean / max albedo {err.albedo_ref:.4f})",
+        f"  normalized error    {100 * err.normalized:.3f} %  (RMSE averaged over R, G, B, divided by the reference's "
+        f"largest channel-mean directional albedo over θ_i ≤ 80°, {err.albedo_ref:.4f})",
         f"  log-RMSE            {err.log_rmse:.5f}"])
 
 
