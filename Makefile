@@ -65,7 +65,7 @@ demo: $(STAMP)
 	$(BIN)/reflecto simulate examples/ggx-plastic.json -o $(OUT)/flat -q
 	$(BIN)/reflecto reconstruct $(OUT)/flat -o $(OUT)/flat.reflecto
 	$(BIN)/reflecto export $(OUT)/ggx-plastic.reflecto -o $(OUT)/ggx-plastic.bsdf
-	$(BIN)/reflecto render $(OUT)/ggx-plastic.bsdf --scene teapot-env -o $(OUT)/ggx-plastic-teapot.png
+	$(BIN)/reflecto render $(OUT)/ggx-plastic.bsdf --scene teapot-env --title "ggx-plastic, reconstructed from a hand-held as-built capture: Mitsuba 3, studio map" -o $(OUT)/ggx-plastic-teapot.png
 	$(BIN)/reflecto report $(OUT)/ggx-plastic.reflecto --ref examples/ggx-plastic.json -o $(OUT)/report
 	@echo "demo done: open $(OUT)/report/index.html"
 

@@ -46,7 +46,7 @@ from .instrument.simulate import simulate_calibration
 from .instrument.calibrate import calibrate
 from .export.rgl import export_rgl
 from .export.merl import export_merl
-from .render.mitsuba import compare, comparison_image, render, save_image
+from .render.mitsuba import compare, comparison_image, render, save_image, titled, to_srgb8
 from .io import atomic_path
 import imageio.v3 as iio
 from .evaluate.metrics import comparison_error
@@ -490,7 +490,11 @@ def cmd_render(args: argparse.Namespace) -> int:
     if not args.compare:
         r = render(src, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
         # a linear EXR keeps the object's alpha; PNG and HDR get the grey background
-        save_image(np.dstack([r.radiance, r.alpha]) if out.suffix.lower() == ".exr" else r.image(), out)
+        if args.title and out.suffix.lower() == ".png":
+            with atomic_path(out, suffix=".png") as tmp:
+                iio.imwrite(tmp, titled(to_srgb8(r.image()), args.title))
+        else:
+            save_image(np.dstack([r.radiance, r.alpha]) if out.suffix.lower() == ".exr" else r.image(), out)
         return _emit(args, {"source": str(args.source), "scene": args.scene, "resolution": args.resolution,
                             "spp": r.spp, "variant": r.variant, "seconds": r.seconds, "output": str(out)},
                      [f"rendered {src.name} ({args.scene}, {args.resolution}², {r.spp} spp, {r.variant}) in "
@@ -797,6 +801,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--resolution", type=int, default=256, help="image width and height in pixels")
     q.add_argument("--seed", type=int, default=0, help="seed of the source's render (the reference's: +1, +2)")
     q.add_argument("--compare", metavar="REFERENCE", help="also render REFERENCE; write reference | source | difference")
+    q.add_argument("--title", help="write this title above the image (.png only; default: no title)")
     q.add_argument("-o", "--output", required=True,
                    help="image: .png (sRGB, grey background), .exr (linear RGBA) or .hdr (linear, grey background)")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)

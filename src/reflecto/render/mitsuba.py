@@ -500,6 +500,26 @@ def comparison_image(reference: Array, test: Array, labels: tuple[str, str] = ("
     return img
 
 
+def titled(image: NDArray[np.uint8], title: str) -> NDArray[np.uint8]:
+    """An 8-bit RGB image with ``title`` written in a white strip above it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    h, w = image.shape[:2]
+    strip = 24
+    fig = plt.figure(figsize=(w / 100, (h + strip) / 100), dpi=100)
+    ax = fig.add_axes((0, 0, 1, h / (h + strip)))
+    ax.imshow(image)
+    ax.set_axis_off()
+    fig.text(0.5, 1 - 0.5 * strip / (h + strip), title, ha="center", va="center", fontsize=8)
+    fig.canvas.draw()
+    out = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    plt.close(fig)
+    return out
+
+
 def exposure_for(img: Array) -> float:
     """Exposure mapping the 99th luminance percentile to 0.9 (for previews)."""
     p = float(np.percentile(img @ LUM, 99))
