@@ -55,11 +55,11 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from ..colour import LUM
-from ..errors import ReflectoError
+from ..errors import FileFormatError, ReflectoError
 from ..fresnel import f0_from_eta, is_constant
-from ..io import atomic_write, read_json
+from ..io import atomic_path, atomic_write, read_json
 from ..brdf import BRDFSource
-from ..sources.rgl import MAGIC, Marginal2D
+from ..sources.rgl import MAGIC, Marginal2D, RGLBRDF
 from ..fresnel import fresnel
 from .. import __version__
 
@@ -539,5 +539,23 @@ def export_description(source: BRDFSource, isotropic: bool) -> str:
 
 def export_rgl(source: BRDFSource, path: str | Path, grid: RGLGrid = RGLGrid(), isotropic: bool | None = None,
                description: str | None = None) -> Path:
-    """Write ``source`` as an RGL ``.bsdf`` file (atomically); returns the path."""
-    return write_tensor_file(path, rgl_tables(source, grid, isotropic, description))
+    """Write ``source`` as an RGL ``.bsdf`` file (atomically); returns the path.
+
+    The file is read back by reflecto's own reader (:class:`reflecto.sources.rgl.RGLBRDF`,
+    with the checks of docs/limits.md) before it takes its name: reflecto writes only
+    what it reads.
+
+    Raises
+    ------
+    FileFormatError
+        Naming ``path``, when the tables would not pass the reader's checks.
+    """
+    path = Path(path)
+    tables = rgl_tables(source, grid, isotropic, description)
+    with atomic_path(path, suffix=".bsdf") as tmp:
+        write_tensor_file(tmp, tables)
+        try:
+            RGLBRDF(tmp)
+        except FileFormatError as e:
+            raise FileFormatError(path, f"not written: the file would be refused on reading ({e.problem})") from None
+    return path

@@ -420,8 +420,17 @@ class RGLBRDF(BRDFSource):
             return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
 
         wi, m = directions(self._sigma), directions(self._ndf)
-        i = np.repeat(wi, len(m), 0)
-        mm = np.tile(m, (len(wi), 1))
+        if len(wi) * len(m) > 1 << 16:
+            # every node of each table, with a few of the other's: the ndf nodes under 8
+            # incident directions, the sigma nodes with the 32 densest half vectors
+            ndf_values = np.asarray(self._ndf.data, dtype=np.float64).reshape(-1)
+            some_wi = wi[np.linspace(0, len(wi) - 1, 8).astype(np.intp)]
+            top_m = m[np.argsort(ndf_values)[-32:]]
+            i = np.concatenate([np.repeat(some_wi, len(m), 0), np.repeat(wi, len(top_m), 0)])
+            mm = np.concatenate([np.tile(m, (len(some_wi), 1)), np.tile(top_m, (len(wi), 1))])
+        else:
+            i = np.repeat(wi, len(m), 0)
+            mm = np.tile(m, (len(wi), 1))
         o = 2.0 * np.sum(i * mm, -1)[:, None] * mm - i
         keep = (i[:, 2] > 1e-4) & (o[:, 2] > 1e-4)
         return i[keep], o[keep]
