@@ -35,6 +35,7 @@ import json
 import math
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
 
 from .. import geometry
@@ -68,8 +69,6 @@ def _envmap_small(path: Path | None) -> dict | None:
     """The environment map reduced to 32 × 16 (lat–long, linear RGB), or None without one."""
     if path is None or not Path(path).is_file():
         return None
-    import imageio.v3 as iio
-
     img = np.asarray(iio.imread(path), dtype=np.float64)[..., :3]
     h, w = img.shape[:2]
     small = img[: h - h % 16, : w - w % 32].reshape(16, (h - h % 16) // 16, 32, (w - w % 32) // 32, 3).mean(axis=(1, 3))

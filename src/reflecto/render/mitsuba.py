@@ -33,6 +33,7 @@ The variant is ``llvm_ad_rgb`` where LLVM ≥ 16 is found, else ``scalar_rgb``
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 import os
 import tempfile
@@ -52,6 +53,7 @@ from ..export.rgl import export_rgl
 from ..mitsuba_support import import_mitsuba
 from scipy import ndimage
 from ..io import atomic_path
+from ..plotting import pyplot
 from matplotlib import colormaps
 
 Array = NDArray[np.float64]
@@ -111,8 +113,6 @@ def smooth_mesh(mesh: Path) -> Path:
     each vertex gets the angle-weighted mean of its triangles' normals. The copy is
     cached in the temporary folder under the hash of the source mesh.
     """
-    import hashlib
-
     raw = mesh.read_bytes()
     cached = Path(tempfile.gettempdir()) / f"reflecto-smooth-{hashlib.sha256(raw).hexdigest()[:16]}.obj"
     if cached.is_file():
@@ -457,10 +457,7 @@ def comparison_image(reference: Array, test: Array, labels: tuple[str, str] = ("
     With ``alpha`` (the reference's coverage; ``alpha_test`` the test's, default the
     same) both renders are composited onto the grey background.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     on = np.ones(reference.shape[:2], bool)
     if alpha is not None:
@@ -502,10 +499,7 @@ def comparison_image(reference: Array, test: Array, labels: tuple[str, str] = ("
 
 def titled(image: NDArray[np.uint8], title: str) -> NDArray[np.uint8]:
     """An 8-bit RGB image with ``title`` written in a white strip above it."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     h, w = image.shape[:2]
     strip = 24
