@@ -426,7 +426,7 @@ def _local_metadata(path: Path, metadata: dict[str, Any]) -> dict[str, Any]:
     """``metadata`` with its ``capture`` folder and ``calibration`` file resolved against the model's folder.
 
     Each is kept (as that path) only if it exists and lies inside the model's folder;
-    a model file cannot make a reader open files elsewhere. One that is not kept is
+    a model file cannot make a reader open files elsewhere. One that fails the rule is
     named under ``capture_not_found`` / ``calibration_not_found`` (for messages only).
     """
 
