@@ -39,7 +39,7 @@ def files(tmp_path_factory, shared) -> dict[str, Path]:
     (d / "materials").mkdir()
     return {"model": d / "m.reflecto", "summary": d / "m.json", "capture": d / "cap", "calib-dir": d / "calib",
             "cal": d / "cal.npz", "device": d / "dev.json", "bsdf": shared / "rgl" / "chm_mint_rgb.bsdf",
-            "h5": shared / "merl-nbrdf" / "pvc.h5", "analytic": PLASTIC, "aniso": BRUSHED, "out": d / "out"}
+            "h5": shared / "merl-nbrdf" / "pvc.h5", "h5json": shared / "merl-nbrdf" / "pvc.json", "analytic": PLASTIC, "aniso": BRUSHED, "out": d / "out"}
 
 
 # (argv with {kind} placeholders, what the message must say)
@@ -82,6 +82,11 @@ CASES = [
                                    "of materials (BRDF files)"),
     ("gallery {analytic} --calibration {calib-dir} -o {out}/g", "calib is a calibration folder (calibration captures, "
      "calibration.json); gallery --calibration needs a calibration file (.npz"),
+    ("info {h5json}", f"pvc.json is an NBRDF architecture file (the .json beside its .h5 weights); info {BRDF} "
+                      "(open the fit by its weights: reflecto info"),
+    ("reconstruct {capture} --calibration {calib-dir}/calibration.json -o {out}/x.reflecto",
+     "calibration.json is a calibration folder's manifest (calibration.json); reconstruct --calibration needs a "
+     "calibration file (.npz, from `reflecto calibrate`) (it belongs to its folder: reflecto calibrate"),
     # outputs
     ("export {model} -o {out}/x.png", "x.png is a .png file; export writes an RGL .bsdf or a MERL .binary file (or "
                                       "name one with --format rgl|merl) (use -o"),

@@ -37,6 +37,8 @@ KINDS: dict[str, str] = {
     "device": "a device file (.json/.toml)",
     "summary": "a reconstruction summary (.json)",
     "manifest": "a capture manifest (manifest.json)",
+    "calibration-manifest": "a calibration folder's manifest (calibration.json)",
+    "nbrdf-architecture": "an NBRDF architecture file (the .json beside its .h5 weights)",
     "results": "a results folder (of `reflecto sweep` or `design`)",
     "image": "an image",
     "folder": "a folder",
@@ -65,6 +67,8 @@ _USE = {
     "device": "it describes a device: reflecto simulate BRDF --device {path} -o CAPTURE",
     "summary": "it describes a model: reflecto info {model}",
     "manifest": "it belongs to its folder: reflecto reconstruct {parent} -o MODEL.reflecto",
+    "calibration-manifest": "it belongs to its folder: reflecto calibrate {parent} -o CAL.npz",
+    "nbrdf-architecture": "open the fit by its weights: reflecto info {h5}",
     "results": "its page and tables are inside it",
     "image": "",
     "folder": "",
@@ -115,7 +119,7 @@ def _json_kind(data: object) -> str:
     if data.get("format") == "reflecto-capture":
         return "manifest"
     if data.get("format") == "reflecto-calibration-capture":
-        return "unknown"
+        return "calibration-manifest"
     if _SUMMARY_KEYS <= set(data):
         return "summary"
     if data and set(data) <= _DEVICE_KEYS:
@@ -133,7 +137,7 @@ def _description_kind(path: Path) -> str:
         return "unknown"
     if path.suffix.lower() == ".json" and path.with_suffix(".h5").is_file() and isinstance(data, dict) \
             and "type" not in data and not (_SUMMARY_KEYS <= set(data)):
-        return "unknown"  # an NBRDF's architecture file beside its weights
+        return "nbrdf-architecture"  # an NBRDF's architecture file beside its weights
     return _json_kind(data)
 
 
@@ -214,7 +218,8 @@ def _json_kind_of(path: Path) -> str:
 def hint_for(path: str | Path, kind: str) -> str:
     """What to run with a file of ``kind`` (empty when nothing fits)."""
     p = Path(path)
-    return _USE.get(kind, "").format(path=path, model=p.with_suffix(".reflecto"), parent=p.parent)
+    return _USE.get(kind, "").format(path=path, model=p.with_suffix(".reflecto"), parent=p.parent,
+                                     h5=p.with_suffix(".h5"))
 
 
 def require(path: str | Path | None, command: str, accept: Iterable[str], need: str, hint: str = "") -> None:
