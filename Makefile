@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 OUT ?= out/demo
 SHARED ?= ../shared/data
 
-.PHONY: all demo test test-slow fuzz bench sysdeps clean
+.PHONY: all demo test test-slow fuzz bench sysdeps clean docs
 
 all: demo
 
@@ -65,7 +65,7 @@ demo: $(STAMP)
 	$(BIN)/reflecto simulate examples/ggx-plastic.json -o $(OUT)/flat -q
 	$(BIN)/reflecto reconstruct $(OUT)/flat -o $(OUT)/flat.reflecto
 	$(BIN)/reflecto export $(OUT)/ggx-plastic.reflecto -o $(OUT)/ggx-plastic.bsdf
-	$(BIN)/reflecto render $(OUT)/ggx-plastic.bsdf --scene teapot-env -o $(OUT)/ggx-plastic-teapot.png
+	$(BIN)/reflecto render $(OUT)/ggx-plastic.bsdf --scene teapot-env --title "ggx-plastic, reconstructed from a hand-held as-built capture: Mitsuba 3, studio map" -o $(OUT)/ggx-plastic-teapot.png
 	$(BIN)/reflecto report $(OUT)/ggx-plastic.reflecto --ref examples/ggx-plastic.json -o $(OUT)/report
 	@echo "demo done: open $(OUT)/report/index.html"
 
@@ -91,3 +91,7 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) out .pytest_cache
+
+# The numbers README.md and docs/ quote, rewritten from the result files (docs/sweep-*.csv)
+docs: $(STAMP)
+	$(BIN)/python studies/docs_numbers.py

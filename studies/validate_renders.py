@@ -73,7 +73,7 @@ def main() -> None:
             model = load_model(model_file)
             test = RGLBRDF(export_rgl(model, Path(tmp) / f"{p.stem}.bsdf"))
             ref = load_source(p)
-            c = compare(test, ref, args.scene, spp=args.spp)
+            c = compare(ref, test, args.scene, spp=args.spp)
             line = (f"{p.stem:28s} difference {100 * c.difference:6.2f} %  floor {100 * c.noise_floor:5.2f} %  "
                     f"corrected {100 * c.corrected:6.2f} %")
             model_export = ref_export = float("nan")

@@ -16,7 +16,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "reflecto"
 #: A unit is a top-level module or a subpackage (all its modules).
 LAYERS: list[set[str]] = [
     {"errors", "geometry", "colour", "_kernels"},
-    {"io", "batch"},
+    {"io", "batch", "kinds"},
     {"fresnel", "polar", "hemicube", "brdf", "plotting"},
     {"shadowing", "mitsuba_support"},
     {"model", "sources"},

@@ -353,7 +353,7 @@ def rgl_fields(shared) -> dict[str, np.ndarray]:
 @pytest.mark.parametrize("field, change, message", [
     ("vndf", lambda a: a * 0, "'vndf' is zero everywhere"),
     ("ndf", lambda a: -a, "'ndf' must be non-negative"),
-    ("rgb", lambda a: -a, "directional albedo -0\\.9"),
+    ("rgb", lambda a: -a, "its tables give a directional albedo of -1\\.03"),
     ("sigma", lambda a: a * 0, "'sigma' .* must be positive"),
     ("theta_i", lambda a: a[::-1].copy(), "theta_i must increase"),
     ("jacobian", lambda a: a + 5, "'jacobian' must be 0 or 1"),
@@ -374,8 +374,12 @@ def test_merl_values_of_1e200_are_refused(tmp_path):
 
     t = np.full(merl.SHAPE + (3,), 0.1)
     t[40:50] = 1e200
-    p = merl.write_merl_table(tmp_path / "hot.binary", t)
-    with pytest.raises(FileFormatError, match="hot.binary: values up to 1e\\+200 sr⁻¹"):
+    with pytest.raises(FileFormatError, match="hot.binary: the table to write: f·cos θ_i·cos θ_o reaches"):
+        merl.write_merl_table(tmp_path / "hot.binary", t)  # reflecto writes only what it reads
+    p = tmp_path / "hot.binary"
+    p.write_bytes(np.array(merl.SHAPE, "<i4").tobytes()
+                  + np.ascontiguousarray((t.reshape(merl.N_BINS, 3) / merl.SCALE).T, "<f8").tobytes())
+    with pytest.raises(FileFormatError, match="hot.binary: its table: f·cos θ_i·cos θ_o reaches 9.02e\\+199 sr⁻¹"):
         load_source(p)
 
 
@@ -671,19 +675,19 @@ def test_outputs_respect_the_umask(tmp_path, capsys, umask, file_mode, dir_mode)
 
 def test_export_suffix_and_format_must_agree(model_file, tmp_path, capsys):
     assert main(["export", str(model_file), "--format", "merl", "-o", str(tmp_path / "a.bsdf")]) == 1
-    assert "a.bsdf: this writes a MERL table (.binary), but a .bsdf file is read as an RGL tensor file" in _err(capsys)
+    assert "a.bsdf is a .bsdf file name; export --format merl writes a MERL table (.binary)" in _err(capsys)
     assert main(["export", str(model_file), "--format", "rgl", "-o", str(tmp_path / "a.binary")]) == 1
     assert "use -o" in _err(capsys)
     assert main(["export", str(model_file), "-o", str(tmp_path / "a.json")]) == 1
-    assert "a.json: a .json file is read as a JSON/TOML description" in _err(capsys)
+    assert "a.json is a .json file; export writes an RGL .bsdf or a MERL .binary file" in _err(capsys)
     assert not list(tmp_path.iterdir())
     # the suffix chooses: MERL, read back as such
     assert main(["export", str(model_file), "--isotropic", "yes", "-o", str(tmp_path / "a.binary"), "-q"]) == 0
     assert load_source(tmp_path / "a.binary").kind == "merl"
     assert main(["tabulate", str(PLASTIC), "-o", str(tmp_path / "t.bsdf")]) == 1
-    assert "t.bsdf: this writes a MERL table" in _err(capsys)
+    assert "t.bsdf is a .bsdf file; tabulate writes a MERL table (.binary)" in _err(capsys)
     assert main(["reconstruct", str(tmp_path), "-o", str(tmp_path / "m.json")]) == 1
-    assert "m.json: this writes a model file" in _err(capsys)
+    assert "m.json is a .json file; reconstruct writes a model file (.reflecto)" in _err(capsys)
 
 
 def test_capture_named_in_model_metadata_resolves_only_inside_its_folder(tmp_path):

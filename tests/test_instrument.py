@@ -309,7 +309,9 @@ def test_cli_simulate_calibrate_and_errors(tmp_path, capsys):
     assert main(["layout", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["coverage"]["every_led_overlaps"]
     assert main(["calibrate", str(tmp_path / "c"), "-o", str(tmp_path / "x.npz")]) == 1
-    assert "calibration.json is missing" in capsys.readouterr().err and not (tmp_path / "x.npz").exists()
+    # a capture folder is not a calibration folder: the kind check says so first
+    assert "c is a capture folder (manifest.json and frames); calibrate needs a calibration folder" in \
+        capsys.readouterr().err and not (tmp_path / "x.npz").exists()
     assert not list(tmp_path.glob(".*part*"))
 
 

@@ -116,7 +116,7 @@ def test_cli_refuses_an_impossible_eta_without_writing(tmp_path, capsys):
     from conftest import ROOT
 
     assert main(["simulate", str(ROOT / "examples" / "ggx-plastic.json"), "-o", str(cap), "-q"]) == 0
-    out = tmp_path / "m.npz"
+    out = tmp_path / "m.reflecto"
     assert main(["reconstruct", str(cap), "--eta", "0.5", "-o", str(out)]) != 0
     assert "fixed η must be" in capsys.readouterr().err
     assert not list(tmp_path.glob("m*"))

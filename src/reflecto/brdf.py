@@ -86,8 +86,24 @@ class BRDFSource(abc.ABC):
         return self.path.stem if self.path is not None else self.kind
 
     def albedo(self, theta_i_deg: ArrayLike, phi_i_deg: float = 0.0, **kw: Any) -> Array:
-        """Directional albedo ``a(i) = ∫ f(i, o) cos θ_o dω_o`` (dimensionless), shape ``(K, 3)``."""
-        return directional_albedo(self, theta_i_deg, phi_i_deg, **kw)
+        """Directional albedo ``a(i) = ∫ f(i, o) cos θ_o dω_o`` (dimensionless).
+
+        Parameters
+        ----------
+        theta_i_deg
+            Incident polar angle(s), degrees: one number or a sequence of ``K``.
+        phi_i_deg
+            Incident azimuth, degrees.
+        **kw
+            Quadrature sizes ``n_u``, ``n_phi`` (:func:`directional_albedo`).
+
+        Returns
+        -------
+        ndarray
+            Shape ``(3,)`` (RGB) for one angle, ``(K, 3)`` for a sequence.
+        """
+        a = directional_albedo(self, theta_i_deg, phi_i_deg, **kw)
+        return a[0] if np.ndim(theta_i_deg) == 0 else a
 
 
 class HasNDF(Protocol):
@@ -171,9 +187,46 @@ def read_file_bytes(path: Path, limit: int | None = None, what: str = "a BRDF fi
     return read_input(path, MAX_BRDF_BYTES if limit is None else limit, what)
 
 
-#: Largest BRDF value (sr⁻¹) a measured or tabulated file may hold: a perfect
-#: mirror-like GGX lobe of α = 0.001 peaks at 8·10⁴ sr⁻¹.
-MAX_BRDF_VALUE = 1e6
+#: Narrowest lobe reflecto represents: the smallest roughness α of an analytic
+#: description (below it the lobe's density overflows).
+MIN_ALPHA = 1e-3
+#: Largest projected BRDF ``f·cos θ_i·cos θ_o`` (sr⁻¹) any file may hold, from physics:
+#: for a microfacet BRDF ``f·cos θ_i·cos θ_o = F·D·G / 4 ≤ D_max / 4`` (F, G ≤ 1), and
+#: the densest normal distribution reflecto represents, GGX or Beckmann of
+#: α = :data:`MIN_ALPHA`, peaks at ``D_max = 1/(π α²)``: the bound is
+#: ``1/(4π α²) ≈ 7.96·10⁴`` sr⁻¹. The bound is on the projected BRDF, not on ``f``:
+#: ``f`` itself grows without bound toward grazing (``1/(cos θ_i cos θ_o)``), where
+#: tabulations of measured materials and of reconstructions legitimately reach
+#: 10⁶–10⁷ sr⁻¹ at θ_d ≈ 89.5°.
+MAX_PROJECTED_BRDF = 1.0 / (4.0 * np.pi * MIN_ALPHA**2)
+
+
+def check_projected(projected: ArrayLike, path: Path, where: str = "the BRDF") -> None:
+    """Refuse projected BRDF values ``f·cos θ_i·cos θ_o`` that are not finite or exceed
+    :data:`MAX_PROJECTED_BRDF`; every reader and writer applies this one bound.
+
+    Parameters
+    ----------
+    projected
+        Values of ``f·cos θ_i·cos θ_o`` (any shape), sr⁻¹.
+    path
+        The file, for the message.
+    where
+        What was evaluated, for the message (``"its tables"``).
+
+    Raises
+    ------
+    FileFormatError
+        Naming ``path``.
+    """
+    v = np.asarray(projected, dtype=np.float64)
+    if not np.all(np.isfinite(v)):
+        raise FileFormatError(path, f"{where}: NaN or infinite values: the file is damaged")
+    peak = float(np.max(np.abs(v))) if v.size else 0.0
+    if peak > MAX_PROJECTED_BRDF:
+        raise FileFormatError(path, f"{where}: f·cos θ_i·cos θ_o reaches {peak:.3g} sr⁻¹, more than any "
+                              f"BRDF reflecto represents ({MAX_PROJECTED_BRDF:.3g} = 1/(4π α²) at α = {MIN_ALPHA:g}; "
+                              "docs/limits.md): damaged, or not a BRDF in sr⁻¹")
 #: Directional albedo a loaded measured or tabulated BRDF may have at the incidence
 #: angles :data:`PLAUSIBILITY_ANGLES_DEG`. Below 0 by a little is measurement noise
 #: (RGL's chm_mint: −0.006 at grazing); above 1 is noise or calibration error up to a
@@ -186,7 +239,7 @@ def check_plausible(source: BRDFSource, path: Path, albedo_range: tuple[float, f
     """Refuse a loaded BRDF whose values or directional albedo are impossible.
 
     Evaluates the source at 4096 fixed direction pairs (values must be finite and
-    at most :data:`MAX_BRDF_VALUE` in magnitude) and its directional albedo at
+    ``f·cos θ_i·cos θ_o`` at most :data:`MAX_PROJECTED_BRDF`, :func:`check_projected`) and its directional albedo at
     :data:`PLAUSIBILITY_ANGLES_DEG` (a 48 × 64 half-vector quadrature; it must be
     finite and lie in ``albedo_range``). Costs 5–60 ms.
 
@@ -204,10 +257,7 @@ def check_plausible(source: BRDFSource, path: Path, albedo_range: tuple[float, f
         f = source.eval(d[0], d[1])
         if not np.all(np.isfinite(f)):
             raise FileFormatError(path, "the BRDF evaluates to NaN or infinity: the file is damaged")
-        peak = float(np.max(np.abs(f)))
-        if peak > MAX_BRDF_VALUE:
-            raise FileFormatError(path, f"the BRDF reaches {peak:.3g} sr⁻¹, more than {MAX_BRDF_VALUE:g}: "
-                                  "damaged, or not in sr⁻¹")
+        check_projected(f * (d[0, :, 2] * d[1, :, 2])[:, None], path)
         a = directional_albedo(source, PLAUSIBILITY_ANGLES_DEG, n_u=48, n_phi=64)
     if not np.all(np.isfinite(a)):
         raise FileFormatError(path, "its directional albedo is NaN or infinite: the file is damaged")

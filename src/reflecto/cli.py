@@ -25,7 +25,8 @@ import numpy as np
 import os
 import time
 
-from . import __version__, workflow
+from . import __version__, kinds, workflow
+from .instrument.device import BUILTINS as DEVICE_BUILTINS
 from .fresnel import eta_from_json, format_eta
 from .io import make_parents
 from .reconstruct import Options
@@ -46,13 +47,13 @@ from .instrument.simulate import simulate_calibration
 from .instrument.calibrate import calibrate
 from .export.rgl import export_rgl
 from .export.merl import export_merl
-from .render.mitsuba import compare, comparison_image, render, save_image
+from .render.mitsuba import compare, comparison_image, render, save_image, titled, to_srgb8
 from .io import atomic_path
 import imageio.v3 as iio
 from .evaluate.metrics import comparison_error
 from .evaluate.report import write_report
 from .io import read_json
-from .errors import FileFormatError
+from .errors import FileFormatError, ParameterError
 from .evaluate.cooktorrance import fit_cook_torrance
 from .evaluate.metrics import brdf_error
 from .evaluate.sweep import summarize, sweep
@@ -96,6 +97,106 @@ def _check_suffix(output: str | Path, kind: str, hint: str = "") -> None:
     if other is not None and other != kind:
         raise OutputError(output, f"this writes {_KIND_WORDS[kind]}, but a {suffix} file is read as {_KIND_WORDS[other]}"
                           + (f": {hint}" if hint else ""))
+
+
+_BRDF = "a BRDF file (.binary, .bsdf, .h5, .json/.toml) or a model (.reflecto)"
+_DEVICE = "a device: ideal, as-built, earlier, wide, wide-as-built, or a device file (.json/.toml)"
+_FILE_SUFFIXES = (".reflecto", ".binary", ".bsdf", ".h5", ".npz", ".json", ".toml", ".png", ".exr", ".hdr")
+
+#: Per command: (argument, what it reads, its kinds) for every input (kinds.KINDS).
+_INPUTS: dict[str, list[tuple[str, str, tuple[str, ...]]]] = {
+    "info": [("source", _BRDF, kinds.BRDF_KINDS)],
+    "tabulate": [("source", _BRDF, kinds.BRDF_KINDS)],
+    "simulate": [("source", _BRDF, kinds.BRDF_KINDS), ("device", _DEVICE, ("device",))],
+    "simulate-calibration": [("device", _DEVICE, ("device",))],
+    "layout": [("device", _DEVICE, ("device",))],
+    "calibrate": [("calib_dir", kinds.KINDS["calibration-folder"], ("calibration-folder", "folder"))],
+    "reconstruct": [("captures", kinds.KINDS["capture"], ("capture",)),
+                    ("calibration", kinds.KINDS["calibration"], ("calibration",))],
+    "export": [("source", _BRDF, kinds.BRDF_KINDS)],
+    "render": [("source", _BRDF, kinds.BRDF_KINDS), ("compare", _BRDF, kinds.BRDF_KINDS)],
+    "compare": [("reference", _BRDF, kinds.BRDF_KINDS), ("test", _BRDF, kinds.BRDF_KINDS)],
+    "report": [("model", kinds.KINDS["model"], ("model",)), ("ref", _BRDF, kinds.BRDF_KINDS)],
+    "fit-ct": [("source", _BRDF, kinds.BRDF_KINDS)],
+    "gallery": [("materials", _BRDF, kinds.BRDF_KINDS), ("device", _DEVICE, ("device",)),
+                ("calibration", kinds.KINDS["calibration"], ("calibration",))],
+    "sweep": [("folders", "folders or files of materials (BRDF files)", ("folder", *kinds.BRDF_KINDS)),
+              ("device", _DEVICE, ("device",))],
+    "design": [("folders", "folders or files of materials (BRDF files)", ("folder", *kinds.BRDF_KINDS))],
+}
+
+#: Per command: (output argument, suffixes it may have, what it writes); ``None``: a folder.
+_OUTPUTS: dict[str, tuple[str, tuple[str, ...] | None, str]] = {
+    "tabulate": ("output", (".binary",), "a MERL table (.binary)"),
+    "calibrate": ("output", (".npz",), "a calibration file (.npz)"),
+    "render": ("output", (".png", ".exr", ".hdr"), "an image (.png, .exr or .hdr)"),
+    "layout": ("plot", (".png",), "a plot (.png)"),
+    "simulate": ("output", None, "a capture folder"),
+    "simulate-calibration": ("output", None, "a calibration folder"),
+    "report": ("output", None, "a report folder (index.html and images)"),
+    "gallery": ("output", None, "a gallery folder (index.html and renders)"),
+    "sweep": ("output", None, "a results folder"),
+    "design": ("output", None, "a results folder"),
+}
+
+
+#: The list options and the type of their values: one syntax, values separated by spaces or commas.
+_LIST_OPTIONS = {"rotations": float, "cones": float, "tilts": float, "leds": int}
+
+
+def _lists(args: argparse.Namespace) -> None:
+    """Turn every list option's words (``0 90`` or ``0,90``) into numbers; one line naming the option otherwise."""
+    for name, typ in _LIST_OPTIONS.items():
+        words = getattr(args, name, None)
+        if words is None:
+            continue
+        items = [w for word in words for w in str(word).split(",") if w.strip()]
+        try:
+            values = [typ(w) for w in items]
+        except ValueError:
+            raise ReflectoError(f"--{name}: expected {'integers' if typ is int else 'numbers'} separated by spaces, "
+                                f"got {' '.join(map(str, words))!r}") from None
+        if not values:
+            raise ReflectoError(f"--{name}: expected at least one value")
+        setattr(args, name, values)
+
+
+def check_inputs(args: argparse.Namespace) -> None:
+    """Refuse at once an input or output of the wrong kind (:mod:`reflecto.kinds`).
+
+    Each input named on the command line is identified (model, capture folder,
+    calibration, BRDF file, device, ...); one of another kind than the command reads
+    gives ``FILE is KIND; COMMAND needs KIND (what to run instead)``. Output suffixes
+    are checked against what the command writes.
+
+    Raises
+    ------
+    reflecto.kinds.KindError
+    """
+    command = args.command
+    for name, need, accept in _INPUTS.get(command, []):
+        value = getattr(args, name, None)
+        values = value if isinstance(value, list) else [value]
+        for v in values:
+            if v is None or (name == "device" and str(v) in DEVICE_BUILTINS):
+                continue
+            label = command if name in ("source", "model", "captures", "calib_dir", "materials", "folders",
+                                        "reference", "test") else f"{command} --{name.replace('_', '-')}"
+            kinds.require(v, label, accept, need)
+    spec = _OUTPUTS.get(command)
+    if spec is None:
+        return
+    name, suffixes, what = spec
+    out = getattr(args, name, None)
+    if out is None:
+        return
+    if command == "render" and getattr(args, "compare", None):
+        suffixes, what = (".png",), "a comparison image (.png)"
+    if suffixes is not None:
+        kinds.require_output_suffix(out, command, suffixes, what, "--plot" if name == "plot" else "-o")
+    elif Path(out).suffix.lower() in _FILE_SUFFIXES and not Path(out).is_dir():
+        raise kinds.KindError(out, f"a {Path(out).suffix} file name", command, what,
+                              f"use -o {Path(out).with_suffix('')}", verb="writes")
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -286,7 +387,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     if len(caps) > 1 and not Path(args.output).suffix == "":
         raise OutputError(args.output, "with several captures, -o must be a folder")
     if len(caps) == 1 and Path(args.output).suffix:
-        _check_suffix(args.output, "model", f"use -o {Path(args.output).with_suffix('.reflecto')}")
+        kinds.require_output_suffix(args.output, "reconstruct", (".reflecto",), "a model file (.reflecto)")
         check_output(args.output)
         outs = [args.output]
     else:
@@ -359,10 +460,14 @@ def _export_format(args: argparse.Namespace) -> str:
     """``--format``, or the one the ``-o`` suffix names; the two must agree."""
     suffix = Path(args.output).suffix.lower()
     by_suffix = {".bsdf": "rgl", ".binary": "merl"}.get(suffix)
+    if args.format is None and by_suffix is None:
+        kinds.require_output_suffix(args.output, "export", (".bsdf", ".binary"),
+                                    "an RGL .bsdf or a MERL .binary file (or name one with --format rgl|merl)")
     fmt = args.format or by_suffix or "rgl"
-    if args.format is None and by_suffix is None and suffix in _SUFFIX_KINDS:
-        raise OutputError(args.output, f"a {suffix} file is read as {_KIND_WORDS[_SUFFIX_KINDS[suffix]]}: "
-                          "use -o NAME.bsdf (RGL) or NAME.binary (MERL)")
+    if suffix in kinds._SUFFIX and kinds._SUFFIX[suffix] not in (None, fmt):
+        raise kinds.KindError(args.output, f"a {suffix} file name", f"export --format {fmt}",
+                              f"{kinds.KINDS[fmt]}", f"use -o {Path(args.output).with_suffix('.bsdf' if fmt == 'rgl' else '.binary')}",
+                              verb="writes")
     right = {"rgl": ".bsdf", "merl": ".binary"}[fmt]
     _check_suffix(args.output, fmt, f"use -o {Path(args.output).with_suffix(right)}, or --format "
                   f"{by_suffix or ('merl' if fmt == 'rgl' else 'rgl')}")
@@ -384,8 +489,13 @@ def cmd_export(args: argparse.Namespace) -> int:
         export_rgl(src, out, isotropic=iso)
     else:
 
-        with _progress(merl_bins(), f"tabulating {src.name}", not args.quiet and not args.json and _interactive()) as bar:
-            export_merl(src, out, allow_anisotropic=args.isotropic == "yes", progress=bar.update)
+        try:
+            with _progress(merl_bins(), f"tabulating {src.name}", not args.quiet and not args.json and _interactive()) as bar:
+                export_merl(src, out, allow_anisotropic=args.isotropic == "yes", progress=bar.update)
+        except ParameterError:
+            raise ReflectoError(f"{args.source} is anisotropic; a MERL table holds an isotropic BRDF: add "
+                                f"--isotropic yes to write its φ_h = 0 slice, or write -o {out.with_suffix('.bsdf')} "
+                                "(RGL, anisotropic)") from None
     size = out.stat().st_size
     return _emit(args, {"source": str(args.source), "output": str(out), "format": fmt, "bytes": size},
                  [f"wrote {out} ({size} bytes, {fmt})"])
@@ -407,7 +517,11 @@ def cmd_render(args: argparse.Namespace) -> int:
     if not args.compare:
         r = render(src, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
         # a linear EXR keeps the object's alpha; PNG and HDR get the grey background
-        save_image(np.dstack([r.radiance, r.alpha]) if out.suffix.lower() == ".exr" else r.image(), out)
+        if args.title and out.suffix.lower() == ".png":
+            with atomic_path(out, suffix=".png") as tmp:
+                iio.imwrite(tmp, titled(to_srgb8(r.image()), args.title))
+        else:
+            save_image(np.dstack([r.radiance, r.alpha]) if out.suffix.lower() == ".exr" else r.image(), out)
         return _emit(args, {"source": str(args.source), "scene": args.scene, "resolution": args.resolution,
                             "spp": r.spp, "variant": r.variant, "seconds": r.seconds, "output": str(out)},
                      [f"rendered {src.name} ({args.scene}, {args.resolution}², {r.spp} spp, {r.variant}) in "
@@ -415,17 +529,17 @@ def cmd_render(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".png":
         raise ReflectoError(f"{out}: a comparison image must be .png")
     ref = load_source(args.compare)
-    c = compare(src, ref, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
+    c = compare(ref, src, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
 
 
     with atomic_path(out, suffix=".png") as tmp:
-        iio.imwrite(tmp, comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha,
-                                          alpha_test=c.test.alpha))
+        iio.imwrite(tmp, comparison_image(c.reference.radiance, c.test.radiance, (f"reference\n{ref.name}", f"test\n{src.name}"),
+                                          alpha=c.reference.alpha, alpha_test=c.test.alpha, difference=c.difference))
     seconds = c.test.seconds + c.reference.seconds + c.reference_repeat.seconds
     lines = [f"rendered {src.name} and {ref.name} twice ({args.scene}, {args.resolution}², {c.test.spp} spp, "
              f"{c.test.variant}) in {seconds:.1f} s; {c.summary()}; wrote {out} (reference | {src.name} | difference)"]
     if c.within_noise:
-        lines.append("note: the difference is within the noise floor: at this spp the two render alike")
+        lines.append("note: the difference is within the noise floor: at this spp the two renders look alike")
     elif not c.resolved:
         lines.append(f"note: the noise floor is more than a third of the difference; about --spp {c.spp_to_resolve()} "
                      "would bring it there")
@@ -445,7 +559,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return _emit(args, {"reference": str(args.reference), "test": str(args.test), **err.to_dict()}, [
         f"{args.test} against {args.reference} ({err.describe()}):",
         f"  RMSE (R, G, B)      {err.rmse[0]:.5f} {err.rmse[1]:.5f} {err.rmse[2]:.5f} sr⁻¹",
-        f"  normalized error    {err.normalized:.5f}  (channel mean / max albedo {err.albedo_ref:.4f})",
+        f"  normalized error    {100 * err.normalized:.3f} %  (RMSE averaged over R, G, B, divided by the reference's "
+        f"largest channel-mean directional albedo over θ_i ≤ 80°, {err.albedo_ref:.4f})",
         f"  log-RMSE            {err.log_rmse:.5f}"])
 
 
@@ -568,6 +683,8 @@ class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         d = action.default
         if "%(default)" in text or d is None or d is argparse.SUPPRESS or isinstance(d, bool) or not action.option_strings:
             return text
+        if isinstance(d, list):
+            return text + " (default: " + " ".join(map(str, d)).replace("%", "%%") + ")"
         return text + " (default: %(default)s)"
 
 
@@ -580,6 +697,12 @@ class _Parser(argparse.ArgumentParser):
 
 
 _JSON_HELP = "print one JSON document on stdout instead of text"
+_DEVICE_HELP = ("the device: ideal (the paper's design, nominal optics, noiseless camera), as-built (the same "
+                "design with seeded LED, optics and vignetting errors and camera noise: needs a calibration), "
+                "earlier (the [DWT*10] baseline: condenser on the normal, sparse LEDs), wide (the design study's "
+                "60° cone about a 20° axis, ten LEDs, ideal optics), wide-as-built (wide with as-built errors), "
+                "or a device file (.json/.toml, docs/instrument.md)")
+_LIST_HELP = "; values separated by spaces (commas also accepted)"
 _SCHEDULER_HELP = ("run the work on the Dask cluster of this scheduler (tcp://host:8786; needs reflecto[dask]) "
                    "instead of local processes; the output folder must be a path every worker sees")
 
@@ -612,10 +735,11 @@ def build_parser() -> argparse.ArgumentParser:
     q.set_defaults(func=cmd_tabulate)
 
     q = sub.add_parser("layout", help="coverage of a device's LED layout (paper §4.1); optionally re-optimise it")
-    q.add_argument("--device", default="ideal", help="ideal | as-built | device file (JSON/TOML)")
+    q.add_argument("--device", default="ideal", help=_DEVICE_HELP)
     q.add_argument("--optimize", action="store_true", help="run the layout optimizer instead of using the device's LEDs")
     q.add_argument("--seed", type=int, default=0, help="random seed of the layout optimizer")
-    q.add_argument("--resolution", type=int, default=64, help="hemicube resolution of the analysis")
+    q.add_argument("--resolution", type=int, default=64, help="hemicube resolution of the analysis: cells along "
+                   "each edge of a hemicube face (the NDF's texels; the plot uses at least 128)")
     q.add_argument("--theta-max", type=float, default=80.0, help="NDF cap θ_h ≤ this (degrees)")
     q.add_argument("--plot", type=Path, help="write the Fig. 2(c)(d) analogue to this PNG (default: no plot)")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
@@ -623,9 +747,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     q = sub.add_parser("simulate", help="raw frames of a virtual capture of a BRDF source")
     q.add_argument("source", help="BRDF file")
-    q.add_argument("--device", default="ideal", help="ideal | as-built | device file (JSON/TOML)")
+    q.add_argument("--device", default="ideal", help=_DEVICE_HELP)
     q.add_argument("--tilt", type=float, default=0.0, help="hand tilt of the sample normal, degrees (≤ 30)")
-    q.add_argument("--tilt-azimuth", type=float, default=None, help="azimuth of the tilt (default: from the seed)")
+    q.add_argument("--tilt-azimuth", type=float, default=None, help="azimuth of the tilt, degrees (default: from the seed)")
     q.add_argument("--rotation", type=float, default=0.0, help="rotation of the sample about its normal, degrees")
     q.add_argument("--shake", action="store_true", help="move the sample between two LEDs' frames")
     q.add_argument("--seed", type=int, default=0, help="random seed of the camera noise, tilt azimuth and shake")
@@ -635,7 +759,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.set_defaults(func=cmd_simulate)
 
     q = sub.add_parser("simulate-calibration", help="virtual calibration captures (white target, pinhole grid, mirror)")
-    q.add_argument("--device", default="as-built", help="ideal | as-built | device file (JSON/TOML)")
+    q.add_argument("--device", default="as-built", help=_DEVICE_HELP)
     q.add_argument("--seed", type=int, default=0, help="random seed of the camera noise")
     q.add_argument("-o", "--output", required=True, help="calibration folder to write")
     q.add_argument("-q", "--quiet", action="store_true", help="no summary line")
@@ -722,6 +846,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--resolution", type=int, default=256, help="image width and height in pixels")
     q.add_argument("--seed", type=int, default=0, help="seed of the source's render (the reference's: +1, +2)")
     q.add_argument("--compare", metavar="REFERENCE", help="also render REFERENCE; write reference | source | difference")
+    q.add_argument("--title", help="write this title above the image (.png only; default: no title)")
     q.add_argument("-o", "--output", required=True,
                    help="image: .png (sRGB, grey background), .exr (linear RGBA) or .hdr (linear, grey background)")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
@@ -756,11 +881,12 @@ def build_parser() -> argparse.ArgumentParser:
                                    "index.html into the output folder.")
     q.add_argument("materials", nargs="+", help="material files (.json/.toml analytic descriptions or any BRDF file)")
     q.add_argument("-o", "--output", required=True, help="folder to write index.html and the renders into")
-    q.add_argument("--device", default="ideal", help="ideal | as-built | device file")
+    q.add_argument("--device", default="ideal", help=_DEVICE_HELP)
     q.add_argument("--calibration", help="calibration file for a device that needs one (default: simulated)")
-    q.add_argument("--rotations", default="0,90,180,270", help="rotations of the §5.5 captures, degrees")
+    q.add_argument("--rotations", nargs="+", default=["0", "90", "180", "270"],
+                   help="rotations of the §5.5 captures, degrees" + _LIST_HELP)
     q.add_argument("--spp", type=int, default=64, help="samples per pixel of the renders")
-    q.add_argument("--resolution", type=int, default=256, help="render resolution")
+    q.add_argument("--resolution", type=int, default=256, help="image width and height of the renders, pixels")
     q.add_argument("--seed", type=int, default=1, help="seed of the first capture and render")
     q.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
@@ -769,7 +895,7 @@ def build_parser() -> argparse.ArgumentParser:
     q = sub.add_parser("sweep", help="validation (paper §6): simulate → reconstruct → evaluate, ours vs baselines")
     q.add_argument("folders", nargs="+", help="folders (or files) of materials: .binary .bsdf .h5 .json .toml")
     q.add_argument("-o", "--output", required=True, help="results folder (resumable: finished materials are skipped)")
-    q.add_argument("--device", default="ideal", help="our device: ideal | as-built | device file")
+    q.add_argument("--device", default="ideal", help="our device: " + _DEVICE_HELP[len("the device: "):])
     _batch_options(q)
     q.set_defaults(func=cmd_sweep)
 
@@ -781,9 +907,12 @@ def build_parser() -> argparse.ArgumentParser:
                                    "Writes design.csv and design.png; resumable. See docs/design-study.md.")
     q.add_argument("folders", nargs="+", help="folders (or files) of materials")
     q.add_argument("-o", "--output", required=True, help="results folder (resumable: finished work is skipped)")
-    q.add_argument("--cones", type=float, nargs="+", default=list(DEFAULT_CONES), help="cone half-angles (degrees)")
-    q.add_argument("--tilts", type=float, nargs="+", default=list(DEFAULT_TILTS), help="axis tilts (degrees)")
-    q.add_argument("--leds", type=int, nargs="+", default=list(DEFAULT_LED_COUNTS), help="LED counts")
+    q.add_argument("--cones", nargs="+", default=[str(v) for v in DEFAULT_CONES],
+                   help="cone half-angles (degrees)" + _LIST_HELP)
+    q.add_argument("--tilts", nargs="+", default=[str(v) for v in DEFAULT_TILTS],
+                   help="axis tilts (degrees)" + _LIST_HELP)
+    q.add_argument("--leds", nargs="+", default=[str(v) for v in DEFAULT_LED_COUNTS],
+                   help="LED counts" + _LIST_HELP)
     q.add_argument("--layout-only", action="store_true", help="lay out the designs only (no materials)")
     _batch_options(q)
     q.set_defaults(func=cmd_design)
@@ -805,10 +934,7 @@ def cmd_gallery(args: argparse.Namespace) -> int:
     (:func:`reflecto.evaluate.gallery.gallery`, the paper's Fig. 6); returns exit status 0."""
 
     check_output(args.output, folder=True)
-    try:
-        rotations = tuple(float(r) for r in args.rotations.split(","))
-    except ValueError:
-        raise ReflectoError(f"--rotations: expected degrees separated by commas, got {args.rotations!r}") from None
+    rotations = tuple(args.rotations)
     settings = GallerySettings(args.device, args.calibration, rotations, args.spp, args.resolution, args.seed)
 
     def progress(name: str, seconds: float) -> None:
@@ -886,6 +1012,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         warnings.simplefilter("ignore", RuntimeWarning)
         warnings.showwarning = _show_warning
         try:
+            _lists(args)
+            check_inputs(args)
             rc = int(args.func(args))
             sys.stdout.flush()
         except BrokenPipeError:

@@ -432,24 +432,28 @@ def _model_parameters(path: Path, meta: dict[str, Any]) -> tuple[Array, Array, A
 
 
 def _local_metadata(path: Path, metadata: dict[str, Any]) -> dict[str, Any]:
-    """``metadata`` with its ``capture`` folder resolved against the model's folder.
+    """``metadata`` with its ``capture`` folder and ``calibration`` file resolved against the model's folder.
 
-    The folder is kept (as that path) only if it exists and lies inside the model's
-    folder; a model file cannot make a reader open files elsewhere.
+    Each is kept (as that path) only if it exists and lies inside the model's folder;
+    a model file cannot make a reader open files elsewhere. One that fails the rule is
+    named under ``capture_not_found`` / ``calibration_not_found`` (for messages only).
     """
 
     out = dict(metadata)
-    cap = out.get("capture")
-    if cap is None:
-        return out
-    out.pop("capture")
-    if not isinstance(cap, str) or not cap or "\x00" in cap or Path(cap).is_absolute() or ".." in Path(cap).parts:
-        return out
-    folder = path.parent
-    target = folder / cap
-    real_folder, real = os.path.realpath(folder), os.path.realpath(target)
-    if os.path.commonpath([real_folder, real]) == real_folder and os.path.isdir(real):
-        out["capture"] = str(target)
+    for key, is_kind in (("capture", os.path.isdir), ("calibration", os.path.isfile)):
+        name = out.pop(key, None)
+        if name is None:
+            continue
+        if not isinstance(name, str) or not name or "\x00" in name or Path(name).is_absolute() or ".." in Path(name).parts:
+            out[f"{key}_not_found"] = str(name)[:200]
+            continue
+        folder = path.parent
+        target = folder / name
+        real_folder, real = os.path.realpath(folder), os.path.realpath(target)
+        if os.path.commonpath([real_folder, real]) == real_folder and is_kind(real):
+            out[key] = str(target)
+        else:
+            out[f"{key}_not_found"] = name
     return out
 
 

@@ -267,10 +267,12 @@ def provenance(capture: Capture) -> dict[str, str]:
     return out
 
 
-def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path | None = None) -> dict[str, Any]:
+def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path | None = None,
+               calibration: str | Path | None = None) -> dict[str, Any]:
     """Write the model file and its ``.json`` summary beside it (each atomically); returns the summary.
 
-    The model names its capture relative to its own folder, where readers look for it.
+    The model names its capture folder and its calibration file (when one was given)
+    relative to its own folder, where readers (``reflecto report``) look for them.
     """
     out = Path(output)
     summary = result.summary()
@@ -278,6 +280,9 @@ def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path
         summary = {"capture": str(capture_dir), **summary}
         rel = os.path.relpath(Path(capture_dir).resolve(), out.resolve().parent)
         result.model.metadata.update({"capture": rel})
+    if isinstance(calibration, (str, Path)):
+        rel_cal = os.path.relpath(Path(calibration).resolve(), out.resolve().parent)
+        result.model.metadata.update({"calibration": rel_cal})
     result.model.metadata.update({**result.provenance, "model_error": summary["model_error"]})
     result.model.save(out)
     with atomic_write(out.with_suffix(".json"), "w") as fh:
@@ -295,7 +300,7 @@ def reconstruct_folder(capture_dir: str | Path, output: str | Path, calibration:
     """
     result = capture_to_model(capture_dir, calibration, options, missing=missing)
     t0, c0 = time.perf_counter(), time.process_time()
-    summary = save_model(result, output, capture_dir)
+    summary = save_model(result, output, capture_dir, calibration if isinstance(calibration, (str, Path)) else None)
     wall = dataclasses.replace(result.seconds, write=time.perf_counter() - t0)
     cpu = dataclasses.replace(result.cpu_seconds, write=time.process_time() - c0)
     return {**summary, "motion": result.reconstruction.motion.describe(),

@@ -264,7 +264,11 @@ def _read(path: Path) -> dict[str, Any] | None:
         rec = read_json(path)
     except ReflectoError:
         return None
-    return rec if isinstance(rec, dict) and isinstance(rec.get("error"), (int, float)) else None
+    return rec if isinstance(rec, dict) and all(_finite_number(rec.get(k)) for k in ("error", "log_rmse")) else None
+
+
+def _finite_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _material_task(path: str, out_dir: str, designs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -329,8 +333,12 @@ def design_study(folders: Sequence[str | Path], out_dir: str | Path, cones: Sequ
     failures: list[tuple[str, str]] = []
     recs: dict[str, dict[str, Any]] = {}
     for d in grid:
-        r = read_json(out / "designs" / f"{d.key}.json") if (out / "designs" / f"{d.key}.json").is_file() else None
-        if isinstance(r, dict) and r.get("key") == d.key:
+        try:
+            r = read_json(out / "designs" / f"{d.key}.json") if (out / "designs" / f"{d.key}.json").is_file() else None
+        except ReflectoError:
+            r = None  # unreadable: laid out again
+        if isinstance(r, dict) and r.get("key") == d.key and all(
+                _finite_number(r.get(k)) for k in ("coverage_after_tau", "na", "theta_d_reach_deg", "capture_s")):
             recs[d.key] = r
     todo = [d for d in grid if d.possible is None and d.key not in recs]
     bar = Progress(len(todo), "design layouts", progress)

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from ..colour import LUM
 from .. import workflow
 from ..instrument.capture import read_capture
-from ..errors import FileFormatError
+from ..errors import FileFormatError, ReflectoError
 from ..fresnel import is_constant
 from ..io import atomic_path, atomic_write, read_json
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF, load_model
@@ -39,7 +39,8 @@ from ..plotting import pyplot, save_figure
 from ..brdf import BRDFSource, HasNDF
 import imageio.v3 as iio
 from .. import geometry
-from ..render.mitsuba import compare, comparison_image, render as mi_render, to_srgb8
+from ..render.mitsuba import compare, comparison_image, default_envmap, render as mi_render, to_srgb8
+from .viewer import write_viewer
 from ..instrument.device import load_device
 from ..instrument.plots import plot_coverage
 from ..load import load_source
@@ -105,8 +106,14 @@ def ndf_figures(model: HasNDF, out: Path) -> list[tuple[str, str]]:
     fig = plt.figure(figsize=(5, 4.6))
     ax = fig.add_subplot(projection="polar")
     pc = ax.pcolormesh(P, np.degrees(T), np.log10(np.maximum(dv, 1e-6 * dv.max())), cmap="magma", shading="auto")
-    fig.colorbar(pc, ax=ax, label="log₁₀ D (sr⁻¹)")
-    ax.set_title("NDF D(θ_h, φ_h); radius θ_h in degrees")
+    fig.colorbar(pc, ax=ax, label="log₁₀ D (sr⁻¹)", pad=0.12)
+    ax.set_rticks([30, 60, 90])
+    ax.set_yticklabels(["θ_h 30°", "60°", "90°"], color="white", fontsize=8)
+    ax.set_rlabel_position(112.5)
+    ax.set_xticks(np.radians(np.arange(0, 360, 45)))
+    ax.set_xticklabels([f"φ_h {v}°" if v == 0 else f"{v}°" for v in range(0, 360, 45)], fontsize=8)
+    ax.tick_params(axis="x", pad=6)
+    ax.set_title("NDF D(θ_h, φ_h); radius θ_h", pad=14)
     items.append((_save_png(fig, out / "ndf_polar.png"), "NDF in polar coordinates (log scale)."))
     # the profile on rings dense near the pole, where sharp lobes are
     th = 0.5 * math.pi * np.linspace(0.0, 1.0, 400) ** 2
@@ -148,31 +155,45 @@ def theta_h_theta_d_image(source: BRDFSource, out: Path, name: str = "thd.png", 
     return _save_png(fig, out / name)
 
 
-def slice_figure(capture_dir: Path, out: Path):
-    """The six slices of a capture (luminance, log scale) on the sensor, and its device; None if unreadable."""
+def slice_figure(capture_dir: Path, out: Path, calibration: str | Path | None = None):
+    """The slices of a capture (luminance, log scale, with its colour bar) on the sensor, read
+    with ``calibration`` (the capture's own; default: the device's nominal one).
+
+    Returns ``(file, device, calibration words)``, or None if the capture is unreadable.
+    """
     try:
         cap = read_capture(capture_dir)
-    except Exception:  # noqa: BLE001 - the capture may be gone; the report still works
+    except Exception:  # noqa: BLE001 - the capture may be gone; the report says so
         return None
-    cal = workflow.calibration_for(cap.device, missing="nominal")
+    try:
+        cal = workflow.calibration_for(cap.device, calibration, missing="nominal")
+        words = f"calibration {Path(calibration).name}" if calibration is not None else "nominal calibration"
+    except ReflectoError as e:
+        cal = workflow.calibration_for(cap.device, missing="nominal")
+        words = f"nominal calibration: the model's calibration file could not be read ({e})"
     sl = workflow.measure(cap, cal, capture_dir)
     plt = pyplot()
     h, w = cal.optics.height, cal.optics.width
     fig, axes = plt.subplots(2, (sl.n_leds + 1) // 2, figsize=(3.2 * ((sl.n_leds + 1) // 2), 5.2))
     vals = np.where(sl.valid, sl.values @ LUM, np.nan)
     vmax = np.nanpercentile(vals, 99.5)
+    im = None
     for k, ax in enumerate(np.ravel(axes)):
         ax.axis("off")
         if k >= sl.n_leds:
             continue
         img = np.full((h, w), np.nan)
         img[sl.pixels[:, 0], sl.pixels[:, 1]] = vals[k]
-        ax.imshow(np.log10(np.maximum(img, 1e-4 * vmax)), cmap="inferno", vmin=np.log10(1e-3 * vmax),
-                  vmax=np.log10(vmax))
+        im = ax.imshow(np.log10(np.maximum(img, 1e-4 * vmax)), cmap="inferno", vmin=np.log10(1e-3 * vmax),
+                       vmax=np.log10(vmax))
         ax.set_title(f"slice l{k}", fontsize=9)
-    fig.suptitle("BRDF slices on the sensor (log luminance; one per LED)", fontsize=10)
-    fig.tight_layout()
-    return _save_png(fig, out / "slices.png"), cap.device
+    fig.suptitle(f"BRDF slices on the sensor (log luminance, one per LED; white: not measured; {words.split(':')[0]})",
+                 fontsize=10)
+    fig.tight_layout(rect=(0, 0, 0.9, 1))
+    if im is not None:
+        bar = fig.colorbar(im, cax=fig.add_axes((0.91, 0.15, 0.015, 0.7)))
+        bar.set_label("log₁₀ luminance of f (sr⁻¹)", fontsize=8)
+    return _save_png(fig, out / "slices.png"), cap.device, words
 
 
 def render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, ref: BRDFSource | None, out: Path,
@@ -194,14 +215,15 @@ def render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, ref: BRDFSou
             items.append((_save_png(to_srgb8(r.image()), out / f"render_{scene}.png"),
                           f"{what} (Mitsuba 3, {r.variant}, {r.spp} spp)."))
             continue
-        c = comparisons[scene] = compare(model, ref, scene, spp=spp)
+        c = comparisons[scene] = compare(ref, model, scene, spp=spp)
         items.append((_save_png(to_srgb8(c.test.image()), out / f"render_{scene}.png"),
                       f"{what} (Mitsuba 3, {c.test.variant}, {c.test.spp} spp)."))
-        note = ("" if c.resolved else " The difference is within the noise floor: the two render alike at this spp."
+        note = ("" if c.resolved else " The difference is within the noise floor: the two renders look alike at this spp."
                 if c.within_noise else " The noise floor is more than a third of the difference: render with more "
                 f"samples (about {c.spp_to_resolve()} spp) to resolve it.")
-        items.append((_save_png(comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha,
-                                                 alpha_test=c.test.alpha),
+        items.append((_save_png(comparison_image(c.reference.radiance, c.test.radiance, ("reference\n" + ref.name, "model\n" + model.name),
+                                                 alpha=c.reference.alpha, alpha_test=c.test.alpha,
+                                                 difference=c.difference),
                                 out / f"compare_{scene}.png"),
                       f"{what}: reference | model | relative difference (0–20 %). Mean image difference "
                       f"{100 * c.difference:.2f} % over the object's pixels; noise floor {100 * c.noise_floor:.2f} % "
@@ -254,14 +276,19 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     cap_dir = model.metadata.get("capture")
     dev = load_device("ideal")
     items = []
-    got = slice_figure(Path(cap_dir), out) if cap_dir and Path(cap_dir).is_dir() else None
+    got = slice_figure(Path(cap_dir), out, model.metadata.get("calibration")) if cap_dir and Path(cap_dir).is_dir() else None
     if got:
-        items.append((got[0], f"The six slices of {html.escape(str(cap_dir))} (nominal calibration)."))
+        items.append((got[0], f"The slices of {html.escape(str(cap_dir))} ({html.escape(got[2])})."))
         dev = got[1]
+    elif cap_dir or model.metadata.get("capture_not_found"):
+        numbers["capture slices"] = (f"not shown: the model names the capture {cap_dir or model.metadata['capture_not_found']}, "
+                                     "which is not a readable capture folder inside the model's folder")
     cov = plot_coverage(dev.optics, dev.leds, out / "coverage.png")
     items.insert(0, (cov.name, f"Half-vector coverage per LED of device {html.escape(dev.name)} (paper Fig. 2(c)(d))."))
     figs.append(("Capture", items))
 
+    viewer_sources = [("model: " + model_path.stem, model)] + ([("reference: " + ref.name, ref)] if ref is not None else [])
+    write_viewer(viewer_sources, out / "viewer.html", envmap=default_envmap())
     rows = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>" for k, v in numbers.items())
     sections = []
     for title, its in figs:
@@ -272,6 +299,9 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     page = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{title}</title>{_STYLE}</head>\n"
             f"<body data-images=\"pending\">\n<h1>{title}</h1>\n<p>Model file <code>{html.escape(str(model_path))}</code>"
             + (f", reference <code>{html.escape(str(reference))}</code>" if reference else "") + "</p>\n"
+            "<p><a href=\"viewer.html\">Interactive BRDF viewer</a>: lit sphere with a draggable light, θ_h–θ_d "
+            "slice with read-outs, incidence-plane plots" + (", model and reference side by side" if ref is not None else "")
+            + " (a static page; works from file://).</p>\n"
             f"<h2>Numbers</h2>\n<table>\n{rows}\n</table>\n" + "\n".join(sections) + f"\n{_CHECK_SCRIPT}\n</body></html>\n")
     index = out / "index.html"
     with atomic_write(index, "w") as fh:

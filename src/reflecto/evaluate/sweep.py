@@ -259,9 +259,14 @@ def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ide
         raise ReflectoError(f"no material files in {', '.join(map(str, folders))}")
     make_parents(out / "materials")
     cal = workflow.calibration_file(device, out)
-    records = {p.stem: r for p in mats if (r := _done(out, p.stem)) is not None and r.get("device") == device}
-    todo = [p for p in mats if p.stem not in records]
     failures: list[tuple[str, str]] = []
+    blocked = [p for p in mats if (out / "materials" / f"{p.stem}.json").is_dir()]
+    for p in blocked:  # no record can be written there: name the material and the folder in the way
+        failures.append((str(p), f"{p}: its result record {out / 'materials' / (p.stem + '.json')} is a folder; "
+                                 "remove it (or choose another -o) to evaluate this material"))
+    mats_left = [p for p in mats if p not in blocked]
+    records = {p.stem: r for p in mats_left if (r := _done(out, p.stem)) is not None and r.get("device") == device}
+    todo = [p for p in mats_left if p.stem not in records]
     bar = Progress(len(mats), "sweep", progress, initial=len(mats) - len(todo))
 
     def finished(k: int, ok: bool, value: Any, seconds: float) -> None:

@@ -55,10 +55,11 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from ..colour import LUM
+from ..errors import FileFormatError
 from ..fresnel import f0_from_eta, is_constant
-from ..io import atomic_write
+from ..io import atomic_path, atomic_write
 from ..brdf import BRDFSource
-from ..sources.rgl import MAGIC, Marginal2D
+from ..sources.rgl import MAGIC, Marginal2D, RGLBRDF
 from ..fresnel import fresnel
 from .. import __version__
 
@@ -237,7 +238,7 @@ def _floor(source: BRDFSource, ring: Array, u0: Array, scale: float, min_floor: 
     Where ``D = 4 k_d/(π k_s F(0))`` the diffuse term of a microfacet BRDF equals the
     specular one at normal incidence. Away from it the balance moves (at θ_d = 60° the
     specular term is ≈ 2–3× larger relative to the diffuse one), so the floor sits
-    below it: ``scale = 0.5`` gave the lowest eq. 10 error over today's 50 shared
+    below it: ``scale = 0.5`` gives the lowest eq. 10 error over the 50 shared
     reconstructions (1.1 % worst, against 1.6 % with 1 and 1.3 % with 0.3).
 
     A source without ``kd``/``ks``/``eta`` has the back-scattering estimate for D
@@ -527,5 +528,23 @@ def export_description(source: BRDFSource, isotropic: bool) -> str:
 
 def export_rgl(source: BRDFSource, path: str | Path, grid: RGLGrid = RGLGrid(), isotropic: bool | None = None,
                description: str | None = None) -> Path:
-    """Write ``source`` as an RGL ``.bsdf`` file (atomically); returns the path."""
-    return write_tensor_file(path, rgl_tables(source, grid, isotropic, description))
+    """Write ``source`` as an RGL ``.bsdf`` file (atomically); returns the path.
+
+    The file is read back by reflecto's own reader (:class:`reflecto.sources.rgl.RGLBRDF`,
+    with the checks of docs/limits.md) before it takes its name: reflecto writes only
+    what it reads.
+
+    Raises
+    ------
+    FileFormatError
+        Naming ``path``, when the tables would not pass the reader's checks.
+    """
+    path = Path(path)
+    tables = rgl_tables(source, grid, isotropic, description)
+    with atomic_path(path, suffix=".bsdf") as tmp:
+        write_tensor_file(tmp, tables)
+        try:
+            RGLBRDF(tmp)
+        except FileFormatError as e:
+            raise FileFormatError(path, f"not written: the file would be refused on reading ({e.problem})") from None
+    return path

@@ -282,12 +282,17 @@ def needs_calibration(device: Device) -> bool:
     """Whether captures of ``device`` need a measured calibration to be read correctly.
 
     Only the built-in simulated devices whose nominal description is exactly what
-    they are (``ideal``, ``earlier``) can use the nominal calibration; ``as-built``,
-    device files and real devices differ from their nominal optics, LEDs and
-    vignetting in ways only a calibration recovers.
+    they are (:data:`NOMINAL_DEVICES`: ``ideal``, ``earlier``, ``wide``) can use the
+    nominal calibration; ``as-built``, ``wide-as-built``, device files and real devices
+    differ from their nominal optics, LEDs and vignetting in ways only a calibration
+    recovers.
     """
     nominal = device.nominal()
-    return all(nominal != Device.builtin(name).nominal() for name in ("ideal", "earlier"))
+    return all(nominal != Device.builtin(name).nominal() for name in NOMINAL_DEVICES)
+
+
+#: The built-in devices whose optics are ideal: their captures are read with the nominal calibration.
+NOMINAL_DEVICES = ("ideal", "earlier", "wide")
 
 
 def nominal_calibration(device: Device) -> Calibration:
@@ -412,6 +417,9 @@ def fit_optics(nominal: Optics, directions: list[Array], spots: list[Array]) -> 
             idx = np.flatnonzero(ok)[first]
             pd.append(d[idx])
             ps.append(s[j[idx]])
+        if not pd:
+            raise CaptureError(Path("<grid>"), "no pinhole spot in any grid image (are the grid frames dark?); "
+                               "cannot calibrate geometry")
         pairs_d, pairs_s = np.concatenate(pd), np.concatenate(ps)
         if len(pairs_d) < 12:
             raise CaptureError(Path("<grid>"), f"only {len(pairs_d)} pinhole spots matched; cannot calibrate geometry")

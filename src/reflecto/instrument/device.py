@@ -475,7 +475,26 @@ class Device:
 
     @classmethod
     def builtin(cls, name: str) -> Device:
-        """``"ideal"``, ``"as-built"``, or ``"earlier"`` (the DWT*10 baseline layout)."""
+        """A built-in device by name (:data:`BUILTINS`); a device file is read by :func:`load_device`.
+
+        Parameters
+        ----------
+        name
+            ``"ideal"`` (the paper's design, nominal optics, noiseless camera),
+            ``"as-built"`` (the same design with seeded LED, optics and vignetting errors
+            and camera noise), ``"earlier"`` (the [DWT*10] baseline layout), ``"wide"``
+            (the design study's 60° cone about a 20° axis, ideal optics) or
+            ``"wide-as-built"`` (``wide`` with the as-built errors).
+
+        Returns
+        -------
+        Device
+
+        Raises
+        ------
+        ParameterError
+            For another name (a file's path among them: use :func:`load_device`).
+        """
         if name == "ideal":
             return cls("ideal", Optics(), DEFAULT_LED_ANGLES, Camera(read_noise=0.0, shot_noise=False),
                        firing_order=DEFAULT_FIRING_ORDER, check_leds=DEFAULT_CHECK_LEDS)
@@ -487,7 +506,8 @@ class Device:
                        Camera(read_noise=0.0, shot_noise=False), occluder_deg=EARLIER_OCCLUDER_DEG)
         if name in ("wide", "wide-as-built"):
             return cls.design(name, WIDE_OPTICS, WIDE_LED_ANGLES, ideal=name == "wide")
-        raise ParameterError(f"unknown built-in device {name!r} (expected one of {', '.join(BUILTINS)}, or a file)")
+        raise ParameterError(f"unknown built-in device {name!r} (expected one of {', '.join(BUILTINS)}; "
+                             "read a device file with load_device(path))")
 
     @classmethod
     def design(cls, name: str, optics: Optics, led_angles: Sequence[Sequence[float]], ideal: bool = True) -> Device:

@@ -62,7 +62,7 @@ def plot_coverage(optics: Optics, leds: ArrayLike, path: str | Path, resolution:
         ax.set_ylabel("$h_y$")
         ax.set_title("(d) completed by symmetry" if completed else "(c) partial NDF per LED")
         ax.legend(loc="lower left", fontsize=7, markerscale=4, ncol=2, frameon=False)
-    fig.suptitle(f"Half-vector coverage, θ_h ≤ {theta_max_deg:g}° (★ LED directions, + optical axis; dark: uncovered)",
+    fig.suptitle(f"Half-vector coverage, θ_h ≤ {theta_max_deg:g}° (★ LED directions, + optical axis; grey dots: uncovered)",
                  fontsize=10)
     fig.tight_layout()
     return save_figure(fig, path, dpi=90)

@@ -340,7 +340,28 @@ def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> li
 
 
 def reconstruct(slices: Slices, options: Options | None = None) -> Reconstruction:
-    """Reconstruct the microfacet BRDF from the slices (see the module docstring)."""
+    """Reconstruct the generalized microfacet BRDF of one capture's slices (paper §5).
+
+    The stages, in order: the usable samples; the altered normal (§5.4, with
+    ``options.estimate_normal``); the isotropic fit of η, k_d, k_s and a 1-D NDF
+    (eqs. 5–6); the azimuthal test that decides isotropy (``options.isotropic``); for
+    an anisotropic material the hemicube NDF under the symmetry of eq. 3; the motion
+    cues; the energy limit (albedo ≤ 1).
+
+    Parameters
+    ----------
+    slices
+        The capture's BRDF slices (:func:`reflecto.workflow.measure`).
+    options
+        Reconstruction settings (:class:`Options`; default: ``Options()``).
+
+    Returns
+    -------
+    Reconstruction
+        The model (:class:`reflecto.model.MicrofacetBRDF`), η, the isotropy test, the
+        motion report, the normal frame, the model error, the energy scale, the albedo,
+        notes and the seconds taken.
+    """
     opt = options or Options()
     if opt.normal == "search":  # the §5.5 set search; one capture estimates its normal as under "auto"
         opt = dataclasses.replace(opt, normal="auto")

@@ -3,7 +3,7 @@
 ::
 
     render(brdf, "sphere-env")         an image (linear RGB) and the variant used   mitsuba.py
-    compare(test, reference, scene)    mean image difference and its noise floor     mitsuba.py
+    compare(reference, test, scene)    mean image difference and its noise floor     mitsuba.py
     render_sphere(brdf)                a sphere by direct evaluation (no Mitsuba)    sphere.py
 """
 

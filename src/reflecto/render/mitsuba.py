@@ -33,6 +33,7 @@ The variant is ``llvm_ad_rgb`` where LLVM ≥ 16 is found, else ``scalar_rgb``
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 import os
 import tempfile
@@ -102,6 +103,51 @@ def _teapot_transform(mi, mesh: Path):
     return mi.ScalarTransform4f().scale(s) @ mi.ScalarTransform4f().translate((-centre).tolist())
 
 
+def smooth_mesh(mesh: Path) -> Path:
+    """A welded, smooth-shaded copy of an OBJ triangle mesh (the shared data is never edited).
+
+    The shared ``teapot.obj`` has no normals and repeats the vertices of its patch
+    seams, so a renderer shades it faceted with a seam. Vertices at the same position
+    (to 10⁻⁵ of the mesh size) are merged, triangles that collapse are dropped, and
+    each vertex gets the angle-weighted mean of its triangles' normals. The copy is
+    cached in the temporary folder under the hash of the source mesh.
+    """
+    raw = mesh.read_bytes()
+    cached = Path(tempfile.gettempdir()) / f"reflecto-smooth-{hashlib.sha256(raw).hexdigest()[:16]}.obj"
+    if cached.is_file():
+        return cached
+    v, faces = [], []
+    for line in raw.decode().splitlines():
+        if line.startswith("v "):
+            v.append([float(x) for x in line.split()[1:4]])
+        elif line.startswith("f "):
+            idx = [int(w.split("/")[0]) for w in line.split()[1:]]
+            faces += [(idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1)]
+    pos = np.array(v)
+    f = np.array(faces) - 1
+    scale = float(np.max(pos.max(0) - pos.min(0)))
+    _, weld, inverse = np.unique(np.round(pos / (1e-5 * scale)).astype(np.int64), axis=0, return_index=True,
+                                 return_inverse=True)
+    pos = pos[weld]
+    f = inverse.reshape(-1)[f]
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    tri = pos[f]
+    normals = np.zeros_like(pos)
+    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    face_n /= np.maximum(np.linalg.norm(face_n, axis=1, keepdims=True), 1e-300)
+    for k in range(3):
+        a = tri[:, (k + 1) % 3] - tri[:, k]
+        b = tri[:, (k + 2) % 3] - tri[:, k]
+        cosang = np.sum(a * b, 1) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
+        np.add.at(normals, f[:, k], face_n * np.arccos(np.clip(cosang, -1, 1))[:, None])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in pos] + [f"vn {x:.6f} {y:.6f} {z:.6f}" for x, y, z in normals]
+    lines += [f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in f + 1]
+    with atomic_path(cached, suffix=".obj") as tmp:
+        Path(tmp).write_text("\n".join(lines) + "\n")
+    return cached
+
+
 def scene_dict(mi, scene: str, bsdf_path: Path, envmap: Path | None, resolution: int, spp: int, seed: int = 0,
                lights: tuple = LIGHTS) -> dict:
     """The Mitsuba scene description of one of :data:`SCENES` (``sphere-point``: with ``lights``)."""
@@ -138,7 +184,7 @@ def scene_dict(mi, scene: str, bsdf_path: Path, envmap: Path | None, resolution:
         mesh = SHARED / "meshes" / "teapot.obj"
         if not mesh.is_file():
             raise FileFormatError(mesh, "teapot mesh not found (shared data missing)")
-        d["shape"] = {"type": "obj", "filename": str(mesh), "to_world": _teapot_transform(mi, mesh),
+        d["shape"] = {"type": "obj", "filename": str(smooth_mesh(mesh)), "to_world": _teapot_transform(mi, mesh),
                       "bsdf": {"type": "twosided", "material": bsdf}}
     else:
         d["shape"] = {"type": "sphere", "bsdf": bsdf}
@@ -323,11 +369,34 @@ class Comparison:
                 f"noise-corrected {100 * self.corrected:.2f} %; {self.test.scene}, {self.test.spp} spp)")
 
 
-def compare(test: BRDFSource, reference: BRDFSource, scene: str = "sphere-env", envmap: str | Path | None = None,
+def compare(reference: BRDFSource, test: BRDFSource, scene: str = "sphere-env", envmap: str | Path | None = None,
             resolution: int = 256, spp: int | None = None, seed: int = 0, smoothing: float = SMOOTHING_PX) -> Comparison:
-    """Render ``test`` (seed ``seed``) and ``reference`` twice (seeds ``seed + 1``, ``seed + 2``); see :class:`Comparison`.
+    """Render ``test`` (seed ``seed``) and ``reference`` twice (seeds ``seed + 1``, ``seed + 2``).
 
-    ``smoothing=0`` compares the renders pixel by pixel.
+    The reference comes first, as in :func:`reflecto.evaluate.metrics.brdf_error` and
+    ``reflecto compare REF TEST``.
+
+    Parameters
+    ----------
+    reference, test
+        The BRDFs to render.
+    scene
+        One of :data:`SCENES`.
+    envmap
+        Environment map of the ``*-env`` scenes (default: the shared studio map).
+    resolution
+        Image width and height, pixels.
+    spp
+        Samples per pixel (default: the scene's, :data:`DEFAULT_SPP`).
+    seed
+        Seed of the test's render (the reference's: ``seed + 1``, ``seed + 2``).
+    smoothing
+        Gaussian smoothing (pixels) before the difference; 0 compares pixel by pixel.
+
+    Returns
+    -------
+    Comparison
+        The mean image difference, its noise floor and the three renders.
     """
     _check(scene, resolution, spp)
     with tempfile.TemporaryDirectory(prefix="reflecto-compare-") as tmp:
@@ -374,24 +443,75 @@ def save_image(img: Array, path: str | Path) -> Path:
 
 def comparison_image(reference: Array, test: Array, labels: tuple[str, str] = ("reference", "ours"),
                      alpha: Array | None = None, alpha_test: Array | None = None,
-                     exposure: float = 1.0) -> NDArray[np.uint8]:
-    """Side by side: reference | test | relative-difference heat map (0–20 %), 8-bit sRGB.
+                     exposure: float = 1.0, difference: float | None = None,
+                     max_relative: float = 0.2) -> NDArray[np.uint8]:
+    """Labelled side by side, 8-bit sRGB: reference | test | false-colour relative difference.
+
+    The third panel is ``Σ_c |t − r|`` per pixel over the object's mean ``Σ_c r`` (its
+    mean over the object is :func:`image_difference` without smoothing), from 0 to
+    ``max_relative`` (raised to the 99th percentile where that is higher), with its
+    colour bar; off the object it is white. Each panel is titled (``labels``); with
+    ``difference`` (the mean image difference, :func:`image_difference`) the third
+    panel's title states it.
 
     With ``alpha`` (the reference's coverage; ``alpha_test`` the test's, default the
-    same) both renders are composited onto the grey background and the heat map is
-    black off the object.
+    same) both renders are composited onto the grey background.
     """
+    plt = pyplot()
 
-    lum = lambda a: a @ LUM  # noqa: E731
-    rel = np.abs(lum(test) - lum(reference)) / np.maximum(lum(reference), 0.02 * max(float(lum(reference).max()), 1e-12))
+    on = np.ones(reference.shape[:2], bool)
     if alpha is not None:
         a_test = alpha if alpha_test is None else alpha_test
-        rel = np.where((alpha >= 1.0 - 1e-6) & (a_test >= 1.0 - 1e-6), rel, 0.0)
+        on = (alpha >= 1.0 - 1e-6) & (a_test >= 1.0 - 1e-6)
+    # per pixel Σ_c |t − r| over the object's mean Σ_c r: its mean over the object is image_difference
+    rel = np.abs(test - reference).sum(-1) / max(float(np.abs(reference[on]).sum(-1).mean()) if on.any() else 0.0, 1e-300)
+    if alpha is not None:
         reference, test = composite(reference, alpha, exposure), composite(test, a_test, exposure)
         exposure = 1.0
-    heat = (pyplot().colormaps["inferno"](np.clip(rel / 0.2, 0.0, 1.0))[..., :3] * 255).astype(np.uint8)
-    gap = np.full((reference.shape[0], 4, 3), 255, np.uint8)
-    return np.concatenate([to_srgb8(reference, exposure), gap, to_srgb8(test, exposure), gap, heat], axis=1)
+    if on.any():
+        p99 = float(np.percentile(rel[on], 99))
+        if p99 > max_relative:
+            max_relative = float(np.ceil(p99 * 10) / 10)
+    shown = np.ma.masked_where(~on, rel * 100.0)
+    cmap = plt.colormaps["inferno"].with_extremes(bad="white")
+    h, w = rel.shape
+    fig_w = 3 * w / 100 + 1.4
+    fig_h = h / 100 + 0.45
+    fig = plt.figure(figsize=(fig_w, fig_h), dpi=100)
+    pw = (w / 100) / fig_w
+    axes = [fig.add_axes((0.005 + k * (pw + 0.005), 0.01, pw, (h / 100) / fig_h)) for k in range(3)]
+    axes[0].imshow(to_srgb8(reference, exposure))
+    axes[1].imshow(to_srgb8(test, exposure))
+    im = axes[2].imshow(shown, cmap=cmap, vmin=0.0, vmax=100.0 * max_relative)
+    title = "difference" + (f"\nmean {100 * difference:.2f} %" if difference is not None else "")
+    for ax, t in zip(axes, (labels[0], labels[1], title)):
+        ax.set_title(t, fontsize=8, pad=2)
+        ax.set_axis_off()
+    cax = fig.add_axes((3 * (pw + 0.005) + 0.02, 0.1, 0.02, 0.7))
+    bar = fig.colorbar(im, cax=cax)
+    bar.set_label("|test − ref| / mean ref, %", fontsize=8)
+    bar.ax.tick_params(labelsize=7)
+    fig.canvas.draw()
+    img = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    plt.close(fig)
+    return img
+
+
+def titled(image: NDArray[np.uint8], title: str) -> NDArray[np.uint8]:
+    """An 8-bit RGB image with ``title`` written in a white strip above it."""
+    plt = pyplot()
+
+    h, w = image.shape[:2]
+    strip = 24
+    fig = plt.figure(figsize=(w / 100, (h + strip) / 100), dpi=100)
+    ax = fig.add_axes((0, 0, 1, h / (h + strip)))
+    ax.imshow(image)
+    ax.set_axis_off()
+    fig.text(0.5, 1 - 0.5 * strip / (h + strip), title, ha="center", va="center", fontsize=8)
+    fig.canvas.draw()
+    out = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    plt.close(fig)
+    return out
 
 
 def exposure_for(img: Array) -> float:

@@ -12,3 +12,8 @@ from .nbrdf import NBRDF
 from .rgl import RGLBRDF
 
 __all__ = ["AnalyticBRDF", "MerlBRDF", "NBRDF", "RGLBRDF", "load_analytic"]
+
+
+def __dir__() -> list[str]:
+    """The public names (:data:`__all__`) and the reader modules."""
+    return sorted([*__all__, "analytic", "merl", "nbrdf", "rgl"])

@@ -59,6 +59,13 @@ class Lobe:
     centre: tuple[float, float] = (0.0, 0.0)
 
 
+#: Largest facet tilt (degrees) at which an asymmetric description may centre either of
+#: its two lobes: the slope of each centre is at most tan 60° ≈ 1.73. Beyond it most of
+#: a lobe's facets face past 60°, where its mass lies outside the NDF the condenser
+#: measures and the mean-zero mixture needs an opposite lobe steeper still.
+ASYMMETRY_MAX_TILT_DEG = 60.0
+
+
 @dataclass
 class AnalyticBRDF(BRDFSource):
     """GGX or Beckmann microfacet BRDF with Smith shadowing and dielectric Fresnel.
@@ -124,6 +131,12 @@ class AnalyticBRDF(BRDFSource):
             if not (0.0 < w < 1.0) or not (math.isfinite(sx) and math.isfinite(sy)):
                 raise ParameterError(f"asymmetry must be (shift_x, shift_y, weight) with 0 < weight < 1, got {self.asymmetry!r}")
             r = w / (1.0 - w)
+            tilt = math.degrees(math.atan(max(math.hypot(sx, sy), math.hypot(sx, sy) * r)))
+            if tilt > ASYMMETRY_MAX_TILT_DEG:
+                raise ParameterError(f"asymmetry shift {[sx, sy]} with weight {w:g} centres a lobe at a facet tilt of "
+                                     f"{tilt:.3g}°, more than {ASYMMETRY_MAX_TILT_DEG:g}° (the shift and "
+                                     "shift·weight/(1 − weight) must be slopes of at most "
+                                     f"tan {ASYMMETRY_MAX_TILT_DEG:g}° = {math.tan(math.radians(ASYMMETRY_MAX_TILT_DEG)):.3g})")
             self.lobes = (Lobe(w, (sx, sy)), Lobe(1.0 - w, (-sx * r, -sy * r)))
         self.isotropic = bool(self.alpha_xy[0] == self.alpha_xy[1] and self.asymmetry is None)
         self.reciprocal = True

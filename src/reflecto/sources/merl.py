@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from .. import geometry
 from ..errors import FileFormatError
 from ..io import atomic_write
-from ..brdf import ALBEDO_RANGE, MAX_BRDF_VALUE, BRDFSource, Reader, check_plausible, read_file_bytes, register_reader
+from ..brdf import ALBEDO_RANGE, BRDFSource, Reader, check_plausible, check_projected, read_file_bytes, register_reader
 
 Array = NDArray[np.float64]
 
@@ -107,7 +107,8 @@ def read_merl_table(path: str | Path) -> Array:
 
     Unmeasured bins keep their negative value (times the channel scale). Refuses
     files of the wrong size or dimensions, NaN or infinite values, values above
-    :data:`~reflecto.brdf.MAX_BRDF_VALUE` and tables without a measured bin.
+    :func:`~reflecto.brdf.check_projected` (``f·cos θ_i·cos θ_o`` at the bin centres at most
+    :data:`~reflecto.brdf.MAX_PROJECTED_BRDF`) and tables without a measured bin.
     """
     path = Path(path)
     raw = read_file_bytes(path, FILE_BYTES, f"a MERL file ({FILE_BYTES} bytes)")
@@ -124,9 +125,7 @@ def read_merl_table(path: str | Path) -> Array:
         bad = int(np.count_nonzero(~np.isfinite(vals)))
         raise FileFormatError(path, f"{bad} values are NaN or infinite")
     table = (vals * SCALE[:, None]).T.reshape(SHAPE + (3,))
-    peak = float(table.max())
-    if peak > MAX_BRDF_VALUE:
-        raise FileFormatError(path, f"values up to {peak:.3g} sr⁻¹, more than {MAX_BRDF_VALUE:g}: damaged, or not a BRDF")
+    check_projected(np.maximum(table, 0.0) * _cos_cos()[..., None], path, "its table")
     if not np.any(np.all(table >= 0, axis=-1)):
         raise FileFormatError(path, "no bin holds a measured value (all are negative, MERL's 'unmeasured')")
     return table
@@ -148,6 +147,7 @@ def write_merl_table(path: str | Path, table: ArrayLike) -> Path:
         raise ValueError(f"MERL table must have shape {SHAPE + (3,)}, got {t.shape}")
     if not np.all(np.isfinite(t)):
         raise ValueError("MERL table contains NaN or infinite values")
+    check_projected(np.maximum(t, 0.0) * _cos_cos()[..., None], path, "the table to write")
     flat = t.reshape(N_BINS, 3).T  # (3, N)
     stored = flat / SCALE[:, None]
     for _ in range(2):  # exact round trip where possible: fix products that miss by an ulp
@@ -206,6 +206,20 @@ def _hh_weights() -> Array:
     w = np.where(a > np.abs(b), measure * (a * a - b * b), 0.0) / math.pi
     w.setflags(write=False)
     return w
+
+
+@functools.lru_cache(maxsize=1)
+def _cos_cos() -> Array:
+    """``cos θ_i cos θ_o`` at every bin centre, shape ``(90, 90, 180)``; bins whose centre
+    lies below the horizon get the smallest value of the others (a value stored there
+    is still read by lookups of directions inside the bin above the horizon)."""
+    th, td, pd = bin_centres()
+    a = np.cos(th)[:, None, None] * np.cos(td)[None, :, None]
+    b = np.sin(th)[:, None, None] * np.sin(td)[None, :, None] * np.cos(pd)[None, None, :]
+    c = np.where(a > np.abs(b), a * a - b * b, 0.0)
+    c = np.maximum(c, c[c > 0].min())
+    c.setflags(write=False)
+    return c
 
 
 def hemispherical_albedo(table: ArrayLike) -> Array:

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import FileFormatError
-from ..brdf import BRDFSource, Reader, check_plausible, read_file_bytes, register_reader
+from ..brdf import ALBEDO_RANGE, BRDFSource, Reader, check_plausible, check_projected, read_file_bytes, register_reader
 
 Array = NDArray[np.float64]
 
@@ -259,6 +259,19 @@ class Marginal2D:
         return np.stack([(px + sx) / (self.w - 1), (py + sy) / (self.h - 1)], axis=-1)
 
 
+def _bilinear(table: Array, pos: Array) -> Array:
+    """Bilinear interpolation of ``table`` (rows × columns) at ``pos`` in [0,1]² (x: column, y: row)."""
+    h, w = table.shape
+    x = np.clip(pos[:, 0], 0.0, 1.0) * (w - 1)
+    y = np.clip(pos[:, 1], 0.0, 1.0) * (h - 1)
+    x0 = np.clip(np.floor(x).astype(np.intp), 0, w - 2)
+    y0 = np.clip(np.floor(y).astype(np.intp), 0, h - 2)
+    fx, fy = x - x0, y - y0
+    t = np.asarray(table, dtype=np.float64)
+    return ((1 - fy) * ((1 - fx) * t[y0, x0] + fx * t[y0, x0 + 1])
+            + fy * ((1 - fx) * t[y0 + 1, x0] + fx * t[y0 + 1, x0 + 1]))
+
+
 def _solve_quadratic(v0: Array, v1: Array, y: Array) -> Array:
     """``t ∈ [0, 1]`` with ``t v0 + ½ t² (v1 − v0) = y`` (the integral of a linear density)."""
     a = 0.5 * (v1 - v0)
@@ -267,6 +280,11 @@ def _solve_quadratic(v0: Array, v1: Array, y: Array) -> Array:
     quad = np.divide(2.0 * np.maximum(y, 0.0), v0 + disc, out=np.zeros_like(y), where=(v0 + disc) > 0)
     t = np.where(np.abs(a) < 1e-9 * np.maximum(np.abs(v0), 1e-300), lin, quad)
     return np.clip(t, 0.0, 1.0)
+
+
+#: The incident slices up to this θ_i are checked by their albedo (:meth:`RGLBRDF.slice_albedo`;
+#: nearer grazing, cells that cross the horizon make the trapezoid rule overestimate it).
+SLICE_ALBEDO_MAX_THETA_DEG = 80.0
 
 
 class RGLBRDF(BRDFSource):
@@ -312,7 +330,111 @@ class RGLBRDF(BRDFSource):
         rgb64 = rgb.astype(np.float64)
         self._rgb = [Marginal2D(rgb64[:, :, c], phi_i, theta_i, build_cdf=False) for c in range(3)]
         self.reciprocal = False
+        check_projected(self.projected_at_nodes(), path, "its tables")
+        steep = self.theta_i <= math.radians(SLICE_ALBEDO_MAX_THETA_DEG)
+        albedo = self.slice_albedo().reshape(len(phi_i), len(theta_i), 3)[:, steep]
+        lo, hi = ALBEDO_RANGE
+        if not np.all(np.isfinite(albedo)) or albedo.min() < lo or albedo.max() > hi:
+            raise FileFormatError(path, f"its tables give a directional albedo of {albedo.min():.4g} to "
+                                  f"{albedo.max():.4g} (θ_i ≤ {SLICE_ALBEDO_MAX_THETA_DEG:g}°), outside the plausible "
+                                  f"[{lo:g}, {hi:g}]: damaged, or not a BRDF in sr⁻¹")
         check_plausible(self, path)
+
+    def slice_albedo(self, refine: int = 2) -> Array:
+        """Directional albedo ``∫ f cos θ_o dω_o`` of every incident slice, from the tables
+        themselves, shape ``(n_φi · n_θi, 3)``.
+
+        The ``rgb`` grid, refined ``refine`` times (bilinear, as the plugin interpolates),
+        is warped to outgoing directions (``vndf``); each cell counts with the solid
+        angle of its four warped corners and the mean of the values there (trapezoid
+        rule). Every node of the tables is a corner, so a damaged value anywhere is
+        counted with its measure.
+        """
+        nphi, nth = len(self.phi_i), len(self.theta_i)
+        h, w = self._rgb[0].h, self._rgb[0].w
+        hr, wr = refine * (h - 1) + 1, refine * (w - 1) + 1
+        yy, xx = np.meshgrid(np.linspace(0, 1, hr), np.linspace(0, 1, wr), indexing="ij")
+        nodes = np.stack([xx.ravel(), yy.ravel()], -1)
+        out = []
+        for k in range(nphi):
+            for j in range(nth):
+                o, g = self._slice_values(k, j, nodes, refine)
+                o = o.reshape(hr, wr, 3)
+                g = g.reshape(hr, wr, 3)
+                d1 = o[1:, 1:] - o[:-1, :-1]
+                d2 = o[1:, :-1] - o[:-1, 1:]
+                area = 0.5 * np.linalg.norm(np.cross(d1, d2), axis=-1)
+                mean = 0.25 * (g[1:, 1:] + g[:-1, :-1] + g[1:, :-1] + g[:-1, 1:])
+                out.append(np.sum(area[..., None] * mean, axis=(0, 1)))
+        return np.array(out)
+
+    def _slice_values(self, k: int, j: int, nodes: Array, refine: int = 1) -> tuple[Array, Array]:
+        """Outgoing directions and ``f·cos θ_o`` at sample positions ``nodes`` of slice ``(k, j)``
+        (values bilinear in the ``rgb`` grid, exact at its nodes); 0 below the horizon."""
+        nth = len(self.theta_i)
+        u_m = self._vndf.sample(nodes, k * nth + j)
+        theta_m = u_m[:, 0] ** 2 * (0.5 * math.pi)
+        phi_m = u_m[:, 1] * (2 * math.pi) - math.pi + (self.phi_i[k] if self.isotropic else 0.0)
+        ti, pi_ = self.theta_i[j], self.phi_i[k]
+        i = np.array([math.sin(ti) * math.cos(pi_), math.sin(ti) * math.sin(pi_), math.cos(ti)])
+        m = np.stack([np.sin(theta_m) * np.cos(phi_m), np.sin(theta_m) * np.sin(phi_m), np.cos(theta_m)], -1)
+        o = 2.0 * (m @ i)[:, None] * m - i
+        spec = np.stack([_bilinear(t.data[k, j], nodes) for t in self._rgb], -1)
+        if self.jacobian:
+            zero = np.zeros(len(nodes))
+            u_wi = np.array([[math.sqrt(ti * 2 / math.pi), (pi_ + math.pi) / (2 * math.pi)]])
+            ndf = self._ndf.eval(u_m, zero, zero)
+            sig = self._sigma.eval(np.repeat(u_wi, len(nodes), 0), zero, zero)
+            spec = spec * (ndf / (4.0 * sig))[:, None]
+        return o, np.where((o[:, 2] > 0)[:, None], spec, 0.0)
+
+    def projected_at_nodes(self) -> Array:
+        """``f·cos θ_i·cos θ_o`` (sr⁻¹) at every node of the ``rgb`` tables, shape ``(N, 3)``.
+
+        Each node of a slice's ``rgb`` table is one outgoing direction of that slice's
+        incident direction (the node's sample position, warped by the ``vndf`` table);
+        the value there is the node's value exactly (bilinear interpolation at a node).
+        A damaged value between the directions a quadrature visits is seen here.
+        """
+        nphi, nth = len(self.phi_i), len(self.theta_i)
+        h, w = self._rgb[0].h, self._rgb[0].w
+        yy, xx = np.meshgrid(np.linspace(0, 1, h), np.linspace(0, 1, w), indexing="ij")
+        nodes = np.stack([xx.ravel(), yy.ravel()], -1)
+        out = []
+        for k in range(nphi):
+            for j in range(nth):
+                _, g = self._slice_values(k, j, nodes)
+                out.append(g * math.cos(self.theta_i[j]))
+        i, o = self._ndf_sigma_pairs()
+        out.append(self.eval_cosine(i, o) * i[:, 2:3])
+        return np.concatenate(out)
+
+    def _ndf_sigma_pairs(self) -> tuple[Array, Array]:
+        """Direction pairs at every node of the ``sigma`` (incident) and ``ndf`` (half-vector)
+        tables, each with each: where a damaged node of those tables shows."""
+
+        def directions(table: Marginal2D) -> Array:
+            h, w = table.h, table.w
+            yy, xx = np.meshgrid(np.linspace(0, 1, h), np.linspace(0, 1, w), indexing="ij")
+            theta = xx.ravel() ** 2 * (0.5 * math.pi)
+            phi = yy.ravel() * (2 * math.pi) - math.pi
+            return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
+
+        wi, m = directions(self._sigma), directions(self._ndf)
+        if len(wi) * len(m) > 1 << 16:
+            # every node of each table, with a few of the other's: the ndf nodes under 8
+            # incident directions, the sigma nodes with the 32 densest half vectors
+            ndf_values = np.asarray(self._ndf.data, dtype=np.float64).reshape(-1)
+            some_wi = wi[np.linspace(0, len(wi) - 1, 8).astype(np.intp)]
+            top_m = m[np.argsort(ndf_values)[-32:]]
+            i = np.concatenate([np.repeat(some_wi, len(m), 0), np.repeat(wi, len(top_m), 0)])
+            mm = np.concatenate([np.tile(m, (len(some_wi), 1)), np.tile(top_m, (len(wi), 1))])
+        else:
+            i = np.repeat(wi, len(m), 0)
+            mm = np.tile(m, (len(wi), 1))
+        o = 2.0 * np.sum(i * mm, -1)[:, None] * mm - i
+        keep = (i[:, 2] > 1e-4) & (o[:, 2] > 1e-4)
+        return i[keep], o[keep]
 
     def eval_cosine(self, i: ArrayLike, o: ArrayLike) -> Array:
         """The plugin's value ``f(i, o)·cos θ_o`` (what Mitsuba's ``eval`` returns), ``(N, 3)``."""

@@ -1,0 +1,200 @@
+"""The malformed inputs of issue 39, each refused with one line (or, for a legitimate
+capture, a result without an internal error), and the physical bound every reader and
+writer applies (reflecto.brdf.MAX_PROJECTED_BRDF)."""
+
+import json
+import shutil
+import struct
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reflecto import brdf
+from reflecto.cli import main
+from reflecto.errors import FileFormatError, ParameterError
+from reflecto.sources import merl
+from reflecto.sources.analytic import AnalyticBRDF
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+from _fake_sweep import fake_run_material  # noqa: E402
+
+PLASTIC = ROOT / "examples" / "ggx-plastic.json"
+
+
+def _err(capsys) -> str:
+    err = capsys.readouterr().err
+    lines = [l for l in err.splitlines() if l.startswith("reflecto: error:")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+def test_projected_bound_is_one_over_4_pi_alpha_squared():
+    assert brdf.MAX_PROJECTED_BRDF == pytest.approx(1 / (4 * np.pi * 1e-6))
+    assert round(brdf.MAX_PROJECTED_BRDF) == 79577
+
+
+# ------------------------------------------------------------------ RGL: one damaged value
+def _field_offsets(raw: bytes) -> dict[str, int]:
+    pos, offs = 18, {}
+    for _ in range(struct.unpack_from("<I", raw, 14)[0]):
+        (n,) = struct.unpack_from("<H", raw, pos)
+        name = raw[pos + 2 : pos + 2 + n].decode()
+        pos += 2 + n
+        nd, _, off = struct.unpack_from("<HBQ", raw, pos)
+        pos += 11 + 8 * nd
+        offs[name] = off
+    return offs
+
+
+@pytest.mark.parametrize("field, cell, bit, peak", [("sigma", 108, 4, "5.45e+08"), ("ndf", 5, 6, "5.62e+37")])
+def test_rgl_with_one_flipped_byte_is_refused_by_tabulate_export_and_info(shared, tmp_path, capsys, field, cell, bit,
+                                                                          peak):
+    """One flipped exponent bit in a table the plugin divides by or multiplies with: the
+    4096 plausibility pairs miss it, the table's own nodes do not."""
+    raw = bytearray((shared / "rgl" / "paper_white_rgb.bsdf").read_bytes())
+    raw[_field_offsets(bytes(raw))[field] + 4 * cell + 3] ^= 1 << bit
+    bad = tmp_path / "flipped.bsdf"
+    bad.write_bytes(bytes(raw))
+    for argv in (["tabulate", str(bad), "-o", str(tmp_path / "t.binary")],
+                 ["export", str(bad), "-o", str(tmp_path / "e.bsdf")], ["info", str(bad)]):
+        assert main(argv) == 1
+        err = _err(capsys)
+        assert f"flipped.bsdf: its tables: f·cos θ_i·cos θ_o reaches {peak} sr⁻¹, more than any BRDF reflecto " \
+               "represents (7.96e+04 = 1/(4π α²) at α = 0.001" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flipped.bsdf"]
+
+
+def test_every_shared_rgl_file_passes_its_table_checks(shared):
+    from reflecto.sources.rgl import RGLBRDF
+
+    for p in sorted((shared / "rgl").glob("*.bsdf")):
+        s = RGLBRDF(p)
+        assert s.projected_at_nodes().max() < 600  # chm_mint 560: two decades under the bound
+        steep = s.theta_i <= np.radians(60)
+        # the tables' own albedo agrees with the half-vector quadrature within 0.08 up to 60° (chm_mint: 0.063)
+        assert np.abs(s.slice_albedo()[steep] - s.albedo(np.degrees(s.theta_i[steep]))).max() < 0.08
+
+
+# ------------------------------------------------------------------ MERL: grazing values are physics
+def test_merl_grazing_values_of_reconstructions_read_and_a_spike_does_not(tmp_path):
+    table = np.full(merl.SHAPE + (3,), 0.1)
+    table[0, 89, 90] = 6.23e6  # θ_h ≈ 0, θ_d = 89.5°: f·cosθ_i·cosθ_o ≈ 474 sr⁻¹
+    merl.write_merl_table(tmp_path / "grazing.binary", table)
+    assert merl.read_merl_table(tmp_path / "grazing.binary")[0, 89, 90, 0] == 6.23e6
+    table[0, 0, 90] = 1e6  # at normal incidence: f·cosθ_i·cosθ_o ≈ 10⁶
+    with pytest.raises(FileFormatError, match="the table to write: f·cos θ_i·cos θ_o reaches 1e\\+06"):
+        merl.write_merl_table(tmp_path / "spike.binary", table)
+    assert not (tmp_path / "spike.binary").exists()
+
+
+# ------------------------------------------------------------------ analytic asymmetry shift
+def test_asymmetry_shift_out_of_range_is_refused_by_info(tmp_path, capsys):
+    bad = tmp_path / "asym.toml"
+    bad.write_text('type = "analytic"\ndistribution = "ggx"\nalpha = 0.2\nkd = 0.2\nks = 0.5\n'
+                   "asymmetry = { shift = [40.0, 0.0], weight = 0.3 }\n")
+    assert main(["info", str(bad)]) == 1
+    assert "asym.toml: asymmetry shift [40.0, 0.0] with weight 0.3 centres a lobe at a facet tilt of 88.6°, more " \
+           "than 60°" in _err(capsys)
+    # the opposite lobe counts too: shift 0.8 at weight 0.75 puts it at slope 2.4 (67°)
+    with pytest.raises(ParameterError, match="facet tilt of 67.4°"):
+        AnalyticBRDF(asymmetry=(0.8, 0.0, 0.75))
+    AnalyticBRDF(asymmetry=(0.25, 0.0, 0.3))  # the examples' shifts read
+
+
+# ------------------------------------------------------------------ calibration with dark grid frames
+@pytest.mark.slow
+def test_calibration_with_all_black_grid_frames_is_one_line(tmp_path, capsys):
+    from reflecto.instrument.capture import _write_png
+    from reflecto.instrument.device import Device
+    from reflecto.instrument.simulate import simulate_calibration
+
+    simulate_calibration(Device.builtin("as-built"), tmp_path / "calib", seed=3, white_repeats=1)
+    for p in (tmp_path / "calib").glob("grid_*.png"):
+        _write_png(p, np.zeros((240, 320, 3), np.uint16))
+    assert main(["calibrate", str(tmp_path / "calib"), "-o", str(tmp_path / "cal.npz")]) == 1
+    assert "calibration.json: geometric calibration failed: no pinhole spot in any grid image" in _err(capsys)
+    assert not (tmp_path / "cal.npz").exists()
+
+
+# ------------------------------------------------------------------ a capture of pure noise
+def test_capture_of_pure_noise_gives_a_result_without_an_internal_error(tmp_path, capsys):
+    from reflecto.instrument.capture import _write_png
+
+    assert main(["simulate", str(PLASTIC), "-o", str(tmp_path / "cap"), "-q"]) == 0
+    rng = np.random.default_rng(0)
+    for p in (tmp_path / "cap").glob("*.png"):
+        _write_png(p, rng.integers(0, 4000, (240, 320, 3)).astype(np.uint16))
+    rc = main(["reconstruct", str(tmp_path / "cap"), "-o", str(tmp_path / "m.reflecto"), "--json"])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    summary = json.loads(out.out)["models"][0]["summary"]
+    assert not any("Error" in n for n in summary["notes"]), summary["notes"]
+    assert summary["shake_detected"]  # the noise is no symmetric BRDF
+
+
+# ------------------------------------------------------------------ sweep records
+@pytest.fixture
+def fake_sweep(monkeypatch):
+    import importlib
+
+    sweep_mod = importlib.import_module("reflecto.evaluate.sweep")  # the module, not the re-exported function
+    monkeypatch.setattr(sweep_mod, "run_material", fake_run_material)
+
+
+@pytest.mark.parametrize("record", ["{}", "[]", '{"name": "m0"}'])
+def test_sweep_resume_records_that_are_not_results_are_redone(tmp_path, fake_sweep, capsys, record):
+    (tmp_path / "mats").mkdir()
+    (tmp_path / "mats" / "m0.json").write_text(json.dumps({"type": "analytic", "alpha": 0.2, "kd": 0.2, "ks": 0.5}))
+    out = tmp_path / "res"
+    assert main(["sweep", str(tmp_path / "mats"), "-o", str(out), "--jobs", "1", "-q"]) == 0
+    (out / "materials" / "m0.json").write_text(record)
+    assert main(["sweep", str(tmp_path / "mats"), "-o", str(out), "--jobs", "1", "--json"]) == 0
+    captured = capsys.readouterr()
+    assert "damaged result record" in captured.err and "the material is evaluated again" in captured.err
+    assert json.loads(captured.out)["all"]["materials"] == 1
+    assert json.loads((out / "materials" / "m0.json").read_text())["name"] == "m0"
+
+
+def test_sweep_record_path_that_is_a_folder_names_the_material(tmp_path, fake_sweep, capsys):
+    (tmp_path / "mats").mkdir()
+    for k in range(2):
+        (tmp_path / "mats" / f"m{k}.json").write_text(json.dumps({"type": "analytic", "alpha": 0.2 + 0.1 * k,
+                                                                  "kd": 0.2, "ks": 0.5}))
+    out = tmp_path / "res"
+    (out / "materials" / "m0.json").mkdir(parents=True)
+    assert main(["sweep", str(tmp_path / "mats"), "-o", str(out), "--jobs", "1", "-q"]) == 1
+    err = _err(capsys)
+    assert err == (f"reflecto: error: {tmp_path / 'mats' / 'm0.json'}: its result record {out / 'materials' / 'm0.json'} "
+                   "is a folder; remove it (or choose another -o) to evaluate this material")
+    assert (out / "materials" / "m1.json").is_file()  # the other material finished
+    shutil.rmtree(out)
+
+
+# ------------------------------------------------------------------ what reflecto writes, reflecto reads
+@pytest.mark.slow
+@pytest.mark.parametrize("material", ["examples/ggx-plastic.json", "rgl/chm_mint_rgb.bsdf"])
+def test_round_trip_of_a_reconstruction(tmp_path, capsys, shared, material):
+    """Capture → model + summary → .bsdf and .binary → each read back by `info`; a
+    calibration file read back by `reconstruct` (studies/roundtrip.py: all 50)."""
+    src = ROOT / material if material.startswith("examples") else shared / material
+    assert main(["simulate", str(src), "-o", str(tmp_path / "cap"), "-q"]) == 0
+    assert main(["simulate-calibration", "--device", "ideal", "-o", str(tmp_path / "calib"), "-q"]) == 0
+    assert main(["calibrate", str(tmp_path / "calib"), "-o", str(tmp_path / "cal.npz"), "-q"]) == 0
+    assert main(["reconstruct", str(tmp_path / "cap"), "--calibration", str(tmp_path / "cal.npz"),
+                 "-o", str(tmp_path / "m.reflecto"), "-q"]) == 0
+    assert main(["export", str(tmp_path / "m.reflecto"), "-o", str(tmp_path / "m.bsdf"), "-q"]) == 0
+    assert main(["export", str(tmp_path / "m.reflecto"), "--isotropic", "yes", "-o", str(tmp_path / "m.binary"),
+                 "-q"]) == 0
+    capsys.readouterr()
+    kinds_read = {}
+    for name in ("m.reflecto", "m.bsdf", "m.binary"):
+        assert main(["info", str(tmp_path / name), "--json"]) == 0, capsys.readouterr().err
+        kinds_read[name] = json.loads(capsys.readouterr().out)["kind"]
+    assert kinds_read == {"m.reflecto": "model", "m.bsdf": "rgl", "m.binary": "merl"}
+    summary = json.loads((tmp_path / "m.json").read_text())
+    assert summary["calibration"].endswith("cal.npz") and summary["kd"]
+    t = merl.read_merl_table(tmp_path / "m.binary")
+    assert (np.maximum(t, 0) * merl._cos_cos()[..., None]).max() < brdf.MAX_PROJECTED_BRDF / 100
