@@ -29,6 +29,8 @@ Run: ``.venv/bin/python benchmarks/bench_capture_to_model.py [--work DIR] [--rep
 from __future__ import annotations
 
 import _bench  # noqa: F401  (pins to one core before NumPy loads)
+
+# isort: split
 import argparse  # noqa: E402
 import os  # noqa: E402
 import subprocess  # noqa: E402

@@ -11,19 +11,19 @@ Run: ``make bench`` or ``.venv/bin/python benchmarks/bench_instrument.py``.
 from __future__ import annotations
 
 import _bench  # pins to one core before NumPy loads
+
+# isort: split
 import tempfile  # noqa: E402
 
 import cv2  # noqa: E402
 
 cv2.setNumThreads(1)
 
+from reflecto import workflow
 from reflecto.instrument.capture import read_capture, write_capture  # noqa: E402
 from reflecto.instrument.device import Device  # noqa: E402
 from reflecto.instrument.simulate import simulate_capture  # noqa: E402
-from reflecto import workflow
 from reflecto.sources.analytic import AnalyticBRDF  # noqa: E402
-
-
 
 
 def main() -> None:

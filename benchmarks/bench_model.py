@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import _bench  # pins to one core before NumPy loads
 
+# isort: split
 import numpy as np  # noqa: E402
 
 from reflecto import geometry  # noqa: E402
@@ -19,8 +20,6 @@ from reflecto.hemicube import hemicube  # noqa: E402
 from reflecto.model import MicrofacetBRDF  # noqa: E402
 from reflecto.shadowing import sigma_table  # noqa: E402
 from reflecto.sources.analytic import AnalyticBRDF  # noqa: E402
-
-
 
 
 def main() -> None:

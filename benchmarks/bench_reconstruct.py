@@ -16,6 +16,8 @@ Run: ``make bench`` or ``.venv/bin/python benchmarks/bench_reconstruct.py [--qui
 from __future__ import annotations
 
 import _bench  # noqa: F401  (pins to one core before NumPy loads)
+
+# isort: split
 import argparse  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
@@ -23,12 +25,12 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from reflecto import workflow
 from reflecto.evaluate.sweep import find_materials, material_seed  # noqa: E402
 from reflecto.instrument.device import Device  # noqa: E402
 from reflecto.instrument.simulate import simulate_capture  # noqa: E402
-from reflecto import workflow
-from reflecto.reconstruct import reconstruct  # noqa: E402
 from reflecto.load import load_source  # noqa: E402
+from reflecto.reconstruct import reconstruct  # noqa: E402
 
 #: Rounds over all captures (a slow spell of the machine then hits every capture alike).
 REPEATS = 3

@@ -16,8 +16,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from reflecto.render.mitsuba import SHARED, default_envmap, render
 from reflecto.load import load_source
+from reflecto.render.mitsuba import SHARED, default_envmap, render
 
 
 def main() -> None:

@@ -21,6 +21,8 @@ Run: ``.venv/bin/python benchmarks/bench_watch.py [--work DIR] [--count N]``.
 from __future__ import annotations
 
 import _bench  # noqa: F401  (pins to one core before NumPy loads)
+
+# isort: split
 import argparse  # noqa: E402
 import json  # noqa: E402
 import os  # noqa: E402

@@ -45,12 +45,12 @@ def material_files() -> list[Path]:
 
 def shared_models(names: list[str] | None = None, quiet: bool = False) -> Iterator[tuple[Path, Path]]:
     """``(material file, model file)`` for each shared material (or those named), reconstructing when not cached."""
+    from reflecto import workflow
     from reflecto.evaluate.sweep import material_seed
     from reflecto.instrument.device import Device
     from reflecto.instrument.simulate import simulate_capture
-    from reflecto import workflow
-    from reflecto.reconstruct.pipeline import reconstruct
     from reflecto.load import load_source
+    from reflecto.reconstruct.pipeline import reconstruct
 
     folder = ROOT / "out" / "shared-models" / reconstruction_key()
     folder.mkdir(parents=True, exist_ok=True)

@@ -45,8 +45,8 @@ from reflecto.evaluate.cooktorrance import _nnls2
 from reflecto.evaluate.metrics import brdf_error, evaluate_on_grid, metric_grid
 from reflecto.evaluate.sweep import find_materials
 from reflecto.fresnel import fresnel
-from reflecto.model import MicrofacetBRDF
 from reflecto.load import load_source
+from reflecto.model import MicrofacetBRDF
 from reflecto.sources import merl
 
 ETA_MIN, ETA_MAX = 1.01, 60.0
@@ -140,10 +140,9 @@ def device_coverage(source, device: str, seed: int) -> np.ndarray:
     Generous on purpose: any φ_d counts, so the fit sees far more of the reference
     than the six slices hold; it is an upper bound on what they can tell.
     """
-    from reflecto import geometry
+    from reflecto import geometry, workflow
     from reflecto.instrument.device import load_device
     from reflecto.instrument.simulate import simulate_capture
-    from reflecto import workflow
 
     dev = load_device(device)
     sl = workflow.measure(simulate_capture(source, dev, seed=seed), workflow.calibration_for(dev, missing="nominal"))

@@ -227,10 +227,10 @@ def one(args: tuple[str, str, str | None, tuple[float, ...] | None]) -> dict:
     ``args[3]`` (the shares) the :func:`trade_off` result ``trade-off`` and eq. 10 of ours, ``ours eq10``)."""
     from reflecto.evaluate.cooktorrance import fit_cook_torrance
     from reflecto.evaluate.metrics import brdf_error
+    from reflecto.load import load_source
     from reflecto.model import load_model
     from reflecto.render.mitsuba import SMOOTHING_PX, image_difference
     from reflecto.render.sphere import render_sphere
-    from reflecto.load import load_source
 
     path, model_file, render_fit, shares = args
     ref = load_source(path)

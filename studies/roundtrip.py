@@ -25,12 +25,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _shared_models import shared_models  # noqa: E402
-
-from reflecto import brdf, kinds  # noqa: E402
+from reflecto import (  # noqa: E402
+    brdf,
+    kinds,
+    workflow,  # noqa: E402
+)
 from reflecto.errors import ReflectoError  # noqa: E402
 from reflecto.export.merl import export_merl  # noqa: E402
 from reflecto.export.rgl import export_rgl  # noqa: E402
-from reflecto import workflow  # noqa: E402
 from reflecto.instrument.calibrate import Calibration, calibrate  # noqa: E402
 from reflecto.instrument.device import Device  # noqa: E402
 from reflecto.instrument.simulate import simulate_calibration  # noqa: E402

@@ -37,9 +37,9 @@ def one(args: tuple[str, tuple[float, ...]]) -> dict:
     import numpy as np
 
     import validate_asymmetric as v
+    from reflecto.load import load_source
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
     from reflecto.reconstruct.synthesis import SynthesisOptions
-    from reflecto.load import load_source
 
     name, rotations = args
     src = v.random_asymmetric(int(name.removeprefix("random-"))) if name.startswith("random-") else load_source(name)

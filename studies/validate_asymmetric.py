@@ -92,8 +92,8 @@ def _device_and_calibration(device: str):  # type: ignore[no-untyped-def]
 
 
 def _captures(src, dev, cal, rotations, seed0: int = 1):  # type: ignore[no-untyped-def]
-    from reflecto.instrument.simulate import simulate_capture
     from reflecto import workflow
+    from reflecto.instrument.simulate import simulate_capture
 
     return workflow.rotated_captures([simulate_capture(src, dev, seed=seed0 + k, rotation_deg=r)
                                       for k, r in enumerate(rotations)], cal, rotations_deg=rotations,
@@ -111,8 +111,8 @@ def _symmetric_path(caps, isotropic: str):  # type: ignore[no-untyped-def]
 def one_asym(args: tuple[str, str]) -> dict:
     """Part ``asym`` (and ``asbuilt``) for one material file on one device."""
     from reflecto.evaluate.metrics import comparison_error, ndf_error
-    from reflecto.reconstruct.asymmetric import reconstruct_rotations
     from reflecto.load import load_source
+    from reflecto.reconstruct.asymmetric import reconstruct_rotations
 
     path, device = args
     src = load_source(path)
@@ -169,9 +169,9 @@ N_RANDOM = 12
 
 def one_fill(args: tuple[str, tuple[float, ...]]) -> dict:
     """Part ``fill`` for one material and rotation set."""
+    from reflecto.load import load_source
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
     from reflecto.reconstruct.synthesis import SynthesisOptions
-    from reflecto.load import load_source
 
     path, rotations = args
     src = random_asymmetric(int(path.removeprefix("random-"))) if path.startswith("random-") else load_source(path)
@@ -195,12 +195,11 @@ def one_fill(args: tuple[str, tuple[float, ...]]) -> dict:
 
 def one_sym(args: tuple[str, str | dict, int]) -> dict:
     """Part ``sym`` for one symmetric material (a file, or analytic keywords)."""
-    from reflecto.evaluate.metrics import comparison_error
-    from reflecto.reconstruct.asymmetric import reconstruct_rotations
-    from reflecto.load import load_source
-    from reflecto.sources.analytic import AnalyticBRDF
-
     from reflecto.errors import ReflectoError
+    from reflecto.evaluate.metrics import comparison_error
+    from reflecto.load import load_source
+    from reflecto.reconstruct.asymmetric import reconstruct_rotations
+    from reflecto.sources.analytic import AnalyticBRDF
 
     name, spec, seed = args
     src = AnalyticBRDF(**spec) if isinstance(spec, dict) else load_source(spec)
@@ -224,8 +223,8 @@ def one_sym(args: tuple[str, str | dict, int]) -> dict:
 def one_mixed(args: tuple[str, str]) -> dict:
     """Part ``mixed``: captures 0/90° of one material, 180/270° of another; must be refused."""
     from reflecto.errors import ReflectoError
-    from reflecto.reconstruct.asymmetric import reconstruct_rotations
     from reflecto.load import load_source
+    from reflecto.reconstruct.asymmetric import reconstruct_rotations
 
     a, b = args
     dev, cal = _device_and_calibration("ideal")
@@ -306,7 +305,6 @@ def fill_summary(rows: list[dict]) -> None:
 
 def part_sym(jobs: int) -> list[dict]:
     from _shared_models import material_files
-
     from reflecto.evaluate.sweep import material_seed
 
     items = [(k, v, 1) for k, v in SYMMETRIC_ANALYTIC.items()]
@@ -374,8 +372,8 @@ def _noise_variant(label: str):  # type: ignore[no-untyped-def]
 def one_noise(path: str) -> dict:
     """Part ``noise`` for one material: the §5.5 error on each of :data:`NOISE_VARIANTS`."""
     from reflecto.evaluate.metrics import comparison_error
-    from reflecto.reconstruct.asymmetric import reconstruct_rotations
     from reflecto.load import load_source
+    from reflecto.reconstruct.asymmetric import reconstruct_rotations
 
     src = load_source(path)
     out = {"name": Path(path).stem}
@@ -409,8 +407,8 @@ def one_photons(path: str) -> dict:
 
     from reflecto.evaluate.metrics import comparison_error
     from reflecto.instrument.device import load_device
-    from reflecto.reconstruct.asymmetric import reconstruct_rotations
     from reflecto.load import load_source
+    from reflecto.reconstruct.asymmetric import reconstruct_rotations
 
     src = load_source(path)
     ideal, built = load_device("ideal"), load_device("as-built")
@@ -487,10 +485,9 @@ def part_mixed(jobs: int) -> None:
 
 def part_timing() -> None:
     import _bench  # noqa: F401  (one core, single-threaded libraries; before NumPy)
-
+    from reflecto.load import load_source
     from reflecto.reconstruct import Options, reconstruct
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
-    from reflecto.load import load_source
 
     dev, cal = _device_and_calibration("ideal")
     ratios = []

@@ -30,10 +30,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import _bench  # noqa: E402, F401  (one core, single-threaded libraries: before NumPy)
 
+# isort: split
 import argparse  # noqa: E402
 import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -43,12 +43,12 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from conftest import random_directions  # noqa: E402
 from isotropic_model import TabulatedIsotropic  # noqa: E402
-from test_export import relative_difference  # noqa: E402
 from reflecto.evaluate.metrics import brdf_error  # noqa: E402
 from reflecto.export.rgl import export_rgl  # noqa: E402
 from reflecto.model import MicrofacetBRDF, load_model  # noqa: E402
 from reflecto.sources.analytic import AnalyticBRDF  # noqa: E402
 from reflecto.sources.rgl import RGLBRDF  # noqa: E402
+from test_export import relative_difference  # noqa: E402
 
 
 def _reader(kind: str):  # type: ignore[no-untyped-def]

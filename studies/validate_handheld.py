@@ -45,9 +45,9 @@ from pathlib import Path
 
 import numpy as np
 
+from reflecto import load_source, workflow
 from reflecto.evaluate.metrics import brdf_error, evaluate_on_grid, max_albedo, metric_grid
 from reflecto.evaluate.split import half
-from reflecto import load_source, workflow
 from reflecto.evaluate.sweep import find_materials, material_seed
 from reflecto.instrument.device import load_device
 from reflecto.instrument.simulate import simulate_capture

@@ -34,14 +34,14 @@ ANGLES = np.array([0.0, 30.0, 60.0, 75.0, 85.0, 89.0])
 
 
 def one(job: tuple[str, str, str | None, float]) -> dict:
+    from reflecto import workflow
     from reflecto.evaluate.sweep import material_seed
     from reflecto.fresnel import is_constant
     from reflecto.instrument.device import load_device
     from reflecto.instrument.simulate import simulate_capture
-    from reflecto import workflow
+    from reflecto.load import load_source
     from reflecto.reconstruct import Options, reconstruct
     from reflecto.reconstruct.isotropic import ETA_MAX
-    from reflecto.load import load_source
 
     path, device, cal_path, tilt = job
     dev = load_device(device)

@@ -20,10 +20,10 @@ import time
 
 import numpy as np
 
+from reflecto import workflow
 from reflecto.evaluate.metrics import brdf_error, ndf_error
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
-from reflecto import workflow
 from reflecto.reconstruct import reconstruct
 from reflecto.sources.analytic import AnalyticBRDF
 

@@ -35,10 +35,10 @@ import numpy as np
 
 from _shared_models import ROOT, shared_models  # noqa: E402
 from reflecto.export.rgl import export_rgl  # noqa: E402
+from reflecto.load import load_source  # noqa: E402
 from reflecto.model import load_model  # noqa: E402
 from reflecto.render.mitsuba import SMOOTHING_PX, compare, comparison_image, image_difference, object_mask  # noqa: E402
 from reflecto.render.sphere import render_sphere  # noqa: E402
-from reflecto.load import load_source  # noqa: E402
 from reflecto.sources.rgl import RGLBRDF  # noqa: E402
 
 SHOW = ("chrome-steel", "irid_flake_paint1_rgb", "pvc", "paper_white_rgb")

@@ -32,18 +32,16 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
 from conftest import SHARED  # noqa: E402
-
-
 from reflecto.reconstruct.consistency import THRESHOLD as PAIR_THRESHOLD  # noqa: E402
 from reflecto.reconstruct.symmetry import PLANE_THRESHOLD_DEG  # noqa: E402
 
 
 def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None, tuple[int, ...] | None]) -> dict:
+    from reflecto import workflow
     from reflecto.instrument.device import load_device
     from reflecto.instrument.simulate import simulate_capture
-    from reflecto import workflow
-    from reflecto.reconstruct import reconstruct
     from reflecto.load import load_source
+    from reflecto.reconstruct import reconstruct
 
     k, path, device, cal_path, order, check = args
     dev = load_device(device)

@@ -16,10 +16,10 @@ import math
 
 import numpy as np
 
+from reflecto import workflow
 from reflecto.evaluate.metrics import brdf_error
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
-from reflecto import workflow
 from reflecto.reconstruct import Options, reconstruct
 from reflecto.sources.analytic import AnalyticBRDF
 

@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 
-from reflecto.fresnel import fresnel
 from reflecto.brdf import BRDFSource
+from reflecto.fresnel import fresnel
 
 
 class TabulatedIsotropic(BRDFSource):

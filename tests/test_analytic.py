@@ -3,12 +3,12 @@ import json
 import numpy as np
 import pytest
 
+from conftest import random_directions
 from reflecto import geometry as g
 from reflecto.errors import FileFormatError, ParameterError
 from reflecto.hemicube import hemicube
 from reflecto.load import load_source
 from reflecto.sources.analytic import AnalyticBRDF
-from conftest import random_directions
 
 MODELS = [
     dict(distribution="ggx", alpha=0.05, kd=0.0, ks=1.0, eta=50.0),

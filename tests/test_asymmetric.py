@@ -82,10 +82,10 @@ def test_four_rotations_beat_the_symmetric_path_on_an_asymmetric_lobe(captures):
     """Acceptance 1 on one material: compare error ≤ 1/3 of the τ-mirrored single
     capture's, NDF within 8 %, and the symmetry test broken on one capture and on the set."""
     from reflecto.evaluate.metrics import comparison_error, ndf_error
+    from reflecto.load import load_source
     from reflecto.reconstruct import Options, reconstruct
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
     from reflecto.reconstruct.symmetry_test import symmetry_test_slices
-    from reflecto.load import load_source
 
     src = load_source(BRUSHED)
     caps = [_slices(captures[f"r{r}"]) for r in ROTATIONS]
@@ -336,9 +336,9 @@ def test_the_set_normal_is_estimated_once():
     from reflecto.instrument.device import Device
     from reflecto.instrument.simulate import simulate_capture
     from reflecto.instrument.slices import extract_slices
+    from reflecto.load import load_source
     from reflecto.reconstruct import Options
     from reflecto.reconstruct.asymmetric import RotatedCapture, reconstruct_rotations
-    from reflecto.load import load_source
 
     src = load_source(BRUSHED)
     dev = Device.builtin("ideal")

@@ -120,8 +120,8 @@ def test_json_of_calibration_and_report_commands(tmp_path, capsys):
     assert "calibration.json" in _json_out(capsys)["files"]
     assert main(["calibrate", str(tmp_path / "calib"), "-o", str(tmp_path / "cal.npz"), "--json"]) == 0
     assert _json_out(capsys)["report"]["reprojection_rms_px"] < 0.1
-    from reflecto.model import MicrofacetBRDF
     from reflecto.load import load_source
+    from reflecto.model import MicrofacetBRDF
 
     MicrofacetBRDF.from_ndf_function(load_source(PLASTIC).ndf, resolution=16, kd=0.1, ks=0.5).save(
         tmp_path / "m.reflecto")

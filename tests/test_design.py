@@ -7,12 +7,17 @@ import numpy as np
 import pytest
 
 from conftest import require
-
 from reflecto.evaluate import design as ds
 from reflecto.hemicube import hemicube
 from reflecto.instrument import layout
-from reflecto.instrument.device import (DEFAULT_FIRING_ORDER, DEFAULT_LED_ANGLES, WIDE_LED_ANGLES, WIDE_OPTICS, Device,
-                                        steep_last_order)
+from reflecto.instrument.device import (
+    DEFAULT_FIRING_ORDER,
+    DEFAULT_LED_ANGLES,
+    WIDE_LED_ANGLES,
+    WIDE_OPTICS,
+    Device,
+    steep_last_order,
+)
 from reflecto.instrument.optics import Optics
 
 
@@ -168,8 +173,9 @@ def test_run_batch_on_a_local_dask_cluster_equals_the_local_run(cluster):
 
 
 def test_an_unreachable_scheduler_is_one_error(monkeypatch):
-    from reflecto.errors import ReflectoError
     import importlib
+
+    from reflecto.errors import ReflectoError
 
     batch = importlib.import_module("reflecto.batch")
     from reflecto.batch import run_batch

@@ -19,14 +19,21 @@ import pytest
 
 from reflecto import io as rio
 from reflecto.cli import main
-from reflecto.errors import (BatchError, FileFormatError, LimitError, OutputError, ParameterError, ReflectoError,
-                             ReflectoWarning)
+from reflecto.errors import (
+    BatchError,
+    FileFormatError,
+    LimitError,
+    OutputError,
+    ParameterError,
+    ReflectoError,
+    ReflectoWarning,
+)
 from reflecto.instrument.calibrate import Calibration, calibrate
 from reflecto.instrument.capture import CaptureError, read_capture
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_calibration
-from reflecto.model import MicrofacetBRDF
 from reflecto.load import load_source
+from reflecto.model import MicrofacetBRDF
 from reflecto.sources.analytic import AnalyticBRDF
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -387,8 +394,8 @@ def test_merl_spike_between_quadrature_nodes_is_refused_by_its_hemispherical_alb
     """6667 sr⁻¹ in one θ_h bin (15°) at θ_d 62–72°: the directional-albedo quadrature's
     rings step over the bin (albedo < 0.5), its exact per-bin integral does not (found by
     the fuzz campaign)."""
-    from reflecto.sources import merl
     from reflecto.brdf import directional_albedo
+    from reflecto.sources import merl
 
     t = np.full(merl.SHAPE + (3,), 0.1)
     t[37, 62:73, :, 0] = 6666.7

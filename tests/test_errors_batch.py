@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import signal
@@ -14,7 +15,7 @@ import pytest
 
 from reflecto.cli import main
 from reflecto.errors import BatchError, ReflectoWarning
-import importlib
+
 sweep_mod = importlib.import_module("reflecto.evaluate.sweep")  # the module, not the re-exported function
 batch = importlib.import_module("reflecto.batch")
 

@@ -134,8 +134,8 @@ def test_rgl_export_of_a_reconstructed_metal(shared, tmp_path):
     from reflecto.instrument.device import Device
     from reflecto.instrument.simulate import simulate_capture
     from reflecto.instrument.slices import extract_slices
-    from reflecto.reconstruct.pipeline import reconstruct
     from reflecto.load import load_source
+    from reflecto.reconstruct.pipeline import reconstruct
 
     dev = Device.builtin("ideal")
     src = load_source(shared / "rgl" / "ilm_l3_37_metallic_rgb.bsdf")
@@ -168,8 +168,8 @@ def chrome_steel(shared):
     from reflecto.instrument.device import Device
     from reflecto.instrument.simulate import simulate_capture
     from reflecto.instrument.slices import extract_slices
-    from reflecto.reconstruct.pipeline import reconstruct
     from reflecto.load import load_source
+    from reflecto.reconstruct.pipeline import reconstruct
 
     dev = Device.builtin("ideal")
     src = load_source(shared / "merl-nbrdf" / "chrome-steel.h5")

@@ -67,11 +67,12 @@ OUTCOMES = ("refused", "accepted-same", "accepted-changed", "recovered") + FAILU
 # ------------------------------------------------------------------ base inputs
 def build_base(folder: Path) -> Path:
     """Valid inputs of every kind, in ``folder`` (about 60 MB; 10–20 s)."""
-    from reflecto.cli import main
     import importlib
+
+    from reflecto.cli import main
     sw = importlib.import_module("reflecto.evaluate.sweep")
-    from reflecto.model import MicrofacetBRDF
     from reflecto.load import load_source
+    from reflecto.model import MicrofacetBRDF
 
     folder.mkdir(parents=True, exist_ok=True)
     q = ["-q"]
@@ -796,8 +797,8 @@ def sanity(kind: str, path: Path | None) -> str | None:
         return None
     if kind in ("capture manifest", "capture frame", "device file", "summary .json", "sweep record"):
         return None
-    from reflecto.load import load_source
     from reflecto.brdf import directional_albedo
+    from reflecto.load import load_source
 
     src = load_source(path)
     with np.errstate(all="ignore"):

@@ -1,7 +1,7 @@
 import numpy as np
 
-from reflecto import geometry as g
 from conftest import random_directions
+from reflecto import geometry as g
 
 
 def test_hd_io_round_trip(rng):

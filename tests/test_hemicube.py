@@ -1,10 +1,10 @@
 import numpy as np
 import pytest
 
+from conftest import random_directions
 from reflecto import geometry as g
 from reflecto.errors import ParameterError
 from reflecto.hemicube import Hemicube, hemicube
-from conftest import random_directions
 
 
 @pytest.mark.parametrize("n", [4, 16, 64, 512])

@@ -1,12 +1,12 @@
 import numpy as np
 import pytest
 
+from conftest import random_directions
 from reflecto import geometry as g
 from reflecto.errors import FileFormatError
-from reflecto.sources import merl
 from reflecto.load import load_source
+from reflecto.sources import merl
 from reflecto.sources.analytic import AnalyticBRDF
-from conftest import random_directions
 
 
 @pytest.fixture(scope="module")

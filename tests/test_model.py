@@ -4,12 +4,12 @@ import zipfile
 import numpy as np
 import pytest
 
+from conftest import random_directions
 from reflecto import geometry as g
 from reflecto.errors import FileFormatError, ParameterError
-from reflecto.model import MicrofacetBRDF
 from reflecto.load import load_source
+from reflecto.model import MicrofacetBRDF
 from reflecto.sources.analytic import AnalyticBRDF
-from conftest import random_directions
 
 
 @pytest.fixture(scope="module")

@@ -2,10 +2,10 @@ import h5py
 import numpy as np
 import pytest
 
-from reflecto.errors import FileFormatError
-from reflecto.sources import NBRDF
-from reflecto.load import load_source
 from conftest import random_directions
+from reflecto.errors import FileFormatError
+from reflecto.load import load_source
+from reflecto.sources import NBRDF
 
 
 def test_all_shared_nbrdf_materials(shared, rng):

@@ -172,8 +172,8 @@ def test_a_metal_keeps_its_dark_diffuse_floor(shared):
     the peak must not go into k_d: k_d stays under the floor the samples measure
     (:func:`reflecto.reconstruct.samples.kd_median_bound`; the dense CT fit's ρ_d ≤ 0.035)."""
     from reflecto.evaluate.sweep import material_seed
-    from reflecto.reconstruct.samples import kd_median_bound
     from reflecto.load import load_source
+    from reflecto.reconstruct.samples import kd_median_bound
 
     src = load_source(shared / "merl-nbrdf" / "tungsten-carbide.h5")
     dev = Device.builtin("ideal")
@@ -711,8 +711,8 @@ def test_narrow_lobes_and_zero_readings():
 def test_hemicube_fresnel_subsample_is_drawn_per_pair(shared):
     """The anisotropic path's overlap fits draw their subsample by a hash of each pair's
     identity: a 1e-12 change of the k_d bound or one pair more or less leaves η as it was."""
-    from reflecto.reconstruct import fresnel_fit, hemicube_fit
     from reflecto.load import load_source
+    from reflecto.reconstruct import fresnel_fit, hemicube_fit
 
     dev = Device.builtin("ideal")
     sl = extract_slices(simulate_capture(load_source(shared / "merl-nbrdf" / "red-specular-plastic.h5"), dev, seed=36),

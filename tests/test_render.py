@@ -4,10 +4,16 @@ import numpy as np
 import pytest
 
 from conftest import require_mitsuba
-
 from reflecto.cli import main
-from reflecto.render.mitsuba import (DEFAULT_SPP, SMOOTHING_PX, compare, image_difference, object_mask, render,
-                                     sample_count)
+from reflecto.render.mitsuba import (
+    DEFAULT_SPP,
+    SMOOTHING_PX,
+    compare,
+    image_difference,
+    object_mask,
+    render,
+    sample_count,
+)
 from reflecto.render.sphere import BACKGROUND, composite, render_sphere, sphere_coverage
 from reflecto.sources.analytic import AnalyticBRDF
 

@@ -15,7 +15,6 @@ from pathlib import Path
 import pytest
 
 from conftest import require
-
 from reflecto.cli import main
 from reflecto.evaluate.report import write_index, write_report
 from reflecto.model import MicrofacetBRDF

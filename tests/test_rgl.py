@@ -3,11 +3,11 @@ import struct
 import numpy as np
 import pytest
 
-from reflecto.errors import FileFormatError
-from reflecto.sources import RGLBRDF
-from reflecto.load import load_source
-from reflecto.sources.rgl import read_tensor_file
 from conftest import random_directions, require_mitsuba
+from reflecto.errors import FileFormatError
+from reflecto.load import load_source
+from reflecto.sources import RGLBRDF
+from reflecto.sources.rgl import read_tensor_file
 
 
 def _files(shared):

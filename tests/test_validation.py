@@ -9,8 +9,8 @@ import pytest
 from reflecto.evaluate.cooktorrance import CookTorrance, fit_cook_torrance
 from reflecto.evaluate.metrics import brdf_error, metric_grid
 from reflecto.evaluate.sweep import find_materials, sweep
-from reflecto.sources import merl
 from reflecto.load import load_source
+from reflecto.sources import merl
 from reflecto.sources.analytic import AnalyticBRDF
 
 

@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from reflecto.workflow import reconstruct_folder
+from reflecto import load_source
 from reflecto.instrument.capture import MANIFEST, read_capture, write_capture
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
 from reflecto.model import load_model
-from reflecto import load_source
 from reflecto.watch import READY, WAITING, Watcher, capture_state
+from reflecto.workflow import reconstruct_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The device's rate: one capture every 1/8.6 s.

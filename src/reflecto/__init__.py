@@ -11,12 +11,12 @@ Directions: unit vectors away from the surface, local frame ``x = t, y = b, z = 
 
 from __future__ import annotations
 
+from .brdf import BRDFSource, directional_albedo
 from .errors import FileFormatError, ParameterError, ReflectoError
 from .hemicube import Hemicube, hemicube
-from .model import MicrofacetBRDF, load_model
-from .brdf import BRDFSource, directional_albedo
-from .sources import NBRDF, RGLBRDF, AnalyticBRDF, MerlBRDF
 from .load import load_source
+from .model import MicrofacetBRDF, load_model
+from .sources import NBRDF, RGLBRDF, AnalyticBRDF, MerlBRDF
 
 __version__ = "0.1.0"
 

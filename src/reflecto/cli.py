@@ -13,54 +13,45 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import sys
+import time
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import imageio.v3 as iio
 import numpy as np
-
-import os
-import time
+from tqdm import tqdm
 
 from . import __version__, kinds, workflow
-from .instrument.device import BUILTINS as DEVICE_BUILTINS
+from .batch import Progress, interactive, run_batch
+from .errors import BatchError, FileFormatError, OutputError, ParameterError, ReflectoError, ReflectoWarning, one_line
+from .evaluate.cooktorrance import fit_cook_torrance
+from .evaluate.design import DEFAULT_CONES, DEFAULT_LED_COUNTS, DEFAULT_TILTS, best_design, design_study
+from .evaluate.gallery import GallerySettings, gallery
+from .evaluate.metrics import brdf_error, comparison_error
+from .evaluate.report import write_report
+from .evaluate.sweep import summarize, sweep
+from .export.merl import export_merl
+from .export.rgl import export_rgl
 from .fresnel import eta_from_json, format_eta
-from .io import make_parents
+from .instrument import layout
+from .instrument.calibrate import calibrate
+from .instrument.capture import write_capture
+from .instrument.device import BUILTINS as DEVICE_BUILTINS
+from .instrument.device import load_device
+from .instrument.plots import plot_coverage
+from .instrument.simulate import simulate_calibration, simulate_capture
+from .io import atomic_path, check_output, make_parents, read_json
+from .load import load_source
 from .reconstruct import Options
 from .reconstruct.asymmetric import MIN_CAPTURES
 from .reconstruct.symmetry_test import SymmetryTest
-from .errors import BatchError, OutputError, ReflectoError, ReflectoWarning, one_line
-from .io import check_output
-from .batch import Progress, interactive, run_batch
-from tqdm import tqdm
-from .load import load_source
+from .render.mitsuba import DEFAULT_SPP, SCENES, compare, comparison_image, render, save_image, titled, to_srgb8
 from .sources import merl
-from .instrument import layout
-from .instrument.device import load_device
-from .instrument.plots import plot_coverage
-from .instrument.capture import write_capture
-from .instrument.simulate import simulate_capture
-from .instrument.simulate import simulate_calibration
-from .instrument.calibrate import calibrate
-from .export.rgl import export_rgl
-from .export.merl import export_merl
-from .render.mitsuba import compare, comparison_image, render, save_image, titled, to_srgb8
-from .io import atomic_path
-import imageio.v3 as iio
-from .evaluate.metrics import comparison_error
-from .evaluate.report import write_report
-from .io import read_json
-from .errors import FileFormatError, ParameterError
-from .evaluate.cooktorrance import fit_cook_torrance
-from .evaluate.metrics import brdf_error
-from .evaluate.sweep import summarize, sweep
-from .evaluate.design import best_design, design_study
-from .render.mitsuba import DEFAULT_SPP, SCENES
-from .evaluate.design import DEFAULT_CONES, DEFAULT_LED_COUNTS, DEFAULT_TILTS
-from .evaluate.gallery import GallerySettings, gallery
 from .watch import Watcher, default_reconstructor
 
 _SHOW_WARNING = warnings.showwarning
@@ -318,7 +309,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                   f"LEDs moved by {r['led_offset_from_nominal_deg']}° from nominal"])
 
 
-def _normal_arg(text: str):  # type: ignore[no-untyped-def]
+def _normal_arg(text: str) -> str | tuple[float, ...]:
     """``--normal``: ``auto``, ``device`` or ``X,Y,Z`` (a unit vector, checked by :class:`~reflecto.reconstruct.Options`)."""
     if text in ("auto", "device", "search"):
         return text

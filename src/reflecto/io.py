@@ -30,6 +30,7 @@ import os
 import shutil
 import stat
 import tempfile
+import tomllib
 import zipfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -37,9 +38,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from .errors import FileFormatError, LimitError, OutputError
-import tomllib
-from .errors import short_repr
+from .errors import FileFormatError, LimitError, OutputError, short_repr
 
 MiB = 1 << 20
 #: Largest JSON/TOML description (analytic BRDF, device, capture manifest,

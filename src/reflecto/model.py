@@ -23,6 +23,8 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
+import warnings
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -33,18 +35,22 @@ from numpy.typing import ArrayLike, NDArray
 from . import _kernels
 from .brdf import BRDFSource, Reader, check_plausible, register_reader
 from .brdf import rgb_triplet as _rgb
-from .errors import FileFormatError, ParameterError, short_repr
+from .errors import FileFormatError, ParameterError, ReflectoWarning, short_repr
 from .fresnel import FresnelTable, eta_to_json, fresnel, is_constant
 from .hemicube import Hemicube, hemicube
-from .io import atomic_write
+from .io import (
+    MAX_ARCHIVE_BYTES,
+    atomic_write,
+    content_digest,
+    npy_array,
+    npy_bytes,
+    parse_json,
+    read_input,
+    sha256,
+    zip_members,
+)
 from .polar import IsotropicNDF
 from .shadowing import SigmaTable, sigma_table
-from .io import content_digest, npy_bytes, sha256
-from .io import MAX_ARCHIVE_BYTES, parse_json, read_input, zip_members
-from .io import npy_array
-import warnings
-from .errors import ReflectoWarning
-import os
 
 Array = NDArray[np.float64]
 

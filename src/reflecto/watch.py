@@ -34,25 +34,26 @@ import html
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from . import workflow
+from .brdf import BRDFSource
 from .errors import ReflectoError, one_line
-from .reconstruct import Options
-from .instrument.capture import MANIFEST
-import cv2
-from .render.sphere import composite, render_sphere, sphere_coverage
 from .fresnel import eta_from_json, format_eta
+from .instrument.capture import MANIFEST
 from .io import atomic_write, make_parents
 from .model import load_model
-import signal
-import threading
+from .reconstruct import Options
+from .render.sphere import composite, render_sphere, sphere_coverage
 
 #: Seconds between two looks at ROOT while nothing is ready.
 POLL_S = 0.02
@@ -137,7 +138,7 @@ def _signature(folder: Path) -> tuple:
         return ()
 
 
-def thumbnail(model, size: int = THUMB_PX) -> bytes:  # type: ignore[no-untyped-def]
+def thumbnail(model: BRDFSource, size: int = THUMB_PX) -> bytes:
     """PNG bytes of a lit sphere of ``model`` (:func:`reflecto.render.sphere.render_sphere`:
     key and fill point lights), ``size × size`` pixels, sRGB-encoded 8-bit RGB on the
     renders' grey background, exposure 1."""
@@ -355,7 +356,7 @@ class Watcher:
             self.scan(final=True)
             return
 
-        def interrupt(signum, frame):  # type: ignore[no-untyped-def]
+        def interrupt(signum: int, frame: object) -> None:
             raise KeyboardInterrupt
 
         # a service manager's SIGTERM stops the watch as Ctrl-C does: between two files

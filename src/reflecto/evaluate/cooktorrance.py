@@ -29,9 +29,9 @@ from scipy.optimize import least_squares
 
 from .. import _kernels, geometry
 from ..brdf import BRDFSource
-from .metrics import evaluate_on_grid, metric_grid
 from ..hemicube import hemicube
 from ..reconstruct.samples import bin_samples
+from .metrics import evaluate_on_grid, metric_grid
 
 if TYPE_CHECKING:
     from ..brdf import ArrayField

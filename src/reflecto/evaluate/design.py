@@ -38,6 +38,7 @@ import functools
 import io
 import json
 import math
+import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -46,24 +47,20 @@ from typing import Any
 import numpy as np
 
 from .. import workflow
-from ..instrument.simulate import simulate_capture
+from ..batch import Progress, run_batch
 from ..errors import BatchError, ReflectoError
 from ..fresnel import eta_to_json
-from ..io import atomic_write, make_parents, read_json
 from ..hemicube import hemicube
 from ..instrument import layout
 from ..instrument.device import Device
 from ..instrument.optics import Optics
-from .cooktorrance import fit_cook_torrance
-from .metrics import brdf_error
-from .sweep import METRIC_STRIDE
+from ..instrument.simulate import simulate_capture
+from ..io import atomic_write, make_parents, read_json
 from ..load import load_source
-from .metrics import evaluate_on_grid, max_albedo, metric_grid
-from .sweep import material_seed
-import os
-from ..batch import Progress, run_batch
-from .sweep import find_materials
 from ..plotting import pyplot, save_figure
+from .cooktorrance import fit_cook_torrance
+from .metrics import brdf_error, evaluate_on_grid, max_albedo, metric_grid
+from .sweep import METRIC_STRIDE, find_materials, material_seed
 
 #: The grid of ``reflecto design`` by default (degrees, degrees, LEDs).
 DEFAULT_CONES = (48.2, 55.0, 60.0, 65.0)

@@ -30,15 +30,13 @@ from typing import Any
 
 from .. import workflow
 from ..errors import ParameterError
-from ..instrument.simulate import simulate_capture
-from ..reconstruct import Options, reconstruct_rotations
-from ..render.mitsuba import render, save_image
-from .metrics import comparison_error
 from ..instrument.device import load_device
+from ..instrument.simulate import simulate_capture
+from ..io import atomic_folder, atomic_write
 from ..load import load_source
-from ..render.mitsuba import SMOOTHING_PX, image_difference, object_mask
-from ..io import atomic_write
-from ..io import atomic_folder
+from ..reconstruct import Options, reconstruct_rotations
+from ..render.mitsuba import SMOOTHING_PX, image_difference, object_mask, render, save_image
+from .metrics import comparison_error
 
 __all__ = ["GallerySettings", "GalleryRow", "gallery_row", "write_gallery", "gallery"]
 

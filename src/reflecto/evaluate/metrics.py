@@ -38,10 +38,10 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from ..sources import merl
-from ..brdf import BRDFSource, HasNDF
 from .. import geometry
+from ..brdf import BRDFSource, HasNDF
 from ..hemicube import hemicube
+from ..sources import merl
 
 Array = NDArray[np.float64]
 

@@ -25,26 +25,26 @@ import math
 from pathlib import Path
 from typing import Any
 
+import imageio.v3 as iio
 import numpy as np
 from numpy.typing import NDArray
 
+from .. import geometry, workflow
+from ..brdf import BRDFSource, HasNDF
 from ..colour import LUM
-from .. import workflow
-from ..instrument.capture import read_capture
 from ..errors import FileFormatError, ReflectoError
 from ..fresnel import is_constant
-from ..io import atomic_path, atomic_write, read_json
-from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF, load_model
-from ..plotting import pyplot, save_figure
-from ..brdf import BRDFSource, HasNDF
-import imageio.v3 as iio
-from .. import geometry
-from ..render.mitsuba import compare, comparison_image, default_envmap, render as mi_render, to_srgb8
-from .viewer import write_viewer
+from ..instrument.capture import read_capture
 from ..instrument.device import load_device
 from ..instrument.plots import plot_coverage
+from ..io import atomic_path, atomic_write, read_json
 from ..load import load_source
+from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF, load_model
+from ..plotting import pyplot, save_figure
+from ..render.mitsuba import compare, comparison_image, default_envmap, to_srgb8
+from ..render.mitsuba import render as mi_render
 from .metrics import brdf_error
+from .viewer import write_viewer
 
 Array = NDArray[np.float64]
 

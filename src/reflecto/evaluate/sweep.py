@@ -32,6 +32,8 @@ SIGKILL (:func:`reflecto.batch.run_batch`).
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import math
 import os
@@ -46,19 +48,17 @@ import numpy as np
 
 from .. import workflow
 from ..batch import Progress, run_batch
-from ..instrument.device import load_device
-from ..instrument.simulate import simulate_capture
 from ..errors import BatchError, FileFormatError, ReflectoError, ReflectoWarning
 from ..fresnel import eta_from_json, eta_to_json, is_constant
+from ..instrument.device import load_device
+from ..instrument.simulate import simulate_capture
 from ..io import atomic_write, make_parents, read_description, read_json, remove_empty
-from ..render.sphere import render_sphere
 from ..load import load_source
+from ..render.sphere import render_sphere
 from .cooktorrance import fit_cook_torrance, fit_cook_torrance_capture
 from .metrics import brdf_error, evaluate_on_grid, max_albedo, metric_grid
-from .split import half
 from .plots import plot_errors, plot_spheres
-import csv
-import io
+from .split import half
 
 MATERIAL_SUFFIXES = (".binary", ".bsdf", ".h5", ".json", ".toml")
 #: Resolution of the sphere renders kept per material (Fig. 4).

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..brdf import BRDFSource
 from ..errors import ParameterError
 from ..sources import merl
-from ..brdf import BRDFSource
 from .rgl import proxy_ndf
 
 

@@ -54,14 +54,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
+from .. import __version__
+from ..brdf import BRDFSource
 from ..colour import LUM
 from ..errors import FileFormatError
-from ..fresnel import f0_from_eta, is_constant
+from ..fresnel import f0_from_eta, fresnel, is_constant
 from ..io import atomic_path, atomic_write
-from ..brdf import BRDFSource
-from ..sources.rgl import MAGIC, Marginal2D, RGLBRDF
-from ..fresnel import fresnel
-from .. import __version__
+from ..sources.rgl import MAGIC, RGLBRDF, Marginal2D
 
 Array = NDArray[np.float64]
 NDFFunction = Callable[[Array], Array]

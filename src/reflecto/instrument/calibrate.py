@@ -28,6 +28,7 @@ import io
 import json
 import math
 import os
+import warnings
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -39,18 +40,25 @@ from scipy import ndimage
 from scipy.optimize import least_squares
 
 from .. import geometry
+from ..colour import LUM
 from ..errors import FileFormatError, ParameterError, ReflectoWarning, short_repr
-from ..io import atomic_write
+from ..io import (
+    MAX_ARCHIVE_BYTES,
+    atomic_write,
+    content_digest,
+    inside,
+    npy_array,
+    npy_bytes,
+    parse_json,
+    read_input,
+    read_json,
+    sha256,
+    zip_members,
+)
 from .capture import CaptureError, read_capture, read_image
 from .device import Device, validate_optics_dict
 from .hdr import merge_debevec, merge_linear, recover_response
 from .optics import Optics
-from ..io import content_digest, sha256
-from ..io import inside, read_json
-from ..io import npy_bytes
-from ..io import MAX_ARCHIVE_BYTES, npy_array, parse_json, read_input, zip_members
-import warnings
-from ..colour import LUM
 
 Array = NDArray[np.float64]
 

@@ -41,11 +41,8 @@ from numpy.typing import NDArray
 
 from .. import _kernels
 from ..errors import FileFormatError, LimitError, ReflectoError, short_repr
-from ..io import inside
+from ..io import atomic_folder, inside, read_input, read_json
 from .device import MAX_EXPOSURE_MS, Device
-from ..io import read_input
-from ..io import atomic_folder
-from ..io import read_json
 
 CAPTURE_FORMAT = "reflecto-capture"
 CAPTURE_VERSION = 1

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from ..errors import FileFormatError, ParameterError, short_repr
 from ..io import read_description
-from .layout import led_direction, layout_violations
+from .layout import layout_violations, led_direction
 from .optics import Optics, optics_from_dict
 
 Array = NDArray[np.float64]

@@ -23,13 +23,13 @@ from __future__ import annotations
 
 from typing import Literal, overload
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from .. import _kernels
-from .device import Camera
 from ..colour import LUM
-import cv2
+from .device import Camera
 
 Array = NDArray[np.float64]
 

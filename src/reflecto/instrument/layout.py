@@ -26,14 +26,13 @@ import math
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-
 from numba import njit
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import differential_evolution
 
 from .. import geometry
 from ..hemicube import Hemicube, hemicube
 from .optics import Optics
-from scipy.optimize import differential_evolution
 
 Array = NDArray[np.float64]
 

@@ -34,12 +34,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import _kernels, geometry
-from ..errors import ParameterError
 from ..brdf import BRDFSource
+from ..errors import ParameterError
+from ..sources.analytic import AnalyticBRDF
 from .capture import Capture, _write_png, atomic_dir, write_capture
 from .device import Camera, Device
 from .optics import Optics
-from ..sources.analytic import AnalyticBRDF
 
 Array = NDArray[np.float64]
 

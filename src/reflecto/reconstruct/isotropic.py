@@ -49,12 +49,10 @@ from ..errors import ReflectoError
 from ..fresnel import CONSTANT, fresnel
 from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF
-from ..polar import IsotropicNDF, polar_nodes
+from ..polar import IsotropicNDF, _quadrature, interpolation_cells, polar_nodes
 from . import _polar_kernels
 from .samples import kd_median_bound
 from .tuning import ISOTROPIC
-from ..polar import _quadrature
-from ..polar import interpolation_cells
 
 Array = NDArray[np.float64]
 

@@ -30,11 +30,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..instrument.slices import Slices
-from .tuning import MOTION
 from .consistency import THRESHOLD as PAIR_THRESHOLD
 from .consistency import PairCheck, normal_allowance, pair_checks
 from .repeat import RepeatCheck, repeat_checks
 from .symmetry import PLANE_THRESHOLD_DEG, plane_offsets
+from .tuning import MOTION
 
 Array = NDArray[np.float64]
 

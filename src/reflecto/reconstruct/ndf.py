@@ -22,11 +22,11 @@ import math
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.ndimage import spline_filter
 
 from .. import _kernels
 from ..hemicube import Hemicube, hemicube
 from .tuning import NDF
-from scipy.ndimage import spline_filter
 
 Array = NDArray[np.float64]
 

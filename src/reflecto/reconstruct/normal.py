@@ -40,17 +40,16 @@ from numpy.typing import NDArray
 from scipy.optimize import minimize
 
 from .. import geometry
+from ..colour import LUM
 from ..errors import ReflectoError
-from ..instrument.slices import MIN_LIGHT_COS
 from ..hemicube import hemicube
-from .tuning import NORMAL
+from ..instrument.slices import MIN_LIGHT_COS
+from ..model import IsotropicMicrofacetBRDF
+from ..polar import interpolation_cells, polar_nodes
+from . import isotropic
 from .fresnel_fit import fit_fresnel, overlap_pairs
 from .samples import bin_samples, kd_bound
-from ..colour import LUM
-from ..model import IsotropicMicrofacetBRDF
-from ..polar import polar_nodes
-from . import isotropic
-from ..polar import interpolation_cells
+from .tuning import NORMAL
 
 Array = NDArray[np.float64]
 

@@ -36,13 +36,20 @@ from ..errors import ParameterError, ReflectoError
 from ..fresnel import eta_to_json, is_constant
 from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
-from .tuning import PIPELINE
 from .hemicube_fit import HemicubeFit, fit_hemicube
 from .isotropic import ETA_MAX, IsotropicFit, fit_isotropic
 from .isotropy import IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
-from .normal import (ConsistencyDistance, IsotropicDistance, NormalDistance, NormalEstimate, estimate_normal,
-                     estimate_normal_consistency, refine_normal)
+from .normal import (
+    ConsistencyDistance,
+    IsotropicDistance,
+    NormalDistance,
+    NormalEstimate,
+    estimate_normal,
+    estimate_normal_consistency,
+    refine_normal,
+)
+from .tuning import PIPELINE
 
 Array = NDArray[np.float64]
 

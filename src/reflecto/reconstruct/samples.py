@@ -17,13 +17,13 @@ from statistics import NormalDist
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.ndimage import uniform_filter
 
 from .. import _kernels, geometry
 from ..colour import LUM
 from ..errors import ParameterError
 from ..hemicube import Hemicube
 from .tuning import SAMPLES
-from scipy.ndimage import uniform_filter
 
 Array = NDArray[np.float64]
 

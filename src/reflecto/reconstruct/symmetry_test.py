@@ -40,9 +40,9 @@ from numpy.typing import NDArray
 from ..colour import LUM
 from ..hemicube import hemicube
 from ..instrument.slices import Slices
-from .tuning import SYMMETRY_TEST
 from .fresnel_fit import Pairs, overlap_pairs
 from .samples import Bins, bin_samples
+from .tuning import SYMMETRY_TEST
 
 Array = NDArray[np.float64]
 

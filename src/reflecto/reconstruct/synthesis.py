@@ -53,11 +53,11 @@ from numpy.typing import NDArray
 from scipy import sparse
 from scipy.spatial import cKDTree
 
+from ..errors import ParameterError
 from ..geometry import rotate_z
 from ..hemicube import Hemicube, hemicube
 from . import ndf as ndf_mod
 from .tuning import SYNTHESIS
-from ..errors import ParameterError
 
 Array = NDArray[np.float64]
 

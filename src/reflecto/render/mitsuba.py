@@ -40,20 +40,20 @@ import tempfile
 import time
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
 from numpy.typing import NDArray
-
-from ..colour import LUM
-from ..plotting import pyplot
-from ..errors import FileFormatError, ParameterError
-from ..brdf import BRDFSource
-from .sphere import BACKGROUND, CAMERA, FOV_DEG, LIGHTS, TARGET, UP, composite
-import imageio.v3 as iio
-from ..sources.rgl import RGLBRDF
-from ..export.rgl import export_rgl
-from ..mitsuba_support import import_mitsuba
 from scipy import ndimage
+
+from ..brdf import BRDFSource
+from ..colour import LUM
+from ..errors import FileFormatError, ParameterError
+from ..export.rgl import export_rgl
 from ..io import atomic_path
+from ..mitsuba_support import import_mitsuba
+from ..plotting import pyplot
+from ..sources.rgl import RGLBRDF
+from .sphere import BACKGROUND, CAMERA, FOV_DEG, LIGHTS, TARGET, UP, composite
 
 Array = NDArray[np.float64]
 

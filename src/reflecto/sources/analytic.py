@@ -34,11 +34,11 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.special import erfc
 
 from .. import geometry
-from ..errors import FileFormatError, ParameterError, short_repr
-from ..io import read_description
-from ..fresnel import fresnel
 from ..brdf import BRDFSource, Reader, register_reader
 from ..brdf import rgb_triplet as _rgb
+from ..errors import FileFormatError, ParameterError, short_repr
+from ..fresnel import fresnel
+from ..io import read_description
 
 if TYPE_CHECKING:
     from ..brdf import ArrayField

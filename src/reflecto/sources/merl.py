@@ -27,9 +27,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import geometry
+from ..brdf import ALBEDO_RANGE, BRDFSource, Reader, check_plausible, check_projected, read_file_bytes, register_reader
 from ..errors import FileFormatError
 from ..io import atomic_write
-from ..brdf import ALBEDO_RANGE, BRDFSource, Reader, check_plausible, check_projected, read_file_bytes, register_reader
 
 Array = NDArray[np.float64]
 

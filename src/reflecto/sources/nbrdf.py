@@ -17,15 +17,14 @@ import math
 from pathlib import Path
 from typing import Any
 
+import h5py
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import geometry
-from ..errors import FileFormatError, short_repr
 from ..brdf import BRDFSource, Reader, check_plausible, register_reader
-import h5py
-from ..io import MAX_BRDF_BYTES, read_input
-from ..io import MAX_DESCRIPTION_BYTES, parse_json
+from ..errors import FileFormatError, short_repr
+from ..io import MAX_BRDF_BYTES, MAX_DESCRIPTION_BYTES, parse_json, read_input
 
 Array = NDArray[np.float64]
 

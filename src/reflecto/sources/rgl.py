@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import FileFormatError
 from ..brdf import ALBEDO_RANGE, BRDFSource, Reader, check_plausible, check_projected, read_file_bytes, register_reader
+from ..errors import FileFormatError
 
 Array = NDArray[np.float64]
 
