@@ -69,7 +69,11 @@ demo: $(STAMP)
 	$(BIN)/reflecto report $(OUT)/ggx-plastic.reflecto --ref examples/ggx-plastic.json -o $(OUT)/report
 	@echo "demo done: open $(OUT)/report/index.html"
 
+# lint (ruff: pycodestyle, pyflakes, isort, bugbear, pydocstyle) and types (mypy) first:
+# pyproject.toml holds their settings
 test: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/mypy
 	$(BIN)/python -m pytest -q -m "not slow"
 
 test-slow: $(STAMP)
