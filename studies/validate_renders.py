@@ -45,7 +45,7 @@ SHOW = ("chrome-steel", "irid_flake_paint1_rgb", "pvc", "paper_white_rgb")
 
 
 def _pair(c) -> np.ndarray:  # type: ignore[no-untyped-def]
-    """reference | model | difference, at the exposure that puts the reference's 99th percentile at 0.9."""
+    """Reference | model | difference, at the exposure that puts the reference's 99th percentile at 0.9."""
     from reflecto.render.mitsuba import exposure_for
 
     return comparison_image(c.reference.radiance, c.test.radiance, alpha=c.reference.alpha, alpha_test=c.test.alpha,

@@ -105,7 +105,8 @@ class KindError(ReflectoError):
         What to run instead (may be empty).
     """
 
-    def __init__(self, path: str | Path, got: str, command: str, need: str, hint: str = "", verb: str = "needs") -> None:
+    def __init__(self, path: str | Path, got: str, command: str, need: str, hint: str = "",
+                 verb: str = "needs") -> None:
         self.path = Path(path)
         text = f"{path} is {got}; {command} {verb} {need}" + (f" ({hint})" if hint else "")
         super().__init__(one_line(text))

@@ -167,7 +167,8 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
     ct = fit_cook_torrance(src)
     tm["cook_torrance_fit_s"] = time.perf_counter() - t0
     err = brdf_error(src, ct, stride=METRIC_STRIDE, albedo_ref=alb, reference_values=ref_vals)
-    rec["cook_torrance"] = {"error": err.normalized, "log_rmse": err.log_rmse, "rmse": err.rmse.tolist(), **ct.parameters()}
+    rec["cook_torrance"] = {"error": err.normalized, "log_rmse": err.log_rmse, "rmse": err.rmse.tolist(),
+                            **ct.parameters()}
     renders["cook_torrance"] = render_sphere(ct, SPHERE_RES, supersample=2)
     t0 = time.perf_counter()
     sdct = fit_cook_torrance_capture(ours_slices)
@@ -194,7 +195,8 @@ def record_problem(rec: Any, name: str) -> str | None:
     if rec.get("name") != name or not isinstance(rec.get("device"), str):
         return "name or device missing or wrong"
     tm = rec.get("timings")
-    if not isinstance(tm, dict) or not all(number(tm.get(k)) for k in ("total_s", "ours_reconstruct_s", "cook_torrance_fit_s")):
+    if not isinstance(tm, dict) or not all(number(tm.get(k))
+                                           for k in ("total_s", "ours_reconstruct_s", "cook_torrance_fit_s")):
         return "timings missing or invalid"
     for key in ("ours", "earlier", "cook_torrance", "same_data_ct"):
         r = rec.get(key)

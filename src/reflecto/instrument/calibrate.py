@@ -257,7 +257,8 @@ def _checked_leds(path: Path, value: Any, device: Device) -> Array:
     except (TypeError, ValueError):
         leds = np.zeros(0)
     if leds.shape != (device.n_leds, 3):
-        raise FileFormatError(path, f"LED directions must be {device.n_leds} [x, y, z] vectors, got {short_repr(value)}")
+        raise FileFormatError(path, f"LED directions must be {device.n_leds} [x, y, z] vectors, "
+                                    f"got {short_repr(value)}")
     problem = led_problem(leds, device.leds)
     if problem:
         raise FileFormatError(path, problem)
@@ -432,7 +433,8 @@ def fit_optics(nominal: Optics, directions: list[Array], spots: list[Array]) -> 
         if len(pairs_d) < 12:
             raise CaptureError(Path("<grid>"), f"only {len(pairs_d)} pinhole spots matched; cannot calibrate geometry")
 
-        def resid(q: Array) -> Array:
+        # called by least_squares within this iteration; the defaults bind this iteration's pairs
+        def resid(q: Array, pairs_d: Array = pairs_d, pairs_s: Array = pairs_s) -> Array:
             return (_optics_with(nominal, q).direction_to_pixel(pairs_d) - pairs_s).ravel()
 
         p = least_squares(resid, p, method="lm", x_scale=[10.0, 1.0, 1.0, 0.01, 0.01, 0.1]).x
@@ -458,7 +460,8 @@ def _unit_vectors(value: Any, where: Path, what: str, max_count: int) -> Array:
     if v.ndim == 1 and v.shape == (3,) and max_count == 1:
         v = v[None]
     if v.ndim != 2 or v.shape[1] != 3 or not 1 <= len(v) <= max_count:
-        raise FileFormatError(where, f"{what} must be {'an [x, y, z] vector' if max_count == 1 else f'1 to {max_count} [x, y, z] vectors'}, "
+        raise FileFormatError(where, f"{what} must be "
+                              f"{'an [x, y, z] vector' if max_count == 1 else f'1 to {max_count} [x, y, z] vectors'}, "
                               f"got {short_repr(value)}")
     if not np.all(np.abs(v) <= 1.0 + 1e-6) or np.any(np.abs(np.linalg.norm(v, axis=1) - 1.0) > 1e-6):
         raise FileFormatError(where, f"{what} must be finite unit vectors, got {short_repr(value)}")
@@ -490,7 +493,8 @@ def read_calibration_manifest(calib_dir: Path) -> tuple[dict[str, Any], Device]:
     if not calib_dir.is_dir() or (not mpath.exists() and not mpath.is_symlink()):
         raise CaptureError(mpath, "calibration.json is missing (not a calibration folder)")
     meta = read_json(inside(calib_dir, "calibration.json", calib_dir, "manifest"))
-    if not isinstance(meta, dict) or meta.get("format", "reflecto-calibration-capture") != "reflecto-calibration-capture":
+    if (not isinstance(meta, dict)
+            or meta.get("format", "reflecto-calibration-capture") != "reflecto-calibration-capture"):
         raise FileFormatError(mpath, "not a reflecto calibration manifest (format 'reflecto-calibration-capture')")
     v = meta.get("version", 1)
     if not isinstance(v, int) or isinstance(v, bool) or v != 1:
@@ -581,7 +585,8 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
         cx, cy = optics.principal_point
         half = int(0.7 * optics.f * np.sin(np.radians(optics.cone_half_angle_deg)))
         win = (slice(max(int(cy) - half, 0), int(cy) + half), slice(max(int(cx) - half, 0), int(cx) + half))
-        response = recover_response(frames, np.array([f.get("exposure_ms", 1.0) for f in sweep], dtype=np.float64), window=win)
+        response = recover_response(frames, np.array([f.get("exposure_ms", 1.0) for f in sweep], dtype=np.float64),
+                                    window=win)
         if not np.all(np.isfinite(response)):
             raise CaptureError(mpath, "the exposure sweep gives no usable camera response curve")
         rad, valid = merge_debevec(white.raw, white.exposures_ms, response)

@@ -15,7 +15,8 @@ from .layout import coverage_masks, led_angles
 from .optics import Optics
 
 
-def plot_coverage(optics: Optics, leds: ArrayLike, path: str | Path, resolution: int = 128, theta_max_deg: float = 80.0) -> Path:
+def plot_coverage(optics: Optics, leds: ArrayLike, path: str | Path, resolution: int = 128,
+                  theta_max_deg: float = 80.0) -> Path:
     """Half-vector coverage per LED (left) and after completion by eq. 3 (right).
 
     Half vectors are drawn in the orthographic projection ``(h_x, h_y)`` of the NDF
@@ -62,7 +63,8 @@ def plot_coverage(optics: Optics, leds: ArrayLike, path: str | Path, resolution:
         ax.set_ylabel("$h_y$")
         ax.set_title("(d) completed by symmetry" if completed else "(c) partial NDF per LED")
         ax.legend(loc="lower left", fontsize=7, markerscale=4, ncol=2, frameon=False)
-    fig.suptitle(f"Half-vector coverage, θ_h ≤ {theta_max_deg:g}° (★ LED directions, + optical axis; grey dots: uncovered)",
+    fig.suptitle(f"Half-vector coverage, θ_h ≤ {theta_max_deg:g}° "
+                 "(★ LED directions, + optical axis; grey dots: uncovered)",
                  fontsize=10)
     fig.tight_layout()
     return save_figure(fig, path, dpi=90)

@@ -96,7 +96,8 @@ def bsdf_file(source: BRDFSource, folder: Path) -> Path:
 
 
 def _teapot_transform(mi, mesh: Path):
-    v = np.array([list(map(float, line.split()[1:4])) for line in mesh.read_text().splitlines() if line.startswith("v ")])
+    v = np.array([list(map(float, line.split()[1:4]))
+                  for line in mesh.read_text().splitlines() if line.startswith("v ")])
     lo, hi = v.min(axis=0), v.max(axis=0)
     centre = 0.5 * (lo + hi)
     s = 2.0 / float(np.max(hi - lo))
@@ -172,7 +173,8 @@ def scene_dict(mi, scene: str, bsdf_path: Path, envmap: Path | None, resolution:
         # the lights of the direct renderer (reflecto.render.sphere), to compare with it
         d["integrator"] = {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0, "hide_emitters": True}
         for k, (position, intensity) in enumerate(lights):
-            d[f"light{k}"] = {"type": "point", "position": list(position), "intensity": {"type": "rgb", "value": intensity}}
+            d[f"light{k}"] = {"type": "point", "position": list(position),
+                              "intensity": {"type": "rgb", "value": intensity}}
     else:
         env = check_envmap(envmap or default_envmap())
         d["light"] = {"type": "envmap", "filename": str(env), "scale": 1.0}
@@ -370,7 +372,8 @@ class Comparison:
 
 
 def compare(reference: BRDFSource, test: BRDFSource, scene: str = "sphere-env", envmap: str | Path | None = None,
-            resolution: int = 256, spp: int | None = None, seed: int = 0, smoothing: float = SMOOTHING_PX) -> Comparison:
+            resolution: int = 256, spp: int | None = None, seed: int = 0,
+            smoothing: float = SMOOTHING_PX) -> Comparison:
     """Render ``test`` (seed ``seed``) and ``reference`` twice (seeds ``seed + 1``, ``seed + 2``).
 
     The reference comes first, as in :func:`reflecto.evaluate.metrics.brdf_error` and
@@ -464,7 +467,8 @@ def comparison_image(reference: Array, test: Array, labels: tuple[str, str] = ("
         a_test = alpha if alpha_test is None else alpha_test
         on = (alpha >= 1.0 - 1e-6) & (a_test >= 1.0 - 1e-6)
     # per pixel Σ_c |t − r| over the object's mean Σ_c r: its mean over the object is image_difference
-    rel = np.abs(test - reference).sum(-1) / max(float(np.abs(reference[on]).sum(-1).mean()) if on.any() else 0.0, 1e-300)
+    rel = np.abs(test - reference).sum(-1) / max(float(np.abs(reference[on]).sum(-1).mean()) if on.any() else 0.0,
+                                                 1e-300)
     if alpha is not None:
         reference, test = composite(reference, alpha, exposure), composite(test, a_test, exposure)
         exposure = 1.0

@@ -111,7 +111,8 @@ class AnalyticBRDF(BRDFSource):
         a = np.asarray(self.alpha, dtype=np.float64)
         a = np.array([float(a), float(a)]) if a.ndim == 0 else a
         if a.shape != (2,) or not np.all(np.isfinite(a)) or np.any(a < ALPHA_MIN) or np.any(a > ALPHA_MAX):
-            raise ParameterError(f"alpha must be one or two numbers in [{ALPHA_MIN:g}, {ALPHA_MAX:g}], got {self.alpha!r}")
+            raise ParameterError(f"alpha must be one or two numbers in [{ALPHA_MIN:g}, {ALPHA_MAX:g}], "
+                                 f"got {self.alpha!r}")
         self.alpha_xy = a
         if not math.isfinite(float(self.rotation_deg)):
             raise ParameterError("rotation_deg must be finite")
@@ -129,14 +130,16 @@ class AnalyticBRDF(BRDFSource):
         else:
             sx, sy, w = (float(v) for v in self.asymmetry)
             if not (0.0 < w < 1.0) or not (math.isfinite(sx) and math.isfinite(sy)):
-                raise ParameterError(f"asymmetry must be (shift_x, shift_y, weight) with 0 < weight < 1, got {self.asymmetry!r}")
+                raise ParameterError(f"asymmetry must be (shift_x, shift_y, weight) with 0 < weight < 1, "
+                                     f"got {self.asymmetry!r}")
             r = w / (1.0 - w)
             tilt = math.degrees(math.atan(max(math.hypot(sx, sy), math.hypot(sx, sy) * r)))
             if tilt > ASYMMETRY_MAX_TILT_DEG:
                 raise ParameterError(f"asymmetry shift {[sx, sy]} with weight {w:g} centres a lobe at a facet tilt of "
                                      f"{tilt:.3g}°, more than {ASYMMETRY_MAX_TILT_DEG:g}° (the shift and "
                                      "shift·weight/(1 − weight) must be slopes of at most "
-                                     f"tan {ASYMMETRY_MAX_TILT_DEG:g}° = {math.tan(math.radians(ASYMMETRY_MAX_TILT_DEG)):.3g})")
+                                     f"tan {ASYMMETRY_MAX_TILT_DEG:g}° = "
+                                     f"{math.tan(math.radians(ASYMMETRY_MAX_TILT_DEG)):.3g})")
             self.lobes = (Lobe(w, (sx, sy)), Lobe(1.0 - w, (-sx * r, -sy * r)))
         self.isotropic = bool(self.alpha_xy[0] == self.alpha_xy[1] and self.asymmetry is None)
         self.reciprocal = True
@@ -264,7 +267,8 @@ def _asymmetry(value: Any, where: str) -> tuple[float, float, float] | None:
     if isinstance(value, dict):
         unknown = set(value) - {"shift", "weight"}
         if unknown:
-            raise FileFormatError(where, f"'asymmetry' has unknown keys {sorted(unknown)}; allowed: ['shift', 'weight']")
+            raise FileFormatError(where, f"'asymmetry' has unknown keys {sorted(unknown)}; "
+                                         "allowed: ['shift', 'weight']")
         shift = _numbers(value.get("shift", [0.0, 0.0]), "asymmetry.shift", (2,), where)
         weight = _numbers(value.get("weight", 0.5), "asymmetry.weight", (1,), where)
         return float(shift[0]), float(shift[1]), float(weight)

@@ -1,7 +1,7 @@
-"""RGL material database ``.bsdf`` tensor files (Dupuy & Jakob 2018), evaluated as
+r"""RGL material database ``.bsdf`` tensor files (Dupuy & Jakob 2018), evaluated as
 Mitsuba 3's ``measured`` plugin does.
 
-**Container** ("tensor file"): 12-byte magic ``tensor_file\\0``, version bytes (1, 0),
+**Container** ("tensor file"): 12-byte magic ``tensor_file\0``, version bytes (1, 0),
 uint32 field count; per field: uint16 name length, name, uint16 ndim, uint8 dtype
 (Mitsuba ``Struct`` codes), uint64 data offset, ``ndim`` × uint64 shape; little endian.
 
@@ -90,7 +90,8 @@ def read_tensor_file(path: str | Path) -> dict[str, np.ndarray]:
             count_items = math.prod(shape)  # Python integers: exact for any shape
             nbytes = count_items * dt.itemsize
             if offset + nbytes > len(raw):
-                raise FileFormatError(path, f"truncated: field {name!r} needs bytes {offset}..{offset + nbytes}, file has {len(raw)}")
+                raise FileFormatError(path, f"truncated: field {name!r} needs bytes {offset}..{offset + nbytes}, "
+                                            f"file has {len(raw)}")
             fields[name] = np.frombuffer(raw, dtype=dt, count=count_items, offset=offset).reshape(shape)
     except (struct.error, UnicodeDecodeError):
         raise FileFormatError(path, "truncated or damaged field table") from None
@@ -102,7 +103,8 @@ def _require(path: Path, f: dict[str, np.ndarray], name: str, ndim: int, dtype: 
         raise FileFormatError(path, f"missing field {name!r}")
     a = f[name]
     if a.ndim != ndim or a.dtype != np.dtype(dtype):
-        raise FileFormatError(path, f"field {name!r} has shape {a.shape} and type {a.dtype}, expected {ndim}-D {np.dtype(dtype)}")
+        raise FileFormatError(path, f"field {name!r} has shape {a.shape} and type {a.dtype}, "
+                                    f"expected {ndim}-D {np.dtype(dtype)}")
     return a
 
 
@@ -305,13 +307,16 @@ class RGLBRDF(BRDFSource):
         lum = _require(path, f, "luminance", 4, "<f4")
         jac = _require(path, f, "jacobian", 1, "u1")
         if "rgb" not in f:
-            raise FileFormatError(path, "missing field 'rgb' (only RGB tensor files are supported; this may be a spectral file)")
+            raise FileFormatError(path, "missing field 'rgb' (only RGB tensor files are supported; "
+                                        "this may be a spectral file)")
         rgb = _require(path, f, "rgb", 5, "<f4")
         nphi, nth = len(phi_i), len(theta_i)
         if vndf.shape[:2] != (nphi, nth) or lum.shape[:2] != (nphi, nth) or rgb.shape[:3] != (nphi, nth, 3):
-            raise FileFormatError(path, f"inconsistent shapes: vndf {vndf.shape}, luminance {lum.shape}, rgb {rgb.shape} for {nphi} φ_i × {nth} θ_i")
+            raise FileFormatError(path, f"inconsistent shapes: vndf {vndf.shape}, luminance {lum.shape}, "
+                                        f"rgb {rgb.shape} for {nphi} φ_i × {nth} θ_i")
         if rgb.shape[3] != rgb.shape[4] or jac.shape != (1,):
-            raise FileFormatError(path, f"rgb slices must be square and jacobian one byte; got rgb {rgb.shape}, jacobian {jac.shape}")
+            raise FileFormatError(path, f"rgb slices must be square and jacobian one byte; "
+                                        f"got rgb {rgb.shape}, jacobian {jac.shape}")
         if min(ndf.shape) < 2 or min(sigma.shape) < 2 or min(vndf.shape[2:]) < 2 or min(rgb.shape[3:]) < 2:
             raise FileFormatError(path, "tables must be at least 2×2")
         _check_tables(path, theta_i, phi_i, ndf, sigma, vndf, lum, rgb, jac)
@@ -320,8 +325,8 @@ class RGLBRDF(BRDFSource):
         self.isotropic = nphi <= 2
         self.reduction = 0 if self.isotropic else int(round(2 * math.pi / (phi_i[-1] - phi_i[0])))
         if self.reduction not in (0, 1, 2, 4):
-            raise FileFormatError(path, f"phi_i spans {np.degrees(phi_i[-1] - phi_i[0]):.4g}°: an anisotropic file must "
-                                  "cover 360°, 180° or 90° (symmetry reduction 1, 2 or 4)")
+            raise FileFormatError(path, f"phi_i spans {np.degrees(phi_i[-1] - phi_i[0]):.4g}°: "
+                                  "an anisotropic file must cover 360°, 180° or 90° (symmetry reduction 1, 2 or 4)")
         self.jacobian = bool(jac[0])
         one = np.zeros(1)
         self._ndf = Marginal2D(ndf[None, None].astype(np.float64), one, one, build_cdf=False)
