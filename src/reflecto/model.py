@@ -302,7 +302,8 @@ class MicrofacetBRDF(BRDFSource):
             raise FileFormatError(path, f"unknown NDF kind {short_repr(kind)} (expected 'hemicube' or 'isotropic')")
         n = meta.get("resolution")
         if not isinstance(n, int) or isinstance(n, bool) or n < 4 or n % 2 or n > MAX_MODEL_RESOLUTION:
-            raise FileFormatError(path, f"invalid NDF resolution {short_repr(n)} (an even number in [4, {MAX_MODEL_RESOLUTION}])")
+            raise FileFormatError(path, f"invalid NDF resolution {short_repr(n)} "
+                                        f"(an even number in [4, {MAX_MODEL_RESOLUTION}])")
         ndf = arrays.get("ndf")
         if ndf is None or ndf.dtype != np.dtype("<f4") or ndf.shape != (3 * n * n,):
             got = None if ndf is None else f"{ndf.shape} {ndf.dtype}"
@@ -386,7 +387,8 @@ def _checked_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes])
             raise FileFormatError(path, f"array {name!r}: member {short_repr(f)} is missing")
         if sha256(members[f]) != v.get("sha256"):
             raise FileFormatError(path, f"array {name!r} checksum mismatch: the file is damaged")
-        if not isinstance(shape, list) or not all(isinstance(k, int) and not isinstance(k, bool) and k >= 0 for k in shape):
+        if not isinstance(shape, list) or not all(isinstance(k, int) and not isinstance(k, bool) and k >= 0
+                                                  for k in shape):
             raise FileFormatError(path, f"array {name!r}: invalid shape {short_repr(shape)}")
         try:
             dt = np.dtype(dtype)
@@ -417,7 +419,8 @@ def _model_parameters(path: Path, meta: dict[str, Any]) -> tuple[Array, Array, A
     """k_d, k_s, η, correlated and metadata of a model file, types and ranges checked."""
     def triple(key: str, lo: float, hi: float) -> Array:
         v = meta.get(key)
-        ok = isinstance(v, list) and len(v) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+        ok = isinstance(v, list) and len(v) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                         for x in v)
         arr = np.asarray(v, dtype=np.float64) if ok else np.zeros(0)
         if not ok or not np.all(np.isfinite(arr)) or np.any(arr < lo) or np.any(arr > hi):
             raise FileFormatError(path, f"invalid model parameters ({key} must be three finite numbers in "
@@ -430,7 +433,8 @@ def _model_parameters(path: Path, meta: dict[str, Any]) -> tuple[Array, Array, A
         else triple("eta", *ETA_RANGE)
     correlated = meta.get("correlated", False)
     if not isinstance(correlated, bool):
-        raise FileFormatError(path, f"invalid model parameters ('correlated' must be true or false, got {short_repr(correlated)})")
+        raise FileFormatError(path, "invalid model parameters "
+                                    f"('correlated' must be true or false, got {short_repr(correlated)})")
     metadata = meta.get("metadata") or {}
     if not isinstance(metadata, dict):
         raise FileFormatError(path, f"'metadata' must be an object, got {short_repr(metadata)}")
@@ -450,7 +454,8 @@ def _local_metadata(path: Path, metadata: dict[str, Any]) -> dict[str, Any]:
         name = out.pop(key, None)
         if name is None:
             continue
-        if not isinstance(name, str) or not name or "\x00" in name or Path(name).is_absolute() or ".." in Path(name).parts:
+        if (not isinstance(name, str) or not name or "\x00" in name or Path(name).is_absolute()
+                or ".." in Path(name).parts):
             out[f"{key}_not_found"] = str(name)[:200]
             continue
         folder = path.parent

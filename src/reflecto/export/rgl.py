@@ -118,7 +118,9 @@ class RGLGrid:
 
 
 def write_tensor_file(path: str | Path, fields: dict[str, np.ndarray]) -> Path:
-    """Write ``{name: array}`` as a tensor file (format of :func:`reflecto.sources.rgl.read_tensor_file`), atomically."""
+    """Write ``{name: array}`` as a tensor file (format of :func:`reflecto.sources.rgl.read_tensor_file`),
+    atomically.
+    """
     arrays = {k: np.ascontiguousarray(v) for k, v in fields.items()}
     header = bytearray(MAGIC + bytes([1, 0]) + struct.pack("<I", len(arrays)))
     table_size = sum(2 + len(k.encode()) + 2 + 1 + 8 + 8 * v.ndim for k, v in arrays.items())

@@ -130,12 +130,14 @@ def _check_leds(value: Any, where: str) -> tuple[int, ...]:
 
 def _led_angles(value: Any, where: str) -> tuple[tuple[float, float], ...]:
     if not isinstance(value, (list, tuple)) or not 2 <= len(value) <= MAX_LEDS:
-        raise ParameterError(f"{where} must be a list of 2 to {MAX_LEDS} [elevation, azimuth] pairs, got {short_repr(value)}")
+        raise ParameterError(f"{where} must be a list of 2 to {MAX_LEDS} [elevation, azimuth] pairs, "
+                             f"got {short_repr(value)}")
     out = []
     for k, a in enumerate(value):
         if not isinstance(a, (list, tuple)) or len(a) != 2:
             raise ParameterError(f"{where}[{k}] must be an [elevation, azimuth] pair, got {short_repr(a)}")
-        out.append((_number(a[0], f"{where}[{k}] elevation", -90.0, 90.0), _number(a[1], f"{where}[{k}] azimuth", -720.0, 720.0)))
+        out.append((_number(a[0], f"{where}[{k}] elevation", -90.0, 90.0),
+                    _number(a[1], f"{where}[{k}] azimuth", -720.0, 720.0)))
     return tuple(out)
 
 
@@ -165,7 +167,8 @@ def validate_optics_dict(d: Any, where: str) -> Optics:
     w = _integer(d.get("width", 320), f"{where}.width", 8, MAX_SENSOR_SIDE)
     h = _integer(d.get("height", 240), f"{where}.height", 8, MAX_SENSOR_SIDE)
     if w * h > MAX_SENSOR_PIXELS:
-        raise ParameterError(f"{where}: a {w}×{h} sensor has more than the {MAX_SENSOR_PIXELS} pixels allowed (docs/limits.md)")
+        raise ParameterError(f"{where}: a {w}×{h} sensor has more than the {MAX_SENSOR_PIXELS} pixels allowed "
+                             "(docs/limits.md)")
     return optics_from_dict(dict(d), where)
 
 
@@ -188,7 +191,8 @@ def _camera(d: Any, where: str) -> Camera:
     if "exposures_ms" in d:
         t = d["exposures_ms"]
         if not isinstance(t, (list, tuple)) or not 1 <= len(t) <= MAX_EXPOSURES:
-            raise ParameterError(f"{where}.exposures_ms must be a list of 1 to {MAX_EXPOSURES} times, got {short_repr(t)}")
+            raise ParameterError(f"{where}.exposures_ms must be a list of 1 to {MAX_EXPOSURES} times, "
+                                 f"got {short_repr(t)}")
         for k, v in enumerate(t):
             _number(v, f"{where}.exposures_ms[{k}]", 1e-9, MAX_EXPOSURE_MS)
     if d.get("gamma", 1.0) <= 0:
@@ -371,11 +375,13 @@ class Device:
         if self.firing_order is not None:
             order = tuple(int(k) for k in self.firing_order)
             if sorted(order) != list(range(len(angles))):
-                raise ParameterError(f"device: firing_order must list each of the {len(angles)} LED indices once, got {list(order)}")
+                raise ParameterError(f"device: firing_order must list each of the {len(angles)} LED indices once, "
+                                     f"got {list(order)}")
             object.__setattr__(self, "firing_order", order)
         check = tuple(int(k) for k in self.check_leds)
         if any(not 0 <= k < len(angles) for k in check) or len(set(check)) != len(check):
-            raise ParameterError(f"device: check_leds must list distinct LED indices in [0, {len(angles)}), got {list(check)}")
+            raise ParameterError(f"device: check_leds must list distinct LED indices in [0, {len(angles)}), "
+                                 f"got {list(check)}")
         object.__setattr__(self, "check_leds", check)
 
     @property

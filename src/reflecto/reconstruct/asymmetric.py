@@ -538,7 +538,8 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
             raise ReflectoError(f"{c.name}: {str(e).removeprefix('capture: ')}") from None
     if isinstance(opt.normal, str):
         # "auto" keeps the device axis: the set's search costs seconds; "search" runs it
-        normal = _set_normal(captures, valids, opt.max_tilt_deg) if opt.normal == "search" else np.array([0.0, 0.0, 1.0])
+        normal = (_set_normal(captures, valids, opt.max_tilt_deg) if opt.normal == "search"
+                  else np.array([0.0, 0.0, 1.0]))
     else:
         normal = np.asarray(opt.normal, dtype=np.float64)
     frames = sample_frames([c.rotation_deg for c in captures], normal)

@@ -235,7 +235,8 @@ def usable_samples(slices: Slices) -> NDArray[np.bool_]:
     """Valid samples with finite values in every channel, shape ``(L, P)``; too few is an error."""
     ok = slices.valid & np.all(np.isfinite(slices.values), axis=-1)  # a NaN or ±inf channel poisons the sum
     if int(ok.sum()) < MIN_SAMPLES:
-        raise ReflectoError(f"capture: fewer than {MIN_SAMPLES} valid samples (saturated, dark or outside the view cone)")
+        raise ReflectoError(f"capture: fewer than {MIN_SAMPLES} valid samples "
+                            "(saturated, dark or outside the view cone)")
     return ok
 
 
@@ -317,7 +318,8 @@ def _choose_isotropic(option: str, test: IsotropyTest) -> bool:
     return option == "yes" or (option == "auto" and test.isotropic)
 
 
-def _notes(fit: IsotropicFit | HemicubeFit, model, isotropic: bool, test: IsotropyTest, energy_scale: float) -> list[str]:
+def _notes(fit: IsotropicFit | HemicubeFit, model, isotropic: bool, test: IsotropyTest,
+           energy_scale: float) -> list[str]:
     notes = []
     if not isotropic:
         notes.append(f"anisotropic: a second azimuthal harmonic explains {100 * test.anisotropy:.0f} % of the "
@@ -340,7 +342,8 @@ def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> li
     elif eta >= ETA_MAX * (1 - 1e-6):
         notes.append(f"η at its bound {ETA_MAX:g}: a metal-like flat Fresnel curve; the channels' k_s carry its colour")
     if np.any(model.kd <= 0):
-        notes.append("k_d = 0 in channels " + str(np.flatnonzero(model.kd <= 0).tolist()) + ": no diffuse floor measured")
+        notes.append("k_d = 0 in channels " + str(np.flatnonzero(model.kd <= 0).tolist())
+                     + ": no diffuse floor measured")
     if energy_scale < 1:
         notes.append(f"k_d and k_s scaled by {energy_scale:.3f} so that the albedo stays ≤ 1")
     return notes

@@ -97,7 +97,8 @@ def _check_architecture(path: Path) -> None:
     except (KeyError, TypeError, AttributeError) as e:
         raise FileFormatError(path, f"not a Keras architecture file (missing or invalid {e})") from None
     if dense != [(21, "relu"), (21, "relu"), (3, "linear")]:
-        raise FileFormatError(path, f"unexpected NBRDF architecture {short_repr(dense)}; expected 6→21 relu→21 relu→3 linear")
+        raise FileFormatError(path, f"unexpected NBRDF architecture {short_repr(dense)}; "
+                                    "expected 6→21 relu→21 relu→3 linear")
 
 
 class NBRDF(BRDFSource):
