@@ -1,4 +1,6 @@
-"""Command-line interface: ``reflecto info|tabulate|layout|simulate|simulate-calibration|calibrate|reconstruct|watch|export|render|compare|report|fit-ct|sweep|gallery|design``.
+"""Command-line interface: ``reflecto SUBCOMMAND``, one of ``info``, ``tabulate``, ``layout``, ``simulate``,
+``simulate-calibration``, ``calibrate``, ``reconstruct``, ``watch``, ``export``, ``render``, ``compare``,
+``report``, ``fit-ct``, ``sweep``, ``gallery``, ``design``.
 
 Each subcommand is one ``cmd_*`` handler: it takes the parsed arguments of its
 subcommand (:func:`build_parser`) and returns the exit status (0, or 1 when a batch
@@ -77,8 +79,9 @@ def _emit(args: argparse.Namespace, info: dict, lines: list[str]) -> int:
 #: What reflecto reads a file of each suffix as (``load_source`` goes by suffix first).
 _SUFFIX_KINDS = {".binary": "merl", ".bsdf": "rgl", ".reflecto": "model", ".h5": "nbrdf", ".json": "description",
                  ".toml": "description"}
-_KIND_WORDS = {"merl": "a MERL table (.binary)", "rgl": "an RGL tensor file (.bsdf)", "model": "a model file (.reflecto)",
-               "nbrdf": "an NBRDF fit (.h5)", "description": "a JSON/TOML description"}
+_KIND_WORDS = {"merl": "a MERL table (.binary)", "rgl": "an RGL tensor file (.bsdf)",
+               "model": "a model file (.reflecto)", "nbrdf": "an NBRDF fit (.h5)",
+               "description": "a JSON/TOML description"}
 
 
 def _check_suffix(output: str | Path, kind: str, hint: str = "") -> None:
@@ -86,7 +89,8 @@ def _check_suffix(output: str | Path, kind: str, hint: str = "") -> None:
     suffix = Path(output).suffix.lower()
     other = _SUFFIX_KINDS.get(suffix)
     if other is not None and other != kind:
-        raise OutputError(output, f"this writes {_KIND_WORDS[kind]}, but a {suffix} file is read as {_KIND_WORDS[other]}"
+        raise OutputError(output, f"this writes {_KIND_WORDS[kind]}, "
+                                  f"but a {suffix} file is read as {_KIND_WORDS[other]}"
                           + (f": {hint}" if hint else ""))
 
 
@@ -254,7 +258,8 @@ def cmd_layout(args: argparse.Namespace) -> int:
         print(f"  l{k}  {el:6.2f}  {az:7.2f}   covers {100 * cov.per_led[k]:5.1f} %")
     print(f"coverage of the NDF cap θ_h ≤ {args.theta_max:g}° (solid-angle fraction):")
     print(f"  union of slices          {100 * cov.union:6.2f} %")
-    print(f"  after symmetry (eq. 3)   {100 * cov.after_tau:6.2f} %   (any layout: at most {100 * cov.upper_bound_after_tau:.2f} %)")
+    print(f"  after symmetry (eq. 3)   {100 * cov.after_tau:6.2f} %   "
+          f"(any layout: at most {100 * cov.upper_bound_after_tau:.2f} %)")
     print(f"  after both mirror planes {100 * cov.after_mirrors:6.2f} %")
     print(f"  every slice overlaps another: {cov.every_led_overlaps}")
     if args.plot:
@@ -278,7 +283,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             "exposures_ms": [float(t) for t in cap.exposures_ms],
             "check_frames": 0 if cap.check is None else int(cap.check.shape[0] * cap.check.shape[1]),
             "simulation": cap.extra.get("simulation", {})}
-    return _emit(args, info, [f"wrote {args.output}: {cap.raw.shape[0]} LEDs × {cap.raw.shape[1]} exposures, device {dev.name}"])
+    return _emit(args, info, [f"wrote {args.output}: {cap.raw.shape[0]} LEDs × {cap.raw.shape[1]} exposures, "
+                              f"device {dev.name}"])
 
 
 def cmd_simulate_calibration(args: argparse.Namespace) -> int:
@@ -303,14 +309,17 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     cal = calibrate(args.calib_dir)
     cal.save(args.output)
     r = cal.report
-    return _emit(args, {"calibration_folder": str(args.calib_dir), "output": str(args.output), "device": cal.device.name,
-                        "report": r},
-                 [f"wrote {args.output}: {r['spots_used']} grid spots, reprojection RMS {r['reprojection_rms_px']:.3f} px; "
+    return _emit(args, {"calibration_folder": str(args.calib_dir), "output": str(args.output),
+                        "device": cal.device.name, "report": r},
+                 [f"wrote {args.output}: {r['spots_used']} grid spots, "
+                  f"reprojection RMS {r['reprojection_rms_px']:.3f} px; "
                   f"LEDs moved by {r['led_offset_from_nominal_deg']}° from nominal"])
 
 
 def _normal_arg(text: str) -> str | tuple[float, ...]:
-    """``--normal``: ``auto``, ``device`` or ``X,Y,Z`` (a unit vector, checked by :class:`~reflecto.reconstruct.Options`)."""
+    """``--normal``: ``auto``, ``device`` or ``X,Y,Z`` (a unit vector, checked by
+    :class:`~reflecto.reconstruct.Options`).
+    """
     if text in ("auto", "device", "search"):
         return text
     try:
@@ -386,7 +395,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         seen: dict[str, str] = {}
         for c, o in zip(caps, outs):
             if o in seen:
-                raise OutputError(o, f"captures {seen[o]} and {c} have the same name; their models would overwrite each other")
+                raise OutputError(o, f"captures {seen[o]} and {c} have the same name; "
+                                     "their models would overwrite each other")
             seen[o] = c
         make_parents(Path(args.output))
     options, missing = _options(args), _missing(args)
@@ -419,7 +429,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         flag = f"  SHAKE DETECTED ({r['motion']})" if r["shake_detected"] else ""
         kind = "isotropic" if r["isotropic"] else "anisotropic"
         lines.append(f"{outs[k]}: {kind}, eta {format_eta(eta_from_json(r))}, kd {np.round(r['kd'], 3).tolist()}, "
-                     f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, {r['seconds'] * 1000:.0f} ms{flag}")
+                     f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, "
+                     f"{r['seconds'] * 1000:.0f} ms{flag}")
         lines += [f"  note: {note}" for note in r["notes"]]
         sym = r.get("symmetry_test", {})
         if sym.get("decided") and not sym.get("symmetric"):
@@ -457,7 +468,8 @@ def _export_format(args: argparse.Namespace) -> str:
     fmt = args.format or by_suffix or "rgl"
     if suffix in kinds._SUFFIX and kinds._SUFFIX[suffix] not in (None, fmt):
         raise kinds.KindError(args.output, f"a {suffix} file name", f"export --format {fmt}",
-                              f"{kinds.KINDS[fmt]}", f"use -o {Path(args.output).with_suffix('.bsdf' if fmt == 'rgl' else '.binary')}",
+                              f"{kinds.KINDS[fmt]}",
+                              f"use -o {Path(args.output).with_suffix('.bsdf' if fmt == 'rgl' else '.binary')}",
                               verb="writes")
     right = {"rgl": ".bsdf", "merl": ".binary"}[fmt]
     _check_suffix(args.output, fmt, f"use -o {Path(args.output).with_suffix(right)}, or --format "
@@ -481,7 +493,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     else:
 
         try:
-            with _progress(merl_bins(), f"tabulating {src.name}", not args.quiet and not args.json and _interactive()) as bar:
+            with _progress(merl_bins(), f"tabulating {src.name}",
+                           not args.quiet and not args.json and _interactive()) as bar:
                 export_merl(src, out, allow_anisotropic=args.isotropic == "yes", progress=bar.update)
         except ParameterError:
             raise ReflectoError(f"{args.source} is anisotropic; a MERL table holds an isotropic BRDF: add "
@@ -524,7 +537,8 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
     with atomic_path(out, suffix=".png") as tmp:
-        iio.imwrite(tmp, comparison_image(c.reference.radiance, c.test.radiance, (f"reference\n{ref.name}", f"test\n{src.name}"),
+        iio.imwrite(tmp, comparison_image(c.reference.radiance, c.test.radiance,
+                                          (f"reference\n{ref.name}", f"test\n{src.name}"),
                                           alpha=c.reference.alpha, alpha_test=c.test.alpha, difference=c.difference))
     seconds = c.test.seconds + c.reference.seconds + c.reference_repeat.seconds
     lines = [f"rendered {src.name} and {ref.name} twice ({args.scene}, {args.resolution}², {c.test.spp} spp, "
@@ -672,7 +686,8 @@ class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
         d = action.default
-        if "%(default)" in text or d is None or d is argparse.SUPPRESS or isinstance(d, bool) or not action.option_strings:
+        if ("%(default)" in text or d is None or d is argparse.SUPPRESS or isinstance(d, bool)
+                or not action.option_strings):
             return text
         if isinstance(d, list):
             return text + " (default: " + " ".join(map(str, d)).replace("%", "%%") + ")"
@@ -727,7 +742,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     q = sub.add_parser("layout", help="coverage of a device's LED layout (paper §4.1); optionally re-optimise it")
     q.add_argument("--device", default="ideal", help=_DEVICE_HELP)
-    q.add_argument("--optimize", action="store_true", help="run the layout optimizer instead of using the device's LEDs")
+    q.add_argument("--optimize", action="store_true",
+                   help="run the layout optimizer instead of using the device's LEDs")
     q.add_argument("--seed", type=int, default=0, help="random seed of the layout optimizer")
     q.add_argument("--resolution", type=int, default=64, help="hemicube resolution of the analysis: cells along "
                    "each edge of a hemicube face (the NDF's texels; the plot uses at least 128)")
@@ -740,7 +756,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("source", help="BRDF file")
     q.add_argument("--device", default="ideal", help=_DEVICE_HELP)
     q.add_argument("--tilt", type=float, default=0.0, help="hand tilt of the sample normal, degrees (≤ 30)")
-    q.add_argument("--tilt-azimuth", type=float, default=None, help="azimuth of the tilt, degrees (default: from the seed)")
+    q.add_argument("--tilt-azimuth", type=float, default=None,
+                   help="azimuth of the tilt, degrees (default: from the seed)")
     q.add_argument("--rotation", type=float, default=0.0, help="rotation of the sample about its normal, degrees")
     q.add_argument("--shake", action="store_true", help="move the sample between two LEDs' frames")
     q.add_argument("--seed", type=int, default=0, help="random seed of the camera noise, tilt azimuth and shake")
@@ -768,7 +785,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("captures", nargs="+", help="capture folder(s)")
     how = q.add_mutually_exclusive_group()
     how.add_argument("--calibration", help="calibration file from `reflecto calibrate`; needed for captures of any "
-                     "device but the built-in ideal and earlier ones (default: those two use their nominal calibration)")
+                     "device but the built-in ideal and earlier ones "
+                     "(default: those two use their nominal calibration)")
     how.add_argument("--nominal", action="store_true",
                      help="use the device's nominal calibration even where it needs a measured one")
     q.add_argument("-o", "--output", required=True, help="model file (.reflecto) or, for several captures, a folder")
@@ -807,7 +825,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--once", action="store_true", help="process the capture folders there now and exit")
     q.set_defaults(func=cmd_watch)
 
-    q = sub.add_parser("export", help="write a BRDF as an RGL .bsdf (RGB, Mitsuba 3's measured plugin) or MERL .binary file",
+    q = sub.add_parser("export",
+                       help="write a BRDF as an RGL .bsdf (RGB, Mitsuba 3's measured plugin) or MERL .binary file",
                        description="Write a BRDF as an RGL .bsdf tensor file in the RGB variant that Mitsuba 3's "
                                    "`measured` plugin reads (see docs/mitsuba.md), or as a MERL .binary table.")
     q.add_argument("source", help="model (.reflecto) or any BRDF file")
@@ -836,7 +855,8 @@ def build_parser() -> argparse.ArgumentParser:
                    + ", ".join(f"{k} {v}" for k, v in DEFAULT_SPP.items()) + ")")
     q.add_argument("--resolution", type=int, default=256, help="image width and height in pixels")
     q.add_argument("--seed", type=int, default=0, help="seed of the source's render (the reference's: +1, +2)")
-    q.add_argument("--compare", metavar="REFERENCE", help="also render REFERENCE; write reference | source | difference")
+    q.add_argument("--compare", metavar="REFERENCE",
+                   help="also render REFERENCE; write reference | source | difference")
     q.add_argument("--title", help="write this title above the image (.png only; default: no title)")
     q.add_argument("-o", "--output", required=True,
                    help="image: .png (sRGB, grey background), .exr (linear RGBA) or .hdr (linear, grey background)")
@@ -934,8 +954,10 @@ def cmd_gallery(args: argparse.Namespace) -> int:
 
     page, rows = gallery(args.materials, args.output, settings, progress)
     info = {"output": str(page), "rows": [r.to_dict() for r in rows]}
-    lines = [f"{r.name}: BRDF error symmetric path {100 * r.symmetric_error:.2f} %, §5.5 {100 * r.asymmetric_error:.2f} %; "
-             f"image difference {100 * r.symmetric_image_difference:.2f} % / {100 * r.asymmetric_image_difference:.2f} % "
+    lines = [f"{r.name}: BRDF error symmetric path {100 * r.symmetric_error:.2f} %, "
+             f"§5.5 {100 * r.asymmetric_error:.2f} %; "
+             f"image difference {100 * r.symmetric_image_difference:.2f} % / "
+             f"{100 * r.asymmetric_image_difference:.2f} % "
              f"(noise floor {100 * r.noise_floor:.2f} %)" for r in rows] + [f"wrote {page}"]
     return _emit(args, info, lines)
 
