@@ -147,7 +147,8 @@ def theta_h_theta_d_image(source: BRDFSource, out: Path, name: str = "thd.png", 
     f = np.zeros(TH.shape)
     f[ok] = source.eval(i[ok], o[ok]) @ LUM
     fig, ax = plt.subplots(figsize=(5, 4.4))
-    im = ax.imshow(np.log10(np.maximum(f, 1e-4)).T, origin="lower", extent=(0, 90, 0, 90), cmap="viridis", aspect="equal")
+    im = ax.imshow(np.log10(np.maximum(f, 1e-4)).T, origin="lower", extent=(0, 90, 0, 90), cmap="viridis",
+                   aspect="equal")
     fig.colorbar(im, ax=ax, label="log₁₀ f (sr⁻¹), luminance")
     ax.set_xlabel("θ_h (deg)")
     ax.set_ylabel("θ_d (deg)")
@@ -209,7 +210,8 @@ def render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, ref: BRDFSou
     """
 
     items, comparisons = [], {}
-    for scene, what in (("sphere-env", "Sphere under the studio map"), ("sphere-point", "Sphere under a key and a fill point light")):
+    for scene, what in (("sphere-env", "Sphere under the studio map"),
+                        ("sphere-point", "Sphere under a key and a fill point light")):
         if ref is None:
             r = mi_render(model, scene, spp=spp)
             items.append((_save_png(to_srgb8(r.image()), out / f"render_{scene}.png"),
@@ -218,10 +220,12 @@ def render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, ref: BRDFSou
         c = comparisons[scene] = compare(ref, model, scene, spp=spp)
         items.append((_save_png(to_srgb8(c.test.image()), out / f"render_{scene}.png"),
                       f"{what} (Mitsuba 3, {c.test.variant}, {c.test.spp} spp)."))
-        note = ("" if c.resolved else " The difference is within the noise floor: the two renders look alike at this spp."
+        note = ("" if c.resolved else " The difference is within the noise floor: "
+                "the two renders look alike at this spp."
                 if c.within_noise else " The noise floor is more than a third of the difference: render with more "
                 f"samples (about {c.spp_to_resolve()} spp) to resolve it.")
-        items.append((_save_png(comparison_image(c.reference.radiance, c.test.radiance, ("reference\n" + ref.name, "model\n" + model.name),
+        items.append((_save_png(comparison_image(c.reference.radiance, c.test.radiance,
+                                                 ("reference\n" + ref.name, "model\n" + model.name),
                                                  alpha=c.reference.alpha, alpha_test=c.test.alpha,
                                                  difference=c.difference),
                                 out / f"compare_{scene}.png"),
@@ -265,10 +269,12 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
             numbers[f"mean image difference, {scene} (noise floor; corrected)"] = (
                 f"{100 * c.difference:.2f} % ({100 * c.noise_floor:.2f} %; {100 * c.corrected:.2f} %)")
     figs.append(("Normal distribution", ndf_figures(model, out)))
-    items = [(theta_h_theta_d_image(model, out, "thd_model.png", "model: θ_h–θ_d at φ_d = 90°"), "Model, BRDF Explorer's θ_h–θ_d view.")]
+    items = [(theta_h_theta_d_image(model, out, "thd_model.png", "model: θ_h–θ_d at φ_d = 90°"),
+              "Model, BRDF Explorer's θ_h–θ_d view.")]
     if ref is not None:
 
-        items.append((theta_h_theta_d_image(ref, out, "thd_reference.png", "reference: θ_h–θ_d at φ_d = 90°"), "Reference."))
+        items.append((theta_h_theta_d_image(ref, out, "thd_reference.png", "reference: θ_h–θ_d at φ_d = 90°"),
+                      "Reference."))
         err = brdf_error(ref, model)
         numbers["eq. 10 error vs reference (normalized)"] = round(err.normalized, 5)
         numbers["log-RMSE vs reference"] = round(err.log_rmse, 5)
@@ -276,33 +282,40 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     cap_dir = model.metadata.get("capture")
     dev = load_device("ideal")
     items = []
-    got = slice_figure(Path(cap_dir), out, model.metadata.get("calibration")) if cap_dir and Path(cap_dir).is_dir() else None
+    got = (slice_figure(Path(cap_dir), out, model.metadata.get("calibration"))
+           if cap_dir and Path(cap_dir).is_dir() else None)
     if got:
         items.append((got[0], f"The slices of {html.escape(str(cap_dir))} ({html.escape(got[2])})."))
         dev = got[1]
     elif cap_dir or model.metadata.get("capture_not_found"):
-        numbers["capture slices"] = (f"not shown: the model names the capture {cap_dir or model.metadata['capture_not_found']}, "
+        numbers["capture slices"] = ("not shown: the model names the capture "
+                                     f"{cap_dir or model.metadata['capture_not_found']}, "
                                      "which is not a readable capture folder inside the model's folder")
     cov = plot_coverage(dev.optics, dev.leds, out / "coverage.png")
     items.insert(0, (cov.name, f"Half-vector coverage per LED of device {html.escape(dev.name)} (paper Fig. 2(c)(d))."))
     figs.append(("Capture", items))
 
-    viewer_sources = [("model: " + model_path.stem, model)] + ([("reference: " + ref.name, ref)] if ref is not None else [])
+    viewer_sources = [("model: " + model_path.stem, model)] + ([("reference: " + ref.name, ref)]
+                                                               if ref is not None else [])
     write_viewer(viewer_sources, out / "viewer.html", envmap=default_envmap())
     rows = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>" for k, v in numbers.items())
     sections = []
     for title, its in figs:
-        body = "\n".join(f'<figure><img src="{html.escape(f)}" alt="{html.escape(c)}"><figcaption>{c}</figcaption></figure>'
+        body = "\n".join(f'<figure><img src="{html.escape(f)}" alt="{html.escape(c)}">'
+                         f'<figcaption>{c}</figcaption></figure>'
                          for f, c in its)
         sections.append(f"<h2>{html.escape(title)}</h2>\n{body}")
     title = f"reflecto report: {html.escape(model_path.name)}"
     page = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{title}</title>{_STYLE}</head>\n"
-            f"<body data-images=\"pending\">\n<h1>{title}</h1>\n<p>Model file <code>{html.escape(str(model_path))}</code>"
+            f"<body data-images=\"pending\">\n<h1>{title}</h1>\n"
+            f"<p>Model file <code>{html.escape(str(model_path))}</code>"
             + (f", reference <code>{html.escape(str(reference))}</code>" if reference else "") + "</p>\n"
             "<p><a href=\"viewer.html\">Interactive BRDF viewer</a>: lit sphere with a draggable light, θ_h–θ_d "
-            "slice with read-outs, incidence-plane plots" + (", model and reference side by side" if ref is not None else "")
+            "slice with read-outs, incidence-plane plots"
+            + (", model and reference side by side" if ref is not None else "")
             + " (a static page; works from file://).</p>\n"
-            f"<h2>Numbers</h2>\n<table>\n{rows}\n</table>\n" + "\n".join(sections) + f"\n{_CHECK_SCRIPT}\n</body></html>\n")
+            f"<h2>Numbers</h2>\n<table>\n{rows}\n</table>\n" + "\n".join(sections)
+            + f"\n{_CHECK_SCRIPT}\n</body></html>\n")
     index = out / "index.html"
     with atomic_write(index, "w") as fh:
         fh.write(page)
@@ -316,10 +329,12 @@ def write_index(entries: list[dict[str, Any]], out_dir: str | Path, title: str =
     head = "".join(f"<th>{html.escape(k)}</th>" for k in ["material", *keys])
     rows = []
     for e in entries:
-        link = f'<a href="{html.escape(e["href"])}">{html.escape(e["name"])}</a>' if e.get("href") else html.escape(e["name"])
+        link = (f'<a href="{html.escape(e["href"])}">{html.escape(e["name"])}</a>' if e.get("href")
+                else html.escape(e["name"]))
         cells = "".join(f"<td>{html.escape(_fmt(e.get(k)))}</td>" for k in keys)
         rows.append(f"<tr><td>{link}</td>{cells}</tr>")
-    page = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>{_STYLE}"
+    page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<title>{html.escape(title)}</title>{_STYLE}"
             f"</head>\n<body data-images=\"pending\">\n<h1>{html.escape(title)}</h1>\n<table>\n<tr>{head}</tr>\n"
             + "\n".join(rows) + f"\n</table>\n{_CHECK_SCRIPT}\n</body></html>\n")
     index = out / "index.html"
