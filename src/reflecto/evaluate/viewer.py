@@ -353,4 +353,4 @@ if (params.has("test")) {
   document.getElementById("test-output").textContent = JSON.stringify({ res, key_light: state.keyLight, spheres: out });
 }
 </script></body></html>
-"""
+"""  # noqa: E501 (the page's JavaScript: wrapping it would change the string)
