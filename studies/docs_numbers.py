@@ -83,7 +83,8 @@ def validation_sweep_table() -> str:
                           ("validation", [r for r in rs_all if r["half"] == "validation"]), ("all", rs_all)):
             n = len(rs)
             errs = " · ".join(f"{_median(rs, k):.3f}" for k in ("ours", "cook_torrance", "same_data_ct", "earlier"))
-            out.append(f"| {dev} | {label} {n} | {_below(rs, 'cook_torrance')}/{n} | {_below(rs, 'same_data_ct')}/{n} | "
+            out.append(f"| {dev} | {label} {n} | {_below(rs, 'cook_torrance')}/{n} | "
+                       f"{_below(rs, 'same_data_ct')}/{n} | "
                        f"{_below(rs, 'earlier')}/{n} | {_median(rs, 'ours_over_ct'):.3f} | "
                        f"{_median(rs, 'ours_over_same_data_ct'):.3f} | {errs} |")
     return "\n".join(out)

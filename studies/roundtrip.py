@@ -75,7 +75,8 @@ def roundtrip_calibrations(folder: Path) -> list[str]:
     """A measured (as-built) and a nominal (ideal) calibration file, written and read back."""
     refused = []
     simulate_calibration(Device.builtin("as-built"), folder / "calib", seed=3, white_repeats=1)
-    for name, cal in (("as-built", calibrate(folder / "calib")), ("ideal", workflow.calibration_for(Device.builtin("ideal"), missing="nominal"))):
+    for name, cal in (("as-built", calibrate(folder / "calib")),
+                      ("ideal", workflow.calibration_for(Device.builtin("ideal"), missing="nominal"))):
         p = cal.save(folder / f"{name}.npz")
         try:
             Calibration.load(p)
@@ -99,7 +100,8 @@ def main() -> int:
             rows.append(r)
             refused += r["refused"]
             print(f"{r['material']:28s} max f {r.get('max_f', float('nan')):9.3g} sr⁻¹  max f·cosθi·cosθo "
-                  f"{r.get('max_projected', float('nan')):8.3g} sr⁻¹  {'refused: ' + '; '.join(r['refused']) if r['refused'] else 'read back'}"
+                  f"{r.get('max_projected', float('nan')):8.3g} sr⁻¹  "
+                  f"{'refused: ' + '; '.join(r['refused']) if r['refused'] else 'read back'}"
                   f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
         cal_refused = roundtrip_calibrations(Path(tmp))
         refused += cal_refused

@@ -11,8 +11,9 @@ to be exported (the NBRDFs), the difference between its Mitsuba render and the d
 evaluation of the reference itself (:func:`reflecto.render.sphere.render_sphere`, same
 camera and lights): how much of the difference the reference's own export could
 explain; and the same for the model's export against the model, which shows whether
-the export adds anything (a seam, rings) to what the model itself looks like. (An RGL file is rendered as it is; its direct evaluation would differ by its
-non-reciprocity, since Mitsuba looks its table up from the camera's side.)
+the export adds anything (a seam, rings) to what the model itself looks like. (An RGL file
+is rendered as it is; its direct evaluation would differ by its non-reciprocity, since Mitsuba looks its
+table up from the camera's side.)
 
 Prints one line per material and median / p90 / max of the difference (target:
 median ≤ 10 %, none above 25 %) and of the noise floor, and writes
@@ -103,7 +104,8 @@ def main() -> None:
     f = np.array([r[2] for r in rows])
     print(f"{len(rows)} materials, {args.scene}:")
     print(f"  mean image difference: median {100 * np.median(d):.2f} %, p90 {100 * np.percentile(d, 90):.2f} %, "
-          f"max {100 * d.max():.2f} % ({order[-1][0]}); above 10 %: {int(np.sum(d > 0.10))}, above 25 %: {int(np.sum(d > 0.25))}")
+          f"max {100 * d.max():.2f} % ({order[-1][0]}); above 10 %: {int(np.sum(d > 0.10))}, "
+          f"above 25 %: {int(np.sum(d > 0.25))}")
     print(f"  noise floor:           median {100 * np.median(f):.2f} %, max {100 * f.max():.2f} %")
     e = np.array([r[5] for r in rows])
     if np.any(np.isfinite(e)):

@@ -19,7 +19,8 @@ _PATTERN = re.compile(r"\b(" + "|".join(re.escape(p) for p in HISTORY) + r")\b",
 
 
 def _texts() -> list[tuple[str, str]]:
-    out = [(str(p.relative_to(ROOT)), p.read_text()) for p in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]]
+    out = [(str(p.relative_to(ROOT)), p.read_text())
+           for p in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]]
     for p in sorted((ROOT / "src" / "reflecto").rglob("*.py")):
         tree = ast.parse(p.read_text())
         for node in ast.walk(tree):

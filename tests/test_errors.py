@@ -242,7 +242,8 @@ def test_version_1_model_reads_with_a_warning(model_file, tmp_path):
         assert np.array_equal(MicrofacetBRDF.load(old).ndf_values, ndf)
     v1["kd"] = [1e6, 0, 0]  # ranges are still checked
     with pytest.warns(ReflectoWarning), pytest.raises(FileFormatError, match="kd must be"):
-        MicrofacetBRDF.load(_zip(tmp_path / "v1b.reflecto", {"meta.json": json.dumps(v1).encode(), "ndf.npy": m["ndf.npy"]}))
+        MicrofacetBRDF.load(_zip(tmp_path / "v1b.reflecto",
+                                 {"meta.json": json.dumps(v1).encode(), "ndf.npy": m["ndf.npy"]}))
 
 
 def test_save_refuses_what_load_would_refuse(tmp_path):
@@ -403,7 +404,8 @@ def test_merl_spike_between_quadrature_nodes_is_refused_by_its_hemispherical_alb
     assert directional_albedo(src, [0.0, 20.0, 40.0, 60.0, 75.0], n_u=48, n_phi=64).max() < 1.5
     assert merl.hemispherical_albedo(np.full(merl.SHAPE + (3,), 1 / np.pi)) == pytest.approx(1.0, abs=1e-3)
     p = merl.write_merl_table(tmp_path / "spike.binary", t)
-    with pytest.raises(FileFormatError, match="spike.binary: hemispherical albedo \\[[0-9.]+, 0.3\\d+, 0.3\\d+\\] above"):
+    with pytest.raises(FileFormatError,
+                       match="spike.binary: hemispherical albedo \\[[0-9.]+, 0.3\\d+, 0.3\\d+\\] above"):
         load_source(p)
 
 
@@ -438,7 +440,8 @@ def test_lazily_allocated_huge_hdf5_dataset_is_refused_without_reading(shared, t
 def test_hdf5_links_to_other_files_are_not_followed(shared, tmp_path):
     def external(f):
         del f["dense_1/dense_1/bias:0"]
-        f["dense_1/dense_1/bias:0"] = h5py.ExternalLink(str(shared / "merl-nbrdf" / "pvc.h5"), "/dense_1/dense_1/bias:0")
+        f["dense_1/dense_1/bias:0"] = h5py.ExternalLink(str(shared / "merl-nbrdf" / "pvc.h5"),
+                                                        "/dense_1/dense_1/bias:0")
 
     p = _nbrdf(tmp_path / "ext.h5", shared, extra=external)
     with pytest.raises(FileFormatError, match="ext.h5: .* is a ExternalLink"):
@@ -545,13 +548,16 @@ def calib_copy(calib, tmp_path) -> Path:
 @pytest.mark.parametrize("edit, message", [
     (lambda m: m.update(grid=[]), "'grid' must be a list of 1 to 64 objects"),
     (lambda m: m.pop("mirror"), "'mirror' must be a list"),
-    (lambda m: m["mirror"][2].update(mirror_normal=[float("nan")] * 3), "mirror_normal of 'mirror_led2.png' must be finite unit"),
+    (lambda m: m["mirror"][2].update(mirror_normal=[float("nan")] * 3),
+     "mirror_normal of 'mirror_led2.png' must be finite unit"),
     (lambda m: m["mirror"][2].update(mirror_normal=[0.0, 0.0, 0.0]), "must be finite unit vectors"),
     (lambda m: m["mirror"][1].update(led=-1), "led must be a distinct LED index in \\[0, 6\\), got -1"),
     (lambda m: m["mirror"][1].update(led=0), "led must be a distinct LED index"),
     (lambda m: m["grid"][0].update(directions=[[0, 0, 1], [1, 2]]), "directions of 'grid_0.png' must be"),
-    (lambda m: m["grid"][0]["directions"][0].__setitem__(1, 1e308), "must be finite unit vectors"),  # no overflow warning
-    (lambda m: m["grid"][0].update(file="../../outside/x.png"), "grid image '../../outside/x.png' must be a relative name"),
+    # no overflow warning
+    (lambda m: m["grid"][0]["directions"][0].__setitem__(1, 1e308), "must be finite unit vectors"),
+    (lambda m: m["grid"][0].update(file="../../outside/x.png"),
+     "grid image '../../outside/x.png' must be a relative name"),
     (lambda m: m["grid"][0].update(file="/dev/zero"), "grid image '/dev/zero' must be a relative name"),
     (lambda m: m["mirror"][0].update(file=None), "mirror image name must be a non-empty string"),
 ])
@@ -669,7 +675,8 @@ def test_outputs_respect_the_umask(tmp_path, capsys, umask, file_mode, dir_mode)
             tmp.unlink()
             tmp.write_bytes(b"png")
         if umask == 0o022:  # a report folder (mkdir) of images (atomic_path) and a page (atomic_write)
-            assert main(["report", str(tmp_path / "models" / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep")]) == 0
+            assert main(["report", str(tmp_path / "models" / "m.reflecto"), "--no-render",
+                         "-o", str(tmp_path / "rep")]) == 0
     finally:
         os.umask(old)
     capsys.readouterr()

@@ -39,7 +39,8 @@ def files(tmp_path_factory, shared) -> dict[str, Path]:
     (d / "materials").mkdir()
     return {"model": d / "m.reflecto", "summary": d / "m.json", "capture": d / "cap", "calib-dir": d / "calib",
             "cal": d / "cal.npz", "device": d / "dev.json", "bsdf": shared / "rgl" / "chm_mint_rgb.bsdf",
-            "h5": shared / "merl-nbrdf" / "pvc.h5", "h5json": shared / "merl-nbrdf" / "pvc.json", "analytic": PLASTIC, "aniso": BRUSHED, "out": d / "out"}
+            "h5": shared / "merl-nbrdf" / "pvc.h5", "h5json": shared / "merl-nbrdf" / "pvc.json", "analytic": PLASTIC,
+            "aniso": BRUSHED, "out": d / "out"}
 
 
 # (argv with {kind} placeholders, what the message must say)
@@ -49,7 +50,8 @@ CASES = [
     ("report {capture} -o {out}/r", "cap is a capture folder (manifest.json and frames); report needs a reflecto "
                                     "model file (.reflecto) (to make a model of it: reflecto reconstruct"),
     ("reconstruct {model} -o {out}/x.reflecto", "m.reflecto is a reflecto model file (.reflecto); reconstruct needs "
-                                                "a capture folder (manifest.json and frames) (to look at it: reflecto info"),
+                                                "a capture folder (manifest.json and frames) "
+                                                "(to look at it: reflecto info"),
     ("reconstruct {bsdf} -o {out}/x.reflecto", "is an RGL tensor file (.bsdf); reconstruct needs a capture folder"),
     ("reconstruct {capture} --calibration {calib-dir} -o {out}/x.reflecto",
      "calib is a calibration folder (calibration captures, calibration.json); reconstruct --calibration needs a "
@@ -63,9 +65,11 @@ CASES = [
     ("info {capture}", f"cap is a capture folder (manifest.json and frames); info {BRDF}"),
     ("info {device}", f"dev.json is a device file (.json/.toml); info {BRDF} (it describes a device: reflecto "
                       "simulate BRDF --device"),
-    ("tabulate {cal} -o {out}/t.binary", f"cal.npz is a calibration file (.npz, from `reflecto calibrate`); tabulate {BRDF}"),
+    ("tabulate {cal} -o {out}/t.binary",
+     f"cal.npz is a calibration file (.npz, from `reflecto calibrate`); tabulate {BRDF}"),
     ("compare {capture} {model}", f"cap is a capture folder (manifest.json and frames); compare {BRDF}"),
-    ("compare {model} {calib-dir}", f"calib is a calibration folder (calibration captures, calibration.json); compare {BRDF}"),
+    ("compare {model} {calib-dir}",
+     f"calib is a calibration folder (calibration captures, calibration.json); compare {BRDF}"),
     ("fit-ct {summary}", f"m.json is a reconstruction summary (.json); fit-ct {BRDF}"),
     ("calibrate {capture} -o {out}/c.npz", "cap is a capture folder (manifest.json and frames); calibrate needs a "
                                            "calibration folder (calibration captures, calibration.json)"),
@@ -239,5 +243,6 @@ def test_model_names_its_calibration_and_the_report_reads_the_slices_with_it(tmp
     (tmp_path / "moved").mkdir()
     shutil.copy(tmp_path / "m.reflecto", tmp_path / "moved")
     assert main(["report", str(tmp_path / "moved" / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep2")]) == 0
-    assert "not shown: the model names the capture cap, which is not a readable capture folder" in (tmp_path / "rep2" / "index.html").read_text()
+    assert ("not shown: the model names the capture cap, which is not a readable capture folder"
+            in (tmp_path / "rep2" / "index.html").read_text())
     capsys.readouterr()

@@ -167,7 +167,8 @@ def test_sweep_record_path_that_is_a_folder_names_the_material(tmp_path, fake_sw
     (out / "materials" / "m0.json").mkdir(parents=True)
     assert main(["sweep", str(tmp_path / "mats"), "-o", str(out), "--jobs", "1", "-q"]) == 1
     err = _err(capsys)
-    assert err == (f"reflecto: error: {tmp_path / 'mats' / 'm0.json'}: its result record {out / 'materials' / 'm0.json'} "
+    assert err == (f"reflecto: error: {tmp_path / 'mats' / 'm0.json'}: "
+                   f"its result record {out / 'materials' / 'm0.json'} "
                    "is a folder; remove it (or choose another -o) to evaluate this material")
     assert (out / "materials" / "m1.json").is_file()  # the other material finished
     shutil.rmtree(out)

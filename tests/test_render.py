@@ -137,7 +137,8 @@ def test_the_scene_in_docs_mitsuba_renders_an_export(mitsuba, shared, tmp_path):
     path = export_rgl(LAMBERT, tmp_path / "plastic.bsdf")
     xml = (xml.replace('"plastic.bsdf"', f'"{path}"')
               .replace('"../shared/data/envmaps/pmndrs_studio.hdr"', f'"{shared / "envmaps" / "pmndrs_studio.hdr"}"')
-              .replace('value="256"', 'value="32"').replace('name="sample_count" value="32"', 'name="sample_count" value="16"'))
+              .replace('value="256"', 'value="32"')
+              .replace('name="sample_count" value="32"', 'name="sample_count" value="16"'))
     img = np.array(mi.render(mi.load_string(xml)))
     assert img.shape == (32, 32, 4)
     centre = img[12:20, 12:20, :3]
