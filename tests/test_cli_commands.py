@@ -352,6 +352,12 @@ def test_render_spp_and_seed(tmp_path, capsys):
     assert a.shape[:2] == (32, 32)
     assert np.array_equal(a, b) and not np.array_equal(a, c)
     assert abs(a.mean() / c.mean() - 1.0) < 0.05
+    # --title: the same image under a white strip with the title (24 px)
+    titled = tmp_path / "t.png"
+    assert main(["render", str(src), "--scene", "sphere-point", "--resolution", "32", "--spp", "4", "--seed", "3",
+                 "--title", "ggx plastic", "-o", str(titled)]) == 0
+    t = iio.imread(titled).astype(float)
+    assert t.shape[:2] == (32 + 24, 32) and t[:24].min() < 128 and t[:24].mean() > 200  # dark text on white
 
 
 # ------------------------------------------------------------------ gallery --device --calibration --seed

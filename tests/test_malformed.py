@@ -132,7 +132,7 @@ def test_capture_of_pure_noise_gives_a_result_without_an_internal_error(tmp_path
     assert rc == 0, out.err
     summary = json.loads(out.out)["models"][0]["summary"]
     assert not any("Error" in n for n in summary["notes"]), summary["notes"]
-    assert summary["shake_detected"]  # the noise is no symmetric BRDF
+    assert summary["model_error"] > 0.1  # the noise is no microfacet BRDF: the model misses it by far
 
 
 # ------------------------------------------------------------------ sweep records

@@ -170,8 +170,8 @@ def _check_printed_numbers(work: Path) -> None:
     # reflecto compare: eq. 10 normalized by the reference's max albedo (measured 0.033 % for this pair)
     cmp = _output("compare", "examples/ggx-plastic.json", "out/qs/plastic.reflecto")
     line = next(x for x in cmp.splitlines() if "normalized error" in x)
-    err, albedo = _numbers(line)[0], _numbers(line.split("max albedo")[1])[0]
-    assert 0.0 < err <= 0.002 and albedo == pytest.approx(max_albedo(src), abs=6e-5), line
+    err_percent, albedo = _numbers(line)[0], _numbers(line)[-1]  # "normalized error 0.033 % (… albedo …, 0.3166)"
+    assert 0.0 < err_percent <= 0.2 and albedo == pytest.approx(max_albedo(src), abs=6e-5), line
     # the hand-held capture (as-built device, 5° tilt): the tilt is recovered
     got = _summary("out/qs/tilted.reflecto", _output("reconstruct", "out/qs/tilted"))
     assert abs(got["tilt"][0] - 5.0) <= 0.5 and abs(got["eta"][0] - plastic["eta"]) <= 0.1, got

@@ -12,7 +12,7 @@ tuned number is a field whose metadata (:func:`tuned`) says
 
   - ``mechanism:`` it follows from the optics, the noise, the sampling or the physics
     (the text says how);
-  - ``measurement:`` it was measured (the text says on what, and what was found);
+  - ``measurement:`` measured (the text says on what, and what was found);
   - ``tuning half:`` only the data could settle it: chosen on the tuning half of the 50
     shared materials (:mod:`reflecto.evaluate.split`) and checked on the validation half;
   - ``convention:`` a definition (a resolution, a reporting range);
