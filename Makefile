@@ -70,11 +70,11 @@ demo: $(STAMP)
 	@echo "demo done: open $(OUT)/report/index.html"
 
 # lint (ruff: pycodestyle, pyflakes, isort, bugbear, pydocstyle) and types (mypy) first:
-# pyproject.toml holds their settings
+# pyproject.toml holds their settings; the tests run on two worker processes (pytest-xdist)
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -n 2 -m "not slow"
 
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
