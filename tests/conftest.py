@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -77,3 +78,11 @@ def require_mitsuba(llvm: bool = False):
     if llvm and not variant.startswith("llvm"):
         missing("needs Mitsuba's vectorised llvm_ad_rgb variant (LLVM >= 16; `make sysdeps` installs libllvm19)")
     return mi, variant
+
+
+def json_out(capsys) -> dict:
+    """The stdout of the last command: exactly one JSON document, nothing around it."""
+    out = capsys.readouterr().out
+    doc, end = json.JSONDecoder().raw_decode(out)
+    assert out[end:].strip() == "", out[end:]
+    return doc

@@ -4,6 +4,7 @@ import sys
 
 import numpy as np
 
+from conftest import json_out
 from reflecto.cli import main
 from reflecto.sources import merl
 
@@ -63,13 +64,6 @@ ROOT = Path(__file__).resolve().parents[1]
 PLASTIC = ROOT / "examples" / "ggx-plastic.json"
 
 
-def _json_out(capsys) -> dict:
-    """The stdout of the last command: exactly one JSON document, nothing around it."""
-    out = capsys.readouterr().out
-    doc, end = json.JSONDecoder().raw_decode(out)
-    assert out[end:].strip() == "", out[end:]
-    return doc
-
 
 def _subparsers():
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
@@ -107,7 +101,7 @@ def test_json_on_every_result_command(tmp_path, capsys):
     }
     for name, argv in runs.items():
         assert main([*argv, "--json"]) == 0, name
-        results[name] = _json_out(capsys)
+        results[name] = json_out(capsys)
     assert results["simulate"]["leds"] == 6 and results["simulate"]["check_frames"] == 2
     assert results["reconstruct"]["failed"] == [] and results["reconstruct"]["models"][0]["summary"]["eta"] == [1.5] * 3
     assert results["export"]["format"] == "merl" and results["export"]["bytes"] == merl.FILE_BYTES
@@ -117,16 +111,16 @@ def test_json_on_every_result_command(tmp_path, capsys):
 
 def test_json_of_calibration_and_report_commands(tmp_path, capsys):
     assert main(["simulate-calibration", "--device", "as-built", "-o", str(tmp_path / "calib"), "--json"]) == 0
-    assert "calibration.json" in _json_out(capsys)["files"]
+    assert "calibration.json" in json_out(capsys)["files"]
     assert main(["calibrate", str(tmp_path / "calib"), "-o", str(tmp_path / "cal.npz"), "--json"]) == 0
-    assert _json_out(capsys)["report"]["reprojection_rms_px"] < 0.1
+    assert json_out(capsys)["report"]["reprojection_rms_px"] < 0.1
     from reflecto.load import load_source
     from reflecto.model import MicrofacetBRDF
 
     MicrofacetBRDF.from_ndf_function(load_source(PLASTIC).ndf, resolution=16, kd=0.1, ks=0.5).save(
         tmp_path / "m.reflecto")
     assert main(["report", str(tmp_path / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep"), "--json"]) == 0
-    assert _json_out(capsys)["output"] == str(tmp_path / "rep" / "index.html")
+    assert json_out(capsys)["output"] == str(tmp_path / "rep" / "index.html")
 
 
 def test_reconstruct_without_the_calibration_its_device_needs(tmp_path, capsys):
@@ -139,7 +133,7 @@ def test_reconstruct_without_the_calibration_its_device_needs(tmp_path, capsys):
     assert not list(tmp_path.glob("m*"))
     assert main(["reconstruct", str(tmp_path / "ab"), "--nominal", "--eta", "1.5", "-o", str(tmp_path / "m.reflecto"),
                  "--json"]) == 0
-    assert _json_out(capsys)["models"][0]["summary"]["calibration"] == "nominal (--nominal)"
+    assert json_out(capsys)["models"][0]["summary"]["calibration"] == "nominal (--nominal)"
     with pytest.raises(SystemExit):  # one or the other
         main(["reconstruct", str(tmp_path / "ab"), "--nominal", "--calibration", "x.npz", "-o", "y.reflecto"])
 

@@ -16,19 +16,12 @@ import numpy as np
 import pytest
 
 import reflecto
-from conftest import require, require_mitsuba
+from conftest import json_out, require, require_mitsuba
 from reflecto.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 PLASTIC = ROOT / "examples" / "ggx-plastic.json"
 
-
-def _json_out(capsys) -> dict:
-    """Stdout of the last command: exactly one JSON document."""
-    out = capsys.readouterr().out
-    doc, end = json.JSONDecoder().raw_decode(out)
-    assert out[end:].strip() == "", out[end:]
-    return doc
 
 
 def _materials(folder: Path) -> Path:
@@ -53,7 +46,7 @@ def test_fit_ct_recovers_the_parameters_of_a_cook_torrance_tabulation(tmp_path, 
     truth = CookTorrance(rho_d=(0.2, 0.15, 0.1), rho_s=(0.3, 0.25, 0.2), f0=0.3, m=0.15)
     export_merl(truth, tmp_path / "ct.binary")
     assert main(["fit-ct", str(tmp_path / "ct.binary"), "--json"]) == 0
-    fit = _json_out(capsys)
+    fit = json_out(capsys)
     assert np.allclose(fit["rho_d"], truth.rho_d, rtol=1e-6) and np.allclose(fit["rho_s"], truth.rho_s, rtol=1e-6)
     assert fit["F0"] == pytest.approx(0.3, rel=1e-6) and fit["m"] == pytest.approx(0.15, rel=1e-6)
     assert fit["error_normalized"] < 1e-9 and fit["log_rmse"] < 1e-9 and fit["source"] == str(tmp_path / "ct.binary")
@@ -71,7 +64,7 @@ def test_design_lays_out_the_grid_and_names_the_impossible_designs(tmp_path, cap
     out = tmp_path / "design"
     assert main(["design", str(mats), "-o", str(out), "--cones", "70", "--tilts", "20", "--leds", "6",
                  "--layout-only", "--jobs", "1", "-q", "--json"]) == 0
-    info = _json_out(capsys)
+    info = json_out(capsys)
     paper, c70 = info["designs"]
     assert [paper["key"], c70["key"]] == ["paper", "c70.0-t20.0-l6"]
     assert info["best_realisable"] is None  # the paper's row is the yardstick, and no other design is realisable
@@ -103,7 +96,7 @@ def test_design_runs_the_materials_on_each_realisable_design(tmp_path, capsys):
     out = tmp_path / "design"
     assert main(["design", str(mats), "-o", str(out), "--cones", "70", "--tilts", "20", "--leds", "6",
                  "--jobs", "1", "-q", "--json"]) == 0
-    paper = _json_out(capsys)["designs"][0]
+    paper = json_out(capsys)["designs"][0]
     assert paper["materials"] == 1 and paper["ours_below_ct"] == 1 and paper["median_ratio"] < 0.3
     assert paper["max_eta"] == pytest.approx(1.5, abs=0.02)
     assert main(["design", str(mats), "-o", str(out), "--cones", "70", "--tilts", "20", "--leds", "6",
@@ -118,7 +111,7 @@ def test_simulate_tilt_azimuth_and_shake_are_in_the_manifest_and_the_reconstruct
     tilted, shaken = tmp_path / "tilted", tmp_path / "shaken"
     assert main(["simulate", str(PLASTIC), "--tilt", "10", "--tilt-azimuth", "30", "--seed", "2", "-o", str(tilted),
                  "--json"]) == 0
-    sim = _json_out(capsys)["simulation"]
+    sim = json_out(capsys)["simulation"]
     t, a = math.radians(10.0), math.radians(30.0)
     expect = [math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), math.cos(t)]
     assert np.allclose(sim["normal"], expect, rtol=0, atol=1e-12) and sim["tilt_azimuth_deg"] == 30.0
@@ -127,7 +120,7 @@ def test_simulate_tilt_azimuth_and_shake_are_in_the_manifest_and_the_reconstruct
     assert math.degrees(math.atan2(manifest["normal"][1], manifest["normal"][0])) == pytest.approx(30.0, abs=1e-9)
 
     assert main(["simulate", str(PLASTIC), "--shake", "--seed", "2", "-o", str(shaken), "--json"]) == 0
-    shake = _json_out(capsys)["simulation"]["shake"]
+    shake = json_out(capsys)["simulation"]["shake"]
     manifest = json.loads((shaken / "manifest.json").read_text())["simulation"]
     assert manifest["shake"] == shake and shake["angle_deg"] > 1.0 and len(shake["moved_leds"]) >= 1
     assert abs(np.linalg.norm(shake["axis"]) - 1.0) < 1e-12 and manifest["normal"] == [0.0, 0.0, 1.0]
@@ -135,7 +128,7 @@ def test_simulate_tilt_azimuth_and_shake_are_in_the_manifest_and_the_reconstruct
     # the reconstruction estimates the tilted normal (§5.4) and detects the shake; --quiet: no progress
     assert main(["reconstruct", str(tilted), "--normal", "auto", "-o", str(tmp_path / "t.reflecto"), "--quiet",
                  "--json"]) == 0
-    doc = _json_out(capsys)
+    doc = json_out(capsys)
     s = doc["models"][0]["summary"]
     assert s["normal_tilt_deg"] == pytest.approx(10.0, abs=0.3) and not s["shake_detected"]
     assert math.degrees(math.atan2(s["normal"][1], s["normal"][0])) == pytest.approx(30.0, abs=1.0)
@@ -162,7 +155,7 @@ def test_report_with_a_reference_shows_its_eq10_error(tmp_path, capsys):
 
     assert main(["report", str(tmp_path / "m.reflecto"), "--ref", str(PLASTIC), "--no-render", "-o",
                  str(tmp_path / "rep"), "--json"]) == 0
-    page = Path(_json_out(capsys)["output"])
+    page = Path(json_out(capsys)["output"])
     err = brdf_error(ref, MicrofacetBRDF.load(tmp_path / "m.reflecto"))
     shown = float(row(page, "eq. 10 error vs reference (normalized)"))
     assert shown == round(err.normalized, 5) and 0.0 < shown < 0.05  # the reference's own NDF, tabulated at 32²
@@ -182,7 +175,7 @@ def test_layout_optimize_reproduces_the_devices_layout(capsys):
     from reflecto.instrument.device import DEFAULT_LED_ANGLES
 
     assert main(["layout", "--optimize", "--json"]) == 0
-    info = _json_out(capsys)
+    info = json_out(capsys)
     leds = info["leds_elevation_azimuth_deg"]
     assert np.allclose(leds, DEFAULT_LED_ANGLES, atol=0.01), leds
     assert info["coverage"]["after_tau"] == pytest.approx(0.812, abs=5e-4)
@@ -196,7 +189,7 @@ def test_layout_seed_theta_max_resolution_and_plot(tmp_path, capsys, monkeypatch
     # --theta-max and --resolution reach the coverage analysis; --plot writes the figure
     plot = tmp_path / "cov.png"
     assert main(["layout", "--theta-max", "60", "--resolution", "32", "--plot", str(plot), "--json"]) == 0
-    info = _json_out(capsys)
+    info = json_out(capsys)
     expect = layout.coverage(dev.optics, dev.leds, resolution=32, theta_max_deg=60.0)
     assert info["coverage"]["theta_max_deg"] == 60.0 and info["plot"] == str(plot) and plot.stat().st_size > 10_000
     assert info["coverage"]["after_tau"] == pytest.approx(expect.after_tau, abs=5e-5)  # JSON: 4 decimals
@@ -212,7 +205,7 @@ def test_layout_seed_theta_max_resolution_and_plot(tmp_path, capsys, monkeypatch
     device.write_text('name = "three"\nleds = [[5.0, 0.0], [10.0, 120.0], [30.0, 240.0]]\n'
                       '[optics]\naxis_tilt_deg = 15.0\n')
     assert main(["layout", "--device", str(device), "--resolution", "32", "--json"]) == 0
-    info = _json_out(capsys)
+    info = json_out(capsys)
     from reflecto.instrument.device import load_device
 
     three = load_device(device)
@@ -230,7 +223,7 @@ def test_layout_seed_theta_max_resolution_and_plot(tmp_path, capsys, monkeypatch
 
     monkeypatch.setattr(layout, "optimize_layout", short)
     assert main(["layout", "--optimize", "--seed", "3", "--resolution", "16", "--json"]) == 0
-    leds = np.array(_json_out(capsys)["leds_elevation_azimuth_deg"])
+    leds = np.array(json_out(capsys)["leds_elevation_azimuth_deg"])
     assert seen == {"n_leds": 6, "seed": 3}
     direct = layout.led_angles(original(dev.optics, n_leds=6, seed=3, resolution=16, maxiter=2))
     assert np.allclose(leds, np.round(direct, 2)) and np.allclose(leds[0], [5.0, 0.0])
@@ -247,7 +240,7 @@ def test_sweep_with_the_as_built_device_calibrates_it_and_beats_the_baselines(tm
     mats = _materials(tmp_path / "mats")
     out = tmp_path / "sweep"
     assert main(["sweep", str(mats), "-o", str(out), "--device", "as-built", "--jobs", "1", "-q", "--json"]) == 0
-    info = _json_out(capsys)
+    info = json_out(capsys)
     a = info["all"]
     assert a["materials"] == 1 and info["failed"] == [] and a["all_finite"]
     assert a["ours_better_than_ct"] == a["ours_better_than_earlier"] == 1
@@ -271,7 +264,7 @@ def test_json_values_of_info_compare_and_simulate(tmp_path, capsys):
     src = load_source(PLASTIC)
     desc = json.loads(PLASTIC.read_text())
     assert main(["info", str(PLASTIC), "--json"]) == 0
-    info = _json_out(capsys)
+    info = json_out(capsys)
     p = info["parameters"]
     assert info["kind"] == "analytic" and info["isotropic"] and p["distribution"] == desc["distribution"]
     assert p["kd"] == desc["kd"] and p["ks"] == [desc["ks"]] * 3 and p["eta"] == [desc["eta"]] * 3
@@ -286,7 +279,7 @@ def test_json_values_of_info_compare_and_simulate(tmp_path, capsys):
     brighter = tmp_path / "brighter.json"
     brighter.write_text(json.dumps({**desc, "kd": (np.asarray(desc["kd"]) + dkd).tolist()}))
     assert main(["compare", str(PLASTIC), str(brighter), "--json"]) == 0
-    cmp = _json_out(capsys)
+    cmp = json_out(capsys)
     g = metric_grid(1)
     rms_cos = math.sqrt(np.sum(g.w * g.i[:, 2] ** 2) / np.sum(g.w))
     assert np.allclose(cmp["rmse"], dkd / math.pi * rms_cos, rtol=1e-9, atol=0), cmp["rmse"]
@@ -295,11 +288,11 @@ def test_json_values_of_info_compare_and_simulate(tmp_path, capsys):
     assert cmp["log_rmse"] > 0 and cmp["form"] == "merl" and cmp["azimuths"] == 1
     assert cmp["reference"] == str(PLASTIC) and cmp["test"] == str(brighter)
     assert main(["compare", str(PLASTIC), str(PLASTIC), "--json"]) == 0
-    same = _json_out(capsys)
+    same = json_out(capsys)
     assert same["rmse"] == [0.0, 0.0, 0.0] and same["normalized"] == 0.0 and same["log_rmse"] == 0.0
 
     assert main(["simulate", str(PLASTIC), "-o", str(tmp_path / "cap"), "--json"]) == 0
-    sim = _json_out(capsys)
+    sim = json_out(capsys)
     cam = Device.builtin("ideal").camera
     assert sim["device"] == "ideal" and sim["leds"] == 6 and sim["check_frames"] == 2
     assert sim["exposures_ms"] == [float(t) for t in cam.exposures_ms] and sim["simulation"]["seed"] == 0
@@ -317,11 +310,11 @@ def test_json_values_of_the_calibration_commands(tmp_path, capsys):
 
     assert main(["simulate-calibration", "--device", "as-built", "--seed", "1", "-o", str(tmp_path / "calib"),
                  "--json"]) == 0
-    sim = _json_out(capsys)
+    sim = json_out(capsys)
     assert sim["device"] == "as-built" and sim["seed"] == 1 and "calibration.json" in sim["files"]
     assert all((tmp_path / "calib" / f).is_file() for f in sim["files"])
     assert main(["calibrate", str(tmp_path / "calib"), "-o", str(tmp_path / "cal.npz"), "--json"]) == 0
-    cal = _json_out(capsys)
+    cal = json_out(capsys)
     dev = Device.builtin("as-built")
     truth = layout.led_direction(*np.array(dev.truth.led_angles).T)
     offsets = np.degrees(np.arccos(np.clip(np.sum(truth * dev.leds, axis=1), -1.0, 1.0)))
@@ -344,7 +337,7 @@ def test_render_spp_and_seed(tmp_path, capsys):
         out = tmp_path / name
         assert main(["render", str(src), "--scene", "sphere-point", "--resolution", "32", "--spp", "4", "--seed",
                      str(seed), "-o", str(out), "--json"]) == 0
-        doc = _json_out(capsys)
+        doc = json_out(capsys)
         assert doc["spp"] == 4 and doc["output"] == str(out)
         return iio.imread(out).astype(float)
 
@@ -372,7 +365,7 @@ def test_gallery_on_the_as_built_device_with_its_calibration(tmp_path, capsys):
     assert main(["gallery", str(brushed), "-o", str(out), "--device", "as-built",
                  "--calibration", str(tmp_path / "cal.npz"),
                  "--seed", "5", "--spp", "4", "--resolution", "32", "--rotations", "0,120,240", "-q", "--json"]) == 0
-    assert _json_out(capsys)["output"] == str(out / "index.html")
+    assert json_out(capsys)["output"] == str(out / "index.html")
     doc = json.loads((out / "gallery.json").read_text())
     st = doc["settings"]
     assert st["device"] == "as-built" and st["seed"] == 5 and st["calibration"] == str(tmp_path / "cal.npz")
@@ -389,10 +382,10 @@ def test_design_on_a_local_dask_cluster_equals_the_local_run(tmp_path, capsys):
     mats = _materials(tmp_path / "mats")
     args = ["--cones", "70", "--tilts", "20", "--leds", "6", "--layout-only", "-q", "--json"]
     assert main(["design", str(mats), "-o", str(tmp_path / "local"), "--jobs", "1", *args]) == 0
-    local = _json_out(capsys)["designs"]
+    local = json_out(capsys)["designs"]
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as c:
         assert main(["design", str(mats), "-o", str(tmp_path / "dask"), "--scheduler", c.scheduler_address, *args]) == 0
-    remote = _json_out(capsys)["designs"]
+    remote = json_out(capsys)["designs"]
     assert [r["key"] for r in remote] == ["paper", "c70.0-t20.0-l6"]
     assert remote == local
 
@@ -412,7 +405,7 @@ def test_report_renders_at_the_requested_spp(tmp_path, capsys):
 
     assert main(["report", str(tmp_path / "m.reflecto"), "--ref", str(PLASTIC), "--spp", "5",
                  "-o", str(tmp_path / "rep"), "--json"]) == 0
-    page = Path(_json_out(capsys)["output"]).read_text()
+    page = Path(json_out(capsys)["output"]).read_text()
     assert sample_count(5) == 16 and page.count(" 16 spp).") >= 4 and " 64 spp" not in page
     for scene in ("sphere-env", "sphere-point"):
         m = re.search(rf"<th>mean image difference, {scene} \(noise floor; corrected\)</th><td>([\d.]+) %", page)
