@@ -29,7 +29,13 @@ __all__ = ["Progress", "interactive", "run_batch", "run_on_dask"]
 
 
 def interactive() -> bool:
-    """Whether progress may be drawn as a bar: stderr is a terminal and ``CI`` is not set."""
+    """Whether progress may be drawn as a bar.
+
+    Returns
+    -------
+    bool
+        stderr is a terminal and ``CI`` is unset, empty, ``0``, ``false`` or ``no``.
+    """
     ci = os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")
     try:
         return sys.stderr.isatty() and not ci
@@ -129,6 +135,21 @@ def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: 
     (a signal, the out-of-memory killer), the pool is lost: every item that had not
     finished is run again, each in a process of its own, so that only the item that
     kills its process is reported failed ("worker process died").
+
+    Parameters
+    ----------
+    fn
+        The work of one item (picklable for ``jobs > 1`` or a scheduler).
+    items
+        Argument tuples, one per item.
+    labels
+        One name per item, for messages.
+    jobs
+        Worker processes.
+    on_result
+        ``on_result(k, ok, value_or_message, seconds)``.
+    scheduler
+        A Dask scheduler's address, to run there instead.
     """
     if scheduler:
         run_on_dask(fn, items, labels, scheduler, on_result)
@@ -170,6 +191,24 @@ def run_on_dask(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels
     that dies is the scheduler's to handle: it reruns the task elsewhere, and a task
     that kills workers repeatedly ends as failed ("worker process died"). Tasks are
     submitted with ``pure=False`` (a rerun of the batch recomputes what its records lack).
+
+    Parameters
+    ----------
+    fn
+        The work of one item (picklable).
+    items
+        Argument tuples, one per item.
+    labels
+        One name per item, for messages and task keys.
+    scheduler
+        The scheduler's address.
+    on_result
+        ``on_result(k, ok, value_or_message, seconds)``.
+
+    Raises
+    ------
+    ReflectoError
+        Without ``dask.distributed``, or when the scheduler cannot be reached.
     """
     try:
         import distributed  # deferred: the optional `dask` extra, needed only with --scheduler

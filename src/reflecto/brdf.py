@@ -77,7 +77,14 @@ class BRDFSource(abc.ABC):
         """
 
     def parameters(self) -> dict[str, Any]:
-        """Human-readable parameters for ``reflecto info``."""
+        """Human-readable parameters for ``reflecto info``.
+
+        Returns
+        -------
+        dict
+            Parameter name → value (numbers, strings, short lists); empty for a source
+            with nothing to report.
+        """
         return {}
 
     @property
@@ -110,7 +117,18 @@ class HasNDF(Protocol):
     """Anything with a normal distribution ``D(h)``: the analytic BRDFs and the models."""
 
     def ndf(self, h: ArrayLike) -> Array:
-        """``D(h)`` in sr⁻¹ at unit half vectors ``h`` (shape ``(..., 3)``), shape ``(...)``."""
+        """The normal distribution ``D(h)``.
+
+        Parameters
+        ----------
+        h : array_like, shape (..., 3)
+            Unit half vectors in the local frame.
+
+        Returns
+        -------
+        ndarray, shape (...)
+            ``D(h)`` in sr⁻¹ (normalized so that ``∫ D(h) (h·n) dω_h = 1``).
+        """
         ...
 
 
@@ -138,14 +156,19 @@ def directional_albedo(
 
     Parameters
     ----------
+    source
+        The BRDF (sr⁻¹).
     theta_i_deg
-        Incident polar angles in degrees, shape ``(K,)``.
+        Incident polar angles in degrees, one number or shape ``(K,)``.
     phi_i_deg
         Incident azimuth in degrees.
+    n_u, n_phi
+        Quadrature rings in ``u = sqrt(2 θ_h/π)`` and azimuths per ring.
 
     Returns
     -------
     ndarray, shape ``(K, 3)``
+        Linear RGB albedo (dimensionless) per incident angle; ``K = 1`` for one number.
     """
     theta_i = np.radians(np.atleast_1d(np.asarray(theta_i_deg, dtype=np.float64)))
     u = (np.arange(n_u) + 0.5) / n_u
@@ -167,12 +190,41 @@ def directional_albedo(
 
 
 def valid_pairs(i: Array, o: Array) -> NDArray[np.bool_]:
-    """Mask of pairs with both directions strictly above the horizon."""
+    """Mask of pairs with both directions strictly above the horizon.
+
+    Parameters
+    ----------
+    i, o : ndarray, shape (..., 3)
+        Local-frame directions (``n = +z``).
+
+    Returns
+    -------
+    ndarray of bool, shape (...)
+        ``i_z > 0 and o_z > 0``.
+    """
     return (i[..., 2] > 0) & (o[..., 2] > 0)
 
 
 def rgb_triplet(value: Any, name: str) -> Array:
-    """One number or three (RGB) → finite array of shape ``(3,)``; ParameterError otherwise."""
+    """One number or three (RGB) → finite array of shape ``(3,)``.
+
+    Parameters
+    ----------
+    value
+        A number (repeated to R, G, B) or a sequence of three numbers.
+    name
+        The parameter's name, for the message.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Float64 RGB values.
+
+    Raises
+    ------
+    ParameterError
+        For any other shape, or values that are not finite.
+    """
     arr = np.asarray(value, dtype=np.float64)
     if arr.ndim == 0:
         arr = np.full(3, float(arr))
@@ -182,8 +234,27 @@ def rgb_triplet(value: Any, name: str) -> Array:
 
 
 def read_file_bytes(path: Path, limit: int | None = None, what: str = "a BRDF file") -> bytes:
-    """Whole contents of a regular file of at most ``limit`` bytes (default
-    :data:`reflecto.io.MAX_BRDF_BYTES`); FileFormatError naming the file otherwise."""
+    """Whole contents of a regular file of at most ``limit`` bytes.
+
+    Parameters
+    ----------
+    path
+        The file.
+    limit
+        Largest size accepted, bytes; default :data:`reflecto.io.MAX_BRDF_BYTES`.
+    what
+        What the file is, for messages.
+
+    Returns
+    -------
+    bytes
+        The contents.
+
+    Raises
+    ------
+    FileFormatError
+        Naming the file, when it is missing, not a regular file, or larger than ``limit``.
+    """
     return read_input(path, MAX_BRDF_BYTES if limit is None else limit, what)
 
 
@@ -243,6 +314,15 @@ def check_plausible(source: BRDFSource, path: Path, albedo_range: tuple[float, f
     :data:`PLAUSIBILITY_ANGLES_DEG` (a 48 × 64 half-vector quadrature; it must be
     finite and lie in ``albedo_range``). Costs 5–60 ms.
 
+    Parameters
+    ----------
+    source
+        The loaded BRDF.
+    path
+        Its file, for the message.
+    albedo_range
+        ``(lowest, highest)`` directional albedo accepted (dimensionless).
+
     Raises
     ------
     FileFormatError
@@ -297,7 +377,23 @@ READERS: dict[str, Reader] = {}
 
 
 def register_reader(reader: Reader) -> Reader:
-    """Add ``reader`` to :data:`READERS` (each suffix is read by one reader)."""
+    """Add ``reader`` to :data:`READERS` (each suffix is read by one reader).
+
+    Parameters
+    ----------
+    reader
+        The reader; each of its suffixes maps to it.
+
+    Returns
+    -------
+    Reader
+        ``reader`` itself, so that a module can keep it as a constant.
+
+    Raises
+    ------
+    ValueError
+        When a suffix is already read by a reader of another kind.
+    """
     for suffix in reader.suffixes:
         other = READERS.get(suffix)
         if other is not None and other.kind != reader.kind:

@@ -38,6 +38,12 @@ def fresnel(c: ArrayLike, eta: ArrayLike) -> Array:
     eta
         Relative index of refraction η > 0; broadcast against ``c`` (e.g. shape ``(3,)``
         against ``c[..., None]`` for per-channel η).
+
+    Returns
+    -------
+    ndarray
+        ``F(c; η)`` in [0, 1], of the broadcast shape of ``c`` and ``eta`` (a NumPy scalar
+        for scalar input); 1 under total internal reflection (``g² ≤ 0``) and for ``η = ∞``.
     """
     c = np.asarray(c, dtype=np.float64)
     eta = np.asarray(eta, dtype=np.float64)
@@ -50,7 +56,20 @@ def fresnel(c: ArrayLike, eta: ArrayLike) -> Array:
 
 
 def fresnel_numpy(c: ArrayLike, eta: ArrayLike) -> Array:
-    """NumPy reference of :func:`fresnel` (the compiled loop does the same arithmetic)."""
+    """NumPy reference of :func:`fresnel` (the compiled loop does the same arithmetic).
+
+    Parameters
+    ----------
+    c : array_like
+        ``cos θ_d``; its absolute value is used.
+    eta : array_like
+        Relative index η; broadcast against ``c``.
+
+    Returns
+    -------
+    ndarray
+        Eq. 4's ``F(c; η)`` clipped to [0, 1]; 1 where ``g² ≤ 0`` or the formula is not finite.
+    """
     c = np.abs(np.asarray(c, dtype=np.float64))
     eta = np.asarray(eta, dtype=np.float64)
     g2 = eta * eta + c * c - 1.0
@@ -72,22 +91,54 @@ CONSTANT = math.inf
 
 
 def is_constant(eta: ArrayLike | None) -> bool:
-    """Whether ``eta`` (a scalar or an RGB triplet) is the constant Fresnel lobe ``η = ∞``
-    (``None``, no η, is not)."""
+    """Whether ``eta`` is the constant Fresnel lobe ``η = ∞`` (:data:`CONSTANT`).
+
+    Parameters
+    ----------
+    eta
+        A scalar or an RGB triplet; ``None`` (no η) is not constant.
+
+    Returns
+    -------
+    bool
+        True when every entry is +∞.
+    """
     return bool(np.all(np.isposinf(np.asarray(eta, dtype=np.float64))))
 
 
 def eta_to_json(eta: ArrayLike) -> dict[str, Any]:
-    """``{"fresnel": "dielectric", "eta": [R, G, B]}``, or ``{"fresnel": "constant",
-    "eta": None}`` for :data:`CONSTANT` (JSON has no infinity)."""
+    """η as JSON fields (JSON has no infinity).
+
+    Parameters
+    ----------
+    eta
+        One η or an RGB triplet, or :data:`CONSTANT`.
+
+    Returns
+    -------
+    dict
+        ``{"fresnel": "dielectric", "eta": [R, G, B]}``, or ``{"fresnel": "constant",
+        "eta": None}`` for :data:`CONSTANT`.
+    """
     if is_constant(eta):
         return {"fresnel": "constant", "eta": None}
     return {"fresnel": "dielectric", "eta": np.broadcast_to(np.asarray(eta, dtype=np.float64), (3,)).tolist()}
 
 
 def eta_from_json(record: dict[str, Any]) -> Array | None:
-    """Inverse of :func:`eta_to_json`: η as three floats (∞ for the constant lobe); ``None``
-    when the record holds neither form."""
+    """Inverse of :func:`eta_to_json`.
+
+    Parameters
+    ----------
+    record
+        A JSON object with ``"fresnel"`` and ``"eta"`` fields.
+
+    Returns
+    -------
+    ndarray, shape (3,), or None
+        η as three floats (∞ for the constant lobe); ``None`` when the record holds
+        neither form (``eta`` not three finite numbers).
+    """
     if record.get("fresnel") == "constant" and record.get("eta") is None:
         return np.full(3, CONSTANT)
     v = record.get("eta")
@@ -97,28 +148,74 @@ def eta_from_json(record: dict[str, Any]) -> Array | None:
 
 
 def format_eta(eta: ArrayLike | None) -> str:
-    """η for a summary line: ``"1.500"`` (one η serves R, G, B: the first channel's), or
-    ``"∞ (constant Fresnel)"``; ``"nan"`` for ``None`` (a record without η, see :func:`eta_from_json`)."""
+    """η for a summary line.
+
+    Parameters
+    ----------
+    eta
+        One η or an RGB triplet; ``None`` for a record without η (:func:`eta_from_json`).
+
+    Returns
+    -------
+    str
+        ``"1.500"`` (one η serves R, G, B: the first channel's), ``"∞ (constant Fresnel)"``,
+        or ``"nan"`` for ``None``.
+    """
     if is_constant(eta):
         return "∞ (constant Fresnel)"
     return f"{float(np.ravel(np.asarray(eta, dtype=np.float64))[0]):.3f}"
 
 
 def f0_from_eta(eta: ArrayLike) -> Array:
-    """Normal-incidence reflectance ``F0 = ((η − 1)/(η + 1))²`` (1 for ``η = ∞``)."""
+    """Normal-incidence reflectance ``F0 = F(1; η) = ((η − 1)/(η + 1))²`` (algorithm-reference §2.1).
+
+    Parameters
+    ----------
+    eta : array_like
+        Relative index η.
+
+    Returns
+    -------
+    ndarray
+        F0 (dimensionless), of the shape of ``eta``; 1 for ``η = ∞``.
+    """
     eta = np.asarray(eta, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         return np.where(np.isposinf(eta), 1.0, ((eta - 1.0) / (eta + 1.0)) ** 2)[()]
 
 
 def eta_from_f0(f0: ArrayLike) -> Array:
-    """Inverse of :func:`f0_from_eta` on η ≥ 1: ``η = (1 + √F0)/(1 − √F0)``."""
+    """Inverse of :func:`f0_from_eta` on η ≥ 1: ``η = (1 + √F0)/(1 − √F0)``.
+
+    Parameters
+    ----------
+    f0 : array_like
+        Normal-incidence reflectance, clipped to ``[0, 1 − 10⁻¹²]``.
+
+    Returns
+    -------
+    ndarray
+        η ≥ 1, of the shape of ``f0``.
+    """
     s = np.sqrt(np.clip(np.asarray(f0, dtype=np.float64), 0.0, 1.0 - 1e-12))
     return (1.0 + s) / (1.0 - s)
 
 
 def schlick(c: ArrayLike, f0: ArrayLike) -> Array:
-    """Schlick's approximation ``F0 + (1 − F0)(1 − c)⁵`` (used by the Cook–Torrance baseline)."""
+    """Schlick's approximation ``F0 + (1 − F0)(1 − c)⁵`` (used by the Cook–Torrance baseline).
+
+    Parameters
+    ----------
+    c : array_like
+        ``cos θ_d``; its absolute value is used.
+    f0 : array_like
+        Normal-incidence reflectance; broadcast against ``c``.
+
+    Returns
+    -------
+    ndarray
+        F (dimensionless), of the broadcast shape.
+    """
     c = np.abs(np.asarray(c, dtype=np.float64))
     f0 = np.asarray(f0, dtype=np.float64)
     return f0 + (1.0 - f0) * (1.0 - c) ** 5
@@ -140,7 +237,18 @@ class FresnelTable:
         self.table = np.concatenate([table, table[-1:]], axis=0)  # guard row for c = 1
 
     def __call__(self, c: ArrayLike) -> Array:
-        """``F`` at ``|c|``, shape ``c.shape + (channels,)``."""
+        """``F`` at ``|c|`` by linear interpolation in the table.
+
+        Parameters
+        ----------
+        c : array_like
+            ``cos θ_d``; absolute value used, clipped to 1.
+
+        Returns
+        -------
+        ndarray, shape ``c.shape + (channels,)``
+            F per channel of ``eta``.
+        """
         x = np.sqrt(np.minimum(np.abs(np.asarray(c, dtype=np.float64)), 1.0)) * (self.n - 1)
         k = x.astype(np.intp)
         w = (x - k)[..., None]

@@ -22,7 +22,18 @@ MIRROR_B = np.diag([-1.0, 1.0, 1.0])
 
 
 def normalize(v: ArrayLike) -> Array:
-    """Unit vectors along ``v`` (shape ``(..., 3)``); zero vectors stay zero."""
+    """Unit vectors along ``v``; zero vectors stay zero.
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3)
+        Vectors to normalize.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``v / |v|`` (float64); rows with ``|v| = 0`` (or NaN length) are all zeros.
+    """
     v = np.asarray(v, dtype=np.float64)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
     # the same sum as np.linalg.norm's (x² + y²) + z², without its generic reduction
@@ -36,7 +47,20 @@ def normalize(v: ArrayLike) -> Array:
 
 
 def spherical_to_cartesian(theta: ArrayLike, phi: ArrayLike) -> Array:
-    """Unit vector ``(sinθ cosφ, sinθ sinφ, cosθ)``; angles in radians, broadcast."""
+    """Unit vector ``(sinθ cosφ, sinθ sinφ, cosθ)``.
+
+    Parameters
+    ----------
+    theta : array_like
+        Polar angle θ from +z, radians.
+    phi : array_like
+        Azimuth φ from +x toward +y, radians; broadcast against ``theta``.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        The directions, ``...`` being the broadcast shape of ``theta`` and ``phi``.
+    """
     theta = np.asarray(theta, dtype=np.float64)
     phi = np.asarray(phi, dtype=np.float64)
     st = np.sin(theta)
@@ -44,9 +68,21 @@ def spherical_to_cartesian(theta: ArrayLike, phi: ArrayLike) -> Array:
 
 
 def cartesian_to_spherical(v: ArrayLike) -> tuple[Array, Array]:
-    """``(θ, φ)`` of unit vectors ``v``; θ ∈ [0, π], φ ∈ (−π, π] (radians).
+    """``(θ, φ)`` of unit vectors ``v``.
 
     θ is computed as ``2·asin(|v − z|/2)``, which stays accurate near the pole.
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3)
+        Unit vectors (not normalized here).
+
+    Returns
+    -------
+    theta : ndarray, shape (...)
+        Polar angle from +z, radians, in [0, π].
+    phi : ndarray, shape (...)
+        Azimuth ``atan2(y, x)``, radians, in (−π, π].
     """
     v = np.asarray(v, dtype=np.float64)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
@@ -56,24 +92,72 @@ def cartesian_to_spherical(v: ArrayLike) -> tuple[Array, Array]:
 
 
 def reflect(v: ArrayLike, axis: ArrayLike) -> Array:
-    """Reflection of ``v`` about the unit ``axis``: ``R_a(v) = 2(v·a)a − v``."""
+    """Reflection of ``v`` about the unit ``axis``: ``R_a(v) = 2(v·a)a − v``.
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3)
+        Directions to reflect.
+    axis : array_like, shape (..., 3)
+        Unit axis ``a`` (e.g. the half vector, giving ``o = R_h(i)``); broadcast against ``v``.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        The reflected directions.
+    """
     v = np.asarray(v, dtype=np.float64)
     a = np.asarray(axis, dtype=np.float64)
     return 2.0 * np.sum(v * a, axis=-1, keepdims=True) * a - v
 
 
 def half_vector(i: ArrayLike, o: ArrayLike) -> Array:
-    """``h = (i + o)/|i + o|`` (shape ``(..., 3)``)."""
+    """The half vector ``h = (i + o)/|i + o|``.
+
+    Parameters
+    ----------
+    i, o : array_like, shape (..., 3)
+        Light and view directions (unit, away from the surface); broadcast.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``h``; zero where ``i = −o``.
+    """
     return normalize(np.asarray(i, dtype=np.float64) + np.asarray(o, dtype=np.float64))
 
 
 def apply(matrix: ArrayLike, v: ArrayLike) -> Array:
-    """Apply a 3×3 matrix to each direction of ``v`` (shape ``(..., 3)``)."""
+    """Apply a 3×3 matrix to each direction of ``v``.
+
+    Parameters
+    ----------
+    matrix : array_like, shape (3, 3)
+        The linear map ``M``.
+    v : array_like, shape (..., 3)
+        Directions.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``M·v`` for every row (computed as ``v @ M.T``).
+    """
     return np.asarray(v, dtype=np.float64) @ np.asarray(matrix, dtype=np.float64).T
 
 
 def tau(v: ArrayLike) -> Array:
-    """The symmetry τ of eq. 3: ``(x, y, z) → (−x, −y, z)``."""
+    """The symmetry τ of eq. 3: ``(x, y, z) → (−x, −y, z)``.
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3)
+        Local-frame directions.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``τ(v)``, the 180° rotation of ``v`` about the normal.
+    """
     return apply(TAU, v)
 
 
@@ -83,6 +167,18 @@ def frame_from_normal(n: ArrayLike, t: ArrayLike | None = None) -> Array:
     If ``t`` is given it is projected onto the plane ⟂ n; otherwise the projection of
     the world x axis (or y, if x is nearly parallel to n) is used. The matrix maps world
     vectors to local ones: ``local = world @ F.T``.
+
+    Parameters
+    ----------
+    n : array_like, shape (3,)
+        The normal (normalized here).
+    t : array_like, shape (3,), optional
+        A tangent hint; need not be unit or orthogonal to ``n``.
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        ``F`` with rows ``t``, ``b = n × t``, ``n``.
     """
     n = normalize(n)
     if t is None:
@@ -94,24 +190,76 @@ def frame_from_normal(n: ArrayLike, t: ArrayLike | None = None) -> Array:
 
 
 def to_local(v: ArrayLike, frame: ArrayLike) -> Array:
-    """World directions → local coordinates of ``frame`` (rows t, b, n)."""
+    """World directions → local coordinates of ``frame``.
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3)
+        World directions.
+    frame : array_like, shape (3, 3)
+        Rows ``t, b, n`` (as :func:`frame_from_normal` returns).
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``(v·t, v·b, v·n)``.
+    """
     return np.asarray(v, dtype=np.float64) @ np.asarray(frame, dtype=np.float64).T
 
 
 def to_world(v: ArrayLike, frame: ArrayLike) -> Array:
-    """Local coordinates of ``frame`` → world directions."""
+    """Local coordinates of ``frame`` → world directions (inverse of :func:`to_local`).
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3)
+        Local coordinates ``(x, y, z)`` along ``t, b, n``.
+    frame : array_like, shape (3, 3)
+        Rows ``t, b, n``.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``x·t + y·b + z·n``.
+    """
     return np.asarray(v, dtype=np.float64) @ np.asarray(frame, dtype=np.float64)
 
 
 def rotate_z(v: Array, angle: ArrayLike) -> Array:
-    """Rotate directions about +z by ``angle`` (radians, broadcast)."""
+    """Rotate directions about +z (counter-clockwise seen from +z).
+
+    Parameters
+    ----------
+    v : ndarray, shape (..., 3)
+        Directions.
+    angle : array_like
+        Rotation angle, radians; broadcast against ``v[..., 0]``.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``Rot_z(angle)·v``.
+    """
     c, s = np.cos(angle), np.sin(angle)
     x, y = v[..., 0], v[..., 1]
     return np.stack(np.broadcast_arrays(c * x - s * y, s * x + c * y, v[..., 2]), axis=-1)
 
 
 def rotate_y(v: Array, angle: ArrayLike) -> Array:
-    """Rotate directions about +y by ``angle`` (radians, broadcast)."""
+    """Rotate directions about +y (+z toward +x for a positive angle).
+
+    Parameters
+    ----------
+    v : ndarray, shape (..., 3)
+        Directions.
+    angle : array_like
+        Rotation angle, radians; broadcast against ``v[..., 0]``.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``Rot_y(angle)·v``.
+    """
     c, s = np.cos(angle), np.sin(angle)
     x, z = v[..., 0], v[..., 2]
     return np.stack(np.broadcast_arrays(c * x + s * z, v[..., 1], -s * x + c * z), axis=-1)
@@ -121,6 +269,11 @@ def io_to_hd(i: ArrayLike, o: ArrayLike) -> tuple[Array, Array, Array, Array]:
     """Rusinkiewicz half/difference angles of direction pairs.
 
     ``h = normalize(i + o)``; ``d = Rot_y(−θ_h)·Rot_z(−φ_h)·i`` (algorithm-reference §6.1).
+
+    Parameters
+    ----------
+    i, o : array_like, shape (..., 3)
+        Light and view directions, unit, local frame; broadcast.
 
     Returns
     -------
@@ -140,7 +293,20 @@ def io_to_hd(i: ArrayLike, o: ArrayLike) -> tuple[Array, Array, Array, Array]:
 def hd_to_io(
     theta_h: ArrayLike, phi_h: ArrayLike, theta_d: ArrayLike, phi_d: ArrayLike
 ) -> tuple[Array, Array]:
-    """Inverse of :func:`io_to_hd`: ``i = Rot_z(φ_h)·Rot_y(θ_h)·d``, ``o = R_h(i)``."""
+    """Inverse of :func:`io_to_hd`: ``i = Rot_z(φ_h)·Rot_y(θ_h)·d``, ``o = R_h(i)``.
+
+    Parameters
+    ----------
+    theta_h, phi_h : array_like
+        Half-vector polar angle and azimuth, radians.
+    theta_d, phi_d : array_like
+        Difference-vector polar angle and azimuth, radians; all four broadcast.
+
+    Returns
+    -------
+    i, o : ndarray, shape (..., 3)
+        Light and view directions in the local frame.
+    """
     h = spherical_to_cartesian(theta_h, phi_h)
     d = spherical_to_cartesian(theta_d, phi_d)
     i = rotate_z(rotate_y(d, theta_h), phi_h)
@@ -149,5 +315,16 @@ def hd_to_io(
 
 
 def cos_theta(v: ArrayLike) -> Array:
-    """``v·n`` with ``n = +z`` in the local frame."""
+    """``v·n`` with ``n = +z`` in the local frame.
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3)
+        Local-frame directions.
+
+    Returns
+    -------
+    ndarray, shape (...)
+        The z components, ``cos θ`` for unit ``v``.
+    """
     return np.asarray(v, dtype=np.float64)[..., 2]

@@ -79,11 +79,35 @@ class Hemicube:
 
     # ------------------------------------------------------------------ geometry
     def face_shape(self, face: int) -> tuple[int, int]:
-        """``(rows, cols)`` of face ``face`` (0 = top, 1..4 = +X, −X, +Y, −Y)."""
+        """The texel grid of one face.
+
+        Parameters
+        ----------
+        face
+            0 = top, 1..4 = +X, −X, +Y, −Y.
+
+        Returns
+        -------
+        tuple of int
+            ``(N, N)`` for the top, ``(N/2, N)`` for a side face.
+        """
         return (self.n, self.n) if face == 0 else (self.half, self.n)
 
     def face_values(self, values: ArrayLike, face: int) -> Array:
-        """View of one face of a flat texel array, shape ``face_shape(face) + channels``."""
+        """View of one face of a flat texel array.
+
+        Parameters
+        ----------
+        values : array_like, shape (size,) or (size, ...)
+            Texel values (any trailing channel axes).
+        face
+            0 = top, 1..4 = +X, −X, +Y, −Y.
+
+        Returns
+        -------
+        ndarray, shape ``face_shape(face) + values.shape[1:]``
+            A view (not a copy) of that face, rows and columns as in the module docstring.
+        """
         values = np.asarray(values)
         start = self.offsets[face]
         rows, cols = self.face_shape(face)
@@ -152,7 +176,17 @@ class Hemicube:
         """Flat index of the texel containing each direction (nearest texel).
 
         Directions below the horizon are clamped to it. ``dirs`` need not be unit
-        length (only ratios of components enter). Shape ``dirs.shape[:-1]``.
+        length (only ratios of components enter).
+
+        Parameters
+        ----------
+        dirs : array_like, shape (..., 3)
+            Directions in the local frame.
+
+        Returns
+        -------
+        ndarray of intp, shape ``dirs.shape[:-1]``
+            Indices into the flat ``(size,)`` texel array.
         """
         d = _kernels.as_dirs(dirs)
         out = np.empty(len(d), dtype=np.intp)
@@ -160,7 +194,18 @@ class Hemicube:
         return out.reshape(np.shape(dirs)[:-1])
 
     def index_numpy(self, dirs: ArrayLike) -> NDArray[np.intp]:
-        """NumPy reference of :meth:`index`."""
+        """NumPy reference of :meth:`index`.
+
+        Parameters
+        ----------
+        dirs : array_like, shape (..., 3)
+            Directions in the local frame.
+
+        Returns
+        -------
+        ndarray of intp, shape ``dirs.shape[:-1]``
+            Flat texel indices (the same as :meth:`index`).
+        """
         face, col, row = self._face_coords(dirs)
         # col, row ≥ −0.5, so truncation of (x + 0.5) is the floor
         col += 0.5
@@ -225,7 +270,22 @@ class Hemicube:
         return np.concatenate(out)
 
     def pad(self, values: ArrayLike) -> Array:
-        """Padded-face copy of ``values`` for repeated :meth:`lookup` calls."""
+        """Padded-face copy of ``values`` for repeated :meth:`lookup` calls.
+
+        Each face gains a 1-texel border interpolated from its neighbours, so that
+        bilinear lookups are continuous across seams.
+
+        Parameters
+        ----------
+        values : array_like, shape (size,) or (size, C)
+            Texel values.
+
+        Returns
+        -------
+        ndarray
+            The padded faces, one after the other, each ``(rows + 2) × (cols + 2)``
+            (flattened), plus the channel axis if ``values`` has one.
+        """
         values = np.asarray(values, dtype=np.float64)
         if values.ndim == 1:
             # inside each face the padded copy is the face itself (interpolation weight 1
@@ -241,7 +301,18 @@ class Hemicube:
         return self.pad_numpy(values)
 
     def pad_numpy(self, values: ArrayLike) -> Array:
-        """NumPy reference of :meth:`pad` (every padded texel by its interpolation weights)."""
+        """NumPy reference of :meth:`pad` (every padded texel by its interpolation weights).
+
+        Parameters
+        ----------
+        values : array_like, shape (size,) or (size, C)
+            Texel values.
+
+        Returns
+        -------
+        ndarray
+            The padded faces, as :meth:`pad` returns them.
+        """
         values = np.asarray(values, dtype=np.float64)
         w = self._pad_w if values.ndim == 1 else self._pad_w[..., None]
         return np.sum(values[self._pad_src] * w, axis=1)
@@ -264,6 +335,7 @@ class Hemicube:
         Returns
         -------
         ndarray, shape ``dirs.shape[:-1]`` (+ ``(C,)``)
+            The interpolated values, in the units of ``values``.
         """
         values = np.asarray(values)
         padded = self.pad(values) if padded is None else padded
@@ -275,7 +347,22 @@ class Hemicube:
         return self.lookup_numpy(values, dirs, padded)
 
     def lookup_numpy(self, values: ArrayLike | None, dirs: ArrayLike, padded: Array | None = None) -> Array:
-        """NumPy reference of :meth:`lookup` (any number of channels)."""
+        """NumPy reference of :meth:`lookup` (any number of channels).
+
+        Parameters
+        ----------
+        values : array_like, shape (size,) or (size, C), or None
+            Texel values (``None`` when ``padded`` is given).
+        dirs : array_like, shape (..., 3)
+            Directions; below-horizon ones are clamped.
+        padded
+            ``self.pad(values)``, if already at hand.
+
+        Returns
+        -------
+        ndarray, shape ``dirs.shape[:-1]`` (+ ``(C,)``)
+            The bilinearly interpolated values.
+        """
         values = np.asarray(values)
         padded = self.pad(values) if padded is None else padded
         face, col, row = self._face_coords(dirs)
@@ -351,7 +438,24 @@ class Hemicube:
     def splat_numpy(
         self, dirs: ArrayLike, values: ArrayLike, weights: ArrayLike | None = None
     ) -> tuple[Array, Array]:
-        """Reference NumPy implementation of :meth:`splat` (``np.bincount``)."""
+        """Reference NumPy implementation of :meth:`splat` (``np.bincount``).
+
+        Parameters
+        ----------
+        dirs : array_like, shape (M, 3)
+            Sample directions.
+        values : array_like, shape (M,) or (M, C)
+            Sample values.
+        weights : array_like, shape (M,), optional
+            Sample weights; ones if omitted.
+
+        Returns
+        -------
+        wsum : ndarray, shape (size,)
+            ``Σ w`` per texel.
+        wvsum : ndarray, shape (size,) or (size, C)
+            ``Σ w·value`` per texel.
+        """
         idx = self.index(dirs).ravel()
         values = np.asarray(values, dtype=np.float64)
         w = np.ones(idx.shape) if weights is None else np.asarray(weights, dtype=np.float64).ravel()
@@ -370,7 +474,19 @@ class Hemicube:
 
         The faces are padded from their neighbours (:meth:`pad`), so the filter runs
         across seams; ``passes`` filters have a standard deviation of ``√(passes/2)``
-        texels. ``values``: shape ``(size,)``.
+        texels.
+
+        Parameters
+        ----------
+        values : array_like, shape (size,)
+            Texel values.
+        passes
+            Number of filter passes (0 returns the values as float64).
+
+        Returns
+        -------
+        ndarray, shape (size,)
+            The filtered values.
         """
         v = np.asarray(values, dtype=np.float64)
         for _ in range(passes):
@@ -390,8 +506,22 @@ class Hemicube:
     def block_reduce(self, values: ArrayLike, factor: int) -> Array:
         """Sum over ``factor × factor`` texel blocks, face by face.
 
-        ``values`` of shape ``(size,)`` or ``(size, C)``; the result has the coarse
-        hemicube's ``size`` (resolution ``N/factor``) as first axis.
+        Parameters
+        ----------
+        values : array_like, shape (size,) or (size, C)
+            Texel values.
+        factor
+            Block size; ``N/factor`` must be an even integer.
+
+        Returns
+        -------
+        ndarray, shape (3 (N/factor)², ...)
+            Block sums, laid out as the coarse hemicube's texels.
+
+        Raises
+        ------
+        ParameterError
+            For a factor that does not divide the hemicube into an even resolution.
         """
         self._check_factor(factor)
         values = np.ascontiguousarray(values, dtype=np.float64)
@@ -403,7 +533,20 @@ class Hemicube:
         return out.reshape((m,) + values.shape[1:])
 
     def block_reduce_numpy(self, values: ArrayLike, factor: int) -> Array:
-        """NumPy reference of :meth:`block_reduce`."""
+        """NumPy reference of :meth:`block_reduce`.
+
+        Parameters
+        ----------
+        values : array_like, shape (size,) or (size, C)
+            Texel values.
+        factor
+            Block size.
+
+        Returns
+        -------
+        ndarray, shape (3 (N/factor)², ...)
+            Block sums (not checked: call :meth:`block_reduce` for the checked version).
+        """
         out = []
         for face in range(5):
             rows, cols = self.face_shape(face)
@@ -417,7 +560,21 @@ class Hemicube:
         """Solid-angle-weighted box filter to resolution ``N/factor``.
 
         ``D_coarse = Σ D_t Ω_t / Σ Ω_t`` over the fine texels of each coarse texel
-        (algorithm-reference §1.4). Returns the coarse hemicube and its values.
+        (algorithm-reference §1.4).
+
+        Parameters
+        ----------
+        values : array_like, shape (size,) or (size, C)
+            Texel values (e.g. D in sr⁻¹).
+        factor
+            Reduction factor; ``N/factor`` must be an even integer.
+
+        Returns
+        -------
+        coarse : Hemicube
+            The hemicube of resolution ``N/factor``.
+        values : ndarray, shape (coarse.size,) or (coarse.size, C)
+            The solid-angle-weighted block means, in the units of ``values``.
         """
         coarse = self._coarse(factor)
         values = np.asarray(values, dtype=np.float64)
@@ -429,9 +586,21 @@ class Hemicube:
     def moments(self, values: ArrayLike, factor: int) -> tuple[Array, Array]:
         """Zeroth and first moments of ``values`` over coarse blocks.
 
-        Returns ``(mass, first)`` with ``mass_T = Σ_t v_t Ω_t`` (shape ``(size_c,)``)
-        and ``first_T = Σ_t v_t Ω_t h_t`` (shape ``(size_c, 3)``). Integrals of a
-        linear function of ``h`` against ``v`` are exact on these moments.
+        Integrals of a linear function of ``h`` against ``v`` are exact on these moments.
+
+        Parameters
+        ----------
+        values : array_like, shape (size,)
+            Texel values.
+        factor
+            Block size; ``N/factor`` must be an even integer.
+
+        Returns
+        -------
+        mass : ndarray, shape (size_c,)
+            ``mass_T = Σ_t v_t Ω_t`` over the fine texels ``t`` of each coarse texel ``T``.
+        first : ndarray, shape (size_c, 3)
+            ``first_T = Σ_t v_t Ω_t h_t``.
         """
         self._check_factor(factor)
         w = np.asarray(values, dtype=np.float64) * self.solid_angles
@@ -454,17 +623,58 @@ class Hemicube:
         ``M`` must be one of the hemicube's symmetries (τ = R_n, M_t, M_b, or a
         rotation by a multiple of 90° about n). ``new[t] = old[p[t]]`` is the value of
         ``old`` at ``M·h_t``. Exact: raises if ``M`` does not map texels onto texels.
+
+        Parameters
+        ----------
+        matrix : array_like, shape (3, 3)
+            The symmetry ``M`` (e.g. :data:`reflecto.geometry.TAU`).
+
+        Returns
+        -------
+        ndarray of intp, shape (size,)
+            The permutation (cached, read-only).
+
+        Raises
+        ------
+        ParameterError
+            When ``M`` maps texels below the horizon or not exactly onto texels.
         """
         key = tuple(np.round(np.asarray(matrix, dtype=np.float64), 12).ravel())
         return _permutation(self.n, key)
 
     def symmetrize(self, values: ArrayLike, matrix: ArrayLike) -> Array:
-        """Values at the mirrored directions: ``out[t] = values(M h_t)`` (exact)."""
+        """Values at the mirrored directions: ``out[t] = values(M h_t)`` (exact).
+
+        Parameters
+        ----------
+        values : array_like, shape (size,) or (size, C)
+            Texel values.
+        matrix : array_like, shape (3, 3)
+            A hemicube symmetry (see :meth:`permutation`).
+
+        Returns
+        -------
+        ndarray
+            The permuted values, same shape as ``values``.
+        """
         return np.asarray(values)[self.permutation(matrix)]
 
     # --------------------------------------------------------------- integrals
     def integrate(self, values: ArrayLike, weight: ArrayLike | None = None) -> Array:
-        """``Σ_t values_t · weight_t · Ω_t`` (≈ ∫ values·weight dω)."""
+        """``Σ_t values_t · weight_t · Ω_t`` (≈ ∫ values·weight dω).
+
+        Parameters
+        ----------
+        values : array_like, shape (size,) or (size, ...)
+            Texel values.
+        weight : array_like, shape (size,), optional
+            Per-texel weight (e.g. :attr:`cos_theta` for ``∫ D cos θ dω``); 1 if omitted.
+
+        Returns
+        -------
+        ndarray
+            The integral, shape ``values.shape[1:]`` (a 0-d array for flat ``values``).
+        """
         values = np.asarray(values, dtype=np.float64)
         w = self.solid_angles if weight is None else self.solid_angles * np.asarray(weight)
         return np.tensordot(w, values, axes=(0, 0))
@@ -475,6 +685,18 @@ class Hemicube:
 
         Image rows follow +y, columns +x; each side face is folded out from the top
         face's edge it touches, horizon on the outside.
+
+        Parameters
+        ----------
+        values : array_like, shape (size,) or (size, C)
+            Texel values.
+        fill
+            Value of the four corner squares outside the cross.
+
+        Returns
+        -------
+        ndarray, shape (2N, 2N) or (2N, 2N, C)
+            The image.
         """
         values = np.asarray(values, dtype=np.float64)
         n, h = self.n, self.half
@@ -493,7 +715,18 @@ class Hemicube:
 
 @functools.lru_cache(maxsize=8)
 def hemicube(n: int = 512) -> Hemicube:
-    """Cached :class:`Hemicube` of resolution ``n`` (geometry is immutable)."""
+    """Cached :class:`Hemicube` of resolution ``n`` (geometry is immutable).
+
+    Parameters
+    ----------
+    n
+        Top-face resolution ``N`` (even, ≥ 4); the paper's is 512 (§6).
+
+    Returns
+    -------
+    Hemicube
+        The shared instance for ``n`` (an LRU cache keeps the last eight).
+    """
     return Hemicube(n)
 
 

@@ -168,6 +168,11 @@ def _folder_kind(path: Path) -> str:
 def identify(path: str | Path) -> Kind:
     """The kind of ``path`` (module docstring); never raises.
 
+    Parameters
+    ----------
+    path
+        A file or folder (it need not exist).
+
     Returns
     -------
     Kind
@@ -256,6 +261,19 @@ def require(path: str | Path | None, command: str, accept: Iterable[str], need: 
 def require_output_suffix(path: str | Path, command: str, suffixes: Iterable[str], what: str,
                           flag: str = "-o") -> None:
     """Refuse an output whose suffix is not one of ``suffixes`` (lower case, with the dot).
+
+    Parameters
+    ----------
+    path
+        The output path the user gave.
+    command
+        The CLI command, for the message.
+    suffixes
+        Accepted suffixes, lower case with the dot (the first is suggested).
+    what
+        What the command writes, in words.
+    flag
+        The option that names the output, for the message.
 
     Raises
     ------

@@ -40,6 +40,17 @@ def _sniff(path: Path) -> Reader:
 def reader_for(path: str | Path) -> Reader:
     """The reader of ``path``: by its suffix, else by its first bytes.
 
+    Parameters
+    ----------
+    path
+        A BRDF file (see the table in the module docstring for the kinds).
+
+    Returns
+    -------
+    reflecto.brdf.Reader
+        The registered reader of the suffix (lower-cased), or the one whose magic bytes
+        start the file.
+
     Raises
     ------
     FileFormatError
@@ -55,6 +66,18 @@ def load_source(path: str | Path) -> BRDFSource:
 
     Every reader checks sizes against the file before allocating, the type and range
     of every field, and the plausibility of the BRDF it describes (docs/limits.md).
+
+    Parameters
+    ----------
+    path
+        A ``.binary`` (MERL), ``.bsdf`` (RGL), ``.h5`` (NBRDF), ``.json``/``.toml``
+        (analytic) or ``.reflecto`` (model) file; other suffixes are recognised by their
+        first bytes.
+
+    Returns
+    -------
+    BRDFSource
+        The BRDF; ``eval(i, o)`` gives linear RGB values in sr⁻¹, shape ``(N, 3)``.
 
     Raises
     ------

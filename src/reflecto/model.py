@@ -154,20 +154,67 @@ class MicrofacetBRDF(BRDFSource):
         return self._sigma
 
     def ndf(self, h: ArrayLike) -> Array:
-        """``D(h)`` in sr⁻¹ by bilinear hemicube lookup; 0 below the horizon."""
+        """The tabulated NDF by bilinear hemicube lookup.
+
+        Parameters
+        ----------
+        h : array_like, shape (..., 3)
+            Unit half vectors in the local frame.
+
+        Returns
+        -------
+        ndarray, shape (...)
+            ``D(h)`` in sr⁻¹ (``∫ D(h)(h·n) dω_h = 1``, AR 1.2); 0 where ``h_z ≤ 0``.
+        """
         h = np.asarray(h, dtype=np.float64)
         return np.where(h[..., 2] > 0, self.cube.lookup(self.ndf_values, h, self._padded), 0.0)
 
     def shadowing(self, k: ArrayLike) -> Array:
-        """APS shadowing ``S(k) = (k·n)/σ(k)`` in [0, 1] (eq. 8)."""
+        """APS shadowing ``S(k) = (k·n)/σ(k)`` (eq. 8), σ clamped to ``≥ k·n`` so that S ≤ 1.
+
+        Parameters
+        ----------
+        k : array_like, shape (..., 3)
+            Unit directions in the local frame.
+
+        Returns
+        -------
+        ndarray, shape (...)
+            ``S(k)`` in [0, 1]; 0 for directions below the horizon.
+        """
         return self.sigma_table.eval(k)
 
     def fresnel(self, c: ArrayLike) -> Array:
-        """Per-channel ``F(c; η)`` (eq. 4), shape ``c.shape + (3,)``."""
+        """Per-channel Cook–Torrance Fresnel ``F(c; η)`` (eq. 4).
+
+        Parameters
+        ----------
+        c : array_like
+            ``c = |i·h| = cos θ_d``, in [0, 1].
+
+        Returns
+        -------
+        ndarray, shape ``c.shape + (3,)``
+            F per RGB channel (dimensionless, in [0, 1]); 1 for the constant lobe (η = ∞).
+        """
         return fresnel(np.asarray(c)[..., None], self.eta)
 
     def specular_lobe(self, i: ArrayLike, o: ArrayLike) -> Array:
-        """``D S(i) S(o) / (4 cos θ_i cos θ_o)`` without k_s and F (sr⁻¹), shape ``(N,)``."""
+        """The specular lobe of eq. 2 without ``k_s`` and ``F``: ``D(h) S(i) S(o) / (4 cos θ_i cos θ_o)``.
+
+        Evaluated in the cancelled form ``D / (4 σ(i) σ(o))`` (AR 1.6), or the
+        height-correlated one when :attr:`correlated`.
+
+        Parameters
+        ----------
+        i, o : array_like, shape (..., 3)
+            Unit light and view directions in the local frame.
+
+        Returns
+        -------
+        ndarray, shape (...)
+            The lobe in sr⁻¹; 0 where either direction is below the horizon.
+        """
         return self._parts(np.asarray(i, dtype=np.float64), np.asarray(o, dtype=np.float64))[0]
 
     def _parts(self, i: Array, o: Array) -> tuple[Array, Array]:
@@ -192,10 +239,20 @@ class MicrofacetBRDF(BRDFSource):
         return spec, c
 
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
-        """BRDF in sr⁻¹ (eqs. 1–2), shape ``(N, 3)``; 0 below the horizon.
+        """The BRDF ``f = k_d/π + k_s D(h) F(c; η) / (4 σ(i) σ(o))`` (eqs. 1–2, AR 1.6).
 
         A compiled loop (:func:`reflecto._kernels.model_eval`) that computes exactly
         what :meth:`eval_numpy` computes, without its temporaries.
+
+        Parameters
+        ----------
+        i, o : array_like, shape (..., 3)
+            Unit light and view directions in the local frame; broadcast.
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Linear RGB BRDF in sr⁻¹; 0 where either direction is below the horizon.
         """
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)
@@ -212,7 +269,18 @@ class MicrofacetBRDF(BRDFSource):
         return out.reshape(shape[:-1] + (3,))
 
     def eval_numpy(self, i: ArrayLike, o: ArrayLike) -> Array:
-        """Reference NumPy implementation of :meth:`eval` (same values, slower)."""
+        """Reference NumPy implementation of :meth:`eval` (same values, slower).
+
+        Parameters
+        ----------
+        i, o : array_like, shape (..., 3)
+            Unit light and view directions in the local frame.
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Linear RGB BRDF in sr⁻¹; 0 where either direction is below the horizon.
+        """
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)
         spec, c = self._parts(i, o)
@@ -224,8 +292,14 @@ class MicrofacetBRDF(BRDFSource):
         return f
 
     def parameters(self) -> dict[str, Any]:
-        """Hemicube resolution, ``kd``, ``ks``, ``eta`` (RGB lists), the shadowing (eq. 8 or
-        height-correlated Smith) and any metadata, for ``reflecto info``.
+        """The model's parameters, for ``reflecto info``.
+
+        Returns
+        -------
+        dict
+            ``resolution`` (hemicube sizes), ``kd``, ``ks`` and ``eta`` (RGB lists; a
+            constant Fresnel lobe is named instead of η), ``shadowing`` (eq. 8 or
+            height-correlated Smith) and ``metadata`` when there is any.
         """
         return {
             "resolution": f"{self.cube.n}x{self.cube.n} top, {self.cube.n}x{self.cube.half} sides",
@@ -241,7 +315,22 @@ class MicrofacetBRDF(BRDFSource):
     def from_ndf_function(
         cls, ndf_fn: Any, resolution: int = 512, **kw: Any
     ) -> MicrofacetBRDF:
-        """Tabulate ``ndf_fn(h) → D`` (vectorised, shape ``(M, 3) → (M,)``) on a hemicube."""
+        """A model whose NDF is ``ndf_fn`` tabulated at the texel centres of a hemicube.
+
+        Parameters
+        ----------
+        ndf_fn
+            Vectorised ``D(h)``: unit half vectors, shape ``(M, 3)`` → values in sr⁻¹, shape ``(M,)``.
+        resolution
+            Top-face resolution N of the hemicube (``3 N²`` texels).
+        **kw
+            Passed to the constructor (``kd``, ``ks``, ``eta``, ``normalize``, ``correlated``, ``metadata``).
+
+        Returns
+        -------
+        MicrofacetBRDF
+            The model (NDF normalized unless ``normalize=False``).
+        """
         cube = hemicube(resolution)
         return cls(ndf_fn(cube.directions), **kw)
 
@@ -255,6 +344,16 @@ class MicrofacetBRDF(BRDFSource):
         array or any metadata is refused on load. A model that :meth:`load` would
         refuse (parameters out of range, NDF not normalized, albedo above
         :data:`MODEL_ALBEDO_MAX`) is refused here with :class:`ParameterError`.
+
+        Parameters
+        ----------
+        path
+            The file to write (conventionally with suffix :data:`MODEL_SUFFIX`).
+
+        Returns
+        -------
+        Path
+            ``path``.
         """
         path = Path(path)
         meta = {
@@ -290,6 +389,21 @@ class MicrofacetBRDF(BRDFSource):
         metadata (``capture``) is kept only if it lies inside the model's folder.
         Returns an :class:`IsotropicMicrofacetBRDF` for a file of ``ndf_kind``
         ``"isotropic"``.
+
+        Parameters
+        ----------
+        path
+            A ``.reflecto`` model file.
+
+        Returns
+        -------
+        MicrofacetBRDF or IsotropicMicrofacetBRDF
+            The model, with ``path`` set.
+
+        Raises
+        ------
+        FileFormatError
+            Naming the file and the first check that failed.
         """
         path = Path(path)
         meta, arrays = _read_model_file(path)
@@ -484,7 +598,23 @@ def _check_model(path: Path, model: MicrofacetBRDF | IsotropicMicrofacetBRDF) ->
 
 
 def load_model(path: str | Path) -> MicrofacetBRDF | IsotropicMicrofacetBRDF:
-    """Read a reflecto model file, hemicube or isotropic (see :meth:`MicrofacetBRDF.load`)."""
+    """Read a reflecto model file, hemicube or isotropic (the checks are :meth:`MicrofacetBRDF.load`'s).
+
+    Parameters
+    ----------
+    path
+        A ``.reflecto`` model file, as :func:`reflecto.workflow.measure` or :meth:`MicrofacetBRDF.save` writes it.
+
+    Returns
+    -------
+    MicrofacetBRDF or IsotropicMicrofacetBRDF
+        The model ``f = k_d/π + k_s D S S F / (4 cos θ_i cos θ_o)`` (eqs. 1–2), evaluated in sr⁻¹.
+
+    Raises
+    ------
+    FileFormatError
+        For a missing, foreign, damaged or implausible file.
+    """
     return MicrofacetBRDF.load(path)
 
 
@@ -541,20 +671,64 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         return len(self.ndf_table.nodes)
 
     def ndf(self, h: ArrayLike) -> Array:
-        """``D(h)`` in sr⁻¹; 0 below the horizon."""
+        """The isotropic NDF ``D(θ_h)``, interpolated between the polar nodes.
+
+        Parameters
+        ----------
+        h : array_like, shape (..., 3)
+            Unit half vectors in the local frame.
+
+        Returns
+        -------
+        ndarray, shape (...)
+            ``D`` in sr⁻¹ (AR 1.2 normalization); 0 below the horizon.
+        """
         return self.ndf_table(h)
 
     def shadowing(self, k: ArrayLike) -> Array:
-        """APS shadowing ``S(k) = (k·n)/σ(k)`` in [0, 1] (eq. 8)."""
+        """APS shadowing ``S(k) = (k·n)/σ(k)`` (eq. 8) of the isotropic NDF.
+
+        Parameters
+        ----------
+        k : array_like, shape (..., 3)
+            Directions in the local frame (need not be unit: only ``cos θ_k`` is used).
+
+        Returns
+        -------
+        ndarray, shape (...)
+            ``S(k)`` in [0, 1].
+        """
         k = np.asarray(k, dtype=np.float64)
         return self.ndf_table.shadowing(k[..., 2] / np.maximum(np.linalg.norm(k, axis=-1), 1e-300))
 
     def fresnel(self, c: ArrayLike) -> Array:
-        """Per-channel ``F(c; η)`` (eq. 4), shape ``c.shape + (3,)``."""
+        """Per-channel Cook–Torrance Fresnel ``F(c; η)`` (eq. 4).
+
+        Parameters
+        ----------
+        c : array_like
+            ``c = |i·h| = cos θ_d``, in [0, 1].
+
+        Returns
+        -------
+        ndarray, shape ``c.shape + (3,)``
+            F per RGB channel (dimensionless); 1 for the constant lobe (η = ∞).
+        """
         return fresnel(np.asarray(c)[..., None], self.eta)
 
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
-        """BRDF in sr⁻¹ (eqs. 1–2), shape ``(..., 3)``; 0 below the horizon."""
+        """The BRDF ``f = k_d/π + k_s D(θ_h) F(c; η) / (4 σ(i) σ(o))`` (eqs. 1–2, AR 1.6).
+
+        Parameters
+        ----------
+        i, o : array_like, shape (..., 3)
+            Unit light and view directions in the local frame; broadcast.
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Linear RGB BRDF in sr⁻¹; 0 where either direction is below the horizon.
+        """
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)
         i, o = np.broadcast_arrays(i, o)
@@ -581,7 +755,18 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         return f
 
     def to_hemicube(self, resolution: int = 128) -> MicrofacetBRDF:
-        """The same BRDF with its NDF tabulated on a hemicube (for plots and the §5.5 merge)."""
+        """The same BRDF with its NDF tabulated on a hemicube (for plots and the §5.5 merge).
+
+        Parameters
+        ----------
+        resolution
+            Top-face resolution N of the hemicube.
+
+        Returns
+        -------
+        MicrofacetBRDF
+            Same ``kd``, ``ks``, ``eta``, shadowing form and metadata; cached per resolution.
+        """
         if resolution not in self._hemicube:
             cube = hemicube(resolution)
             self._hemicube[resolution] = MicrofacetBRDF(self.ndf(cube.directions), self.kd, self.ks, self.eta,
@@ -589,8 +774,13 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         return self._hemicube[resolution]
 
     def parameters(self) -> dict[str, Any]:
-        """Number of polar nodes, ``kd``, ``ks``, ``eta`` (RGB lists), the shadowing (eq. 8 or
-        height-correlated Smith) and any metadata, for ``reflecto info``.
+        """The model's parameters, for ``reflecto info``.
+
+        Returns
+        -------
+        dict
+            ``resolution`` (number of polar nodes), ``kd``, ``ks`` and ``eta`` (RGB lists),
+            ``shadowing`` (eq. 8 or height-correlated Smith) and ``metadata`` when there is any.
         """
         return {
             "resolution": f"isotropic, {self.resolution} polar nodes",
@@ -605,7 +795,18 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         """Write the model file atomically: ``meta.json``, ``ndf.npy`` (D at the nodes,
         float32) and ``ndf_theta.npy`` (the nodes, radians), checksummed as
         :meth:`MicrofacetBRDF.save` describes; a model that :meth:`MicrofacetBRDF.load`
-        would refuse is refused here with :class:`ParameterError`."""
+        would refuse is refused here with :class:`ParameterError`.
+
+        Parameters
+        ----------
+        path
+            The file to write.
+
+        Returns
+        -------
+        Path
+            ``path``.
+        """
         path = Path(path)
         meta = {
             "format": MODEL_FORMAT,

@@ -57,11 +57,28 @@ class SigmaTable:
         return self.sigma.shape[1]
 
     def grid_directions(self) -> Array:
-        """Grid directions, shape ``(n_theta, n_phi, 3)``."""
+        """The directions of this table's nodes (:func:`grid_directions`).
+
+        Returns
+        -------
+        ndarray, shape (n_theta, n_phi, 3)
+            Unit vectors at ``(θ_j, φ_k)``.
+        """
         return grid_directions(self.n_theta, self.n_phi)
 
     def eval_sigma(self, dirs: ArrayLike) -> Array:
-        """Bilinearly interpolated σ at unit directions ``dirs`` (shape ``(..., 3)``)."""
+        """Bilinearly interpolated σ (the denominator of eq. 8).
+
+        Parameters
+        ----------
+        dirs : array_like, shape (..., 3)
+            Unit directions in the local frame (θ clipped to the upper hemisphere).
+
+        Returns
+        -------
+        ndarray, shape (...)
+            σ (dimensionless), not clamped.
+        """
         st = grid_stencil(dirs, self.n_theta, self.n_phi)
         flat = self._flat()
         w = self.n_phi + 1
@@ -83,12 +100,34 @@ class SigmaTable:
         return flat
 
     def eval_sigma_clamped(self, dirs: ArrayLike) -> Array:
-        """``max(σ, cos θ)``: the σ that makes ``S ≤ 1`` (dj_brdf's clamp)."""
+        """``max(σ, cos θ)``: the σ that makes ``S ≤ 1`` (dj_brdf's clamp, algorithm-reference §1.2).
+
+        Parameters
+        ----------
+        dirs : array_like, shape (..., 3)
+            Unit directions in the local frame.
+
+        Returns
+        -------
+        ndarray, shape (...)
+            The clamped σ.
+        """
         d = np.asarray(dirs, dtype=np.float64)
         return np.maximum(self.eval_sigma(d), np.maximum(d[..., 2], 0.0))
 
     def eval(self, dirs: ArrayLike) -> Array:
-        """Shadowing ``S(k) = (k·n)/σ(k)``, clamped to [0, 1] (eq. 8); shape ``dirs.shape[:-1]``."""
+        """Shadowing ``S(k) = (k·n)/max(σ(k), k·n)`` (eq. 8), in [0, 1].
+
+        Parameters
+        ----------
+        dirs : array_like, shape (..., 3)
+            Unit directions ``k`` in the local frame.
+
+        Returns
+        -------
+        ndarray, shape ``dirs.shape[:-1]``
+            S; 0 below the horizon.
+        """
         d = np.asarray(dirs, dtype=np.float64)
         cos = np.maximum(d[..., 2], 0.0)
         sig = self.eval_sigma_clamped(d)
@@ -99,6 +138,21 @@ class SigmaTable:
 
         For directions evaluated against many tables (the reconstruction's inner loop),
         where finding the cell (``acos``, ``atan2``) costs more than the interpolation.
+
+        Parameters
+        ----------
+        stencil
+            From :func:`grid_stencil` with this table's ``n_theta`` and ``n_phi``.
+
+        Returns
+        -------
+        ndarray, shape ``stencil.shape``
+            S at the stencil's directions.
+
+        Raises
+        ------
+        ValueError
+            When the stencil was made for another grid.
         """
         if (stencil.n_theta, stencil.n_phi) != (self.n_theta, self.n_phi):
             raise ValueError("stencil was made for a different σ grid")
@@ -110,6 +164,11 @@ class SigmaTable:
         """``S(θ, φ) ← min_φ' S(θ, φ')`` (Lan et al. §5.2, after Wang et al. 2008).
 
         Since ``S = cos θ/σ``, the minimum of S over azimuth is the maximum of σ.
+
+        Returns
+        -------
+        SigmaTable
+            A table whose every row is that row's maximum σ over φ.
         """
         return SigmaTable(np.repeat(self.sigma.max(axis=1, keepdims=True), self.n_phi, axis=1))
 
@@ -132,6 +191,19 @@ def grid_stencil(dirs: ArrayLike, n_theta: int = N_THETA, n_phi: int = N_PHI) ->
 
     θ and φ map linearly to grid coordinates; truncation gives the cell (φ is shifted
     by a full turn so that it is positive), the remainders are the bilinear weights.
+
+    Parameters
+    ----------
+    dirs : array_like, shape (..., 3)
+        Unit directions in the local frame.
+    n_theta, n_phi
+        The σ grid's sizes (θ from 0 to 90°, φ over a full turn).
+
+    Returns
+    -------
+    GridStencil
+        Flat cell indices into the φ-wrapped table, θ and φ weights, ``cos θ`` (clipped
+        at 0) and the shape ``...`` of ``dirs``.
     """
     d = np.asarray(dirs, dtype=np.float64)
     x, y, z = d.reshape(-1, 3).T.copy()
@@ -151,7 +223,18 @@ def grid_stencil(dirs: ArrayLike, n_theta: int = N_THETA, n_phi: int = N_PHI) ->
 
 
 def grid_directions(n_theta: int = N_THETA, n_phi: int = N_PHI) -> Array:
-    """Directions of the σ grid, shape ``(n_theta, n_phi, 3)``."""
+    """Directions of the σ grid: ``θ_j = j·(π/2)/(n_theta − 1)``, ``φ_k = 2πk/n_phi``.
+
+    Parameters
+    ----------
+    n_theta, n_phi
+        Numbers of θ and φ nodes.
+
+    Returns
+    -------
+    ndarray, shape (n_theta, n_phi, 3)
+        Unit vectors.
+    """
     theta = np.linspace(0.0, 0.5 * np.pi, n_theta)
     phi = np.arange(n_phi) * (2.0 * np.pi / n_phi)
     st = np.sin(theta)[:, None]
@@ -165,6 +248,22 @@ def sigma_direct(cube: Hemicube, ndf: ArrayLike, dirs: ArrayLike, chunk: int = 2
     """Brute-force ``σ(k) = Σ_t max(0, k·h_t) D_t Ω_t`` over every texel (reference).
 
     Cost is ``O(len(dirs) · cube.size)``; use :func:`sigma_table` for whole grids.
+
+    Parameters
+    ----------
+    cube
+        Geometry of ``ndf``.
+    ndf : array_like, shape (cube.size,)
+        D on the texels, sr⁻¹.
+    dirs : array_like, shape (..., 3)
+        Unit directions ``k``.
+    chunk
+        Directions per matrix product (memory bound).
+
+    Returns
+    -------
+    ndarray, shape (...)
+        σ(k) (dimensionless for a normalized D).
     """
     k = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
     m = (np.asarray(ndf, dtype=np.float64) * cube.solid_angles)[:, None] * cube.directions
@@ -250,6 +349,16 @@ def sigma_table(
         ``cube.pad(ndf)`` if already at hand.
     n_phi_quad
         Quadrature azimuths per ring.
+
+    Returns
+    -------
+    SigmaTable
+        σ, shape ``(n_theta, n_phi)``, non-negative, with ``σ(n) = 1``.
+
+    Raises
+    ------
+    ValueError
+        When ``n_phi`` does not divide ``n_phi_quad``.
     """
     if n_phi_quad % n_phi:
         raise ValueError(f"n_phi must divide the quadrature's {n_phi_quad} azimuths, got {n_phi}")

@@ -72,9 +72,24 @@ Reconstructor = Callable[[Path, Path], dict]
 
 def default_reconstructor(calibration: str | None = None, options: Options | None = None,
                           missing: workflow.Missing = "refuse") -> Reconstructor:
-    """The per-capture reconstruction of ``reflecto reconstruct`` with these settings
-    (:func:`reflecto.workflow.reconstruct_folder`): writes the model and its ``.json``
-    summary, returns the summary."""
+    """The per-capture reconstruction of ``reflecto reconstruct`` with these settings.
+
+    Parameters
+    ----------
+    calibration
+        A calibration file for every capture, or None (then ``missing`` decides;
+        :func:`reflecto.workflow.calibration_for`).
+    options
+        Reconstruction options (defaults if None).
+    missing
+        What to do without a calibration: ``"refuse"``, ``"nominal"`` or ``"simulate"``.
+
+    Returns
+    -------
+    callable
+        ``run(cap_dir, out) -> summary``: :func:`reflecto.workflow.reconstruct_folder`,
+        which writes the model and its ``.json`` summary.
+    """
 
     def run(cap_dir: Path, out: Path) -> dict:
         return workflow.reconstruct_folder(cap_dir, out, calibration, options, missing)
@@ -102,6 +117,18 @@ def capture_state(folder: Path) -> tuple[str, str]:
     ``frames`` list names (as a plain file name) exists and ends with the PNG end chunk.
     Whatever else is wrong with the folder (a damaged frame, a manifest that does not
     fit its device) is the reader's to say: such a folder is ready, and refused there.
+
+    Parameters
+    ----------
+    folder
+        A capture folder, possibly still being written.
+
+    Returns
+    -------
+    state : str
+        :data:`READY` or :data:`WAITING`.
+    reason : str
+        Why it is waiting (empty when ready).
     """
 
     mpath = folder / MANIFEST
@@ -139,9 +166,21 @@ def _signature(folder: Path) -> tuple:
 
 
 def thumbnail(model: BRDFSource, size: int = THUMB_PX) -> bytes:
-    """PNG bytes of a lit sphere of ``model`` (:func:`reflecto.render.sphere.render_sphere`:
-    key and fill point lights), ``size × size`` pixels, sRGB-encoded 8-bit RGB on the
-    renders' grey background, exposure 1."""
+    """A lit sphere of ``model`` as a PNG (:func:`reflecto.render.sphere.render_sphere`: key and fill point lights).
+
+    Parameters
+    ----------
+    model
+        Any BRDF.
+    size
+        Image side, pixels.
+
+    Returns
+    -------
+    bytes
+        PNG of ``size × size`` sRGB-encoded 8-bit RGB pixels on the renders' grey
+        background, exposure 1.
+    """
 
 
     rad = render_sphere(model, resolution=size, supersample=1)
@@ -154,7 +193,18 @@ def thumbnail(model: BRDFSource, size: int = THUMB_PX) -> bytes:
 
 
 def warnings_of(summary: dict[str, Any]) -> list[str]:
-    """The warnings a summary carries, as plain lines: shake, broken eq. 3 symmetry, notes."""
+    """The warnings a summary carries, as plain lines.
+
+    Parameters
+    ----------
+    summary
+        A reconstruction summary (the model's ``.json``).
+
+    Returns
+    -------
+    list of str
+        Shake detected, symmetry of eq. 3 broken, and the summary's notes.
+    """
     out = []
     if summary.get("shake_detected"):
         out.append("shake detected" + (f" ({summary['motion']})" if summary.get("motion") else ""))
@@ -228,9 +278,18 @@ class Watcher:
         return (self.models / f"{name}.json").exists() and (self.models / f"{name}.reflecto").exists()
 
     def scan(self, final: bool = False) -> int:
-        """Look at ``root`` once: model every complete folder not yet done, report the damaged
-        ones. With ``final`` (``--once``) an incomplete folder is reported at once instead of
-        waited for. Returns the number of models written."""
+        """Look at ``root`` once: model every complete folder not yet done, report the damaged ones.
+
+        Parameters
+        ----------
+        final
+            Report an incomplete folder at once instead of waiting for it (``--once``).
+
+        Returns
+        -------
+        int
+            The number of models written.
+        """
         made = 0
         for folder in self._candidates():
             name = folder.name
@@ -350,8 +409,17 @@ class Watcher:
 
     # ------------------------------------------------------------------ the loop
     def run(self, once: bool = False, stop: Callable[[], bool] | None = None, poll_s: float = POLL_S) -> None:
-        """Scan until interrupted (or ``stop()`` is true); with ``once``, one scan that
-        reports the incomplete folders instead of waiting for them."""
+        """Scan until interrupted (Ctrl-C, SIGTERM) or ``stop()`` is true.
+
+        Parameters
+        ----------
+        once
+            One scan that reports the incomplete folders instead of waiting for them.
+        stop
+            Checked between scans; the watch ends when it returns True.
+        poll_s
+            Seconds between scans.
+        """
         if once:
             self.scan(final=True)
             return

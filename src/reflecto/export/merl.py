@@ -23,7 +23,29 @@ from .rgl import proxy_ndf
 
 def export_merl(source: BRDFSource, path: str | Path, allow_anisotropic: bool = False,
                 progress: Callable[[int], None] | None = None) -> Path:
-    """Tabulate ``source`` on the MERL grid and write it atomically; returns the path."""
+    """Tabulate ``source`` on the MERL grid and write it atomically.
+
+    Parameters
+    ----------
+    source
+        Any BRDF (sr⁻¹), evaluated at the centres of the 90 × 90 × 180 (θ_h, θ_d, φ_d) bins.
+    path
+        The ``.binary`` file to write.
+    allow_anisotropic
+        Write an anisotropic source's ``φ_h = 0`` slice instead of refusing it.
+    progress
+        Called with the number of bins done after each chunk.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ParameterError
+        For an anisotropic source without ``allow_anisotropic``.
+    """
     if not allow_anisotropic and not _isotropic(source):
         raise ParameterError(f"{source.name} is anisotropic; MERL files hold isotropic BRDFs only "
                              "(pass allow_anisotropic to write its φ_h = 0 slice)")

@@ -118,8 +118,19 @@ class RGLGrid:
 
 
 def write_tensor_file(path: str | Path, fields: dict[str, np.ndarray]) -> Path:
-    """Write ``{name: array}`` as a tensor file (format of :func:`reflecto.sources.rgl.read_tensor_file`),
-    atomically.
+    """Write ``{name: array}`` as a tensor file (format of :func:`reflecto.sources.rgl.read_tensor_file`), atomically.
+
+    Parameters
+    ----------
+    path
+        The file to write.
+    fields
+        Field name → array (any dtype of the tensor format, any shape).
+
+    Returns
+    -------
+    Path
+        ``path``.
     """
     arrays = {k: np.ascontiguousarray(v) for k, v in fields.items()}
     header = bytearray(MAGIC + bytes([1, 0]) + struct.pack("<I", len(arrays)))
@@ -178,6 +189,18 @@ def theta_i_nodes(n: int, grazing: float) -> Array:
 
     The spacing is ``∝ 1 + a cos(πt)``: ``(1 − a)/(1 + a)`` of the normal-incidence
     spacing at grazing incidence, where ``F(θ_d ≈ θ_i)`` and ``S`` bend fastest.
+
+    Parameters
+    ----------
+    n
+        Number of nodes.
+    grazing
+        The densification ``a`` (0: uniform).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        θ_i from 0 to π/2, radians.
     """
     t = np.linspace(0.0, 1.0, n)
     return 0.5 * math.pi * (t + grazing * np.sin(math.pi * t) / math.pi)
@@ -185,8 +208,21 @@ def theta_i_nodes(n: int, grazing: float) -> Array:
 
 # ------------------------------------------------------------------ the NDF
 def ndf_function(source: BRDFSource) -> tuple[NDFFunction, bool]:
-    """``(D, is_model_ndf)``: the source's own ``ndf(h)`` if it has one, else the
-    back-scattering estimate ``f(m, m)·cos²θ_m`` (luminance, unnormalized).
+    """The NDF the export builds its warp from.
+
+    Parameters
+    ----------
+    source
+        Any BRDF.
+
+    Returns
+    -------
+    d_fn : callable
+        ``D(m)`` for unit half vectors of shape ``(..., 3)``: the source's own ``ndf(h)``
+        (sr⁻¹) if it has one, else the back-scattering estimate ``f(m, m)·cos²θ_m``
+        (luminance, unnormalized).
+    is_model_ndf : bool
+        Whether ``d_fn`` is the source's own NDF.
     """
     own = getattr(source, "ndf", None)
     if callable(own):
@@ -204,7 +240,20 @@ def ndf_function(source: BRDFSource) -> tuple[NDFFunction, bool]:
 
 
 def proxy_ndf(source: BRDFSource) -> tuple[NDFFunction, bool]:
-    """``(D, isotropic)``: :func:`ndf_function`'s D and whether the export treats the source as isotropic."""
+    """:func:`ndf_function`'s D and whether the export treats the source as isotropic.
+
+    Parameters
+    ----------
+    source
+        Any BRDF.
+
+    Returns
+    -------
+    d_fn : callable
+        ``D(m)``, as :func:`ndf_function` returns it.
+    isotropic : bool
+        The source's ``isotropic`` flag, or D varying by < 2 % around every ring.
+    """
     d_fn, _ = ndf_function(source)
     return d_fn, bool(getattr(source, "isotropic", False)) or _looks_isotropic(d_fn)
 
@@ -470,6 +519,28 @@ def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | 
 
     ``isotropic=None`` follows the source (its ``isotropic`` attribute, or an NDF that
     varies by < 2 % around every ring).
+
+    Parameters
+    ----------
+    source
+        Any BRDF (sr⁻¹).
+    grid
+        Table resolutions and warp settings.
+    isotropic
+        Write an isotropic file (True), an anisotropic one (False) or follow the source (None).
+    description
+        The file's description line; :func:`export_description` if None.
+
+    Returns
+    -------
+    dict of str to ndarray
+        The fields ``description``, ``phi_i``, ``theta_i``, ``ndf``, ``sigma``, ``vndf``,
+        ``luminance``, ``rgb`` and ``jacobian``, in the dtypes of Mitsuba's reader.
+
+    Raises
+    ------
+    ValueError
+        When the source gives non-finite values.
     """
     d_fn, iso_guess = proxy_ndf(source)
     iso = iso_guess if isotropic is None else bool(isotropic)
@@ -502,7 +573,20 @@ def _capture_info(source: BRDFSource) -> dict[str, str]:
 
 
 def export_description(source: BRDFSource, isotropic: bool) -> str:
-    """One line naming the material, its capture, its parameters and the reflecto version."""
+    """One line naming the material, its capture, its parameters and the reflecto version.
+
+    Parameters
+    ----------
+    source
+        The exported BRDF.
+    isotropic
+        Whether the file is written isotropic.
+
+    Returns
+    -------
+    str
+        The description stored in the file.
+    """
 
     info = _capture_info(source)
     parts = [f"reflecto {__version__} export of {source.name}"]
@@ -534,6 +618,24 @@ def export_rgl(source: BRDFSource, path: str | Path, grid: RGLGrid = RGLGrid(), 
     The file is read back by reflecto's own reader (:class:`reflecto.sources.rgl.RGLBRDF`,
     with the checks of docs/limits.md) before it takes its name: reflecto writes only
     what it reads.
+
+    Parameters
+    ----------
+    source
+        Any BRDF (sr⁻¹); a model's own NDF shapes the file's warp.
+    path
+        The ``.bsdf`` file to write (Mitsuba 3's ``measured`` plugin reads it; docs/mitsuba.md).
+    grid
+        Table resolutions and warp settings.
+    isotropic
+        Write an isotropic file (True), an anisotropic one (False) or follow the source (None).
+    description
+        The file's description line; :func:`export_description` if None.
+
+    Returns
+    -------
+    Path
+        ``path``.
 
     Raises
     ------

@@ -96,8 +96,19 @@ class Calibration:
     report: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def pixel_geometry(self) -> tuple[Array, NDArray[np.bool_], NDArray[np.intp], NDArray[np.intp], Array]:
-        """Pixel directions ``(H, W, 3)``, cone mask, its ``rows, cols`` and the scale
-        at those pixels ``(L, P, 3)`` (cached: computed once per calibration)."""
+        """The calibrated pixel geometry (cached: computed once per calibration).
+
+        Returns
+        -------
+        dirs : ndarray, shape (H, W, 3)
+            Unit view direction of every pixel (local frame).
+        mask : ndarray of bool, shape (H, W)
+            Pixels inside the view cone.
+        rows, cols : ndarray of intp, shape (P,)
+            The indices of the ``P`` pixels of ``mask``.
+        scale : ndarray, shape (L, P, 3)
+            The radiometric scale at those pixels (DN/ms per sr⁻¹), float64.
+        """
         cached = self.__dict__.get("_geom")
         if cached is None:
             dirs, mask = self.optics.pixel_directions()
@@ -107,9 +118,15 @@ class Calibration:
         return cached
 
     def scale_luminance(self) -> tuple[NDArray[np.bool_], Array]:
-        """At the view-cone pixels of :meth:`pixel_geometry`: whether the scale is > 0 in
-        every channel ``(L, P)`` and its luminance ``scale · LUM`` ``(L, P)`` (DN/ms per
-        sr⁻¹), cached with it."""
+        """The scale's validity and luminance at the view-cone pixels of :meth:`pixel_geometry` (cached).
+
+        Returns
+        -------
+        positive : ndarray of bool, shape (L, P)
+            Whether the scale is > 0 in every channel.
+        luminance : ndarray, shape (L, P)
+            ``scale · LUM`` (DN/ms per sr⁻¹), :data:`reflecto.colour.LUM` weights.
+        """
         cached = self.__dict__.get("_scale_lum")
         if cached is None:
 
@@ -126,6 +143,16 @@ class Calibration:
         the calibrated optics and LED directions, the report, each array's dtype,
         shape and SHA-256 (``arrays``) and the SHA-256 of its own canonical form
         without that entry (``sha256``): a damaged byte anywhere is refused on load.
+
+        Parameters
+        ----------
+        path
+            The file to write (conventionally ``.npz``).
+
+        Returns
+        -------
+        Path
+            ``path``.
         """
 
         arrays = {"scale": self.scale.astype(np.float32)}
@@ -161,6 +188,21 @@ class Calibration:
         descriptions, the LED directions (finite unit vectors above the horizon,
         within :data:`MAX_LED_OFFSET_DEG` of the nominal design), and the scale and
         response arrays' headers, shapes and values.
+
+        Parameters
+        ----------
+        path
+            A calibration file written by :meth:`save`.
+
+        Returns
+        -------
+        Calibration
+            The calibration.
+
+        Raises
+        ------
+        FileFormatError
+            Naming the file and the first check that failed.
         """
 
         path = Path(path)
@@ -266,9 +308,22 @@ def _checked_leds(path: Path, value: Any, device: Device) -> Array:
 
 
 def led_problem(leds: Array, nominal: Array, index: list[int] | None = None) -> str | None:
-    """Why calibrated LED directions ``(K, 3)`` cannot be right (None if they can).
+    """Why calibrated LED directions cannot be right (None if they can).
 
-    ``nominal`` are the design's directions of the same LEDs, ``index`` their numbers.
+    Parameters
+    ----------
+    leds : ndarray, shape (K, 3)
+        Calibrated directions.
+    nominal : ndarray, shape (K, 3)
+        The design's directions of the same LEDs.
+    index
+        The LEDs' numbers, for the message; ``0..K−1`` if omitted.
+
+    Returns
+    -------
+    str or None
+        The first problem (not finite, not unit, at or below the horizon, more than
+        :data:`MAX_LED_OFFSET_DEG` from nominal), or None.
     """
     index = list(range(len(leds))) if index is None else index
     if not np.all(np.isfinite(leds)):
@@ -295,6 +350,16 @@ def needs_calibration(device: Device) -> bool:
     nominal calibration; ``as-built``, ``wide-as-built``, device files and real devices
     differ from their nominal optics, LEDs and vignetting in ways only a calibration
     recovers.
+
+    Parameters
+    ----------
+    device
+        The capture's device.
+
+    Returns
+    -------
+    bool
+        False only for a device whose nominal form is that of a built-in nominal device.
     """
     nominal = device.nominal()
     return all(nominal != Device.builtin(name).nominal() for name in NOMINAL_DEVICES)
@@ -305,8 +370,26 @@ NOMINAL_DEVICES = ("ideal", "earlier", "wide")
 
 
 def nominal_calibration(device: Device) -> Calibration:
-    """The calibration implied by the nominal device (no measurement): ideal optics,
-    nominal LEDs, scale ``sensitivity/gain · E_l cos θ_l = sensitivity/gain`` everywhere."""
+    """The calibration implied by the nominal device (no measurement).
+
+    Ideal optics, nominal LEDs, scale ``sensitivity/gain · E_l cos θ_l`` everywhere in
+    the view disc, 0 at views the device occludes.
+
+    Parameters
+    ----------
+    device
+        The device (its nominal form is used).
+
+    Returns
+    -------
+    Calibration
+        With ``report = {"kind": "nominal"}`` and no response curve.
+
+    Raises
+    ------
+    CaptureError
+        For a gamma-encoded camera, which needs a measured calibration.
+    """
     device = device.nominal()
     cam = device.camera
     if cam.response != "linear":
@@ -342,6 +425,20 @@ def smooth_field(values: Array, ok: NDArray[np.bool_], sigma: float) -> Array:
     one-sided for a plane (less than a tenth of a full window's weight, or a 3×3
     system with a condition number above 10⁶) take the local mean; pixels with less
     than 10⁻³ of it, 0.
+
+    Parameters
+    ----------
+    values : ndarray, shape (H, W, C)
+        The raw field (e.g. DN/ms per sr⁻¹ per pixel).
+    ok : ndarray of bool, shape (H, W)
+        Pixels that carry data.
+    sigma
+        Gaussian σ in pixels (:data:`FIELD_SMOOTHING_PX`).
+
+    Returns
+    -------
+    ndarray, shape (H, W, C)
+        The smoothed field.
     """
     g, gx, gxx = _gaussian_moments(sigma)
 
@@ -368,7 +465,25 @@ def smooth_field(values: Array, ok: NDArray[np.bool_], sigma: float) -> Array:
 
 # ------------------------------------------------------------------ geometry
 def detect_spots(img: NDArray[np.integer], black: float, min_peak: float) -> Array:
-    """Intensity-weighted centroids ``(u, v)`` of bright spots in a raw image."""
+    """Intensity-weighted centroids of bright spots in a raw image.
+
+    Pixels brighter than 20 % of the peak (at least ``min_peak``) above black form the
+    spots (8-connected); each centroid is refined on a 7 × 7 window.
+
+    Parameters
+    ----------
+    img : ndarray, shape (H, W, 3)
+        Raw frame (DN).
+    black
+        Black level (DN).
+    min_peak
+        Smallest peak (DN above black) the threshold is taken from.
+
+    Returns
+    -------
+    ndarray, shape (K, 2)
+        ``(u, v)`` pixel coordinates (column, row) of the ``K`` spots.
+    """
     lum = img.astype(np.float64).mean(axis=-1) - black
     mask = lum > 0.2 * max(float(lum.max()), min_peak)
     n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
@@ -403,6 +518,22 @@ def fit_optics(nominal: Optics, directions: list[Array], spots: list[Array]) -> 
     the detected centroids (any order). Spots are matched to rays by nearest predicted
     position, first in the central part of the image (where distortion is small) and
     then everywhere, refitting in between.
+
+    Parameters
+    ----------
+    nominal
+        The design optics: the start of the fit and the fixed parameters.
+    directions
+        Per image, the known ray directions, shape ``(M_k, 3)``.
+    spots
+        Per image, the detected centroids ``(u, v)``, shape ``(K_k, 2)``.
+
+    Returns
+    -------
+    optics : Optics
+        The fitted optics.
+    report : dict
+        ``spots_used`` and ``reprojection_rms_px`` (pixels).
     """
     cx, cy = nominal.principal_point
     p = np.array([nominal.f, cx, cy, nominal.k1, nominal.k2, nominal.roll_deg])
@@ -487,6 +618,24 @@ def read_calibration_manifest(calib_dir: Path) -> tuple[dict[str, Any], Device]:
     Files named in it must be plain names inside the folder (also after following
     links); ray and mirror-normal directions finite unit vectors above the sample
     plane; mirror LED indices distinct and within the device's LEDs.
+
+    Parameters
+    ----------
+    calib_dir
+        The calibration folder.
+
+    Returns
+    -------
+    meta : dict
+        The manifest, each entry completed with its checked paths and directions
+        (keys ``_path``, ``_dirs``, ``_normal``).
+    device : Device
+        The device it describes.
+
+    Raises
+    ------
+    CaptureError, FileFormatError
+        Naming the manifest and the problem.
     """
 
     mpath = calib_dir / "calibration.json"
@@ -536,6 +685,20 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
     :data:`MAX_REPROJECTION_RMS_PX`, an LED moved more than :data:`MAX_LED_OFFSET_DEG`
     from its nominal direction, a white standard that reads no signal over most of
     the view disc under some LED.
+
+    Parameters
+    ----------
+    calib_dir
+        A calibration folder (``calibration.json``, grid and mirror images, a ``white``
+        capture of a Lambertian standard).
+    progress
+        Show progress bars.
+
+    Returns
+    -------
+    Calibration
+        Fitted optics, LED directions and the radiometric scale (DN/ms per sr⁻¹), with
+        the fits' residuals in ``report``.
     """
     calib_dir = Path(calib_dir)
     mpath = calib_dir / "calibration.json"
@@ -640,6 +803,23 @@ def load_calibration(path: str | Path, device: Device) -> Calibration:
 
     Refuses a calibration made for a different device design (LED count, camera). A
     file is read and checked once per process while it stays unchanged (:func:`_load_cached`).
+
+    Parameters
+    ----------
+    path
+        A calibration file (:meth:`Calibration.save`).
+    device
+        The device of the capture it is for.
+
+    Returns
+    -------
+    Calibration
+        The calibration.
+
+    Raises
+    ------
+    FileFormatError
+        For a damaged file or one made for another device design.
     """
     cal = _load_cached(Path(path))
     if cal.device.n_leds != device.n_leds or cal.device.camera != device.camera:

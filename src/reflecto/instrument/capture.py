@@ -120,7 +120,20 @@ def frame_name(led: int, exposure_ms: float, check: bool = False) -> str:
 
 
 def expects_check_frames(device: Device, kind: str) -> bool:
-    """Check frames belong to sample captures of a device that takes them."""
+    """Whether a capture of ``kind`` by ``device`` has check frames.
+
+    Parameters
+    ----------
+    device
+        The capture's device.
+    kind
+        ``"sample"`` or a calibration kind.
+
+    Returns
+    -------
+    bool
+        True for sample captures of a device with ``check_leds``.
+    """
     return kind == "sample" and bool(device.check_leds)
 
 
@@ -221,6 +234,25 @@ def read_image(path: Path, shape: tuple[int, int], dtype: type) -> NDArray[np.in
     the image is decoded, so a header claiming a huge image costs nothing; the file
     itself may be at most twice the size of its pixels plus 1 MiB. Decoded by
     :func:`_decode_png` (interlaced files by OpenCV).
+
+    Parameters
+    ----------
+    path
+        The PNG file.
+    shape
+        Expected ``(height, width)``.
+    dtype
+        Expected pixel type: ``np.uint16`` or ``np.uint8``.
+
+    Returns
+    -------
+    ndarray, shape (height, width, 3)
+        The pixels, RGB order, ``dtype``.
+
+    Raises
+    ------
+    CaptureError
+        Naming the file, for a missing, unreadable or mismatched image.
     """
 
     if not path.exists() and not path.is_symlink():
@@ -244,14 +276,42 @@ def read_image(path: Path, shape: tuple[int, int], dtype: type) -> NDArray[np.in
 
 
 def atomic_dir(path: str | Path):
-    """Yield a temporary folder beside ``path``; it replaces ``path`` on success
-    (see :func:`reflecto.io.atomic_folder`: umask permissions, no folder left on failure)."""
+    """Yield a temporary folder beside ``path``; it replaces ``path`` on success.
+
+    See :func:`reflecto.io.atomic_folder`: umask permissions, no folder left on failure.
+
+    Parameters
+    ----------
+    path
+        The folder to create or replace.
+
+    Returns
+    -------
+    contextmanager
+        Entered, it gives the temporary folder's path.
+    """
 
     return atomic_folder(path)
 
 
 def write_capture(capture: Capture, out_dir: str | Path) -> Path:
-    """Write frames and manifest into ``out_dir`` atomically (all or nothing)."""
+    """Write frames and manifest into ``out_dir`` atomically (all or nothing).
+
+    One PNG per LED and exposure (:func:`frame_name`), check frames where the device
+    takes them, and ``capture.json`` (docs/capture-format.md).
+
+    Parameters
+    ----------
+    capture
+        The capture (e.g. from :func:`reflecto.instrument.simulate_capture`).
+    out_dir
+        The capture folder to create or replace.
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+    """
     out_dir = Path(out_dir)
     dev = capture.device
     h, w = capture.raw.shape[2:4]
@@ -344,6 +404,21 @@ def read_capture(cap_dir: str | Path) -> Capture:
     ranges, the device (:meth:`Device.from_dict`), the frame list against the
     device, every frame name (a plain name inside the folder, also after following
     links), the capture's size (:data:`MAX_CAPTURE_BYTES`) and each PNG header.
+
+    Parameters
+    ----------
+    cap_dir
+        A capture folder (``capture.json`` and its PNG frames).
+
+    Returns
+    -------
+    Capture
+        Raw frames ``(L, E, H, W, 3)``, exposures (ms), device, kind, rotation and check frames.
+
+    Raises
+    ------
+    CaptureError, FileFormatError
+        Naming the file and the problem.
     """
     cap_dir = Path(cap_dir)
     m = read_manifest(cap_dir)
@@ -436,6 +511,16 @@ def check_saturation(cap: Capture) -> None:
     A pixel of the nominal optics' view disc (:meth:`Optics.view_pixels`) is saturated
     when its largest channel reads ≥ 0.95 of the ADC range; an LED fails when more than
     99 % of the disc is saturated in each of its exposures.
+
+    Parameters
+    ----------
+    cap
+        The capture.
+
+    Raises
+    ------
+    CaptureError
+        Naming the LED.
     """
     cam = cap.device.camera
     sat = 0.95 * cam.max_value

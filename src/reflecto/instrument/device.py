@@ -78,6 +78,16 @@ def steep_last_order(led_angles: Sequence[Sequence[float]]) -> tuple[int, ...]:
     A hand shake moves the sample for every LED fired after it; with the steep LEDs last,
     any shake turns at least one slice whose mirror plane can be located. For the
     default layout this is :data:`DEFAULT_FIRING_ORDER`.
+
+    Parameters
+    ----------
+    led_angles
+        Per LED, ``(elevation, azimuth)`` in degrees.
+
+    Returns
+    -------
+    tuple of int
+        LED indices in firing order.
     """
     el = [float(a[0]) for a in led_angles]
     flat = [k for k in range(len(el)) if el[k] < STEEP_ELEVATION_DEG]
@@ -153,6 +163,23 @@ def validate_optics_dict(d: Any, where: str) -> Optics:
     Sensor sides must be integers in [8, :data:`MAX_SENSOR_SIDE`] with at most
     :data:`MAX_SENSOR_PIXELS` pixels in all, so that no image allocation follows from
     a hostile size.
+
+    Parameters
+    ----------
+    d
+        The optics description (the keys of :meth:`Optics.to_dict`).
+    where
+        Where it came from, for messages (``"device.optics"``).
+
+    Returns
+    -------
+    Optics
+        The optics.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``where`` and the key.
     """
     if not isinstance(d, dict):
         raise ParameterError(f"{where} must be a table/object, got {short_repr(d)}")
@@ -316,7 +343,13 @@ class DeviceTruth:
     transmission: dict[str, float]
 
     def transmission_field(self) -> Array:
-        """T per pixel, shape ``(height, width)``, in [floor, 1]."""
+        """The transmission field at every pixel centre.
+
+        Returns
+        -------
+        ndarray, shape (height, width)
+            ``T = floor + (1 − floor)·exp(−((u−u0)/su)² − ((v−v0)/sv)²)``, in [floor, 1].
+        """
         t = self.transmission
         v, u = np.mgrid[0 : self.optics.height, 0 : self.optics.width].astype(np.float64)
         g = np.exp(-(((u - t["u0"]) / t["su"]) ** 2) - ((v - t["v0"]) / t["sv"]) ** 2)
@@ -328,7 +361,13 @@ class DeviceTruth:
         return led_direction(*np.asarray(self.led_angles, dtype=np.float64).T)
 
     def to_dict(self) -> dict[str, Any]:
-        """The truth as JSON-ready data (keys ``optics``, ``led_angles``, ``led_intensity``, ``transmission``)."""
+        """The truth as JSON-ready data.
+
+        Returns
+        -------
+        dict
+            Keys ``optics``, ``led_angles``, ``led_intensity``, ``transmission``.
+        """
         return {
             "optics": self.optics.to_dict(),
             "led_angles": [list(a) for a in self.led_angles],
@@ -410,13 +449,30 @@ class Device:
         return 1.0 / np.sin(np.radians([a[0] for a in self.led_angles]))
 
     def occluded(self, view_dirs: Array) -> NDArray[np.bool_]:
-        """Views blocked by the occluder (within :attr:`occluder_deg` of the axis)."""
+        """Views blocked by the occluder (within :attr:`occluder_deg` of the optical axis).
+
+        Parameters
+        ----------
+        view_dirs : ndarray, shape (..., 3)
+            Unit view directions in the device frame.
+
+        Returns
+        -------
+        ndarray of bool, shape (...)
+            True where the view is blocked (all False without an occluder).
+        """
         if self.occluder_deg <= 0:
             return np.zeros(np.shape(view_dirs)[:-1], bool)
         return view_dirs @ self.optics.axis > math.cos(math.radians(self.occluder_deg))
 
     def nominal(self) -> Device:
-        """This device without its truth: what the pipeline may know."""
+        """This device without its truth: what the pipeline may know.
+
+        Returns
+        -------
+        Device
+            A copy with ``truth=None``.
+        """
         return dataclasses.replace(self, truth=None)
 
     def to_dict(self, with_truth: bool = False) -> dict[str, Any]:
@@ -454,8 +510,27 @@ class Device:
     # ------------------------------------------------------------- factories
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "device") -> Device:
-        """A device from its description dict; every entry's type and range is checked
-        (see :func:`validate_optics_dict` and the limits in docs/limits.md)."""
+        """A device from its description dict; every entry's type and range is checked.
+
+        See :func:`validate_optics_dict` and the limits in docs/limits.md.
+
+        Parameters
+        ----------
+        d
+            The keys of :meth:`to_dict` (each optional: defaults are the ``ideal`` device's).
+        where
+            Where it came from, for messages.
+
+        Returns
+        -------
+        Device
+            The device.
+
+        Raises
+        ------
+        ParameterError
+            Naming ``where`` and the entry.
+        """
         known = {"name", "optics", "leds", "camera", "truth", "occluder_deg", "firing_order", "check_leds"}
         if not isinstance(d, dict):
             raise ParameterError(f"{where}: expected a table/object")
@@ -523,6 +598,22 @@ class Device:
         more as the check frame. ``ideal``: nominal optics and a noiseless camera, as
         ``ideal``; otherwise the as-built imperfections of ``as-built`` (the same seeded
         draws of LED, optics and vignetting errors), scaled to these optics.
+
+        Parameters
+        ----------
+        name
+            The device's name.
+        optics
+            The optical design.
+        led_angles
+            Per LED, ``(elevation, azimuth)`` in degrees.
+        ideal
+            Nominal optics and a noiseless camera (else as-built imperfections).
+
+        Returns
+        -------
+        Device
+            The device.
         """
         angles = tuple((float(a[0]), float(a[1])) for a in led_angles)
         order = steep_last_order(angles)
@@ -602,7 +693,24 @@ BUILTINS = ("ideal", "as-built", "earlier", "wide", "wide-as-built")
 
 
 def load_device(spec: str | Path) -> Device:
-    """A built-in device by name or a JSON/TOML description file."""
+    """A built-in device by name or a JSON/TOML description file.
+
+    Parameters
+    ----------
+    spec
+        One of :data:`BUILTINS` (``ideal``, ``as-built``, ``earlier``, ``wide``,
+        ``wide-as-built``) or the path of a device file (docs/instrument.md).
+
+    Returns
+    -------
+    Device
+        The device.
+
+    Raises
+    ------
+    FileFormatError
+        For a missing or invalid device file.
+    """
     if str(spec) in BUILTINS:
         return Device.builtin(str(spec))
     path = Path(spec)

@@ -73,6 +73,32 @@ def merge_linear_pixels(
     A pixel is saturated if any channel is, so colour ratios stay unbiased.
     (Weights ``w_j = t_j`` make the merge ``Σ_j signal_j / Σ_j t_j`` over the used
     exposures.)
+
+    Parameters
+    ----------
+    raw : ndarray, shape (L, E, H, W, 3)
+        Raw frames (DN).
+    exposures_ms : ndarray, shape (E,)
+        Exposure times, ms.
+    camera
+        Black level and ADC range (saturation), noise model.
+    rows, cols : ndarray of intp, shape (P,)
+        The pixels to merge.
+    noise
+        Also return the noise model's standard deviation and the summed exposure time.
+
+    Returns
+    -------
+    radiance : ndarray, shape (L, P, 3)
+        DN/ms above black.
+    valid : ndarray of bool, shape (L, P)
+        Some exposure of the pixel is usable (unsaturated in every channel).
+    black : ndarray of bool, shape (L, P)
+        The value rests on a near-black longest exposure.
+    noise_sd : ndarray, shape (L, P)
+        Only with ``noise``: standard deviation of the merged luminance, DN/ms.
+    t_sum : ndarray, shape (L, P)
+        Only with ``noise``: summed exposure time of the used exposures, ms.
     """
     if raw.ndim != 5 or raw.shape[-1] != 3:
         raise ValueError(f"raw frames must have shape (L, E, H, W, 3), got {raw.shape}")
@@ -100,7 +126,23 @@ def merge_noise(radiance: Array, t_sum: Array, n_used: Array, camera: Camera) ->
     ``(n (r² + 1/12) + L Σt / g) / (Σt)²``: read noise ``r`` (DN RMS, per exposure),
     the uniform quantization error of 1 DN (1/12 DN², also on a noiseless camera) and
     the photon shot noise of the ``L Σt`` collected DN (variance ``DN / g`` for ``g``
-    electrons per DN). ``radiance`` (L, P, 3) in DN/ms; ``t_sum``, ``n_used`` (L, P).
+    electrons per DN).
+
+    Parameters
+    ----------
+    radiance : ndarray, shape (L, P, 3)
+        Merged radiance, DN/ms.
+    t_sum : ndarray, shape (L, P)
+        Summed exposure time of the used exposures, ms.
+    n_used : ndarray, shape (L, P)
+        Number of used exposures.
+    camera
+        Read noise, gain and whether shot noise is simulated.
+
+    Returns
+    -------
+    ndarray, shape (L, P)
+        Standard deviation of the merged luminance, DN/ms.
     """
 
     read_dn = camera.read_noise / camera.gain
@@ -119,14 +161,39 @@ def merge_noise(radiance: Array, t_sum: Array, n_used: Array, camera: Camera) ->
 
 
 def dithered(camera: Camera) -> bool:
-    """Whether the camera's read noise dithers its quantization (≥ :data:`DITHER_DN` DN RMS)."""
+    """Whether the camera's read noise dithers its quantization.
+
+    Parameters
+    ----------
+    camera
+        The camera.
+
+    Returns
+    -------
+    bool
+        Read noise ≥ :data:`DITHER_DN` DN RMS.
+    """
     return camera.read_noise / camera.gain >= DITHER_DN
 
 
 def merge_linear(raw: NDArray[np.integer], exposures_ms: Array, camera: Camera) -> tuple[Array, NDArray[np.bool_]]:
-    """Merge raw exposures ``(L, E, H, W, 3)`` of a linear camera, every pixel.
+    """Merge raw exposures of a linear camera, every pixel (:func:`merge_linear_pixels`).
 
-    Returns ``(radiance, valid)``: DN/ms, shape ``(L, H, W, 3)``; mask ``(L, H, W)``.
+    Parameters
+    ----------
+    raw : ndarray, shape (L, E, H, W, 3)
+        Raw frames (DN).
+    exposures_ms : ndarray, shape (E,)
+        Exposure times, ms.
+    camera
+        The camera.
+
+    Returns
+    -------
+    radiance : ndarray, shape (L, H, W, 3)
+        DN/ms above black.
+    valid : ndarray of bool, shape (L, H, W)
+        Pixels with a usable exposure.
     """
     h, w = raw.shape[2:4]
     rows, cols = np.divmod(np.arange(h * w), w)
@@ -142,6 +209,23 @@ def recover_response(
     ``raw`` has shape ``(N, E, H, W, 3)``: N scenes (e.g. the white target under each
     LED) with E exposures each. OpenCV samples pixels on a regular grid, so ``window``
     (rows, cols) restricts it to the lit part of the image.
+
+    Parameters
+    ----------
+    raw : ndarray of uint8, shape (N, E, H, W, 3)
+        The exposure sweeps.
+    exposures_ms : ndarray, shape (E,)
+        Exposure times, ms.
+    samples
+        Pixels OpenCV samples.
+    window
+        ``(rows, cols)`` slices of the lit region, or None for the whole image.
+
+    Returns
+    -------
+    ndarray, shape (256, 3)
+        Inverse response per 8-bit level and RGB channel (relative linear units; OpenCV's
+        ``CalibrateDebevec`` with the times in seconds).
     """
 
     cal = cv2.createCalibrateDebevec(samples=samples, lambda_=10.0, random=False)
@@ -161,6 +245,22 @@ def merge_debevec(raw: NDArray[np.integer], exposures_ms: Array, response: Array
     Unlike OpenCV's ``MergeDebevec`` (whose hat weight is never zero, so clipped pixels
     leak in — algorithm-reference §7.1), clipped (255) and black (0) levels get zero
     weight here; the hat weight is per channel.
+
+    Parameters
+    ----------
+    raw : ndarray, shape (L, E, H, W, 3)
+        8-bit raw frames.
+    exposures_ms : ndarray, shape (E,)
+        Exposure times, ms.
+    response : ndarray, shape (256, 3)
+        Inverse response (:func:`recover_response`).
+
+    Returns
+    -------
+    radiance : ndarray, shape (L, H, W, 3)
+        Weighted mean of ``response[z]/t`` over the exposures.
+    valid : ndarray of bool, shape (L, H, W)
+        Pixels with weight in every channel.
     """
     z = raw.astype(np.intp)
     lev = np.arange(256, dtype=np.float64)

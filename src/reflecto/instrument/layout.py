@@ -45,14 +45,38 @@ MIN_VIEW_COS = 0.05
 
 
 def led_direction(elevation_deg: ArrayLike, azimuth_deg: ArrayLike) -> Array:
-    """Unit LED direction(s) from elevation above the sample plane and azimuth (degrees)."""
+    """Unit LED direction(s) ``(cos el cos az, cos el sin az, sin el)``.
+
+    Parameters
+    ----------
+    elevation_deg : array_like
+        Elevation above the sample plane, degrees.
+    azimuth_deg : array_like
+        Azimuth from +x, degrees; broadcast against ``elevation_deg``.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Unit directions in the device frame.
+    """
     el = np.radians(np.asarray(elevation_deg, dtype=np.float64))
     az = np.radians(np.asarray(azimuth_deg, dtype=np.float64))
     return np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=-1)
 
 
 def led_angles(dirs: ArrayLike) -> Array:
-    """Inverse of :func:`led_direction`: ``(elevation, azimuth)`` in degrees, shape ``(..., 2)``."""
+    """Inverse of :func:`led_direction`.
+
+    Parameters
+    ----------
+    dirs : array_like, shape (..., 3)
+        Directions (normalized here).
+
+    Returns
+    -------
+    ndarray, shape (..., 2)
+        ``(elevation, azimuth)`` in degrees, azimuth in [0, 360).
+    """
     d = geometry.normalize(dirs)
     el = np.degrees(np.arcsin(np.clip(d[..., 2], -1.0, 1.0)))
     az = np.degrees(np.arctan2(d[..., 1], d[..., 0])) % 360.0
@@ -69,6 +93,16 @@ def first_led(optics: Optics) -> Array:
     an 85° LED at azimuth offset ``φ`` from the axis obeys
     ``cos γ = sin t sin 85° cos φ + cos t cos 85°``, so ``γ ≥ cone + margin`` first holds
     at ``cos φ = (cos(cone + margin) − cos t cos 85°) / (sin t sin 85°)``.
+
+    Parameters
+    ----------
+    optics
+        The condenser optics (axis tilt, azimuth and cone).
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        The unit direction of ``l0`` in the device frame.
     """
     el = math.radians(MIN_ELEVATION_DEG)
     t = math.radians(optics.axis_tilt_deg)
@@ -86,6 +120,21 @@ def layout_violations(optics: Optics, leds: ArrayLike, occluder_deg: float = 0.0
 
     LEDs inside a declared central occluder (``occluder_deg`` around the axis, whose
     views the device gives up) are allowed there.
+
+    Parameters
+    ----------
+    optics
+        The condenser optics.
+    leds : array_like, shape (L, 3)
+        LED directions (normalized here).
+    occluder_deg
+        Half angle of a central occluder, degrees (0: none).
+
+    Returns
+    -------
+    list of str
+        One sentence per broken constraint (elevation below 5°, inside the view cone
+        plus the tube margin).
     """
     leds = geometry.normalize(np.atleast_2d(leds))
     out = []
@@ -106,7 +155,22 @@ def layout_violations(optics: Optics, leds: ArrayLike, occluder_deg: float = 0.0
 
 
 def coverage_masks(optics: Optics, leds: ArrayLike, cube: Hemicube) -> NDArray[np.bool_]:
-    """Texels of ``cube`` whose half vector each LED's slice observes, shape ``(L, size)``."""
+    """Texels of ``cube`` whose half vector each LED's slice observes.
+
+    Parameters
+    ----------
+    optics
+        The condenser optics (view cone).
+    leds : array_like, shape (L, 3)
+        LED directions.
+    cube
+        The hemicube of half vectors.
+
+    Returns
+    -------
+    ndarray of bool, shape (L, cube.size)
+        True where the mirror view ``R_h(l)`` lies in the view cone above the grazing limit.
+    """
     leds = geometry.normalize(np.atleast_2d(leds))
     h = cube.directions
     lh = leds @ h.T  # (L, T)
@@ -156,7 +220,14 @@ class Coverage:
         return bool(np.all(off.max(axis=1) > 0))
 
     def to_dict(self) -> dict[str, Any]:
-        """The coverage numbers as JSON-ready data (fractions rounded to 4 digits, the overlap matrix)."""
+        """The coverage numbers as JSON-ready data.
+
+        Returns
+        -------
+        dict
+            Fractions rounded to 4 digits, the overlap matrix and the θ_d spreads (degrees,
+            NaN as 0); no masks.
+        """
         return {
             "theta_max_deg": self.theta_max_deg,
             "per_led": [round(float(x), 4) for x in self.per_led],
@@ -177,6 +248,20 @@ def reachable_mask(optics: Optics, cube: Hemicube, n_views: int = 4000) -> NDArr
     legal LED direction. Views are a deterministic Fibonacci set over the cone. The
     result depends on the optics' geometry alone and is cached per geometry (≈ 5 s at
     N = 64; the design study asks for it once per layout).
+
+    Parameters
+    ----------
+    optics
+        The condenser optics.
+    cube
+        The hemicube of half vectors.
+    n_views
+        Views sampled over the cone.
+
+    Returns
+    -------
+    ndarray of bool, shape (cube.size,)
+        The reachable texels (a copy of the cached mask).
     """
     key = (optics.axis_tilt_deg, optics.axis_azimuth_deg, optics.cone_half_angle_deg, optics.roll_deg)
     return _reachable(key, cube.n, n_views).copy()
@@ -207,7 +292,25 @@ def _reachable(key: tuple[float, float, float, float], n: int, n_views: int) -> 
 
 
 def coverage(optics: Optics, leds: ArrayLike, resolution: int = 64, theta_max_deg: float = 80.0) -> Coverage:
-    """Coverage analysis of a layout on a ``resolution`` hemicube (see :class:`Coverage`)."""
+    """Coverage analysis of a layout on a ``resolution`` hemicube (§4.1, Figure 2c–d).
+
+    Parameters
+    ----------
+    optics
+        The condenser optics.
+    leds : array_like, shape (L, 3)
+        LED directions in the device frame.
+    resolution
+        Hemicube resolution of the analysis.
+    theta_max_deg
+        The NDF cap θ_h ≤ θ_max whose solid angle the fractions refer to, degrees.
+
+    Returns
+    -------
+    Coverage
+        Per-LED, union, after-τ (eq. 3) and after-mirrors fractions, the pairwise
+        overlaps and θ_d spreads, the reachable upper bound and the masks.
+    """
     cube = hemicube(resolution)
     leds = geometry.normalize(np.atleast_2d(leds))
     masks = coverage_masks(optics, leds, cube)
@@ -255,6 +358,22 @@ def layout_terms(optics: Optics, leds: ArrayLike, cube: Hemicube,
     * ``small_theta_d``: the cap where some slice sees θ_d ≤ 25° — near-normal
       incidence, which carries most of the weight of the eq. 10 error and which the
       model otherwise reaches only by extrapolating F and S.
+
+    Parameters
+    ----------
+    optics
+        The condenser optics.
+    leds : array_like, shape (L, 3)
+        LED directions.
+    cube
+        The hemicube the fractions are computed on.
+    theta_max_deg
+        θ_max of the coverage cap, degrees.
+
+    Returns
+    -------
+    tuple of float
+        ``(coverage, central, small_theta_d)``.
     """
     leds = geometry.normalize(np.atleast_2d(leds))
     h = cube.directions
@@ -360,7 +479,18 @@ class LayoutObjective:
         self.cos_cone = math.cos(math.radians(optics.cone_half_angle_deg))
 
     def terms(self, leds: ArrayLike) -> tuple[float, float, float, float]:
-        """``(coverage, central, small_theta_d, peak_reach)``, see :func:`objective_terms`."""
+        """The four goals of a layout, see :func:`objective_terms`.
+
+        Parameters
+        ----------
+        leds : array_like, shape (L, 3)
+            LED directions (normalized here).
+
+        Returns
+        -------
+        tuple of float
+            ``(coverage, central, small_theta_d, peak_reach)``, each in [0, 1].
+        """
         leds = np.ascontiguousarray(geometry.normalize(np.atleast_2d(leds)), dtype=np.float64)
         out = np.empty(3)
         _terms_kernel(leds, self.h, self.tau, self.w, self.wc, self.axis, self.cos_cone, MIN_VIEW_COS, out)
@@ -378,6 +508,22 @@ def objective_terms(optics: Optics, leds: ArrayLike, cube: Hemicube,
       Beyond the reach the model extrapolates F and S, and the Fresnel and shadowing
       of measured materials depart most from any curve extrapolated from smaller θ_d.
       The term is continuous in the LED positions (unlike a share of texels).
+
+    Parameters
+    ----------
+    optics
+        The condenser optics.
+    leds : array_like, shape (L, 3)
+        LED directions.
+    cube
+        The hemicube the fractions are computed on.
+    theta_max_deg
+        θ_max of the coverage cap, degrees.
+
+    Returns
+    -------
+    tuple of float
+        ``(coverage, central, small_theta_d, peak_reach)``.
     """
     return LayoutObjective(optics, cube, theta_max_deg).terms(leds)
 
@@ -388,6 +534,20 @@ def peak_theta_d(optics: Optics, leds: ArrayLike, occluder_deg: float = 0.0) -> 
     ``h = n`` is seen by LED ``l`` where its mirror view ``(−l_x, −l_y, l_z)`` lies in
     the view cone (outside an occluder) and above the grazing limit; there
     ``θ_d = θ_l``. The largest value is the design's *θ_d reach at the specular peak*.
+
+    Parameters
+    ----------
+    optics
+        The condenser optics.
+    leds : array_like, shape (L, 3)
+        LED directions.
+    occluder_deg
+        Half angle of a central occluder, degrees (0: none).
+
+    Returns
+    -------
+    ndarray, shape (k,)
+        θ_d in degrees, ascending, for the ``k`` LEDs that see ``h = n``.
     """
     leds = geometry.normalize(np.atleast_2d(leds))
     o = leds * np.array([-1.0, -1.0, 1.0])
@@ -424,7 +584,34 @@ def optimize_layout(
     near-normal incidence is never measured; the default weights trade 4 points of
     coverage for both (docs/instrument.md).
 
-    Returns the LED directions, shape ``(n_leds, 3)``.
+    Parameters
+    ----------
+    optics
+        The condenser optics.
+    n_leds
+        Number of LEDs, ``l0`` included.
+    resolution
+        Hemicube resolution of the goals.
+    theta_max_deg
+        θ_max of the coverage cap, degrees.
+    min_separation_deg
+        Smallest angle between two LEDs, degrees.
+    seed
+        Seed of the differential evolution.
+    maxiter
+        Its generations.
+    weights
+        Three or four weights of the goals.
+
+    Returns
+    -------
+    ndarray, shape (n_leds, 3)
+        LED directions in the device frame, ``l0`` first.
+
+    Raises
+    ------
+    ValueError
+        For a ``weights`` of another length.
     """
 
     if not 3 <= len(weights) <= 4:

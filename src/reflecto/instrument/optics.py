@@ -148,7 +148,13 @@ class Optics:
         return self.axis_frame[2]
 
     def to_dict(self) -> dict[str, Any]:
-        """The optics' fields as a dict (what a device file's ``optics`` table holds)."""
+        """The optics' fields as a dict (what a device file's ``optics`` table holds).
+
+        Returns
+        -------
+        dict
+            Field name → value (``dataclasses.asdict``).
+        """
         return dataclasses.asdict(self)
 
     def replace(self, **changes: Any) -> Optics:
@@ -184,9 +190,21 @@ class Optics:
         return rho
 
     def direction_to_pixel(self, dirs: ArrayLike) -> Array:
-        """Image position ``(u, v)`` (pixels) of view directions, shape ``(..., 2)``.
+        """Image position of view directions: ``r = f·ρ(θ)(1 + k1 ρ² + k2 ρ⁴)`` from the principal point.
 
-        Directions at more than 90° from the optical axis give NaN.
+        ``θ`` is the angle from the optical axis, ``ρ`` the mapping law (sine law for
+        the condenser, algorithm-reference §10.1). Directions at more than 90° from the
+        optical axis give NaN.
+
+        Parameters
+        ----------
+        dirs : array_like, shape (..., 3)
+            Unit view directions in the device frame.
+
+        Returns
+        -------
+        ndarray, shape (..., 2)
+            ``(u, v)`` in pixels (column, row).
         """
         d = np.asarray(dirs, dtype=np.float64)
         loc = d @ self.axis_frame.T
@@ -199,7 +217,18 @@ class Optics:
         return np.stack([cx + r * np.cos(phi), cy + r * np.sin(phi)], axis=-1)
 
     def pixel_to_direction(self, uv: ArrayLike) -> Array:
-        """Unit view direction (device frame) seen at image position ``(u, v)``."""
+        """Unit view direction (device frame) seen at image position ``(u, v)``; inverse of :meth:`direction_to_pixel`.
+
+        Parameters
+        ----------
+        uv : array_like, shape (..., 2)
+            Image positions, pixels.
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Unit directions in the device frame.
+        """
         uv = np.asarray(uv, dtype=np.float64)
         cx, cy = self.principal_point
         du, dv = uv[..., 0] - cx, uv[..., 1] - cy
@@ -211,26 +240,49 @@ class Optics:
         return loc @ self.axis_frame
 
     def pixel_grid(self) -> Array:
-        """Pixel-centre coordinates ``(u, v)``, shape ``(height, width, 2)``."""
+        """Pixel-centre coordinates.
+
+        Returns
+        -------
+        ndarray, shape (height, width, 2)
+            ``(u, v)`` = (column, row) of every pixel.
+        """
         v, u = np.mgrid[0 : self.height, 0 : self.width].astype(np.float64)
         return np.stack([u, v], axis=-1)
 
     def pixel_directions(self) -> tuple[Array, NDArray[np.bool_]]:
         """View direction of every pixel and the mask of pixels inside the view cone.
 
-        Returns ``(dirs, mask)`` with shapes ``(height, width, 3)`` and
-        ``(height, width)``, read-only: computed once per optics (the optics are
-        immutable; :func:`_pixel_directions` keeps the last few).
+        Read-only arrays, computed once per optics (the optics are immutable;
+        :func:`_pixel_directions` keeps the last few).
+
+        Returns
+        -------
+        dirs : ndarray, shape (height, width, 3)
+            Unit view directions in the device frame.
+        mask : ndarray of bool, shape (height, width)
+            Inside the view cone and above the sample plane.
         """
         return _pixel_directions(self)[:2]
 
     def view_pixels(self) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        """``(rows, cols)`` of the pixels inside the view cone, ``np.nonzero(mask)`` of
-        :meth:`pixel_directions`, shape ``(P,)`` each, read-only (cached like it)."""
+        """The pixels inside the view cone (read-only, cached like :meth:`pixel_directions`).
+
+        Returns
+        -------
+        rows, cols : ndarray of intp, shape (P,)
+            ``np.nonzero(mask)`` of :meth:`pixel_directions`.
+        """
         return _pixel_directions(self)[2:]
 
     def pixel_solid_angles(self) -> Array:
-        """Solid angle of each pixel (sr), from the numerical Jacobian of the map."""
+        """Solid angle of each pixel, from the numerical Jacobian of the map.
+
+        Returns
+        -------
+        ndarray, shape (height, width)
+            sr per pixel (``|∂d/∂u × ∂d/∂v|``).
+        """
         uv = self.pixel_grid()
         eps = 0.25
         du = self.pixel_to_direction(uv + [eps, 0]) - self.pixel_to_direction(uv - [eps, 0])
@@ -252,7 +304,25 @@ def _pixel_directions(optics: Optics) -> tuple[Array, NDArray[np.bool_], NDArray
 
 
 def optics_from_dict(d: dict[str, Any], where: str = "optics") -> Optics:
-    """Build :class:`Optics` from a description dict; unknown keys are an error."""
+    """Build :class:`Optics` from a description dict; unknown keys are an error.
+
+    Parameters
+    ----------
+    d
+        Field name → value.
+    where
+        Where it came from, for messages.
+
+    Returns
+    -------
+    Optics
+        The optics (its own ``__post_init__`` checks the values).
+
+    Raises
+    ------
+    ParameterError
+        For unknown keys.
+    """
     fields = {f.name for f in dataclasses.fields(Optics)}
     unknown = set(d) - fields
     if unknown:

@@ -21,6 +21,24 @@ def plot_coverage(optics: Optics, leds: ArrayLike, path: str | Path, resolution:
 
     Half vectors are drawn in the orthographic projection ``(h_x, h_y)`` of the NDF
     hemisphere (the view down the normal); rings every 20° of θ_h.
+
+    Parameters
+    ----------
+    optics
+        The condenser optics.
+    leds : array_like, shape (L, 3)
+        LED directions in the device frame.
+    path
+        The image file to write.
+    resolution
+        Hemicube resolution of the masks.
+    theta_max_deg
+        θ_max of the coverage cap, degrees.
+
+    Returns
+    -------
+    Path
+        ``path``.
     """
     plt = pyplot()
     cube = hemicube(resolution)

@@ -55,14 +55,42 @@ class Pose:
 
     @classmethod
     def from_angles(cls, tilt_deg: float = 0.0, tilt_azimuth_deg: float = 0.0, rotation_deg: float = 0.0) -> Pose:
-        """Normal tilted by ``tilt_deg`` towards ``tilt_azimuth_deg``; tangent turned by ``rotation_deg``."""
+        """Normal tilted by ``tilt_deg`` towards ``tilt_azimuth_deg``; tangent turned by ``rotation_deg``.
+
+        Parameters
+        ----------
+        tilt_deg
+            Angle between the sample normal and the device's +z, degrees.
+        tilt_azimuth_deg
+            Azimuth of the tilt in the device frame, degrees.
+        rotation_deg
+            Azimuth of the tangent hint (projected ⟂ n), degrees.
+
+        Returns
+        -------
+        Pose
+            The pose.
+        """
         t, a, r = (math.radians(v) for v in (tilt_deg, tilt_azimuth_deg, rotation_deg))
         n = np.array([math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), math.cos(t)])
         t0 = np.array([math.cos(r), math.sin(r), 0.0])
         return cls(geometry.frame_from_normal(n, t0))
 
     def rotated(self, axis: ArrayLike, angle_deg: float) -> Pose:
-        """The pose after rotating the sample by ``angle_deg`` about ``axis`` (device frame)."""
+        """The pose after rotating the sample by ``angle_deg`` about ``axis`` (device frame).
+
+        Parameters
+        ----------
+        axis : array_like, shape (3,)
+            Rotation axis in device coordinates (normalized here).
+        angle_deg
+            Rotation angle, degrees (right-hand rule; Rodrigues' formula).
+
+        Returns
+        -------
+        Pose
+            The rotated pose.
+        """
         k = geometry.normalize(axis)
         a = math.radians(angle_deg)
         kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
@@ -100,6 +128,22 @@ def expose(signal: Array, t_ms: float, camera: Camera, rng: np.random.Generator 
 
     Photon and read noise are drawn from ``rng`` (a seeded generator gives identical
     frames); ``rng=None`` or a noiseless camera gives the noiseless image.
+
+    Parameters
+    ----------
+    signal : ndarray
+        Electron rate per pixel and channel, e⁻/ms.
+    t_ms
+        Exposure time, ms.
+    camera
+        Full well, noise, gain, black level, response and ADC range.
+    rng
+        Noise source, or None.
+
+    Returns
+    -------
+    ndarray, shape of ``signal``
+        Raw DN: uint16, or uint8 for a gamma camera.
     """
     sig = np.ascontiguousarray(signal, dtype=np.float64).ravel()
     gamma = camera.gamma if camera.response == "gamma" else 0.0
@@ -123,8 +167,21 @@ def expose(signal: Array, t_ms: float, camera: Camera, rng: np.random.Generator 
 def exposure_times(camera: Camera, peak_rate: float, headroom: float = 0.8) -> tuple[float, ...]:
     """The camera's exposures, shortened (ratios kept) so the peak fills ``headroom`` of the well.
 
-    ``peak_rate``: the brightest pixel's electron rate (e⁻/ms). Without auto-exposure,
-    or when nothing saturates, the nominal times.
+    Without auto-exposure, or when nothing saturates, the nominal times.
+
+    Parameters
+    ----------
+    camera
+        The camera (its ``exposures_ms`` and ``full_well``).
+    peak_rate
+        The brightest pixel's electron rate, e⁻/ms.
+    headroom
+        Fraction of the full well the peak may fill in the shortest exposure.
+
+    Returns
+    -------
+    tuple of float
+        Exposure times, ms.
     """
     times = camera.exposures_ms
     if not camera.auto_exposure or peak_rate <= 0:
@@ -175,6 +232,23 @@ def simulate_capture(
         moved LEDs.
     seed
         Seeds noise, tilt azimuth and shake; equal seeds give identical frames.
+    source
+        The BRDF to measure (sr⁻¹).
+    device
+        The device; its ``truth`` (as-built imperfections), if any, is simulated.
+    source_name
+        Name recorded in the manifest (default: the source's name).
+
+    Returns
+    -------
+    Capture
+        Raw frames ``(L, E, H, W, 3)``, exposures (ms), check frames, and the simulation's
+        provenance (pose, shake) in ``extra``.
+
+    Raises
+    ------
+    ParameterError
+        For a tilt outside [0°, :data:`MAX_TILT_DEG`].
     """
     if not (math.isfinite(tilt_deg) and 0.0 <= tilt_deg <= MAX_TILT_DEG):
         raise ParameterError(f"tilt must be in [0°, {MAX_TILT_DEG}°], got {tilt_deg}")
@@ -263,6 +337,18 @@ def grid_directions(optics: Optics, offset: tuple[float, float]) -> Array:
     The pinholes are laid out so that the rays are evenly spaced in the sine-law image
     (spacing :data:`GRID_SPACING`), shifted by ``offset``; the occluder is mounted on
     the optical axis of the nominal design.
+
+    Parameters
+    ----------
+    optics
+        The optics (cone and axis).
+    offset
+        Shift of the grid in sine-law units ``(x, y)``.
+
+    Returns
+    -------
+    ndarray, shape (M, 3)
+        Unit ray directions in the device frame, within 1° of the cone's rim.
     """
     rim = math.sin(math.radians(optics.cone_half_angle_deg - 1.0))
     g = np.arange(-1.0, 1.0 + 1e-9, GRID_SPACING)
@@ -305,6 +391,22 @@ def simulate_calibration(device: Device, out_dir: str | Path, seed: int = 0, whi
       ray directions in ``calibration.json``;
     * ``mirror_led*.png``: a mirror whose known normal sends each LED into the camera;
     * ``response_t*.png`` (gamma cameras only): an exposure sweep of the white target.
+
+    Parameters
+    ----------
+    device
+        The device (its truth, if any, is what the captures show).
+    out_dir
+        The calibration folder to create or replace.
+    seed
+        Seeds the noise.
+    white_repeats
+        Exposures averaged per white frame.
+
+    Returns
+    -------
+    Path
+        ``out_dir``, ready for :func:`reflecto.instrument.calibrate`.
     """
 
     rng = np.random.default_rng(seed)

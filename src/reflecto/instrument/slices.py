@@ -91,6 +91,19 @@ class Slices:
 
         Directions are rotated; values are corrected for the changed ``cos θ_i``
         (see the module docstring). Views at or below the new horizon become invalid.
+
+        Parameters
+        ----------
+        frame : ndarray, shape (3, 3)
+            Rows ``t, b, n`` of the new sample frame, in device coordinates
+            (e.g. :func:`reflecto.geometry.frame_from_normal` of an estimated normal, §5.4).
+
+        Returns
+        -------
+        Slices
+            Light ``(L, 3)`` and view ``(P, 3)`` directions in the new frame, values in
+            sr⁻¹ scaled by ``cos θ_i,old / cos θ_i,new``; LEDs within ~3° of the new
+            horizon become invalid too.
         """
         frame = np.asarray(frame, dtype=np.float64)
         light = geometry.to_local(self.light, frame)
@@ -141,6 +154,24 @@ def extract_slices(capture: Capture, calibration: Calibration) -> Slices:
     Refuses (before any compiled kernel sees them) LED directions that are not finite
     unit vectors above the horizon, a radiometric scale of the wrong shape or with
     NaN, infinite or negative values, and exposure times that are not positive.
+
+    Parameters
+    ----------
+    capture
+        Raw frames of one measurement (:func:`reflecto.instrument.read_capture`).
+    calibration
+        The device's calibration (optics, LED directions, radiometric scale).
+
+    Returns
+    -------
+    Slices
+        ``L`` BRDF slices: light ``(L, 3)``, view ``(P, 3)`` directions (device frame)
+        and values ``(L, P, 3)`` in sr⁻¹ (HDR radiance / scale), with validity masks.
+
+    Raises
+    ------
+    CaptureError
+        When capture and calibration do not fit each other, or the inputs are invalid.
     """
     dev = capture.device
     _check_inputs(capture, calibration)

@@ -235,7 +235,14 @@ class CaptureConsistency:
         return self.worst is None or not self.breaks(*self.worst)
 
     def to_dict(self) -> dict[str, Any]:
-        """The test as JSON-ready numbers (non-finite entries as ``None``)."""
+        """The test as JSON-ready numbers (non-finite entries as ``None``).
+
+        Returns
+        -------
+        dict
+            ``cross_rms``, ``cross_mean`` (matrices over capture pairs), ``within_rms``,
+            ``worst_pair``, ``worst_ratio``, ``worst_level`` and ``consistent``.
+        """
         fin = (lambda m: [[None if not math.isfinite(x) else float(x) for x in row] for row in m])
         return {"cross_rms": fin(self.cross_rms), "cross_mean": fin(self.cross_mean),
                 "within_rms": self.within_rms if math.isfinite(self.within_rms) else None,
@@ -417,7 +424,17 @@ class AsymmetricReconstruction:
         return math.degrees(math.acos(min(1.0, float(self.normal[2]))))
 
     def summary(self) -> dict[str, Any]:
-        """JSON-ready summary (the ``.json`` written beside the model file)."""
+        """JSON-ready summary (the ``.json`` written beside the model file).
+
+        Returns
+        -------
+        dict
+            ``asymmetric``, ``isotropic``, ``rotations_deg``, the model's η (or constant
+            Fresnel), ``kd``, ``ks``, the normal and its tilt (degrees), the isotropy,
+            symmetry and consistency tests, shake and motion cues, excluded LEDs, the
+            synthesized and hole fractions, the Fresnel error, energy scale, largest
+            albedo, notes and seconds (non-finite numbers as ``None``).
+        """
         nan = (lambda x: x if math.isfinite(x) else None)
         return {"asymmetric": True, "isotropic": self.isotropic, "rotations_deg": self.rotations_deg,
                 **eta_to_json(self.model.eta), "kd": self.model.kd.tolist(), "ks": self.model.ks.tolist(),
@@ -522,9 +539,30 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
                           synthesis: SynthesisOptions | None = None) -> AsymmetricReconstruction:
     """Reconstruct one BRDF from captures of the same point at several rotations (module docstring).
 
-    Raises :class:`~reflecto.errors.ReflectoError` (naming the capture) for a set that
-    :func:`check_rotations` refuses and for captures that do not measure one material
-    (:class:`CaptureConsistency`).
+    Isotropic data get the 1-D fit on all captures' samples; otherwise the partial NDFs
+    (eq. 7) of all captures are merged by eq. 9 without the τ mirror of eq. 3, and what
+    no rotation measured is filled by microfacet synthesis (§5.5, after Wang et al. 2008).
+
+    Parameters
+    ----------
+    captures
+        The captures of one point, each with its slices and rotation (:class:`RotatedCapture`).
+    options
+        Reconstruction options (defaults if None).
+    synthesis
+        Microfacet-synthesis options (defaults if None).
+
+    Returns
+    -------
+    AsymmetricReconstruction
+        The model (BRDF in sr⁻¹; isotropic or hemicube NDF) and the tests and
+        diagnostics of :meth:`AsymmetricReconstruction.summary`.
+
+    Raises
+    ------
+    ReflectoError
+        Naming the capture, for a set that :func:`check_rotations` refuses and for
+        captures that do not measure one material (:class:`CaptureConsistency`).
     """
     opt = options or Options()
     syn_opt = synthesis or SynthesisOptions()

@@ -111,7 +111,14 @@ class IsotropyTest:
         return not self.decided or self.asymmetry < ASYMMETRY_EXPLAINED
 
     def to_dict(self) -> dict[str, float | int | bool]:
-        """The test's fractions, ring count and verdicts (``isotropic``, ``symmetric``) as JSON-ready data."""
+        """The test as JSON-ready data.
+
+        Returns
+        -------
+        dict
+            ``anisotropy``, ``asymmetry``, ``amplitude``, ``rings``, ``conditional`` and the
+            verdicts ``isotropic`` and ``symmetric``.
+        """
         return {"anisotropy": self.anisotropy, "asymmetry": self.asymmetry, "amplitude": self.amplitude,
                 "rings": self.rings, "conditional": self.conditional, "isotropic": self.isotropic,
                 "symmetric": self.symmetric}

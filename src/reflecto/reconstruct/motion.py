@@ -93,7 +93,14 @@ class MotionReport:
         return bool(self.moved_leds or self.tilted_planes or self.inconsistent_pairs or self.excluded_leds)
 
     def describe(self) -> str:
-        """One line naming the cues that fired ('' when none did)."""
+        """One line naming the cues that fired.
+
+        Returns
+        -------
+        str
+            The moved repeat checks, tilted symmetry planes, inconsistent pairs and
+            excluded LEDs, ``"; "``-separated; ``""`` when none fired.
+        """
         parts = [f"LED {c.led} " + (f"×{math.exp(c.log_ratio):.2f}" if math.isfinite(c.log_ratio) else "lit once")
                  + " between its two firings" for c in self.repeat_checks if c.moved]
         if self.tilted_planes:
@@ -104,7 +111,14 @@ class MotionReport:
         return "; ".join(parts)
 
     def to_dict(self) -> dict[str, Any]:
-        """The cues and the verdict as JSON-ready data (non-finite numbers as ``None``)."""
+        """The cues and the verdict as JSON-ready data (non-finite numbers as ``None``).
+
+        Returns
+        -------
+        dict
+            ``shake_detected``, ``repeat_checks``, ``symmetry_plane_offsets_deg``,
+            ``symmetry_plane_allowance_deg``, ``consistency_checks`` and ``excluded_leds``.
+        """
         def finite(d: dict[str, Any]) -> dict[str, Any]:
             return {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in d.items()}
 

@@ -150,7 +150,18 @@ class AnalyticBRDF(BRDFSource):
         return geometry.rotate_z(v, -self._rot) if self._rot else v
 
     def ndf(self, h: ArrayLike) -> Array:
-        """Normalized NDF ``D(h)`` in sr⁻¹ (``∫ D cos θ dω = 1``), shape ``h.shape[:-1]``."""
+        """Normalized NDF ``D(h) = Σ_j w_j P22(p − c_j) / cos⁴θ_h`` (module docstring).
+
+        Parameters
+        ----------
+        h : array_like, shape (..., 3)
+            Unit half vectors in the local frame.
+
+        Returns
+        -------
+        ndarray, shape ``h.shape[:-1]``
+            D in sr⁻¹ (``∫ D cos θ dω = 1``); 0 where ``h_z ≤ 0``.
+        """
         h = self._to_lobe_frame(np.asarray(h, dtype=np.float64))
         z = h[..., 2]
         pos = z > 0
@@ -171,7 +182,18 @@ class AnalyticBRDF(BRDFSource):
         return np.where(pos, d / cos4, 0.0)
 
     def smith_lambda(self, k: ArrayLike) -> Array:
-        """Smith ``Λ(k)`` of the NDF (AR 1.4), shape ``k.shape[:-1]``."""
+        """Smith ``Λ(k) = Σ_j w_j E[(q_j − μ)⁺]/μ``, ``μ = cot θ_k`` (AR 1.4), closed form per lobe.
+
+        Parameters
+        ----------
+        k : array_like, shape (..., 3)
+            Unit directions in the local frame.
+
+        Returns
+        -------
+        ndarray, shape ``k.shape[:-1]``
+            Λ ≥ 0 (dimensionless); 0 at the normal.
+        """
         k = self._to_lobe_frame(np.asarray(k, dtype=np.float64))
         z = np.clip(k[..., 2], 1e-12, 1.0)
         sxy = np.hypot(k[..., 0], k[..., 1])
@@ -196,12 +218,34 @@ class AnalyticBRDF(BRDFSource):
         return np.where(sxy > 0, lam / mu, 0.0)
 
     def g1(self, k: ArrayLike) -> Array:
-        """Smith masking ``G1(k) = 1/(1 + Λ(k))``; 0 below the horizon."""
+        """Smith masking ``G1(k) = 1/(1 + Λ(k))``, equal to the APS ``S(k)`` of eq. 8.
+
+        Parameters
+        ----------
+        k : array_like, shape (..., 3)
+            Unit directions in the local frame.
+
+        Returns
+        -------
+        ndarray, shape ``k.shape[:-1]``
+            G1 in [0, 1]; 0 below the horizon.
+        """
         k = np.asarray(k, dtype=np.float64)
         return np.where(k[..., 2] > 0, 1.0 / (1.0 + self.smith_lambda(k)), 0.0)
 
     def sigma(self, k: ArrayLike) -> Array:
-        """Projected area ``σ(k) = cos θ_k (1 + Λ(k))`` (AR 1.3)."""
+        """Projected area ``σ(k) = cos θ_k (1 + Λ(k))`` (AR 1.3; the denominator of eq. 8).
+
+        Parameters
+        ----------
+        k : array_like, shape (..., 3)
+            Unit directions in the local frame.
+
+        Returns
+        -------
+        ndarray, shape ``k.shape[:-1]``
+            σ (dimensionless); 0 below the horizon.
+        """
         k = np.asarray(k, dtype=np.float64)
         return np.maximum(k[..., 2], 0.0) * (1.0 + self.smith_lambda(k))
 
@@ -210,7 +254,15 @@ class AnalyticBRDF(BRDFSource):
         """Microfacet BRDF ``f = k_d/π + k_s D(h) F(i·h; η) / (4 σ(i) σ(o))`` (eqs. 1–2 in the
         form of AR 1.6, ``σ`` the projected area of eq. 8), sr⁻¹.
 
-        Directions, shapes and return as :meth:`reflecto.brdf.BRDFSource.eval`.
+        Parameters
+        ----------
+        i, o : array_like, shape (..., 3)
+            Unit light and view directions in the local frame.
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Linear RGB BRDF in sr⁻¹; 0 where either direction is below the horizon.
         """
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)
@@ -225,8 +277,13 @@ class AnalyticBRDF(BRDFSource):
         return np.where(ok[..., None], f, 0.0)
 
     def parameters(self) -> dict[str, Any]:
-        """``distribution``, ``alpha`` (α_x, α_y), ``rotation_deg``, ``kd``, ``ks``, ``eta`` (RGB)
-        and ``asymmetry`` where set, for ``reflecto info``.
+        """The description's parameters, for ``reflecto info``.
+
+        Returns
+        -------
+        dict
+            ``distribution``, ``alpha`` (α_x, α_y), ``rotation_deg``, ``kd``, ``ks``, ``eta``
+            (RGB lists) and ``asymmetry`` ``(shift_x, shift_y, weight)`` where set.
         """
         p: dict[str, Any] = {
             "distribution": self.distribution,
@@ -241,7 +298,13 @@ class AnalyticBRDF(BRDFSource):
         return p
 
     def to_dict(self) -> dict[str, Any]:
-        """The description-file form (see :func:`load_analytic`)."""
+        """The description-file form (see :func:`load_analytic`).
+
+        Returns
+        -------
+        dict
+            ``{"type": "analytic", **self.parameters()}``; :func:`analytic_from_dict` reads it back.
+        """
         return {"type": "analytic", **self.parameters()}
 
 
@@ -281,6 +344,25 @@ def analytic_from_dict(d: dict[str, Any], path: Path | None = None) -> AnalyticB
 
     Every key is type-checked (numbers finite, lists of the right length) before the
     parameters' ranges are (:class:`AnalyticBRDF`); errors name ``path``.
+
+    Parameters
+    ----------
+    d
+        ``{"type": "analytic", ...}`` with optional ``distribution`` (``"ggx"``, ``"beckmann"``),
+        ``alpha`` (one or two numbers), ``rotation_deg`` (degrees), ``kd``, ``ks``, ``eta``
+        (one or three numbers), ``asymmetry`` and ``name``.
+    path
+        The file it was read from, for messages and :attr:`~reflecto.brdf.BRDFSource.path`.
+
+    Returns
+    -------
+    AnalyticBRDF
+        The BRDF.
+
+    Raises
+    ------
+    FileFormatError
+        For a missing ``type``, unknown keys, or values of the wrong type or range.
     """
     where = str(path) if path else "analytic description"
     if not isinstance(d, dict) or d.get("type") != "analytic":
@@ -322,6 +404,21 @@ def load_analytic(path: str | Path) -> AnalyticBRDF:
         {"type": "analytic", "distribution": "ggx", "alpha": [0.3, 0.1],
          "rotation_deg": 30, "kd": [0.2, 0.1, 0.05], "ks": 0.6, "eta": 1.5,
          "asymmetry": {"shift": [0.25, 0.0], "weight": 0.3}}
+
+    Parameters
+    ----------
+    path
+        The description file.
+
+    Returns
+    -------
+    AnalyticBRDF
+        The BRDF (:func:`analytic_from_dict`).
+
+    Raises
+    ------
+    FileFormatError
+        Naming the file, for unreadable or invalid descriptions.
     """
     path = Path(path)
     return analytic_from_dict(read_description(path), path)

@@ -43,7 +43,18 @@ FILE_BYTES = HEADER_BYTES + 8 * 3 * N_BINS
 
 
 def theta_h_edge(k: ArrayLike) -> Array:
-    """Lower edge of θ_h bin ``k`` (radians): ``(k/90)²·π/2``."""
+    """Lower edge of θ_h bin ``k``: ``(k/90)²·π/2`` (MERL's square-root mapping, algorithm-reference §6.1).
+
+    Parameters
+    ----------
+    k : array_like
+        Bin indices (0..90; 90 gives the upper edge of the last bin).
+
+    Returns
+    -------
+    ndarray
+        θ_h in radians, shape of ``k``.
+    """
     k = np.asarray(k, dtype=np.float64)
     return (k / N_THETA_H) ** 2 * (0.5 * math.pi)
 
@@ -59,21 +70,54 @@ def _fix_edges(idx: NDArray[np.intp], value: Array, edge: Callable[[NDArray[np.i
 
 
 def theta_h_index(theta_h: ArrayLike) -> NDArray[np.intp]:
-    """MERL θ_h bin index (square-root mapping), edge-exact."""
+    """MERL θ_h bin index ``⌊√(θ_h/(π/2))·90⌋`` (square-root mapping), edge-exact.
+
+    Parameters
+    ----------
+    theta_h : array_like
+        Half-vector polar angle, radians (negative values count as 0).
+
+    Returns
+    -------
+    ndarray of intp
+        Index in [0, 89], shape of ``theta_h``, consistent with :func:`theta_h_edge`.
+    """
     t = np.asarray(theta_h, dtype=np.float64)
     raw = np.floor(np.sqrt(np.maximum(t, 0.0) / (0.5 * math.pi)) * N_THETA_H).astype(np.intp)
     return _fix_edges(raw, t, theta_h_edge, N_THETA_H)
 
 
 def theta_d_index(theta_d: ArrayLike) -> NDArray[np.intp]:
-    """MERL θ_d bin index (1° bins), edge-exact."""
+    """MERL θ_d bin index (1° bins), edge-exact.
+
+    Parameters
+    ----------
+    theta_d : array_like
+        Difference polar angle, radians.
+
+    Returns
+    -------
+    ndarray of intp
+        Index in [0, 89], shape of ``theta_d``.
+    """
     t = np.asarray(theta_d, dtype=np.float64)
     raw = np.floor(t / (0.5 * math.pi) * N_THETA_D).astype(np.intp)
     return _fix_edges(raw, t, np.radians, N_THETA_D)
 
 
 def phi_d_index(phi_d: ArrayLike) -> NDArray[np.intp]:
-    """MERL φ_d bin index: fold to [0, π) (add π if negative), 1° bins, edge-exact."""
+    """MERL φ_d bin index: fold to [0, π) (add π if negative), 1° bins, edge-exact.
+
+    Parameters
+    ----------
+    phi_d : array_like
+        Difference azimuth, radians, in (−π, π].
+
+    Returns
+    -------
+    ndarray of intp
+        Index in [0, 179], shape of ``phi_d``.
+    """
     p = np.asarray(phi_d, dtype=np.float64)
     p = np.where(p < 0, p + math.pi, p)
     p = np.where(p >= math.pi, p - math.pi, p)
@@ -82,13 +126,35 @@ def phi_d_index(phi_d: ArrayLike) -> NDArray[np.intp]:
 
 
 def bin_index(i: ArrayLike, o: ArrayLike) -> NDArray[np.intp]:
-    """Linear MERL bin index of direction pairs (``i`` is MERL's "in" vector)."""
+    """Linear MERL bin index of direction pairs (``i`` is MERL's "in" vector).
+
+    Parameters
+    ----------
+    i, o : array_like, shape (..., 3)
+        Unit directions in the local frame.
+
+    Returns
+    -------
+    ndarray of intp, shape (...)
+        ``φ_d-index + 180·(θ_d-index + 90·θ_h-index)``, an index into the flat
+        ``(90·90·180,)`` table.
+    """
     th, _, td, pd = geometry.io_to_hd(i, o)
     return phi_d_index(pd) + N_PHI_D * (theta_d_index(td) + N_THETA_D * theta_h_index(th))
 
 
 def bin_centres() -> tuple[Array, Array, Array]:
-    """θ_h, θ_d, φ_d of the bin centres (radians), each of shape ``(90|90|180,)``."""
+    """The bin centres of the MERL grid.
+
+    Returns
+    -------
+    theta_h : ndarray, shape (90,)
+        ``((k + ½)/90)²·π/2``, radians.
+    theta_d : ndarray, shape (90,)
+        ``k + ½`` degrees, in radians.
+    phi_d : ndarray, shape (180,)
+        ``k + ½`` degrees, in radians.
+    """
     th = ((np.arange(N_THETA_H) + 0.5) / N_THETA_H) ** 2 * (0.5 * math.pi)
     td = np.radians(np.arange(N_THETA_D) + 0.5)
     pd = np.radians(np.arange(N_PHI_D) + 0.5)
@@ -96,7 +162,13 @@ def bin_centres() -> tuple[Array, Array, Array]:
 
 
 def bin_directions() -> tuple[Array, Array]:
-    """``(i, o)`` at every bin centre (``φ_h = 0``), each shape ``(90, 90, 180, 3)``."""
+    """Direction pairs at every bin centre, with ``φ_h = 0`` (:func:`reflecto.geometry.hd_to_io`).
+
+    Returns
+    -------
+    i, o : ndarray, shape (90, 90, 180, 3)
+        Unit directions in the local frame; some lie below the horizon.
+    """
     th, td, pd = bin_centres()
     TH, TD, PD = np.meshgrid(th, td, pd, indexing="ij")
     return geometry.hd_to_io(TH, np.zeros_like(TH), TD, PD)
@@ -109,6 +181,22 @@ def read_merl_table(path: str | Path) -> Array:
     files of the wrong size or dimensions, NaN or infinite values, values above
     :func:`~reflecto.brdf.check_projected` (``f·cos θ_i·cos θ_o`` at the bin centres at most
     :data:`~reflecto.brdf.MAX_PROJECTED_BRDF`) and tables without a measured bin.
+
+    Parameters
+    ----------
+    path
+        A MERL ``.binary`` file: 3 int32 dimensions (90, 90, 180), then 3 × 1 458 000
+        float64 (R, G, B blocks).
+
+    Returns
+    -------
+    ndarray, shape (90, 90, 180, 3)
+        The BRDF in sr⁻¹ (stored values times :data:`SCALE`), axes θ_h, θ_d, φ_d, RGB.
+
+    Raises
+    ------
+    FileFormatError
+        Naming the file and the problem.
     """
     path = Path(path)
     raw = read_file_bytes(path, FILE_BYTES, f"a MERL file ({FILE_BYTES} bytes)")
@@ -140,6 +228,25 @@ def write_merl_table(path: str | Path, table: ArrayLike) -> Path:
     (relative 1.1e-16). No exactness is possible beyond that: multiplying by the
     channel scale (not a power of two) reaches only ~86–91 % of float64 values.
     Negative entries are written unchanged as "unmeasured" markers.
+
+    Parameters
+    ----------
+    path
+        The file to write.
+    table : array_like, shape (90, 90, 180, 3)
+        The BRDF in sr⁻¹ (as :func:`read_merl_table` returns it).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        For a table of another shape or with NaN or infinite values.
+    FileFormatError
+        For values above :data:`~reflecto.brdf.MAX_PROJECTED_BRDF` (projected).
     """
     path = Path(path)
     t = np.asarray(table, dtype=np.float64)
@@ -167,6 +274,25 @@ def tabulate(source: BRDFSource, chunk: int = 1 << 17, progress: Callable[[int],
     """Evaluate ``source`` at every MERL bin centre; shape ``(90, 90, 180, 3)`` in sr⁻¹.
 
     Bins with a direction below the horizon get 0 (the BRDF of a surface there).
+
+    Parameters
+    ----------
+    source
+        Any BRDF.
+    chunk
+        Bins evaluated per call of ``source.eval``.
+    progress
+        Called with the number of bins done after each chunk.
+
+    Returns
+    -------
+    ndarray, shape (90, 90, 180, 3)
+        The table in sr⁻¹.
+
+    Raises
+    ------
+    ValueError
+        When the source gives NaN or infinite values.
     """
     i, o = bin_directions()
     i = i.reshape(-1, 3)
@@ -225,8 +351,19 @@ def _cos_cos() -> Array:
 def hemispherical_albedo(table: ArrayLike) -> Array:
     """``ρ_hh`` per channel of a MERL table in sr⁻¹ (unmeasured bins count 0), shape ``(3,)``.
 
+    ``ρ_hh = (1/π) ∫∫ f cos θ_i cos θ_o dω_i dω_o`` (1 for a white Lambertian surface).
     Every bin counts with its exact measure, so a damaged bin anywhere raises it (a
     quadrature of the directional albedo can step over a spike between its nodes).
+
+    Parameters
+    ----------
+    table : array_like, shape (90, 90, 180, 3)
+        A MERL table in sr⁻¹; negative (unmeasured) bins count 0.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        ρ_hh per channel (dimensionless).
     """
     t = np.asarray(table, dtype=np.float64).reshape(N_BINS, 3)
     return np.maximum(t, 0.0).T @ _hh_weights().ravel()
@@ -257,7 +394,20 @@ class MerlBRDF(BRDFSource):
 
     @classmethod
     def from_table(cls, table: ArrayLike, name: str = "merl") -> MerlBRDF:
-        """Wrap an in-memory table (sr⁻¹, shape ``(90, 90, 180, 3)``)."""
+        """Wrap an in-memory table (no file, no plausibility check).
+
+        Parameters
+        ----------
+        table : array_like, shape (90, 90, 180, 3)
+            The BRDF in sr⁻¹, MERL bin order; negative entries are unmeasured.
+        name
+            The :attr:`name` of the source.
+
+        Returns
+        -------
+        MerlBRDF
+            A source looking up ``table``.
+        """
         obj = cls.__new__(cls)
         obj.path = None
         obj.table = np.asarray(table, dtype=np.float64).reshape(SHAPE + (3,))
@@ -292,11 +442,29 @@ class MerlBRDF(BRDFSource):
         return np.where(ok[..., None] & (vals >= 0), vals, 0.0)
 
     def valid(self, i: ArrayLike, o: ArrayLike) -> NDArray[np.bool_]:
-        """Whether the bin of each pair holds a measured (non-negative) value."""
+        """Whether the bin of each pair holds a measured (non-negative) value.
+
+        Parameters
+        ----------
+        i, o : array_like, shape (..., 3)
+            Unit directions in the local frame.
+
+        Returns
+        -------
+        ndarray of bool, shape (...)
+            True where all three channels of the bin are ≥ 0 (the horizon is not checked).
+        """
         return np.all(self._flat[bin_index(i, o)] >= 0, axis=-1)
 
     def parameters(self) -> dict[str, Any]:
-        """Bin grid, counts of valid and unmeasured bins and the largest value (sr⁻¹), for ``reflecto info``."""
+        """The table's summary, for ``reflecto info``.
+
+        Returns
+        -------
+        dict
+            ``bins`` (the grid), ``valid_bins``, ``invalid_bins`` (unmeasured) and
+            ``max_value_sr-1`` (largest measured value per channel, or None).
+        """
         valid = np.all(self._flat >= 0, axis=1)
         return {
             "bins": f"{N_THETA_H} x {N_THETA_D} x {N_PHI_D}",

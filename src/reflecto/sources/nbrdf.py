@@ -118,7 +118,15 @@ class NBRDF(BRDFSource):
         """The neural BRDF: a 6-21-21-3 ReLU network of ``(h, d)`` (Rusinkiewicz half and
         difference vectors, ``φ_d`` mod π), output ``max(0, exp(y) − 1)``, sr⁻¹.
 
-        Directions, shapes and return as :meth:`reflecto.brdf.BRDFSource.eval`.
+        Parameters
+        ----------
+        i, o : array_like, shape (..., 3)
+            Unit light and view directions in the local frame.
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Linear RGB BRDF in sr⁻¹; 0 where either direction is below the horizon.
         """
         i = np.asarray(i, dtype=np.float64)
         o = np.asarray(o, dtype=np.float64)
@@ -134,7 +142,13 @@ class NBRDF(BRDFSource):
         return np.where(ok[..., None], np.maximum(y, 0.0), 0.0)
 
     def parameters(self) -> dict[str, Any]:
-        """The network's shape and number of weights, for ``reflecto info``."""
+        """The network's shape and number of weights, for ``reflecto info``.
+
+        Returns
+        -------
+        dict
+            ``network`` (the architecture in words) and ``weights`` (their number).
+        """
         return {"network": "6-21-21-3 (ReLU, exp(x)-1)", "weights": sum(k.size + b.size for k, b in self.layers)}
 
 

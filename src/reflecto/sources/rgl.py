@@ -53,6 +53,21 @@ def read_tensor_file(path: str | Path) -> dict[str, np.ndarray]:
     Every field's byte range is checked against the file length with exact integer
     arithmetic before an array is made (a hostile shape cannot overflow or allocate);
     arrays are read-only views of the file's bytes.
+
+    Parameters
+    ----------
+    path
+        A tensor file (container layout in the module docstring).
+
+    Returns
+    -------
+    dict of str to ndarray
+        Every field by name, with its stored dtype and shape.
+
+    Raises
+    ------
+    FileFormatError
+        For a wrong magic or version, a damaged field table or a truncated field.
     """
     path = Path(path)
     raw = read_file_bytes(path, what="an RGL tensor file")
@@ -190,7 +205,20 @@ class Marginal2D:
         return out
 
     def eval(self, pos: Array, phi_i: Array, theta_i: Array) -> Array:
-        """Bilinear interpolation of the (unnormalized, if ``build_cdf`` is False) data."""
+        """Bilinear interpolation of the (unnormalized, if ``build_cdf`` is False) data.
+
+        Parameters
+        ----------
+        pos : ndarray, shape (..., 2)
+            Positions in [0, 1]² (x: column, y: row), clipped.
+        phi_i, theta_i : ndarray, shape (...)
+            The conditioning parameters (radians), interpolated linearly between slices.
+
+        Returns
+        -------
+        ndarray, shape (...)
+            The interpolated data.
+        """
         x = np.clip(pos[..., 0], 0.0, 1.0) * (self.w - 1)
         y = np.clip(pos[..., 1], 0.0, 1.0) * (self.h - 1)
         x0 = np.minimum(x.astype(np.intp), self.w - 2)
@@ -206,7 +234,20 @@ class Marginal2D:
         return out
 
     def invert(self, sample: Array, phi_i: Array, theta_i: Array) -> Array:
-        """Inverse of the continuous sample warp: point in [0,1]² → uniform sample."""
+        """Inverse of the continuous sample warp: point in [0,1]² → uniform sample.
+
+        Parameters
+        ----------
+        sample : ndarray, shape (..., 2)
+            Warped points in [0, 1]².
+        phi_i, theta_i : ndarray, shape (...)
+            The conditioning parameters (radians).
+
+        Returns
+        -------
+        ndarray, shape (..., 2)
+            The uniform samples that the warp maps to ``sample``.
+        """
         s = np.clip(sample, 0.0, 1.0)
         x = s[..., 0] * (self.w - 1)
         y = s[..., 1] * (self.h - 1)
@@ -239,6 +280,18 @@ class Marginal2D:
 
         The exact inverse of :meth:`invert` (at a grid node of the parameters): the
         marginal and conditional CDFs are piecewise quadratic, each solved in closed form.
+
+        Parameters
+        ----------
+        u : ndarray, shape (..., 2)
+            Uniform samples in [0, 1]² (clipped).
+        slice_index
+            Flat parameter slice ``k·n_theta + j``.
+
+        Returns
+        -------
+        ndarray, shape (..., 2)
+            The warped points in [0, 1]².
         """
         d, c = self.norm_data[slice_index], self.cond[slice_index]
         marg = self.marg[slice_index]
@@ -354,6 +407,16 @@ class RGLBRDF(BRDFSource):
         angle of its four warped corners and the mean of the values there (trapezoid
         rule). Every node of the tables is a corner, so a damaged value anywhere is
         counted with its measure.
+
+        Parameters
+        ----------
+        refine
+            Subdivisions of each ``rgb`` grid cell per axis.
+
+        Returns
+        -------
+        ndarray, shape (n_φi · n_θi, 3)
+            RGB albedo (dimensionless) per incident slice, φ_i-major.
         """
         nphi, nth = len(self.phi_i), len(self.theta_i)
         h, w = self._rgb[0].h, self._rgb[0].w
@@ -400,6 +463,12 @@ class RGLBRDF(BRDFSource):
         incident direction (the node's sample position, warped by the ``vndf`` table);
         the value there is the node's value exactly (bilinear interpolation at a node).
         A damaged value between the directions a quadrature visits is seen here.
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            RGB values in sr⁻¹: every ``rgb`` node of every slice, then direction pairs at
+            the nodes of the ``ndf`` and ``sigma`` tables.
         """
         nphi, nth = len(self.phi_i), len(self.theta_i)
         h, w = self._rgb[0].h, self._rgb[0].w
@@ -442,7 +511,18 @@ class RGLBRDF(BRDFSource):
         return i[keep], o[keep]
 
     def eval_cosine(self, i: ArrayLike, o: ArrayLike) -> Array:
-        """The plugin's value ``f(i, o)·cos θ_o`` (what Mitsuba's ``eval`` returns), ``(N, 3)``."""
+        """The plugin's value ``f(i, o)·cos θ_o`` (what Mitsuba's ``eval`` returns).
+
+        Parameters
+        ----------
+        i, o : array_like, shape (..., 3)
+            Unit light (Mitsuba's ``wi``) and view (``wo``) directions in the local frame.
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            RGB ``f·cos θ_o`` in sr⁻¹; 0 where either direction is below the horizon.
+        """
         wi = np.array(i, dtype=np.float64)
         wo = np.array(o, dtype=np.float64)
         active = (wi[..., 2] > 0) & (wo[..., 2] > 0)
@@ -485,7 +565,15 @@ class RGLBRDF(BRDFSource):
         """The BRDF ``f = eval_cosine(i, o) / cos θ_o`` of the tensor file, evaluated like Mitsuba 3's
         ``measured`` plugin, sr⁻¹.
 
-        Directions, shapes and return as :meth:`reflecto.brdf.BRDFSource.eval`.
+        Parameters
+        ----------
+        i, o : array_like, shape (..., 3)
+            Unit light and view directions in the local frame.
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Linear RGB BRDF in sr⁻¹; 0 where either direction is below the horizon.
         """
         o = np.asarray(o, dtype=np.float64)
         v = self.eval_cosine(i, o)
@@ -493,7 +581,14 @@ class RGLBRDF(BRDFSource):
         return np.divide(v, cos_o[..., None], out=np.zeros_like(v), where=cos_o[..., None] > 0)
 
     def parameters(self) -> dict[str, Any]:
-        """The file's description, incidence angles θ_i (degrees), isotropy and table size, for ``reflecto info``."""
+        """The file's summary, for ``reflecto info``.
+
+        Returns
+        -------
+        dict
+            ``description`` (the file's own), ``theta_i_deg`` (incidence angles, degrees),
+            ``isotropic`` and ``table`` (the ``rgb`` table size).
+        """
         return {
             "description": self.description,
             "theta_i_deg": np.degrees(self.theta_i).round(2).tolist(),
