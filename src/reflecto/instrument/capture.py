@@ -298,7 +298,7 @@ def write_capture(capture: Capture, out_dir: str | Path) -> Path:
     """Write frames and manifest into ``out_dir`` atomically (all or nothing).
 
     One PNG per LED and exposure (:func:`frame_name`), check frames where the device
-    takes them, and ``capture.json`` (docs/capture-format.md).
+    takes them, and ``manifest.json`` (docs/capture-format.md).
 
     Parameters
     ----------
@@ -408,7 +408,7 @@ def read_capture(cap_dir: str | Path) -> Capture:
     Parameters
     ----------
     cap_dir
-        A capture folder (``capture.json`` and its PNG frames).
+        A capture folder (``manifest.json`` and its PNG frames).
 
     Returns
     -------
