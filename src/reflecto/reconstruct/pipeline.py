@@ -290,18 +290,15 @@ def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> No
     return est
 
 
-def _device_frame_test(slices: Slices, valid: NDArray[np.bool_], opt: Options
-                       ) -> tuple[IsotropicFit, IsotropyTest] | None:
-    """The isotropic fit and the azimuthal test in the device frame, where the normal is
-    to be estimated (``normal="auto"``, isotropy not imposed as "no"); else None."""
+def _device_frame_fit(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> IsotropicFit | None:
+    """The isotropic fit in the device frame, where the normal is to be estimated
+    (``normal="auto"``, isotropy not imposed as "no"); else None."""
     if not (isinstance(opt.normal, str) and opt.normal == "auto") or opt.isotropic == "no":
         return None
-    ok = valid & slices.valid
-    fit = fit_isotropic(slices, ok, opt.fixed_eta, opt.kd_bound_max_deg)
-    return fit, azimuthal_test(slices, ok, fit.least_squares)
+    return fit_isotropic(slices, valid & slices.valid, opt.fixed_eta, opt.kd_bound_max_deg)
 
 
-def _tilt_explains_nothing(device_fit: tuple[IsotropicFit, IsotropyTest], estimated: IsotropicFit) -> bool:
+def _tilt_explains_nothing(device_fit: IsotropicFit, estimated: IsotropicFit) -> bool:
     """Whether the estimated tilt fails to explain the data better than the device axis.
 
     The estimate fits an isotropic lobe, so on an anisotropic one it finds a tilt too.
@@ -311,7 +308,7 @@ def _tilt_explains_nothing(device_fit: tuple[IsotropicFit, IsotropyTest], estima
     0.21–0.27), nor one the estimate finds on an untilted lobe it misfits (GGX α 0.4,
     η 2: 0.009 → 0.033). Where the estimated frame fits no better, the device axis holds.
     """
-    return estimated.model_error >= device_fit[0].model_error
+    return estimated.model_error >= device_fit.model_error
 
 
 def limit_energy(model: IsotropicMicrofacetBRDF | MicrofacetBRDF, clamp: bool = True
@@ -401,21 +398,21 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         opt = dataclasses.replace(opt, normal="auto")
     t0 = time.perf_counter()
     valid = usable_samples(slices)
-    device_fit = _device_frame_test(slices, valid, opt)
+    device_fit = _device_frame_fit(slices, valid, opt)
     est = resolve_normal(slices, valid, opt)
     frame = est.frame
     sl = slices if est.source == "device" else slices.reframe(frame)
     ok = valid & sl.valid
     if est.source == "device" and device_fit is not None:
-        iso, test = device_fit
+        iso = device_fit
     else:
         iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
-        test = azimuthal_test(sl, ok, iso.least_squares)
         if device_fit is not None and _tilt_explains_nothing(device_fit, iso):
             est = NormalEstimate(np.array([0.0, 0.0, 1.0]), 0.0, "device", est.refits, est.tilt_estimate_deg)
             frame, sl = est.frame, slices
             ok = valid & sl.valid
-            iso, test = device_fit
+            iso = device_fit
+    test = azimuthal_test(sl, ok, iso.least_squares)  # in the frame kept: the device frame's only when it is
     isotropic = _choose_isotropic(opt.isotropic, test)
     if not isotropic and est.source == "estimated":
         # an anisotropic lobe: the estimate's isotropic fit does not hold; the device axis
