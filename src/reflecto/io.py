@@ -85,6 +85,22 @@ def _open_regular(path: Path, missing: str) -> tuple[int, os.stat_result]:
 def read_input(path: str | Path, limit: int, what: str = "this kind of file", missing: str = "no such file") -> bytes:
     """The whole contents of a regular file of at most ``limit`` bytes.
 
+    Parameters
+    ----------
+    path
+        The file (symbolic links are followed).
+    limit
+        Largest size allowed, bytes (e.g. :data:`MAX_DESCRIPTION_BYTES`).
+    what
+        The kind of file, for the message of a :class:`LimitError`.
+    missing
+        The message when the file does not exist.
+
+    Returns
+    -------
+    bytes
+        The file's contents.
+
     Raises
     ------
     FileFormatError
@@ -115,7 +131,27 @@ def read_input(path: str | Path, limit: int, what: str = "this kind of file", mi
 
 
 def read_head(path: str | Path, n: int, missing: str = "no such file") -> bytes:
-    """The first ``n`` bytes of a regular file (fewer if it is shorter)."""
+    """The first ``n`` bytes of a regular file (fewer if it is shorter).
+
+    Parameters
+    ----------
+    path
+        The file (symbolic links are followed).
+    n
+        Number of bytes to read (one ``read`` call).
+    missing
+        The message when the file does not exist.
+
+    Returns
+    -------
+    bytes
+        At most ``n`` bytes from the start of the file.
+
+    Raises
+    ------
+    FileFormatError
+        Missing, unreadable, or not a regular file.
+    """
     path = Path(path)
     fd, _ = _open_regular(path, missing)
     try:
@@ -127,7 +163,25 @@ def read_head(path: str | Path, n: int, missing: str = "no such file") -> bytes:
 
 
 def check_regular(path: str | Path, missing: str = "no such file") -> int:
-    """Refuse ``path`` unless it is a regular file (following links); returns its size."""
+    """Refuse ``path`` unless it is a regular file (following links); returns its size.
+
+    Parameters
+    ----------
+    path
+        The file.
+    missing
+        The message when the file does not exist.
+
+    Returns
+    -------
+    int
+        The file's size, bytes.
+
+    Raises
+    ------
+    FileFormatError
+        Missing, unreadable, or not a regular file.
+    """
     path = Path(path)
     fd, st = _open_regular(path, missing)
     os.close(fd)
@@ -157,6 +211,27 @@ def parse_json(raw: bytes | str, path: str | Path, kind: str = "JSON") -> Any:
 
     Refuses invalid UTF-8 and syntax, numbers Python will not convert (integers of
     more than 4300 digits) and nesting deeper than :data:`MAX_JSON_DEPTH`.
+
+    Parameters
+    ----------
+    raw
+        The text, as UTF-8 bytes or a str.
+    path
+        The file it was read from, for messages.
+    kind
+        ``"JSON"`` or ``"TOML"``.
+
+    Returns
+    -------
+    Any
+        The parsed value (dict, list, str, number, bool or None; a dict for TOML).
+
+    Raises
+    ------
+    FileFormatError
+        Not valid UTF-8 or not valid ``kind``.
+    LimitError
+        Nested deeper than :data:`MAX_JSON_DEPTH`.
     """
 
     try:
@@ -175,7 +250,27 @@ def parse_json(raw: bytes | str, path: str | Path, kind: str = "JSON") -> Any:
 
 
 def read_json(path: str | Path, limit: int = MAX_DESCRIPTION_BYTES, missing: str = "no such file") -> Any:
-    """A JSON file (size- and depth-limited) as Python objects."""
+    """A JSON file (size- and depth-limited) as Python objects.
+
+    Parameters
+    ----------
+    path
+        The JSON file.
+    limit
+        Largest size allowed, bytes.
+    missing
+        The message when the file does not exist.
+
+    Returns
+    -------
+    Any
+        The parsed value (:func:`parse_json`).
+
+    Raises
+    ------
+    FileFormatError
+        As :func:`read_input` and :func:`parse_json`.
+    """
     return parse_json(read_input(path, limit, "a JSON file", missing), path)
 
 
@@ -186,6 +281,18 @@ def read_description(path: str | Path, missing: str = "no such file") -> dict[st
     as the message), unreadable, not a regular file, larger than
     :data:`MAX_DESCRIPTION_BYTES`, not valid JSON/TOML, nested too deep, or not a
     table at the top level.
+
+    Parameters
+    ----------
+    path
+        The file; suffix ``.toml`` (any case) is read as TOML, anything else as JSON.
+    missing
+        The message when the file does not exist.
+
+    Returns
+    -------
+    dict
+        The top-level table/object.
     """
     path = Path(path)
     kind = "TOML" if path.suffix.lower() == ".toml" else "JSON"
@@ -201,6 +308,22 @@ def inside(folder: str | Path, name: Any, where: str | Path, what: str = "file")
     ``name`` must be a relative path without ``..``; after following symbolic links
     it must still lie inside ``folder`` (a link within the folder is fine, one that
     leads out of it is not).
+
+    Parameters
+    ----------
+    folder
+        The folder the named file must lie in.
+    name
+        The name as read from ``where`` (anything; only a non-empty str without NUL passes).
+    where
+        The file that names ``name``, for messages.
+    what
+        What ``name`` names, for messages.
+
+    Returns
+    -------
+    pathlib.Path
+        ``folder / name`` (not resolved; it need not exist).
 
     Raises
     ------
@@ -237,6 +360,30 @@ def zip_members(raw: bytes, path: str | Path, max_unpacked: int = MAX_UNPACKED_B
     against the limits before anything is inflated; a member whose data inflates to
     more than its recorded size, or fails its CRC, is refused by ``zipfile`` itself.
     Duplicate names, encryption and compression other than stored/deflate are refused.
+
+    Parameters
+    ----------
+    raw
+        The archive's bytes.
+    path
+        The archive's file, for messages.
+    max_unpacked
+        Most bytes all members together may unpack to.
+    max_members
+        Most members.
+
+    Returns
+    -------
+    dict of str to bytes
+        Member name → its inflated bytes.
+
+    Raises
+    ------
+    FileFormatError
+        Not a zip archive, damaged, a duplicate name, an encrypted member or an
+        unsupported compression.
+    LimitError
+        More members or more unpacked bytes than allowed.
     """
     try:
         z = zipfile.ZipFile(io.BytesIO(raw))
@@ -276,7 +423,18 @@ def zip_members(raw: bytes, path: str | Path, max_unpacked: int = MAX_UNPACKED_B
 
 
 def npy_bytes(array: np.ndarray) -> bytes:
-    """``array`` in ``.npy`` format (no pickles)."""
+    """``array`` in ``.npy`` format (no pickles).
+
+    Parameters
+    ----------
+    array
+        The array (written C-contiguous).
+
+    Returns
+    -------
+    bytes
+        The ``.npy`` file's bytes.
+    """
     buf = io.BytesIO()
     np.save(buf, np.ascontiguousarray(array), allow_pickle=False)
     return buf.getvalue()
@@ -288,6 +446,30 @@ def npy_array(raw: bytes, path: str | Path, member: str, dtype: Any = None,
 
     ``dtype`` and ``shape``, when given, are required exactly; in any case the bytes
     after the header must be exactly what the header's dtype and shape need.
+
+    Parameters
+    ----------
+    raw
+        The ``.npy`` bytes (format version 1.0 or 2.0).
+    path
+        The file holding them, for messages.
+    member
+        The archive member they came from, for messages.
+    dtype
+        The required dtype; ``None``: any boolean, integer or float dtype.
+    shape
+        The required shape; ``None``: any.
+
+    Returns
+    -------
+    numpy.ndarray
+        A C-ordered copy of the array.
+
+    Raises
+    ------
+    FileFormatError
+        A damaged header, a non-numeric or structured dtype, another dtype or shape than
+        required, or data of the wrong length.
     """
     fmt = np.lib.format
     bio = io.BytesIO(raw)
@@ -320,17 +502,50 @@ def npy_array(raw: bytes, path: str | Path, member: str, dtype: Any = None,
 
 
 def canonical_json(obj: Any) -> bytes:
-    """The one text of ``obj`` that checksums are taken over (sorted keys, no blanks)."""
+    """The one text of ``obj`` that checksums are taken over (sorted keys, no blanks).
+
+    Parameters
+    ----------
+    obj
+        A JSON-ready value (NaN and infinities are written as ``NaN``/``Infinity``).
+
+    Returns
+    -------
+    bytes
+        ASCII JSON with sorted keys and ``,``/``:`` separators.
+    """
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=True).encode()
 
 
 def content_digest(meta: dict[str, Any]) -> str:
-    """SHA-256 of the canonical JSON of ``meta`` without its ``sha256`` entry."""
+    """SHA-256 of the canonical JSON of ``meta`` without its ``sha256`` entry.
+
+    Parameters
+    ----------
+    meta
+        A metadata dict (its ``sha256`` key, if any, is left out).
+
+    Returns
+    -------
+    str
+        64 lowercase hex digits.
+    """
     return hashlib.sha256(canonical_json({k: v for k, v in meta.items() if k != "sha256"})).hexdigest()
 
 
 def sha256(data: bytes) -> str:
-    """SHA-256 of ``data`` as 64 lowercase hex digits (the checksums of model and calibration files)."""
+    """SHA-256 of ``data`` as 64 lowercase hex digits (the checksums of model and calibration files).
+
+    Parameters
+    ----------
+    data
+        The bytes to hash.
+
+    Returns
+    -------
+    str
+        64 lowercase hex digits.
+    """
     return hashlib.sha256(data).hexdigest()
 
 
@@ -349,17 +564,40 @@ def _umask() -> int:
 
 
 def file_mode() -> int:
-    """Mode of a new output file: ``0o666 & ~umask`` (what ``open()`` would give)."""
+    """Mode of a new output file: ``0o666 & ~umask`` (what ``open()`` would give).
+
+    Returns
+    -------
+    int
+        The permission bits.
+    """
     return 0o666 & ~_umask()
 
 
 def folder_mode() -> int:
-    """Mode of a new output folder: ``0o777 & ~umask`` (what ``mkdir`` would give)."""
+    """Mode of a new output folder: ``0o777 & ~umask`` (what ``mkdir`` would give).
+
+    Returns
+    -------
+    int
+        The permission bits.
+    """
     return 0o777 & ~_umask()
 
 
 def make_parents(folder: Path) -> list[Path]:
     """Create ``folder`` and its missing parents; returns the ones created, outermost first.
+
+    Parameters
+    ----------
+    folder
+        The folder to create.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The folders created, outermost first (empty if ``folder`` existed); on an error the
+        ones created so far are removed again.
 
     Raises
     ------
@@ -395,7 +633,14 @@ def make_parents(folder: Path) -> list[Path]:
 
 
 def remove_empty(folders: list[Path]) -> None:
-    """Remove those of ``folders`` (outermost first) that are empty, innermost first."""
+    """Remove those of ``folders`` (outermost first) that are empty, innermost first.
+
+    Parameters
+    ----------
+    folders
+        Folders as :func:`make_parents` returns them; a folder that is not empty, or
+        cannot be removed, stays.
+    """
     for d in reversed(folders):
         with contextlib.suppress(OSError):
             d.rmdir()
@@ -424,6 +669,18 @@ def check_output(path: str | Path, folder: bool = False) -> None:
     The path must not hold something a rename must not replace, nor a file where a
     folder goes (or the reverse), and its nearest existing parent must be a folder.
     Nothing is created.
+
+    Parameters
+    ----------
+    path
+        The output's path.
+    folder
+        Whether the output is a folder (else a file).
+
+    Raises
+    ------
+    OutputError
+        The output could not be written there.
     """
     path = Path(path)
     _replaceable(path, folder)
@@ -461,6 +718,23 @@ def atomic_write(path: str | Path, mode: str = "wb") -> Iterator[IO[Any]]:
 
     On any exception the temporary file (and any folder created for it) is removed
     and ``path`` is untouched. The file gets mode ``0o666 & ~umask``.
+
+    Parameters
+    ----------
+    path
+        The file to write; missing parent folders are created.
+    mode
+        The ``open`` mode: ``"wb"`` (bytes) or ``"w"`` (text).
+
+    Yields
+    ------
+    file object
+        The temporary file, open for writing; flushed and fsynced before the rename.
+
+    Raises
+    ------
+    OutputError
+        ``path`` cannot be written (a folder, device or FIFO there, no permission).
     """
     path = Path(path)
     fd, tmp, created = _temp_file(path, ".part")
@@ -483,6 +757,24 @@ def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
 
     The caller writes to the yielded path; it is renamed onto ``path`` on success
     and removed on failure (with any folder created for it).
+
+    Parameters
+    ----------
+    path
+        The file to write; missing parent folders are created.
+    suffix
+        Suffix of the temporary name (a library may choose the format by it);
+        ``""``: ``.part``.
+
+    Yields
+    ------
+    pathlib.Path
+        The temporary file (created empty, mode ``0o666 & ~umask``).
+
+    Raises
+    ------
+    OutputError
+        ``path`` cannot be written.
     """
     path = Path(path)
     fd, tmp, created = _temp_file(path, suffix or ".part")
@@ -505,6 +797,21 @@ def atomic_folder(path: str | Path) -> Iterator[Path]:
 
     The folder gets mode ``0o777 & ~umask``; on failure it is removed, with any
     parent created for it.
+
+    Parameters
+    ----------
+    path
+        The folder to write; an existing folder there is replaced as a whole.
+
+    Yields
+    ------
+    pathlib.Path
+        The temporary folder to fill.
+
+    Raises
+    ------
+    OutputError
+        A file (or a link) is in the way, or ``path`` cannot be written.
     """
     path = Path(path)
     _replaceable(path, folder=True)

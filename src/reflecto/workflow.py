@@ -75,6 +75,14 @@ def calibration_for(device: Device, calibration: str | Path | Calibration | None
     where
         The capture, for the refusal's message.
 
+    Returns
+    -------
+    Calibration
+        ``calibration`` itself, or loaded from its file (checked against the device's
+        nominal design); else the nominal calibration (a device whose nominal description
+        is exact, or ``missing="nominal"``); else (``missing="simulate"``) the calibration
+        measured from simulated calibration captures in a temporary folder.
+
     Raises
     ------
     CaptureError
@@ -105,6 +113,21 @@ def calibration_file(device: str | Path, folder: Path, seed: int = 1) -> str | N
 
     Batches pass the file's path (not the calibration) to their workers. A kept file that
     does not load is made again (with a warning).
+
+    Parameters
+    ----------
+    device
+        A built-in device name or a device file (:func:`reflecto.instrument.device.load_device`).
+    folder
+        Where the file ``calibration-<device>.npz`` (and the simulated calibration captures,
+        ``calibration-<device>/``) are kept.
+    seed
+        Seed of the simulated calibration captures.
+
+    Returns
+    -------
+    str or None
+        The path of the ``.npz`` file, or ``None`` for a device without hidden imperfections.
     """
     dev = load_device(device)
     if dev.truth is None:
@@ -178,7 +201,15 @@ class CaptureModel:
         return self.reconstruction.model
 
     def summary(self) -> dict[str, Any]:
-        """JSON-ready summary: :meth:`Reconstruction.summary`, the symmetry test and the calibration."""
+        """JSON-ready summary: :meth:`Reconstruction.summary`, the symmetry test and the calibration.
+
+        Returns
+        -------
+        dict
+            :meth:`reflecto.reconstruct.Reconstruction.summary`'s fields, ``symmetry_test``
+            (the eq. 3 test's ``to_dict()``) and, unless the calibration was ``"nominal"``,
+            ``calibration`` (:attr:`calibration`).
+        """
         out = {**self.reconstruction.summary(), "symmetry_test": self.symmetry.to_dict()}
         if self.calibration != "nominal":
             out["calibration"] = self.calibration
@@ -186,7 +217,28 @@ class CaptureModel:
 
 
 def measure(capture: Capture, calibration: Calibration, where: str | Path | None = None) -> Slices:
-    """The capture's BRDF slices (HDR merge and radiometry, §4.3); errors name ``where``."""
+    """The capture's BRDF slices (HDR merge and radiometry, §4.3); errors name ``where``.
+
+    Parameters
+    ----------
+    capture
+        The capture (its frames and manifest).
+    calibration
+        The calibration that reads it (:func:`calibration_for`).
+    where
+        The capture's folder, for the message of an error; ``None``: errors as raised.
+
+    Returns
+    -------
+    Slices
+        The BRDF slices in the device frame: ``light`` ``(L, 3)``, ``view`` ``(P, 3)``,
+        ``values`` ``(L, P, 3)`` in sr⁻¹, ``valid`` ``(L, P)``.
+
+    Raises
+    ------
+    CaptureError
+        The capture gives no slices (naming ``where`` when given).
+    """
     try:
         return extract_slices(capture, calibration)
     except CaptureError:
@@ -225,6 +277,13 @@ def capture_to_model(capture: Capture | str | Path, calibration: str | Path | Ca
         The calibration choice (:func:`calibration_for`).
     options
         Reconstruction settings (:class:`~reflecto.reconstruct.Options`).
+
+    Returns
+    -------
+    CaptureModel
+        The reconstruction, the slices (turned into the sample frame by the capture's
+        ``rotation_deg`` when it is not a multiple of 360°), the eq. 3 symmetry test, the
+        calibration's label, wall and CPU seconds per stage, and the provenance.
 
     Raises
     ------
@@ -273,6 +332,25 @@ def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path
 
     The model names its capture folder and its calibration file (when one was given)
     relative to its own folder, where readers (``reflecto report``) look for them.
+
+    Parameters
+    ----------
+    result
+        The result of :func:`capture_to_model`; its model's metadata gains the capture,
+        calibration, provenance and ``model_error``.
+    output
+        The model file to write; the summary goes to the same path with suffix ``.json``.
+    capture_dir
+        The capture's folder, recorded in the summary (``capture``) and, relative to the
+        model's folder, in the model's metadata; ``None``: not recorded.
+    calibration
+        The calibration file used, recorded relative to the model's folder; ``None``: none.
+
+    Returns
+    -------
+    dict
+        The summary written: :meth:`CaptureModel.summary`, preceded by ``capture`` when
+        ``capture_dir`` is given.
     """
     out = Path(output)
     summary = result.summary()
@@ -297,6 +375,26 @@ def reconstruct_folder(capture_dir: str | Path, output: str | Path, calibration:
     Returns the summary, with the motion cues described (``motion``) and the stages'
     wall and CPU times (``stage_seconds``, ``stage_cpu_seconds``). A module-level function of plain arguments, so
     that batches run it in worker processes.
+
+    Parameters
+    ----------
+    capture_dir
+        The capture folder.
+    output
+        The model file to write (and its ``.json`` summary beside it).
+    calibration
+        A calibration ``.npz`` file, or ``None`` (:func:`calibration_for`).
+    options
+        Reconstruction settings (:class:`~reflecto.reconstruct.Options`).
+    missing
+        What to do for a device that needs a calibration and has none (:data:`Missing`).
+
+    Returns
+    -------
+    dict
+        :func:`save_model`'s summary, with ``motion`` (one line, ``""`` when no cue fired),
+        ``stage_seconds`` and ``stage_cpu_seconds`` (``read``, ``slices``, ``reconstruct``,
+        ``symmetry``, ``write`` and ``total``, in seconds).
     """
     result = capture_to_model(capture_dir, calibration, options, missing=missing)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -339,13 +437,54 @@ def rotations_to_model(captures: Sequence[Capture | str | Path], calibration: st
                        options: Options | None = None, *, missing: Missing = "refuse",
                        seed: int = 1) -> AsymmetricReconstruction:
     """One model from captures of the same point at several rotations (§5.5,
-    :func:`~reflecto.reconstruct.asymmetric.reconstruct_rotations`)."""
+    :func:`~reflecto.reconstruct.asymmetric.reconstruct_rotations`).
+
+    Parameters
+    ----------
+    captures
+        The captures (:class:`~reflecto.instrument.capture.Capture` objects or folders),
+        all from one device, each with its manifest's ``rotation_deg``.
+    calibration, missing, seed
+        The calibration choice (:func:`calibration_for`), one for all captures.
+    options
+        Reconstruction settings (:class:`~reflecto.reconstruct.Options`).
+
+    Returns
+    -------
+    AsymmetricReconstruction
+        The §5.5 reconstruction of the set.
+
+    Raises
+    ------
+    CaptureError
+        The captures come from different devices, or one gives no slices.
+    """
     return reconstruct_rotations(rotated_captures(captures, calibration, missing=missing, seed=seed), options)
 
 
 def save_rotations_model(result: AsymmetricReconstruction, output: str | Path, capture_dirs: Sequence[str | Path],
                          calibration_note: str | None = None) -> dict[str, Any]:
-    """Write a §5.5 model and its ``.json`` summary (each atomically); returns the summary."""
+    """Write a §5.5 model and its ``.json`` summary (each atomically); returns the summary.
+
+    Parameters
+    ----------
+    result
+        The result of :func:`rotations_to_model`; its model's metadata gains the captures
+        (relative to the model's folder), ``rotations_deg`` and ``asymmetric``.
+    output
+        The model file to write; the summary goes to the same path with suffix ``.json``.
+    capture_dirs
+        The captures' folders, recorded in the summary (``captures``).
+    calibration_note
+        A description of the calibration used, recorded as ``calibration``; ``None`` or
+        ``""``: not recorded.
+
+    Returns
+    -------
+    dict
+        The summary written: ``captures`` followed by :meth:`AsymmetricReconstruction.summary`'s
+        fields (and ``calibration``).
+    """
     out = Path(output)
     summary = {"captures": [str(c) for c in capture_dirs], **result.summary()}
     if calibration_note:

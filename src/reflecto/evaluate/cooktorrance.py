@@ -63,14 +63,37 @@ class CookTorrance(BRDFSource):
         self.path = None
 
     def lobe(self, i: Array, o: Array) -> Array:
-        """``D G F / (π cos cos)`` without ρ_s, shape ``(N,)``."""
+        """The specular lobe without ρ_s: ``D_Beck G_V F_Schlick / (π cos θ_i cos θ_o)``
+        (sr⁻¹ per unit ρ_s; module docstring).
+
+        Parameters
+        ----------
+        i, o
+            Unit light and view directions in the local frame (``z = n``), shape ``(N, 3)``
+            (or broadcastable ``(..., 3)``).
+
+        Returns
+        -------
+        numpy.ndarray, shape (N,)
+            The lobe at each pair; 0 where either direction is below the horizon.
+        """
         return _lobe(i, o, self.f0, self.m)
 
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
         """Cook–Torrance BRDF ``f = ρ_d/π + ρ_s D G F / (π cos θ_i cos θ_o)`` (sr⁻¹; algorithm
         reference §6.3).
 
-        Directions, shapes and return as :meth:`reflecto.brdf.BRDFSource.eval`.
+        Parameters
+        ----------
+        i, o
+            Unit directions in the local frame (``x = t, y = b, z = n``; ``i`` toward the
+            light, ``o`` toward the viewer), shape ``(N, 3)`` (or broadcastable ``(..., 3)``),
+            as :meth:`reflecto.brdf.BRDFSource.eval`.
+
+        Returns
+        -------
+        numpy.ndarray, shape (N, 3)
+            Linear RGB BRDF (sr⁻¹); 0 where either direction is below the horizon.
         """
         i = np.asarray(i, float)
         o = np.asarray(o, float)
@@ -80,7 +103,14 @@ class CookTorrance(BRDFSource):
         return np.where(ok[..., None], f, 0.0)
 
     def parameters(self) -> dict[str, Any]:
-        """``rho_d``, ``rho_s`` (RGB lists), ``F0`` and ``m`` (floats), for ``reflecto info`` and ``fit-ct``."""
+        """The fitted parameters, for ``reflecto info`` and ``fit-ct``.
+
+        Returns
+        -------
+        dict
+            ``rho_d``, ``rho_s`` (RGB lists of 3 floats, dimensionless albedos), ``F0``
+            (Schlick's reflectance at normal incidence) and ``m`` (Beckmann roughness), floats.
+        """
         return {"rho_d": self.rho_d.tolist(), "rho_s": self.rho_s.tolist(), "F0": self.f0, "m": self.m}
 
     @property
@@ -118,7 +148,27 @@ def _nnls2(aa: float, ab: float, bb: float, ay: float, by: float) -> tuple[float
 
 
 def fit_cook_torrance(reference: BRDFSource, stride: int = 4, reference_values: Array | None = None) -> CookTorrance:
-    """Fit :class:`CookTorrance` to ``reference`` on the MERL grid (see the module docstring)."""
+    """Fit :class:`CookTorrance` to ``reference`` on the MERL grid (see the module docstring).
+
+    The bins of ``metric_grid(stride)`` (θ_i, θ_o ≤ 80°, ``φ_h = 0``) where the reference
+    is valid (all channels ≥ 0 and finite) go to :func:`fit_cook_torrance_samples` with
+    their solid-angle weights (AR 6.3), so the fit minimises the error of eq. 10.
+
+    Parameters
+    ----------
+    reference
+        The dense reference BRDF (e.g. a MERL material).
+    stride
+        Keep every ``stride``-th θ_d and φ_d bin (4 by default; 1 is every bin).
+    reference_values
+        ``reference`` already evaluated on ``metric_grid(stride)``, shape ``(K, 3)``, sr⁻¹;
+        ``None``: evaluate it.
+
+    Returns
+    -------
+    CookTorrance
+        The fitted model (ρ_d, ρ_s per channel, F0, m).
+    """
     g = metric_grid(stride)
     r = evaluate_on_grid(reference, g) if reference_values is None else reference_values
     ok = np.all(r >= 0, axis=1) & np.all(np.isfinite(r), axis=1)
@@ -130,7 +180,8 @@ def fit_cook_torrance_samples(i: ArrayLike, o: ArrayLike, f: ArrayLike, w: Array
 
     Minimises ``Σ w (f − f_CT)² cos² θ_i`` over ``(ρ_d, ρ_s, F0, m)``: ``ρ_d, ρ_s`` in
     closed form (non-negative least squares per channel), ``(log m, F0)`` by bounded
-    trust-region least squares from the starts :data:`STARTS_M` × :data:`STARTS_F0`.
+    trust-region least squares (``m ∈ [0.002, 1.5]``, ``F0 ∈ [0, 1]``) from the starts
+    :data:`STARTS_M` × :data:`STARTS_F0`, keeping the lowest cost.
 
     Parameters
     ----------
@@ -140,6 +191,11 @@ def fit_cook_torrance_samples(i: ArrayLike, o: ArrayLike, f: ArrayLike, w: Array
         BRDF values (sr⁻¹), shape ``(N, 3)``.
     w
         Weight of each sample (the metric's solid-angle weight, or a pixel count), ``(N,)``.
+
+    Returns
+    -------
+    CookTorrance
+        The best fit over the starts.
     """
     i, o = np.ascontiguousarray(i, dtype=np.float64), np.ascontiguousarray(o, dtype=np.float64)
     r = np.asarray(f, dtype=np.float64)
@@ -188,6 +244,18 @@ def fit_cook_torrance_capture(slices: Any) -> CookTorrance:
     sample of the slices (readings at the detection limit too, as they are), averaged
     per LED and texel of a 128² hemicube (each bin weighs by its pixel count), fitted
     by :func:`fit_cook_torrance_samples`.
+
+    Parameters
+    ----------
+    slices
+        The capture's BRDF slices (:class:`reflecto.instrument.slices.Slices`): ``light``
+        ``(L, 3)``, ``view`` ``(P, 3)``, ``values`` ``(L, P, 3)`` in sr⁻¹, ``valid``
+        ``(L, P)``; samples with a non-finite value are left out as well.
+
+    Returns
+    -------
+    CookTorrance
+        The fitted model.
     """
 
     ok = slices.valid & np.all(np.isfinite(slices.values), axis=-1)

@@ -97,7 +97,13 @@ class Design:
         return f"c{self.cone_half_angle_deg:.1f}-t{self.axis_tilt_deg:.1f}-l{self.n_leds}"
 
     def optics(self) -> Any:
-        """The design's nominal :class:`~reflecto.instrument.optics.Optics` (paper's sensor and law)."""
+        """The design's nominal :class:`~reflecto.instrument.optics.Optics` (paper's sensor and law).
+
+        Returns
+        -------
+        Optics
+            ``Optics(cone_half_angle_deg, axis_tilt_deg)``, every other field at its default.
+        """
 
         return Optics(cone_half_angle_deg=self.cone_half_angle_deg, axis_tilt_deg=self.axis_tilt_deg)
 
@@ -137,7 +143,22 @@ class Condenser:
 
 
 def condenser(design: Design) -> Condenser:
-    """The condenser a design needs, and whether it is a catalogue part (:class:`Condenser`)."""
+    """The condenser a design needs, and whether it is a catalogue part (:class:`Condenser`).
+
+    ``NA = sin c``, ``f = (D/2)/NA`` with ``D =`` :data:`LENS_DIAMETER_MM`, rim elevation
+    ``90° − (t + c)``.
+
+    Parameters
+    ----------
+    design
+        The design (cone half-angle ``c`` and axis tilt ``t``, degrees).
+
+    Returns
+    -------
+    Condenser
+        NA, focal length (mm), rim elevation (degrees), whether it is realisable
+        (NA ≤ :data:`MAX_CATALOGUE_NA`, rim ≥ :data:`MIN_RIM_ELEVATION_DEG`) and, if not, why.
+    """
     na = math.sin(math.radians(design.cone_half_angle_deg))
     rim = 90.0 - design.axis_tilt_deg - design.cone_half_angle_deg
     limits = []
@@ -150,12 +171,38 @@ def condenser(design: Design) -> Condenser:
 
 
 def capture_frames(n_leds: int, n_check: int = 1, n_exposures: int = 2) -> int:
-    """Frames of one capture: every LED and check LED at every exposure."""
+    """Frames of one capture: every LED and check LED at every exposure.
+
+    Parameters
+    ----------
+    n_leds
+        Number of LEDs.
+    n_check
+        Number of check LEDs (fired a second time to detect motion).
+    n_exposures
+        Exposures per LED (the HDR pair).
+
+    Returns
+    -------
+    int
+        ``(n_leds + n_check) · n_exposures``.
+    """
     return (n_leds + n_check) * n_exposures
 
 
 def capture_seconds(frames: int) -> float:
-    """Capture time (s) of ``frames`` at the paper's camera (:data:`PAPER_FRAME_RATE_HZ`)."""
+    """Capture time (s) of ``frames`` at the paper's camera (:data:`PAPER_FRAME_RATE_HZ`).
+
+    Parameters
+    ----------
+    frames
+        Number of frames (:func:`capture_frames`).
+
+    Returns
+    -------
+    float
+        ``frames / 120 Hz``, seconds.
+    """
     return frames / PAPER_FRAME_RATE_HZ
 
 
@@ -168,6 +215,22 @@ def lay_out(design: Design, seed: int = 0, maxiter: int = 80) -> dict[str, Any]:
     azimuth] pairs), ``coverage_after_tau, coverage_bound`` (fractions of the θ_h ≤ 80°
     cap, N = 64), ``peak_theta_d_deg`` (θ_d at which h = n is seen), ``theta_d_reach_deg``,
     ``objective_terms``, ``frames, capture_s``, the :class:`Condenser` fields, ``seconds``.
+
+    Parameters
+    ----------
+    design
+        The design; its LEDs are placed by
+        :func:`reflecto.instrument.layout.optimize_layout` with
+        :data:`~reflecto.instrument.layout.DESIGN_WEIGHTS`.
+    seed
+        Seed of the layout optimizer.
+    maxiter
+        Iteration limit of the layout optimizer.
+
+    Returns
+    -------
+    dict
+        The record (:func:`geometry_record`; ``seconds`` the layout's wall time).
     """
 
     t0 = time.perf_counter()
@@ -185,7 +248,31 @@ def lay_out(design: Design, seed: int = 0, maxiter: int = 80) -> dict[str, Any]:
 
 def geometry_record(key: str, optics: Any, angles: Any, seconds: float = 0.0, occluder_deg: float = 0.0,
                     terms: Sequence[float] | None = None, n_check: int = 1) -> dict[str, Any]:
-    """The geometry of a layout (see :func:`lay_out`) for given optics and LED angles ``(L, 2)``."""
+    """The geometry of a layout (see :func:`lay_out`) for given optics and LED angles ``(L, 2)``.
+
+    Parameters
+    ----------
+    key
+        The record's key (:attr:`Design.key`, or :data:`PAPER_KEY`).
+    optics
+        The design's :class:`~reflecto.instrument.optics.Optics`.
+    angles
+        LED ``(elevation, azimuth)`` pairs in degrees, shape ``(L, 2)``.
+    seconds
+        Wall time to record (s).
+    occluder_deg
+        Half angle of a central occluder for the peak θ_d (degrees; 0: none).
+    terms
+        The layout objective's terms to record; ``None``: recorded as ``None``.
+    n_check
+        Number of check LEDs (for the frame count).
+
+    Returns
+    -------
+    dict
+        The keys listed in :func:`lay_out`, angles in degrees, coverages as fractions,
+        ``capture_s`` in seconds.
+    """
 
     angles = np.asarray(angles, dtype=np.float64)
     leds = layout.led_direction(angles[:, 0], angles[:, 1])
@@ -211,12 +298,32 @@ def _paper_record() -> str:
 
 
 def paper_record() -> dict[str, Any]:
-    """The geometry record of the paper's device (``ideal``), the study's reference row."""
+    """The geometry record of the paper's device (``ideal``), the study's reference row.
+
+    Returns
+    -------
+    dict
+        :func:`geometry_record` of the ``ideal`` device (key :data:`PAPER_KEY`); a fresh
+        copy on every call.
+    """
     return json.loads(_paper_record())
 
 
 def design_device(rec: dict[str, Any]) -> Any:
-    """The ideal :class:`~reflecto.instrument.device.Device` of a design record."""
+    """The ideal :class:`~reflecto.instrument.device.Device` of a design record.
+
+    Parameters
+    ----------
+    rec
+        A design record (:func:`lay_out`, :func:`paper_record`): ``key``,
+        ``cone_half_angle_deg``, ``axis_tilt_deg``, ``leds``.
+
+    Returns
+    -------
+    Device
+        The built-in ``ideal`` device for :data:`PAPER_KEY`, else
+        ``Device.design(key, optics, leds, ideal=True)``.
+    """
 
     if rec["key"] == PAPER_KEY:
         return Device.builtin("ideal")
@@ -233,7 +340,23 @@ def _layout_task(cone: float, tilt: float, n_leds: int, out_dir: str) -> dict[st
 
 # ---------------------------------------------------------------- materials
 def cook_torrance_record(src: Any, ref_values: Any, albedo: float) -> dict[str, Any]:
-    """The dense Cook–Torrance fit of a material and its eq. 10 error (the sweep's baseline)."""
+    """The dense Cook–Torrance fit of a material and its eq. 10 error (the sweep's baseline).
+
+    Parameters
+    ----------
+    src
+        The material (reference BRDF).
+    ref_values
+        ``src`` on ``metric_grid(METRIC_STRIDE)``, shape ``(K, 3)``, sr⁻¹.
+    albedo
+        The normalizing albedo (:func:`~reflecto.evaluate.metrics.max_albedo` of ``src``).
+
+    Returns
+    -------
+    dict
+        ``error`` (normalized eq. 10), ``log_rmse``, the fitted ``rho_d``, ``rho_s``, ``F0``,
+        ``m``, and ``seconds`` (fit and evaluation).
+    """
 
     t0 = time.perf_counter()
     ct = fit_cook_torrance(src)
@@ -242,7 +365,28 @@ def cook_torrance_record(src: Any, ref_values: Any, albedo: float) -> dict[str, 
 
 
 def evaluate_design(src: Any, device: Any, seed: int, ref_values: Any, albedo: float) -> dict[str, Any]:
-    """One (design, material) record: the sweep's capture→model path on the design's ideal device."""
+    """One (design, material) record: the sweep's capture→model path on the design's ideal device.
+
+    Parameters
+    ----------
+    src
+        The material (reference BRDF).
+    device
+        The design's device (:func:`design_device`).
+    seed
+        Seed of the simulated capture (:func:`~reflecto.evaluate.sweep.material_seed`).
+    ref_values
+        ``src`` on ``metric_grid(METRIC_STRIDE)``, shape ``(K, 3)``, sr⁻¹.
+    albedo
+        The normalizing albedo of eq. 10's normalized error.
+
+    Returns
+    -------
+    dict
+        ``error`` (normalized eq. 10), ``log_rmse``, the model's ``fresnel``/``eta``,
+        ``kd``, ``ks``, ``isotropic``, ``shake_detected``, ``albedo_max``,
+        ``energy_scale``, ``model_error`` and ``seconds``.
+    """
     t0 = time.perf_counter()
     res = workflow.capture_to_model(simulate_capture(src, device, seed=seed), missing="nominal").reconstruction
     err = brdf_error(src, res.model, stride=METRIC_STRIDE, albedo_ref=albedo, reference_values=ref_values)
@@ -304,7 +448,22 @@ def _material_task(path: str, out_dir: str, designs: list[dict[str, Any]]) -> di
 
 # -------------------------------------------------------------------- study
 def design_grid(cones: Sequence[float], tilts: Sequence[float], led_counts: Sequence[int]) -> list[Design]:
-    """Every combination, cones outermost (the table's order)."""
+    """Every combination, cones outermost (the table's order).
+
+    Parameters
+    ----------
+    cones
+        Cone half-angles, degrees.
+    tilts
+        Axis tilts, degrees.
+    led_counts
+        Numbers of LEDs.
+
+    Returns
+    -------
+    list of Design
+        ``len(cones) · len(tilts) · len(led_counts)`` designs, LED count innermost.
+    """
     return [Design(float(c), float(t), int(n)) for c in cones for t in tilts for n in led_counts]
 
 
@@ -316,8 +475,34 @@ def design_study(folders: Sequence[str | Path], out_dir: str | Path, cones: Sequ
 
     ``materials=False`` lays out the designs only (geometry columns, no fidelity).
 
+    Parameters
+    ----------
+    folders
+        Folders of material files, or the files (:func:`~reflecto.evaluate.sweep.find_materials`).
+    out_dir
+        The study's folder (``designs/``, ``ct/``, ``runs/``, ``design.csv``, ``design.png``).
+    cones, tilts, led_counts
+        The grid (:func:`design_grid`): cone half-angles and axis tilts in degrees, LED counts.
+    jobs
+        Number of worker processes; 0: one per CPU.
+    scheduler
+        Dask scheduler address, or ``None`` for local processes.
+    progress
+        Draw the progress on stderr.
+    materials
+        Whether to evaluate the materials on every design.
+
+    Returns
+    -------
+    list of dict
+        The rows of :func:`table_row`, the paper's device first, then the grid's order;
+        designs that cannot be built (:attr:`Design.possible`) get a short row with
+        ``realisable`` false and the ``limit``.
+
     Raises
     ------
+    ReflectoError
+        ``materials`` and no material file in ``folders``.
     BatchError
         After writing the table of what finished, if some designs or materials failed.
     """
@@ -393,7 +578,26 @@ def design_study(folders: Sequence[str | Path], out_dir: str | Path, cones: Sequ
 
 
 def table_row(geo: dict[str, Any], runs: dict[str, dict[str, Any]], cts: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """One design's row: its geometry and, over the materials with both records, the fidelity."""
+    """One design's row: its geometry and, over the materials with both records, the fidelity.
+
+    Parameters
+    ----------
+    geo
+        The design's geometry record (:func:`geometry_record`).
+    runs
+        Material name → its (design, material) record (:func:`evaluate_design`).
+    cts
+        Material name → its Cook–Torrance record (:func:`cook_torrance_record`).
+
+    Returns
+    -------
+    dict
+        The geometry columns and ``materials``; with at least one material also
+        ``ours_below_ct``, ``fraction_below_ct``, ``median_ratio`` (ours / CT),
+        ``median_error``, ``median_ct_error``, ``shaken``, ``anisotropic``, ``max_albedo``,
+        ``max_eta`` (NaN if every Fresnel lobe is constant), ``constant_fresnel`` and
+        ``seconds``.
+    """
     names = sorted(n for n in runs if n in cts)
     row = {k: geo[k] for k in ("key", "cone_half_angle_deg", "axis_tilt_deg", "n_leds", "na", "focal_mm",
                                "rim_elevation_deg", "realisable", "limit", "coverage_after_tau", "coverage_bound",
@@ -425,7 +629,20 @@ TABLE_COLUMNS = ("key", "cone_half_angle_deg", "axis_tilt_deg", "n_leds", "na", 
 
 
 def write_design_table(rows: list[dict[str, Any]], path: Path) -> Path:
-    """``design.csv``: one row per design (the paper's device first), :data:`TABLE_COLUMNS`."""
+    """``design.csv``: one row per design (the paper's device first), :data:`TABLE_COLUMNS`.
+
+    Parameters
+    ----------
+    rows
+        Rows of :func:`table_row` (a missing column is an empty cell; lists as JSON).
+    path
+        The CSV file to write (atomically; parents created).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     def cell(v: Any) -> str:
         if v is None:
             return ""
@@ -452,7 +669,20 @@ def plot_design(rows: list[dict[str, Any]], path: Path) -> Path:
     """``design.png``: per LED count, the share of materials below CT, the median ratio to
     CT and the coverage after eq. 3 against the cone half-angle, one line per tilt; open
     markers are designs that are not realisable (:func:`condenser`), the dashed line the
-    paper's device."""
+    paper's device.
+
+    Parameters
+    ----------
+    rows
+        Rows of :func:`design_study`.
+    path
+        The PNG file to write (atomically; parents created).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
 
     plt = pyplot()
     grid = [r for r in rows if r["key"] != PAPER_KEY and "coverage_after_tau" in r]
@@ -496,7 +726,18 @@ def plot_design(rows: list[dict[str, Any]], path: Path) -> Path:
 
 def best_design(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
     """The realisable design with the most materials below CT (then the lowest median ratio,
-    then the fewest LEDs); ``None`` when no realisable design was evaluated."""
+    then the fewest LEDs); ``None`` when no realisable design was evaluated.
+
+    Parameters
+    ----------
+    rows
+        Rows of :func:`design_study` (the paper's row is left out).
+
+    Returns
+    -------
+    dict or None
+        The chosen row.
+    """
     ok = [r for r in rows if r.get("realisable") and r.get("materials") and r["key"] != PAPER_KEY]
     if not ok:
         return None

@@ -83,7 +83,15 @@ class GalleryRow:
     seconds: float
 
     def to_dict(self) -> dict[str, Any]:
-        """The row as JSON-ready values."""
+        """The row as JSON-ready values.
+
+        Returns
+        -------
+        dict
+            Every field (``dataclasses.asdict``): name, source, parameters, the error form,
+            the normalized eq. 10 errors and image differences of both paths, the noise floor,
+            the symmetry test's ratio and verdict, the image file names and the seconds.
+        """
         return dataclasses.asdict(self)
 
 
@@ -103,7 +111,31 @@ def _render_png(source, out: Path, name: str, settings: GallerySettings, seed: i
 
 
 def gallery_row(path: str | Path, out: Path, settings: GallerySettings, device=None, cal=None) -> GalleryRow:
-    """Reconstruct, compare and render one material into the folder ``out`` (module docstring)."""
+    """Reconstruct, compare and render one material into the folder ``out`` (module docstring).
+
+    Parameters
+    ----------
+    path
+        The material file.
+    out
+        The folder the three teapot PNGs (``<name>_reference.png``, ``_symmetric.png``,
+        ``_asymmetric.png``) are written to.
+    settings
+        Device, calibration, rotations, renders and seed.
+    device
+        The device already loaded from ``settings.device``; ``None``: load it.
+    cal
+        The calibration already made for it; ``None``: :func:`reflecto.workflow.calibration_for`
+        (``missing="simulate"``).
+
+    Returns
+    -------
+    GalleryRow
+        The errors (:func:`~reflecto.evaluate.metrics.comparison_error`, normalized), the
+        mean image differences to the reference's teapot and their noise floor (smoothed by
+        :data:`~reflecto.render.mitsuba.SMOOTHING_PX`), the first capture's symmetry test,
+        the image file names and the wall time (s).
+    """
 
     t0 = time.perf_counter()
     p = Path(path)
@@ -145,7 +177,22 @@ def _cell(row: GalleryRow, kind: str) -> str:
 
 
 def write_gallery(rows: Sequence[GalleryRow], out: Path, settings: GallerySettings) -> Path:
-    """``index.html`` (and ``gallery.json``) of the rows in the folder ``out``."""
+    """``index.html`` (and ``gallery.json``) of the rows in the folder ``out``.
+
+    Parameters
+    ----------
+    rows
+        The materials' rows (:func:`gallery_row`).
+    out
+        The folder (the rows' images are already there).
+    settings
+        The settings, stated on the page and stored in ``gallery.json``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out / "index.html"``.
+    """
 
     rots = "/".join(f"{r:g}" for r in settings.rotations_deg)
     head = ("<tr><th>material</th><th>reference</th><th>symmetric path (one capture, eq. 3 mirror)</th>"
@@ -180,6 +227,22 @@ def gallery(paths: Sequence[str | Path], out_dir: str | Path, settings: GalleryS
 
     The folder appears complete or not at all; ``progress(name, seconds)`` is called
     after each material. Returns the page and the rows.
+
+    Parameters
+    ----------
+    paths
+        The material files, in page order.
+    out_dir
+        The gallery's folder (replaced as a whole, :func:`reflecto.io.atomic_folder`).
+    settings
+        Device, calibration, rotations, renders and seed; ``None``: ``GallerySettings()``.
+    progress
+        Called with each material's name and wall time (s); ``None``: nothing.
+
+    Returns
+    -------
+    tuple of (pathlib.Path, list of GalleryRow)
+        ``out_dir / "index.html"`` and the rows.
     """
 
     settings = settings or GallerySettings()

@@ -114,14 +114,26 @@ class Error:
     azimuths: int = 1
 
     def to_dict(self) -> dict[str, float | int | str | list[float]]:
-        """The error as JSON-ready numbers: ``rmse`` (3 values, sr⁻¹), ``normalized``, ``log_rmse``,
-        ``albedo_ref``, and the metric's ``form`` and ``azimuths``.
+        """The error as JSON-ready numbers.
+
+        Returns
+        -------
+        dict
+            ``rmse`` (list of 3 floats, sr⁻¹), ``normalized``, ``log_rmse``, ``albedo_ref``
+            (floats), and the metric's ``form`` (str) and ``azimuths`` (int).
         """
         return {"rmse": self.rmse.tolist(), "normalized": self.normalized, "log_rmse": self.log_rmse,
                 "albedo_ref": self.albedo_ref, "form": self.form, "azimuths": self.azimuths}
 
     def describe(self) -> str:
-        """The form in words, for a command's output."""
+        """The form in words, for a command's output.
+
+        Returns
+        -------
+        str
+            ``"Ngan et al. eq. 10, MERL bins (φ_h = 0), θ ≤ 80°"`` for the ``"merl"`` form, else
+            a line naming the number of half-vector azimuths and their spacing.
+        """
         if self.form == "merl":
             return "Ngan et al. eq. 10, MERL bins (φ_h = 0), θ ≤ 80°"
         return (f"Ngan et al. eq. 10 over every half-vector azimuth ({self.azimuths} φ_h, "
@@ -130,13 +142,46 @@ class Error:
 
 def max_albedo(source: BRDFSource, theta_max_deg: float = THETA_MAX_DEG, azimuths: int = 1) -> float:
     """Largest channel-mean directional albedo over ``θ_i ∈ [0, θ_max]`` (5° steps) and
-    ``φ_i = 2πk/azimuths`` (the incidence plane ``φ_i = 0`` alone by default)."""
+    ``φ_i = 2πk/azimuths`` (the incidence plane ``φ_i = 0`` alone by default).
+
+    Parameters
+    ----------
+    source
+        The BRDF whose albedo is taken (its ``albedo(theta_i_deg, phi_i_deg)`` method).
+    theta_max_deg
+        Largest incidence polar angle θ_max, degrees (default the 80° cut of eq. 10).
+    azimuths
+        Number ``K`` of incidence azimuths ``φ_i = 360° k/K``, ``k = 0 … K−1``.
+
+    Returns
+    -------
+    float
+        ``max over θ_i, φ_i`` of the mean over R, G, B of ``a(i) = ∫ f(i, o) cos θ_o dω_o``
+        (dimensionless).
+    """
     theta = np.arange(0.0, theta_max_deg + 1e-9, 5.0)
     return max(float(np.max(source.albedo(theta, 360.0 * k / azimuths).mean(axis=1))) for k in range(azimuths))
 
 
 def evaluate_on_grid(source: BRDFSource, grid: Grid, chunk: int = 1 << 18) -> Array:
-    """``source`` at the grid's direction pairs, shape ``(K, 3)``; a MERL table is read directly."""
+    """``source`` at the grid's direction pairs; a MERL table is read directly.
+
+    Parameters
+    ----------
+    source
+        The BRDF. One with a ``table`` attribute of the MERL shape ``(90, 90, 180, 3)``
+        is indexed at ``grid.flat`` (invalid bins stay negative); any other is
+        evaluated with ``source.eval(i, o)``.
+    grid
+        The direction pairs (:func:`metric_grid` or :func:`turned_grid`).
+    chunk
+        Number of direction pairs evaluated per ``eval`` call (bounds the memory).
+
+    Returns
+    -------
+    numpy.ndarray, shape (K, 3)
+        BRDF values in sr⁻¹, one row per bin of ``grid`` (``K = len(grid.w)``), R, G, B.
+    """
     table = getattr(source, "table", None)
     if table is not None and np.shape(table) == merl.SHAPE + (3,):
         return np.asarray(table).reshape(-1, 3)[grid.flat]
@@ -189,7 +234,41 @@ def _error(sums: _Sums, reference: BRDFSource, albedo_ref: float | None, form: s
 
 def brdf_error(reference: BRDFSource, test: BRDFSource, stride: int = 1, albedo_ref: float | None = None,
                reference_values: Array | None = None) -> Error:
-    """Eq. 10 (and log-RMSE) of ``test`` against ``reference`` on the MERL bins (``φ_h = 0``, module docstring)."""
+    """Eq. 10 (and log-RMSE) of ``test`` against ``reference`` on the MERL bins
+    (``φ_h = 0``, module docstring).
+
+    ``E_c = √( Σ w (R_c cos θ_i − M_c cos θ_i)² / Σ w )`` per channel ``c`` (paper eq. 10,
+    Ngan–Durand–Matusik; AR 6.1), with ``w ∝ cos θ_d sin θ_d sin θ_h · u_h`` (AR 6.3),
+    over the bins with ``θ_i, θ_o ≤ 80°`` where the reference is valid (all three
+    channels ≥ 0 and finite).
+
+    Parameters
+    ----------
+    reference
+        The reference BRDF ``R`` (e.g. a MERL material).
+    test
+        The BRDF ``M`` under test (e.g. a reconstruction); its ``name`` labels the
+        error raised on a non-finite value.
+    stride
+        Keep every ``stride``-th bin along θ_d and φ_d (1: every bin; larger for quick
+        checks).
+    albedo_ref
+        Normalizing albedo; ``None``: :func:`max_albedo` of ``reference`` (``φ_i = 0``).
+    reference_values
+        ``reference`` already evaluated on ``metric_grid(stride)``, shape ``(K, 3)``, sr⁻¹
+        (saves evaluating it again across several tests); ``None``: evaluate it.
+
+    Returns
+    -------
+    Error
+        ``rmse`` (sr⁻¹, per channel), ``normalized = mean(rmse)/albedo_ref``,
+        ``log_rmse``, ``albedo_ref``; ``form == "merl"``, ``azimuths == 1``.
+
+    Raises
+    ------
+    ValueError
+        ``test`` is non-finite on a bin where the reference is valid.
+    """
     g = metric_grid(stride)
     r = evaluate_on_grid(reference, g) if reference_values is None else reference_values
     sums = _Sums()
@@ -207,7 +286,20 @@ AZIMUTH_STRIDE = 3
 
 def turned_grid(grid: Grid, phi_h: float) -> Grid:
     """``grid`` with every direction turned about ``n`` by ``phi_h`` (radians): the same
-    bins at half-vector azimuth ``phi_h``."""
+    bins at half-vector azimuth ``phi_h``.
+
+    Parameters
+    ----------
+    grid
+        The bins to turn.
+    phi_h
+        Rotation angle about ``n`` (the local ``z`` axis), radians.
+
+    Returns
+    -------
+    Grid
+        ``i`` and ``o`` turned (shape ``(K, 3)`` each); ``w`` and ``flat`` shared with ``grid``.
+    """
 
     return Grid(geometry.rotate_z(grid.i, phi_h), geometry.rotate_z(grid.o, phi_h), grid.w, grid.flat)
 
@@ -215,7 +307,37 @@ def turned_grid(grid: Grid, phi_h: float) -> Grid:
 def brdf_error_all_azimuths(reference: BRDFSource, test: BRDFSource, azimuths: int = AZIMUTHS,
                             stride: int = AZIMUTH_STRIDE, albedo_ref: float | None = None) -> Error:
     """Eq. 10 of ``test`` against ``reference`` summed over ``azimuths`` half-vector
-    azimuths (module docstring); shape and units as :func:`brdf_error`."""
+    azimuths (module docstring); shape and units as :func:`brdf_error`.
+
+    ``E_c² = Σ_k Σ w (R_c cos θ_i − M_c cos θ_i)² / (K Σ w)`` over ``φ_h = 2πk/K``,
+    ``k = 0 … K−1``; azimuth ``k`` uses every ``stride``-th θ_d and φ_d bin starting at
+    offset ``(k mod stride, (k div stride) mod stride)``.
+
+    Parameters
+    ----------
+    reference
+        The reference BRDF ``R``.
+    test
+        The BRDF ``M`` under test.
+    azimuths
+        Number ``K`` of half-vector azimuths (default :data:`AZIMUTHS`, 15° apart).
+    stride
+        θ_d and φ_d stride of each azimuth's grid (default :data:`AZIMUTH_STRIDE`).
+    albedo_ref
+        Normalizing albedo; ``None``: :func:`max_albedo` of ``reference`` over
+        :data:`ALBEDO_AZIMUTHS` incidence azimuths when the reference is anisotropic
+        (``isotropic`` false), over ``φ_i = 0`` alone otherwise.
+
+    Returns
+    -------
+    Error
+        As :func:`brdf_error`, with ``form == "all-azimuths"`` and ``azimuths == K``.
+
+    Raises
+    ------
+    ValueError
+        ``test`` is non-finite on a bin where the reference is valid.
+    """
     sums = _Sums()
     for k in range(azimuths):
         base = metric_grid(stride, THETA_MAX_DEG, (k % stride, (k // stride) % stride))
@@ -226,7 +348,21 @@ def brdf_error_all_azimuths(reference: BRDFSource, test: BRDFSource, azimuths: i
 
 def comparison_error(reference: BRDFSource, test: BRDFSource) -> Error:
     """The error ``reflecto compare`` reports: eq. 10 on the MERL bins when both sources
-    are isotropic, over every half-vector azimuth when either is not (module docstring)."""
+    are isotropic, over every half-vector azimuth when either is not (module docstring).
+
+    Parameters
+    ----------
+    reference
+        The reference BRDF; a source without an ``isotropic`` attribute counts as isotropic.
+    test
+        The BRDF under test; likewise.
+
+    Returns
+    -------
+    Error
+        :func:`brdf_error` (``form == "merl"``) when both are isotropic, else
+        :func:`brdf_error_all_azimuths` with its defaults (``form == "all-azimuths"``).
+    """
     if getattr(reference, "isotropic", True) and getattr(test, "isotropic", True):
         return brdf_error(reference, test)
     return brdf_error_all_azimuths(reference, test)
@@ -235,7 +371,26 @@ def comparison_error(reference: BRDFSource, test: BRDFSource) -> Error:
 def ndf_error(reference: HasNDF, model: HasNDF, resolution: int = 256, floor: float = 0.01) -> float:
     """Mean relative error of ``model``'s NDF against ``reference``'s where the reference's
     ``D`` exceeds ``floor`` of its peak, over the texel directions of a hemicube of the
-    given resolution (dimensionless). Both must have an ``ndf(h)`` method."""
+    given resolution (dimensionless). Both must have an ``ndf(h)`` method.
+
+    ``mean over {h : D_ref(h) > floor · max D_ref} of |D_model(h)/D_ref(h) − 1|``.
+
+    Parameters
+    ----------
+    reference
+        The reference NDF ``D_ref`` (``ndf(h)`` on unit half vectors, local frame).
+    model
+        The NDF ``D_model`` under test.
+    resolution
+        Top-face resolution of the hemicube whose texel centres are the half vectors ``h``.
+    floor
+        Fraction of the reference's peak below which texels are left out (0.01: 1 %).
+
+    Returns
+    -------
+    float
+        The mean relative error (0 for identical NDFs).
+    """
 
     h = hemicube(resolution).directions
     d = reference.ndf(h)

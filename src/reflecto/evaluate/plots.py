@@ -14,7 +14,21 @@ from ..render.sphere import composite, sphere_coverage
 
 
 def plot_errors(records: list[dict[str, Any]], path: str | Path) -> Path:
-    """Fig. 5 analogue: log normalized error per material, sorted by the Cook–Torrance error."""
+    """Fig. 5 analogue: log normalized error per material, sorted by the Cook–Torrance error.
+
+    Parameters
+    ----------
+    records
+        Sweep records (:func:`~reflecto.evaluate.sweep.run_material`): the normalized eq. 10
+        ``error`` of ``cook_torrance``, ``earlier`` and ``ours`` (plotted at ≥ 10⁻⁶).
+    path
+        The PNG file to write (atomically).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     plt = _plt()
     recs = sorted(records, key=lambda r: r["cook_torrance"]["error"])
     x = np.arange(len(recs))
@@ -42,6 +56,20 @@ def plot_spheres(records: list[dict[str, Any]], path: str | Path, n: int = 4) ->
     paper's choice of illustrating the difference), with each error in the title.
     The renders are :func:`reflecto.render.sphere.render_sphere`'s (key and fill
     light), shown at one exposure per row (the reference's) on the grey background.
+
+    Parameters
+    ----------
+    records
+        Sweep records with their ``renders`` (linear RGB, square).
+    path
+        The PNG file to write (atomically).
+    n
+        Number of materials (rows): the lowest ratios ours / earlier error.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
     """
     plt = _plt()
     recs = sorted(records, key=lambda r: r["ours"]["error"] / max(r["earlier"]["error"], 1e-300))[:n]

@@ -84,6 +84,20 @@ def ndf_figures(model: HasNDF, out: Path) -> list[tuple[str, str]]:
 
     A polar plot ``D(θ_h, φ_h)`` and the profile ``D(θ_h)`` (azimuthal mean, min and
     max) for any model; the unfolded hemicube as well where the model has one.
+
+    Parameters
+    ----------
+    model
+        A model with ``ndf(h)`` (``D`` in sr⁻¹ on unit half vectors ``(N, 3)``); one with
+        ``cube`` and ``ndf_values`` also gets the unfolded hemicube.
+    out
+        The folder the PNGs are written to (``ndf_unfolded.png``, ``ndf_polar.png``,
+        ``ndf_profile.png``).
+
+    Returns
+    -------
+    list of (str, str)
+        ``(file name, caption)`` of each figure written.
     """
     plt = pyplot()
     items = []
@@ -136,7 +150,26 @@ def ndf_figures(model: HasNDF, out: Path) -> list[tuple[str, str]]:
 
 
 def theta_h_theta_d_image(source: BRDFSource, out: Path, name: str = "thd.png", title: str = "") -> str:
-    """BRDF Explorer's θ_h–θ_d image at φ_d = 90° (luminance, log scale)."""
+    """BRDF Explorer's θ_h–θ_d image at φ_d = 90° (luminance, log scale).
+
+    ``log₁₀ max(f·LUM, 10⁻⁴)`` on a 180 × 180 grid of θ_h, θ_d ∈ [0.25°, 89.75°] (``φ_h = 0``).
+
+    Parameters
+    ----------
+    source
+        The BRDF (sr⁻¹).
+    out
+        The folder the PNG is written to.
+    name
+        The PNG's file name.
+    title
+        The plot's title; ``""``: ``"θ_h–θ_d slice at φ_d = 90°"``.
+
+    Returns
+    -------
+    str
+        The file name written (``name``).
+    """
 
     plt = pyplot()
     th = np.radians(np.linspace(0.25, 89.75, 180))
@@ -161,6 +194,22 @@ def slice_figure(capture_dir: Path, out: Path, calibration: str | Path | None = 
     with ``calibration`` (the capture's own; default: the device's nominal one).
 
     Returns ``(file, device, calibration words)``, or None if the capture is unreadable.
+
+    Parameters
+    ----------
+    capture_dir
+        The capture folder.
+    out
+        The folder ``slices.png`` is written to.
+    calibration
+        The calibration file the model names; ``None``, or a file that does not load: the
+        device's nominal calibration (and the words say so).
+
+    Returns
+    -------
+    tuple of (str, Device, str) or None
+        The file name, the capture's device and how it was calibrated; ``None`` when the
+        capture cannot be read.
     """
     try:
         cap = read_capture(capture_dir)
@@ -207,6 +256,23 @@ def render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, ref: BRDFSou
     seeds, and states the mean image difference beside the noise floor (the same
     measure between the two reference renders) and the difference corrected for it
     (:class:`reflecto.render.mitsuba.Comparison`).
+
+    Parameters
+    ----------
+    model
+        The model to render.
+    ref
+        The reference BRDF, or ``None`` for the model's renders alone.
+    out
+        The folder the PNGs are written to (``render_<scene>.png``, ``compare_<scene>.png``).
+    spp
+        Samples per pixel; ``None``: each scene's default.
+
+    Returns
+    -------
+    tuple of (list of (str, str), dict of str to Comparison)
+        ``(file name, caption)`` of each figure, and the comparison of each scene
+        (``sphere-env``, ``sphere-point``; empty without a reference).
     """
 
     items, comparisons = [], {}
@@ -238,7 +304,33 @@ def render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, ref: BRDFSou
 
 def write_report(model_path: str | Path, out_dir: str | Path, reference: str | Path | None = None,
                  spp: int | None = None, render: bool = True) -> Path:
-    """Write the HTML report of one model (see the module docstring); returns the page."""
+    """Write the HTML report of one model (see the module docstring); returns the page.
+
+    Parameters
+    ----------
+    model_path
+        The model file; its ``.json`` summary beside it, when present, adds the normal tilt,
+        the model error, the shake verdict and isotropy.
+    out_dir
+        The report's folder (created if missing).
+    reference
+        A reference BRDF file: adds the comparisons, its θ_h–θ_d image and the normalized
+        eq. 10 error (:func:`~reflecto.evaluate.metrics.brdf_error`) and log-RMSE.
+    spp
+        Samples per pixel of the renders; ``None``: each scene's default.
+    render
+        Whether to render with Mitsuba (``False``: no render section).
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_dir / "index.html"``.
+
+    Raises
+    ------
+    FileFormatError
+        The model's summary is not a JSON object.
+    """
 
     model_path = Path(model_path)
     model = load_model(model_path)
@@ -323,7 +415,24 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
 
 
 def write_index(entries: list[dict[str, Any]], out_dir: str | Path, title: str = "reflecto sweep") -> Path:
-    """An index page linking per-material reports: ``entries`` of ``{name, href, numbers...}``."""
+    """An index page linking per-material reports: ``entries`` of ``{name, href, numbers...}``.
+
+    Parameters
+    ----------
+    entries
+        One dict per material: ``name``, ``href`` (the report's link; empty or missing: no
+        link) and further columns, taken from the first entry's keys (floats to 4
+        significant digits).
+    out_dir
+        The folder ``index.html`` is written to.
+    title
+        The page's title.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_dir / "index.html"``.
+    """
     out = Path(out_dir)
     keys = [k for k in entries[0] if k not in ("name", "href")] if entries else []
     head = "".join(f"<th>{html.escape(k)}</th>" for k in ["material", *keys])

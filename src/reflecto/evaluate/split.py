@@ -32,12 +32,37 @@ VALIDATION = frozenset({
 
 
 def half(name: str) -> str:
-    """``"tuning"``, ``"validation"`` or ``"other"`` (a material outside the shared 50)."""
+    """``"tuning"``, ``"validation"`` or ``"other"`` (a material outside the shared 50).
+
+    Parameters
+    ----------
+    name
+        The material's name (its file's stem).
+
+    Returns
+    -------
+    str
+        ``"tuning"`` if in :data:`TUNING`, ``"validation"`` if in :data:`VALIDATION`, else ``"other"``.
+    """
     return "tuning" if name in TUNING else "validation" if name in VALIDATION else "other"
 
 
 def draw_split(groups: Iterable[Iterable[str]]) -> tuple[set[str], set[str]]:
-    """The draw that produced :data:`TUNING` / :data:`VALIDATION`, for any groups of names."""
+    """The draw that produced :data:`TUNING` / :data:`VALIDATION`, for any groups of names.
+
+    Within each group the names are ranked by ``crc32("reflecto-split:" + name)``; even
+    ranks (0, 2, …) tune, odd ranks validate.
+
+    Parameters
+    ----------
+    groups
+        Groups of material names (one per database, for stratification).
+
+    Returns
+    -------
+    tuple of (set of str, set of str)
+        The tuning names and the validation names.
+    """
     tune: set[str] = set()
     val: set[str] = set()
     for group in groups:

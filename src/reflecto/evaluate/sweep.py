@@ -68,7 +68,27 @@ METRIC_STRIDE = 1
 
 
 def find_materials(folders: Sequence[str | Path]) -> list[Path]:
-    """Material files in ``folders`` (sorted; NBRDF architecture sidecars skipped)."""
+    """Material files in ``folders`` (sorted; NBRDF architecture sidecars skipped).
+
+    Parameters
+    ----------
+    folders
+        Folders to list (their files with a suffix of :data:`MATERIAL_SUFFIXES`, hidden
+        files skipped; a ``.json``/``.toml`` only when it describes an analytic BRDF and has
+        no ``.h5`` beside it), or material files taken as they are.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The material files, folder by folder, each folder's sorted by name.
+
+    Raises
+    ------
+    FileFormatError
+        An entry is neither a folder nor a file.
+    ReflectoError
+        Two materials have the same name (file stem) in different folders.
+    """
     out: list[Path] = []
     for folder in folders:
         folder = Path(folder)
@@ -128,7 +148,31 @@ def _reconstruct(src: Any, device_name: str, calibration: str | None, seed: int)
 
 
 def run_material(path: str, out_dir: str, device: str = "ideal", calibration: str | None = None) -> dict[str, Any]:
-    """Evaluate one material (see the module docstring); writes and returns its record."""
+    """Evaluate one material (see the module docstring); writes and returns its record.
+
+    Parameters
+    ----------
+    path
+        The material file.
+    out_dir
+        The sweep's results folder; the record goes to ``out_dir/materials/<name>.json``
+        (atomically).
+    device
+        The device ``ours`` simulates with (a built-in name or a device file).
+    calibration
+        :func:`reflecto.workflow.calibration_file` of ``device``: its calibration file, or
+        ``None`` for a device whose nominal description is exact.
+
+    Returns
+    -------
+    dict
+        The record: ``name``, ``file``, ``device``, ``seed``, ``half``, ``albedo_ref``;
+        ``ours``, ``earlier`` (normalized ``error`` of eq. 10, ``log_rmse``, ``rmse``
+        per channel in sr⁻¹, and the model's η, ``kd``, ``ks``, notes and checks),
+        ``cook_torrance`` and ``same_data_ct`` (errors and fitted parameters);
+        ``renders`` (``SPHERE_RES × SPHERE_RES × 3`` linear RGB lists of the reference and
+        the models); ``timings`` (seconds per stage, and ``total_s``).
+    """
 
     p = Path(path)
     src = load_source(p)
@@ -186,7 +230,20 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
 
 
 def record_problem(rec: Any, name: str) -> str | None:
-    """What a material record lacks for the table, the summary and the figures (None if complete)."""
+    """What a material record lacks for the table, the summary and the figures (None if complete).
+
+    Parameters
+    ----------
+    rec
+        The record as read back from its JSON file (any JSON value).
+    name
+        The material's name, which ``rec["name"]`` must equal.
+
+    Returns
+    -------
+    str or None
+        A short description of the first problem found, or ``None`` for a usable record.
+    """
     def number(v: Any) -> bool:
         return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
@@ -249,8 +306,32 @@ def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ide
     local processes (:func:`reflecto.batch.run_on_dask`); ``out_dir`` must then be a path every worker
     sees.
 
+    Parameters
+    ----------
+    folders
+        Folders of material files, or the files (:func:`find_materials`).
+    out_dir
+        The results folder: ``materials/<name>.json``, ``failures.json``, ``results.csv``,
+        ``fig5_errors.png``, ``fig4_spheres.png`` and, for a device with hidden
+        imperfections, its calibration.
+    device
+        The device ``ours`` simulates with; records of another device are evaluated again.
+    jobs
+        Number of worker processes; 0: one per CPU.
+    progress
+        Draw the progress (:class:`reflecto.batch.Progress`) on stderr.
+    scheduler
+        Dask scheduler address, or ``None`` for local processes.
+
+    Returns
+    -------
+    list of dict
+        The records of :func:`run_material` (finished ones read back), sorted by name.
+
     Raises
     ------
+    ReflectoError
+        No material file in ``folders``.
     BatchError
         After writing the results of the others, if some materials failed; its
         ``failures`` list ``(file, message)``, its ``records`` the finished records.
@@ -299,7 +380,15 @@ def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ide
 
 
 def write_failures(path: Path, failures: list[tuple[str, str]]) -> None:
-    """``failures.json``: ``[{"file", "error"}, ...]`` of the last run; removed when none failed."""
+    """``failures.json``: ``[{"file", "error"}, ...]`` of the last run; removed when none failed.
+
+    Parameters
+    ----------
+    path
+        The file to write (atomically) or remove.
+    failures
+        ``(material file, message)`` pairs; written sorted.
+    """
     if failures:
         with atomic_write(path, "w") as fh:
             fh.write(json.dumps([{"file": f, "error": m} for f, m in sorted(failures)], indent=1))
@@ -319,7 +408,25 @@ def _eta_cell(result: dict[str, Any]) -> str:
 
 
 def write_table(records: list[dict[str, Any]], path: Path) -> Path:
-    """The CSV table of a sweep (one row per material)."""
+    """The CSV table of a sweep (one row per material).
+
+    Columns :data:`COLUMNS`: the normalized errors of eq. 10 (``ours``, ``earlier``,
+    ``cook_torrance``, ``same_data_ct``), the ratios ``ours/ct`` and ``ours/same_data_ct``,
+    log-RMSEs, the model's η, largest ``ks``, isotropy, largest albedo and finiteness, and
+    seconds (total, reconstruction, Cook–Torrance fit).
+
+    Parameters
+    ----------
+    records
+        Records of :func:`run_material`.
+    path
+        The CSV file to write (atomically).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
 
     buf = io.StringIO()
     w = csv.writer(buf)
@@ -340,7 +447,23 @@ def write_table(records: list[dict[str, Any]], path: Path) -> Path:
 
 def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     """The validation numbers: over all materials and per half of the protocol (:mod:`.split`);
-    ``{"all": {"materials": 0}}`` for no records (every material failed)."""
+    ``{"all": {"materials": 0}}`` for no records (every material failed).
+
+    Parameters
+    ----------
+    records
+        Records of :func:`run_material`.
+
+    Returns
+    -------
+    dict
+        ``all`` (and ``tuning``, ``validation`` for halves with records): ``materials``,
+        the counts ``ours_better_than_ct``, ``ours_better_than_same_data_ct``,
+        ``ours_better_than_earlier`` (lower normalized error of eq. 10), the median ratios
+        ``median_ratio_ours_over_ct`` and ``median_ratio_ours_over_same_data_ct``,
+        ``median_error`` per method, ``isotropic`` (count), ``all_finite`` and
+        ``max_albedo``; plus ``seconds_total_cpu``, the sum of the records' ``total_s``.
+    """
     if not records:
         return {"all": {"materials": 0}, "seconds_total_cpu": 0.0}
     def numbers(recs: list[dict[str, Any]]) -> dict[str, Any]:

@@ -51,7 +51,23 @@ N_PHI_D = 32
 
 
 def tabulate_projected(source: BRDFSource) -> np.ndarray:
-    """``f·cos θ_i·cos θ_o`` at the viewer's nodes (module docstring), shape ``(N_θh, N_θd, N_φd, 3)``, float32."""
+    """``f·cos θ_i·cos θ_o`` at the viewer's nodes (module docstring), shape ``(N_θh, N_θd, N_φd, 3)``, float32.
+
+    Nodes: ``θ_h = (π/2) u²`` with ``u`` uniform in [0, 1] (:data:`N_THETA_H`), ``θ_d``
+    uniform in [0, π/2] (:data:`N_THETA_D`), ``φ_d`` uniform in [0, π] (:data:`N_PHI_D`),
+    ``φ_h = 0``, endpoints included.
+
+    Parameters
+    ----------
+    source
+        The BRDF (sr⁻¹).
+
+    Returns
+    -------
+    numpy.ndarray of float32, shape (N_THETA_H, N_THETA_D, N_PHI_D, 3)
+        The cosine-weighted BRDF (sr⁻¹), clamped at 0; 0 where either direction is at or
+        below the horizon.
+    """
     u = np.linspace(0.0, 1.0, N_THETA_H)
     th = u * u * (0.5 * math.pi)
     td = np.linspace(0.0, 0.5 * math.pi, N_THETA_D)

@@ -220,7 +220,20 @@ class Reconstruction:
         return math.degrees(math.acos(min(1.0, float(self.frame[2, 2]))))
 
     def summary(self) -> dict[str, Any]:
-        """JSON-ready summary (the ``material.json`` written beside a model file)."""
+        """JSON-ready summary (the ``material.json`` written beside a model file).
+
+        Returns
+        -------
+        dict
+            ``isotropic``; ``fresnel`` and ``eta`` (:func:`reflecto.fresnel.eta_to_json`);
+            ``kd``, ``ks`` (RGB lists); ``normal`` (unit vector, device frame),
+            ``normal_tilt_deg``, ``normal_uncertainty_deg`` (degrees), ``normal_source``;
+            ``isotropy_test`` (:meth:`IsotropyTest.to_dict`); the motion cues
+            (:meth:`MotionReport.to_dict`: ``shake_detected``, …); ``model_error``,
+            ``fresnel_error``, ``energy_scale``, ``albedo_max``, ``notes`` and ``seconds``.
+            Non-finite ``normal_uncertainty_deg``, ``model_error`` and ``fresnel_error`` are
+            ``None``.
+        """
         nan = (lambda x: x if math.isfinite(x) else None)
         return {"isotropic": self.isotropic, **eta_to_json(self.model.eta), "kd": self.model.kd.tolist(),
                 "ks": self.model.ks.tolist(), "normal": self.frame[2].tolist(), "normal_tilt_deg": self.normal_tilt_deg,
@@ -232,7 +245,23 @@ class Reconstruction:
 
 
 def usable_samples(slices: Slices) -> NDArray[np.bool_]:
-    """Valid samples with finite values in every channel, shape ``(L, P)``; too few is an error."""
+    """Valid samples with finite values in every channel, shape ``(L, P)``; too few is an error.
+
+    Parameters
+    ----------
+    slices
+        The capture's BRDF slices (``valid`` ``(L, P)``, ``values`` ``(L, P, 3)`` in sr⁻¹).
+
+    Returns
+    -------
+    numpy.ndarray of bool, shape (L, P)
+        ``slices.valid`` and every channel finite.
+
+    Raises
+    ------
+    ReflectoError
+        Fewer than :data:`MIN_SAMPLES` samples are usable.
+    """
     ok = slices.valid & np.all(np.isfinite(slices.values), axis=-1)  # a NaN or ±inf channel poisons the sum
     if int(ok.sum()) < MIN_SAMPLES:
         raise ReflectoError(f"capture: fewer than {MIN_SAMPLES} valid samples "
@@ -249,6 +278,23 @@ def estimate_frame(slices: Slices, valid: NDArray[np.bool_], max_tilt_deg: float
     model (:class:`.normal.ConsistencyDistance`: partial NDFs at ``h`` and ``τh``), with
     ``S`` from an isotropic fit in the device frame. Both are searched on a grid of
     tilts, their local minima refined (:func:`.normal.estimate_normal_consistency`).
+
+    Parameters
+    ----------
+    slices
+        The capture's BRDF slices, device frame.
+    valid
+        Usable samples, shape ``(L, P)`` (:func:`usable_samples`).
+    max_tilt_deg
+        Largest tilt of the normal from the device axis searched (degrees).
+    isotropic
+        Whether the material may be isotropic (the isotropic-misfit distance) or not (the
+        symmetry criterion, refined once more with ``S`` from the fit in the found frame).
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 3)
+        Rows ``(t, b, n)`` of the sample frame in device coordinates (``t`` follows device x).
     """
     coarse: NormalDistance
     fine: NormalDistance
@@ -276,7 +322,24 @@ DEVICE_AXIS_SIGMAS = PIPELINE.device_axis_sigmas
 def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> NormalEstimate:
     """The sample normal the options ask for: estimated (``"auto"``, :func:`.normal.estimate_normal`,
     the device axis where the tilt is within :data:`DEVICE_AXIS_SIGMAS` uncertainties of 0),
-    the device axis (``"device"``) or the given vector."""
+    the device axis (``"device"``) or the given vector.
+
+    Parameters
+    ----------
+    slices
+        The capture's BRDF slices, device frame.
+    valid
+        Usable samples, shape ``(L, P)``.
+    opt
+        The reconstruction options (``normal``, ``isotropic``, ``max_tilt_deg``, ``fixed_eta``);
+        with ``isotropic="no"`` the device axis is kept.
+
+    Returns
+    -------
+    NormalEstimate
+        The normal (unit vector, device frame), its standard uncertainty (degrees; 0 when
+        imposed) and its ``source`` (``"estimated"``, ``"device"`` or ``"given"``).
+    """
     z = np.array([0.0, 0.0, 1.0])
     if isinstance(opt.normal, str) and opt.normal == "device":
         return NormalEstimate(z, 0.0, "device")
@@ -317,6 +380,20 @@ def limit_energy(model: IsotropicMicrofacetBRDF | MicrofacetBRDF, clamp: bool = 
 
     A passive surface reflects at most what it receives. Returns the model, the scale
     (1 when nothing was needed) and the largest albedo after it.
+
+    Parameters
+    ----------
+    model
+        The fitted BRDF.
+    clamp
+        Whether to scale; ``False`` only measures the largest albedo.
+
+    Returns
+    -------
+    tuple of (model, float, float)
+        The model (a new one with ``k_d, k_s`` times ``1/albedo`` when the largest albedo
+        exceeds 1, else ``model``), the scale applied, and the largest directional albedo
+        (dimensionless) after it.
     """
     albedo = float(model.albedo(np.array(ALBEDO_ANGLES), n_u=ALBEDO_QUAD, n_phi=ALBEDO_QUAD).max())
     if albedo > ALBEDO_REFINE_ABOVE:
@@ -352,7 +429,24 @@ def _notes(fit: IsotropicFit | HemicubeFit, model, isotropic: bool, test: Isotro
 def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> list[str]:
     """Plain notes on every parameter the data held at a physical or search bound (``k_s = 1``,
     η at :data:`~.isotropic.ETA_MAX`, ``k_d = 0``), on the constant Fresnel lobe that
-    replaces an η beyond that bound, and on the energy limit, for a summary."""
+    replaces an η beyond that bound, and on the energy limit, for a summary.
+
+    Parameters
+    ----------
+    ks_at_bound
+        Whether the fit held ``k_s`` at 1.
+    eta
+        The fitted relative index (or :data:`reflecto.fresnel.CONSTANT`).
+    model
+        The final model (its ``kd`` is checked for zero channels).
+    energy_scale
+        The scale of :func:`limit_energy` (< 1: the albedo was limited).
+
+    Returns
+    -------
+    list of str
+        One sentence per bound met (empty when none).
+    """
     notes = []
     if ks_at_bound:
         notes.append("k_s at its physical bound 1 (a microfacet reflects at most F): the specular level fixes η")

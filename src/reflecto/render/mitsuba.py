@@ -67,12 +67,33 @@ SHARED = Path(os.environ.get("REFLECTO_SHARED", Path(__file__).resolve().parents
 def default_envmap() -> Path:
     """The shared studio environment map, ``SHARED/envmaps/pmndrs_studio.hdr`` (``SHARED``: the
     ``REFLECTO_SHARED`` environment variable, else ``../shared/data`` beside the project).
+
+    Returns
+    -------
+    pathlib.Path
+        The map's path (not checked; :func:`check_envmap` does).
     """
     return SHARED / "envmaps" / "pmndrs_studio.hdr"
 
 
 def check_envmap(path: str | Path) -> Path:
-    """Refuse a missing or unreadable environment map with a clear error."""
+    """Refuse a missing or unreadable environment map with a clear error.
+
+    Parameters
+    ----------
+    path
+        The environment map (any format ``imageio`` reads, e.g. ``.hdr``, ``.exr``).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``, once it is read as a finite RGB(A) image.
+
+    Raises
+    ------
+    FileFormatError
+        Missing, unreadable, not RGB, or with a non-finite pixel.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileFormatError(path, "environment map not found")
@@ -87,7 +108,20 @@ def check_envmap(path: str | Path) -> Path:
 
 
 def bsdf_file(source: BRDFSource, folder: Path) -> Path:
-    """An RGL file for ``source``: its own file if it is one, else a fresh export in ``folder``."""
+    """An RGL file for ``source``: its own file if it is one, else a fresh export in ``folder``.
+
+    Parameters
+    ----------
+    source
+        The BRDF.
+    folder
+        Where the export goes (as ``source.bsdf``).
+
+    Returns
+    -------
+    pathlib.Path
+        The ``.bsdf`` file to render.
+    """
 
     if isinstance(source, RGLBRDF):
         return Path(source.path)
@@ -112,6 +146,16 @@ def smooth_mesh(mesh: Path) -> Path:
     (to 10⁻⁵ of the mesh size) are merged, triangles that collapse are dropped, and
     each vertex gets the angle-weighted mean of its triangles' normals. The copy is
     cached in the temporary folder under the hash of the source mesh.
+
+    Parameters
+    ----------
+    mesh
+        The OBJ file (``v`` and ``f`` lines; polygons are split into fans of triangles).
+
+    Returns
+    -------
+    pathlib.Path
+        The cached copy, ``<tmp>/reflecto-smooth-<hash>.obj``, with ``vn`` normals.
     """
     raw = mesh.read_bytes()
     cached = Path(tempfile.gettempdir()) / f"reflecto-smooth-{hashlib.sha256(raw).hexdigest()[:16]}.obj"
@@ -151,7 +195,40 @@ def smooth_mesh(mesh: Path) -> Path:
 
 def scene_dict(mi, scene: str, bsdf_path: Path, envmap: Path | None, resolution: int, spp: int, seed: int = 0,
                lights: tuple = LIGHTS) -> dict:
-    """The Mitsuba scene description of one of :data:`SCENES` (``sphere-point``: with ``lights``)."""
+    """The Mitsuba scene description of one of :data:`SCENES` (``sphere-point``: with ``lights``).
+
+    Parameters
+    ----------
+    mi
+        The imported ``mitsuba`` module (variant set).
+    scene
+        One of :data:`SCENES`.
+    bsdf_path
+        The RGL ``.bsdf`` file of the ``measured`` BSDF.
+    envmap
+        Environment map of the ``*-env`` scenes; ``None``: :func:`default_envmap`.
+    resolution
+        Image width and height, pixels.
+    spp
+        Samples per pixel of the ``ldsampler``.
+    seed
+        Seed of the sampler.
+    lights
+        Point lights of ``sphere-point``: ``((position, intensity W/sr), ...)``.
+
+    Returns
+    -------
+    dict
+        The scene for ``mi.load_dict``: perspective sensor (RGBA film, box filter), the
+        integrator, the lights and the shape.
+
+    Raises
+    ------
+    ParameterError
+        An unknown scene.
+    FileFormatError
+        A missing or unreadable environment map or teapot mesh.
+    """
     if scene not in SCENES:
         raise ParameterError(f"unknown scene {scene!r}; choose one of {', '.join(SCENES)}")
     T = mi.ScalarTransform4f
@@ -219,7 +296,20 @@ class Rendering:
     seconds: float
 
     def image(self, exposure: float = 1.0, background: float = BACKGROUND) -> Array:
-        """The display image: the render composited onto a grey background (linear RGB)."""
+        """The display image: the render composited onto a grey background (linear RGB).
+
+        Parameters
+        ----------
+        exposure
+            Factor applied to the radiance.
+        background
+            Linear grey behind the object.
+
+        Returns
+        -------
+        numpy.ndarray, shape (H, W, 3)
+            ``exposure·radiance + (1 − α)·background`` (:func:`reflecto.render.sphere.composite`).
+        """
         return composite(self.radiance, self.alpha, exposure, background)
 
 
@@ -228,6 +318,16 @@ def sample_count(spp: int) -> int:
 
     Mitsuba rounds up to a square power of two itself (128 renders as 256); doing it
     here keeps the count that a :class:`Rendering` reports the count it used.
+
+    Parameters
+    ----------
+    spp
+        Samples per pixel asked for.
+
+    Returns
+    -------
+    int
+        The smallest ``4^k ≥ spp`` (``k ≥ 1``).
     """
     n = 4
     while n < spp:
@@ -249,7 +349,40 @@ def _check(scene: str, resolution: int, spp: int | None) -> int:
 
 def render_file(bsdf_path: Path, scene: str = "sphere-env", envmap: str | Path | None = None, resolution: int = 256,
                 spp: int | None = None, seed: int = 0) -> Rendering:
-    """Render an RGL ``.bsdf`` file (see :func:`render`)."""
+    """Render an RGL ``.bsdf`` file (see :func:`render`).
+
+    ``sphere-point`` is rendered once per point light and the images summed.
+
+    Parameters
+    ----------
+    bsdf_path
+        The RGL ``.bsdf`` file.
+    scene
+        One of :data:`SCENES`.
+    envmap
+        Environment map of the ``*-env`` scenes (default: :func:`default_envmap`); not
+        used by ``sphere-point``.
+    resolution
+        Image width and height, pixels (8 to 4096).
+    spp
+        Samples per pixel, rounded up to a power of 4 (:func:`sample_count`); ``None``:
+        the scene's :data:`DEFAULT_SPP`.
+    seed
+        Seed of the sampler.
+
+    Returns
+    -------
+    Rendering
+        Radiance ``(H, W, 3)`` and alpha ``(H, W)``, with the scene, spp, seed, Mitsuba
+        variant and wall time.
+
+    Raises
+    ------
+    ParameterError
+        An unknown scene, a resolution outside [8, 4096] or ``spp < 1``.
+    FileFormatError
+        A missing or unreadable environment map.
+    """
     spp = _check(scene, resolution, spp)
     if envmap is not None:
         check_envmap(envmap)
@@ -274,7 +407,35 @@ def render_file(bsdf_path: Path, scene: str = "sphere-env", envmap: str | Path |
 
 def render(source: BRDFSource, scene: str = "sphere-env", envmap: str | Path | None = None,
            resolution: int = 256, spp: int | None = None, seed: int = 0) -> Rendering:
-    """Render ``source`` in one of :data:`SCENES`; ``spp=None`` takes :data:`DEFAULT_SPP`."""
+    """Render ``source`` in one of :data:`SCENES`; ``spp=None`` takes :data:`DEFAULT_SPP`.
+
+    Parameters
+    ----------
+    source
+        The BRDF; exported to a temporary RGL file unless it is one (:func:`bsdf_file`).
+    scene
+        One of :data:`SCENES`.
+    envmap
+        Environment map of the ``*-env`` scenes (default: :func:`default_envmap`); not
+        used by ``sphere-point``.
+    resolution
+        Image width and height, pixels (8 to 4096).
+    spp
+        Samples per pixel, rounded up to a power of 4 (:func:`sample_count`); ``None``:
+        the scene's :data:`DEFAULT_SPP`.
+    seed
+        Seed of the sampler.
+
+    Returns
+    -------
+    Rendering
+        As :func:`render_file`, its ``seconds`` including the export.
+
+    Raises
+    ------
+    ParameterError
+        An unknown scene, a resolution outside [8, 4096] or ``spp < 1``.
+    """
     _check(scene, resolution, spp)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="reflecto-render-") as tmp:
@@ -285,7 +446,18 @@ def render(source: BRDFSource, scene: str = "sphere-env", envmap: str | Path | N
 
 # ---------------------------------------------------------------- comparison
 def object_mask(*renders: Rendering) -> NDArray[np.bool_]:
-    """Pixels that the object covers fully in every one of ``renders``."""
+    """Pixels that the object covers fully in every one of ``renders``.
+
+    Parameters
+    ----------
+    *renders
+        Renders of the same scene and resolution.
+
+    Returns
+    -------
+    numpy.ndarray of bool, shape (H, W)
+        ``alpha ≥ 1 − 10⁻⁶`` in all of them.
+    """
     return np.logical_and.reduce([r.alpha >= 1.0 - 1e-6 for r in renders])
 
 
@@ -305,6 +477,21 @@ def image_difference(reference: Array, test: Array, mask: NDArray[np.bool_] | No
     object's pixels (all pixels without a mask); 0.05 reads "the renders differ by 5 %
     of the object's brightness, on average". With ``smoothing > 0`` both images are
     first convolved with a Gaussian of that standard deviation (pixels).
+
+    Parameters
+    ----------
+    reference, test
+        Linear RGB images, shape ``(H, W, 3)``.
+    mask
+        Pixels to compare, shape ``(H, W)`` (:func:`object_mask`); ``None``: all.
+    smoothing
+        Standard deviation of the Gaussian (pixels, over the two image axes, zero
+        outside the image); 0: none.
+
+    Returns
+    -------
+    float
+        ``Σ|t − r| / Σ|r|`` (dimensionless; 0 for identical images).
     """
     r, t = np.asarray(reference, dtype=np.float64), np.asarray(test, dtype=np.float64)
     if smoothing > 0:
@@ -359,6 +546,11 @@ class Comparison:
 
         The floor falls at least as ``spp^-½``; the current spp if it is resolved or the
         difference is within the noise (then no spp can be named).
+
+        Returns
+        -------
+        int
+            ``sample_count(⌈spp · (3 · noise_floor / corrected)²⌉)``, or the test render's spp.
         """
         if self.resolved or self.within_noise:
             return self.test.spp
@@ -366,7 +558,13 @@ class Comparison:
         return sample_count(int(math.ceil(self.test.spp * ratio * ratio)))
 
     def summary(self) -> str:
-        """One line: the difference, the noise floor and the corrected estimate, in %."""
+        """One line: the difference, the noise floor and the corrected estimate, in %.
+
+        Returns
+        -------
+        str
+            ``"mean image difference … % (noise floor … %, noise-corrected … %; scene, spp)"``.
+        """
         return (f"mean image difference {100 * self.difference:.2f} % (noise floor {100 * self.noise_floor:.2f} %, "
                 f"noise-corrected {100 * self.corrected:.2f} %; {self.test.scene}, {self.test.spp} spp)")
 
@@ -418,14 +616,46 @@ def compare(reference: BRDFSource, test: BRDFSource, scene: str = "sphere-env", 
 
 # ------------------------------------------------------------------- images
 def to_srgb8(img: Array, exposure: float = 1.0) -> NDArray[np.uint8]:
-    """Linear RGB → 8-bit sRGB (clipped), for PNG output."""
+    """Linear RGB → 8-bit sRGB (clipped), for PNG output.
+
+    Parameters
+    ----------
+    img
+        Linear image, shape ``(H, W, 3)`` (NaN read as 0).
+    exposure
+        Factor applied before the clip to [0, 1].
+
+    Returns
+    -------
+    numpy.ndarray of uint8, same shape
+        The sRGB transfer function (``12.92 x`` up to 0.0031308, else
+        ``1.055 x^(1/2.4) − 0.055``), times 255, rounded.
+    """
     x = np.clip(np.nan_to_num(img * exposure), 0.0, 1.0)
     s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     return np.round(s * 255).astype(np.uint8)
 
 
 def save_image(img: Array, path: str | Path) -> Path:
-    """Write a linear image as ``.exr``/``.hdr`` (float) or ``.png`` (sRGB), atomically."""
+    """Write a linear image as ``.exr``/``.hdr`` (float) or ``.png`` (sRGB), atomically.
+
+    Parameters
+    ----------
+    img
+        Linear RGB image, shape ``(H, W, 3)`` (a ``.png`` is converted by :func:`to_srgb8`).
+    path
+        The file; its suffix (``.png``, ``.exr`` or ``.hdr``, any case) chooses the format.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    ParameterError
+        Another suffix.
+    """
 
 
     path = Path(path)
@@ -459,6 +689,26 @@ def comparison_image(reference: Array, test: Array, labels: tuple[str, str] = ("
 
     With ``alpha`` (the reference's coverage; ``alpha_test`` the test's, default the
     same) both renders are composited onto the grey background.
+
+    Parameters
+    ----------
+    reference, test
+        Linear RGB renders, shape ``(H, W, 3)``.
+    labels
+        Titles of the first two panels.
+    alpha, alpha_test
+        Coverage of the object in each, shape ``(H, W)``; ``None``: every pixel is the object.
+    exposure
+        Factor applied to both renders for display.
+    difference
+        The mean image difference to state in the third title; ``None``: not stated.
+    max_relative
+        Top of the colour scale (a fraction; 0.2 is 20 %).
+
+    Returns
+    -------
+    numpy.ndarray of uint8, shape (H', W', 3)
+        The figure as an RGB image (about ``H + 45`` by ``3W + 140`` pixels).
     """
     plt = pyplot()
 
@@ -502,7 +752,20 @@ def comparison_image(reference: Array, test: Array, labels: tuple[str, str] = ("
 
 
 def titled(image: NDArray[np.uint8], title: str) -> NDArray[np.uint8]:
-    """An 8-bit RGB image with ``title`` written in a white strip above it."""
+    """An 8-bit RGB image with ``title`` written in a white strip above it.
+
+    Parameters
+    ----------
+    image
+        The image, shape ``(H, W, 3)``, uint8.
+    title
+        The text, centred in a 24-pixel strip.
+
+    Returns
+    -------
+    numpy.ndarray of uint8, shape (H + 24, W, 3)
+        The titled image.
+    """
     plt = pyplot()
 
     h, w = image.shape[:2]
@@ -519,6 +782,17 @@ def titled(image: NDArray[np.uint8], title: str) -> NDArray[np.uint8]:
 
 
 def exposure_for(img: Array) -> float:
-    """Exposure mapping the 99th luminance percentile to 0.9 (for previews)."""
+    """Exposure mapping the 99th luminance percentile to 0.9 (for previews).
+
+    Parameters
+    ----------
+    img
+        Linear RGB image, shape ``(..., 3)``.
+
+    Returns
+    -------
+    float
+        ``0.9 / p99(luminance)``; 1 when that percentile is 0 or not finite.
+    """
     p = float(np.percentile(img @ LUM, 99))
     return 0.9 / p if p > 0 and math.isfinite(p) else 1.0

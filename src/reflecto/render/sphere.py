@@ -48,7 +48,28 @@ BACKGROUND = 0.18
 
 def camera_rays(resolution: int, supersample: int = 3, origin=CAMERA, target=TARGET, up=UP,
                 fov_deg: float = FOV_DEG) -> tuple[Array, Array]:
-    """Ray directions ``(res, res, s², 3)`` of a perspective camera (horizontal fov, like Mitsuba)."""
+    """Ray directions ``(res, res, s², 3)`` of a perspective camera (horizontal fov, like Mitsuba).
+
+    Parameters
+    ----------
+    resolution
+        Image width and height, pixels.
+    supersample
+        ``s``: stratified sub-pixel positions per pixel axis (``s²`` rays per pixel, at the
+        centres of an ``s × s`` grid).
+    origin, target, up
+        Camera position, the point it looks at and its up vector (world coordinates);
+        default the scene's :data:`CAMERA`, :data:`TARGET`, :data:`UP`.
+    fov_deg
+        Field of view, degrees.
+
+    Returns
+    -------
+    origin : numpy.ndarray, shape (3,)
+        The camera position.
+    directions : numpy.ndarray, shape (res, res, s², 3)
+        Unit ray directions; row 0 is the top of the image, column 0 its left.
+    """
     o = np.asarray(origin, float)
     d = np.asarray(target, float) - o
     d /= np.linalg.norm(d)
@@ -81,7 +102,20 @@ def _hits(resolution: int, supersample: int) -> tuple[Array, Array, NDArray[np.b
 
 
 def sphere_coverage(resolution: int, supersample: int = 8) -> Array:
-    """Fraction of each pixel covered by the sphere, ``(res, res)`` (the renders' alpha)."""
+    """Fraction of each pixel covered by the sphere, ``(res, res)`` (the renders' alpha).
+
+    Parameters
+    ----------
+    resolution
+        Image width and height, pixels.
+    supersample
+        Sub-pixel positions per pixel axis (``supersample²`` rays per pixel).
+
+    Returns
+    -------
+    numpy.ndarray, shape (res, res)
+        Coverage in ``[0, 1]``: the fraction of a pixel's rays that hit the unit sphere.
+    """
     _, _, hit = _hits(resolution, supersample)
     return hit.mean(axis=2)
 
@@ -90,6 +124,26 @@ def render_sphere(source: BRDFSource, resolution: int = 256, supersample: int = 
     """Linear RGB radiance ``(res, res, 3)`` of a unit sphere at the origin (see module docstring).
 
     0 off the sphere; ``lights`` is ``((position, intensity W/sr), ...)``.
+
+    ``L = Σ_l f(ω_l, ω_v) (ω_l·n) I_l / r_l²`` at each ray's hit, averaged over the
+    pixel's ``supersample²`` rays.
+
+    Parameters
+    ----------
+    source
+        The BRDF (sr⁻¹), evaluated in the sphere's shading frame (``n`` outward, ``t``
+        along ``∂p/∂φ`` about world z).
+    resolution
+        Image width and height, pixels.
+    supersample
+        Sub-pixel positions per pixel axis.
+    lights
+        Point lights: world positions and intensities (W/sr); default :data:`LIGHTS`.
+
+    Returns
+    -------
+    numpy.ndarray, shape (res, res, 3)
+        Radiance (W m⁻² sr⁻¹, scene lengths in metres), box-filtered with 0 off the sphere.
     """
     d, p, hit = _hits(resolution, supersample)
     n = p  # unit sphere
@@ -119,5 +173,21 @@ def composite(radiance: Array, alpha: Array, exposure: float = 1.0, background: 
 
     ``radiance`` is box-filtered with the background at 0, so an edge pixel already
     holds ``α`` times the object's radiance; the grey does not depend on the exposure.
+
+    Parameters
+    ----------
+    radiance
+        Linear RGB radiance, shape ``(H, W, 3)``.
+    alpha
+        Coverage of each pixel by the object, shape ``(H, W)`` (:func:`sphere_coverage`).
+    exposure
+        Factor applied to the radiance.
+    background
+        Linear grey behind the object.
+
+    Returns
+    -------
+    numpy.ndarray, shape (H, W, 3)
+        The linear display image.
     """
     return exposure * np.asarray(radiance) + (1.0 - np.asarray(alpha))[..., None] * background
