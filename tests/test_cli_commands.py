@@ -345,12 +345,19 @@ def test_render_spp_and_seed(tmp_path, capsys):
     assert a.shape[:2] == (32, 32)
     assert np.array_equal(a, b) and not np.array_equal(a, c)
     assert abs(a.mean() / c.mean() - 1.0) < 0.05
-    # --title: the same image under a white strip with the title (24 px)
+    # --title: the same image under a white strip with the title (24 px a line; wrapped to the width)
     titled = tmp_path / "t.png"
     assert main(["render", str(src), "--scene", "sphere-point", "--resolution", "32", "--spp", "4", "--seed", "3",
-                 "--title", "ggx plastic", "-o", str(titled)]) == 0
+                 "--title", "ggx", "-o", str(titled)]) == 0
     t = iio.imread(titled).astype(float)
     assert t.shape[:2] == (32 + 24, 32) and t[:24].min() < 128 and t[:24].mean() > 200  # dark text on white
+    from reflecto.render.mitsuba import titled as add_title
+
+    img = np.full((64, 128, 3), 128, np.uint8)
+    long = add_title(img, "a title much longer than one line of a 128-pixel image holds")
+    assert long.shape == (64 + 24 + 3 * 12, 128, 3)  # four lines of at most 19 characters
+    strip = long[: 24 + 3 * 12].astype(float).mean(axis=2)
+    assert (strip[:, :2] > 250).all() and (strip[:, -2:] > 250).all()  # nothing runs off either edge
 
 
 # ------------------------------------------------------------------ gallery --device --calibration --seed

@@ -37,6 +37,7 @@ import hashlib
 import math
 import os
 import tempfile
+import textwrap
 import time
 from pathlib import Path
 
@@ -759,22 +760,26 @@ def titled(image: NDArray[np.uint8], title: str) -> NDArray[np.uint8]:
     image
         The image, shape ``(H, W, 3)``, uint8.
     title
-        The text, centred in a 24-pixel strip.
+        The text, centred in the strip and wrapped at word boundaries into lines of at
+        most ``W / 6.5`` characters (8-point text at 100 dpi is up to about 6 pixels a
+        character), so that it fits the image's width.
 
     Returns
     -------
-    numpy.ndarray of uint8, shape (H + 24, W, 3)
-        The titled image.
+    numpy.ndarray of uint8, shape (H + 24 + 12 (n − 1), W, 3)
+        The titled image, ``n`` the number of lines.
     """
     plt = pyplot()
 
     h, w = image.shape[:2]
-    strip = 24
+    lines = textwrap.wrap(title, width=max(1, int(w / 6.5)), break_on_hyphens=False) or [""]
+    strip = 24 + 12 * (len(lines) - 1)
     fig = plt.figure(figsize=(w / 100, (h + strip) / 100), dpi=100)
     ax = fig.add_axes((0, 0, 1, h / (h + strip)))
     ax.imshow(image)
     ax.set_axis_off()
-    fig.text(0.5, 1 - 0.5 * strip / (h + strip), title, ha="center", va="center", fontsize=8)
+    fig.text(0.5, 1 - 0.5 * strip / (h + strip), "\n".join(lines), ha="center", va="center", fontsize=8,
+             linespacing=1.2)
     fig.canvas.draw()
     out = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
     plt.close(fig)
