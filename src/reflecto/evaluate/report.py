@@ -41,7 +41,7 @@ from ..io import atomic_path, atomic_write, read_json
 from ..load import load_source
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF, load_model
 from ..plotting import pyplot, save_figure
-from ..render.mitsuba import compare, comparison_image, default_envmap, to_srgb8
+from ..render.mitsuba import compare, comparison_image, default_envmap, titled, to_srgb8
 from ..render.mitsuba import render as mi_render
 from .metrics import brdf_error
 from .viewer import write_viewer
@@ -280,11 +280,13 @@ def render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, ref: BRDFSou
                         ("sphere-point", "Sphere under a key and a fill point light")):
         if ref is None:
             r = mi_render(model, scene, spp=spp)
-            items.append((_save_png(to_srgb8(r.image()), out / f"render_{scene}.png"),
+            items.append((_save_png(titled(to_srgb8(r.image()), f"model {model.name}: {what.lower()}"),
+                                    out / f"render_{scene}.png"),
                           f"{what} (Mitsuba 3, {r.variant}, {r.spp} spp)."))
             continue
         c = comparisons[scene] = compare(ref, model, scene, spp=spp)
-        items.append((_save_png(to_srgb8(c.test.image()), out / f"render_{scene}.png"),
+        items.append((_save_png(titled(to_srgb8(c.test.image()), f"model {model.name}: {what.lower()}"),
+                                out / f"render_{scene}.png"),
                       f"{what} (Mitsuba 3, {c.test.variant}, {c.test.spp} spp)."))
         note = ("" if c.resolved else " The difference is within the noise floor: "
                 "the two renders look alike at this spp."
