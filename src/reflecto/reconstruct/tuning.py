@@ -291,8 +291,11 @@ class NDFTuning:
     position_correction_clip: tuple[float, float] = tuned(
         (0.75, 1.33), name="POSITION_CORRECTION_CLIP", units="factor range",
         what="clip of the first-order correction that moves a texel's merged value (eq. 9) to its centre",
-        source="unrecorded: introduced with the correction (c0dcead, whose result is recorded for the change as a "
-               "whole: analytic grid BRDF ≤ 1 % 36 → 45/48); no reason for the range")
+        source="measurement: (0.9, 1.11) changes the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, "
+               "ideal device) by ≤ 0.13 % and moves the 25 tuning-half materials forced through the anisotropic path "
+               "by ≤ 2.8 % (eq. 10; 6 better, 1 worse by > 1 %); (0.5, 2) leaves the lobes unchanged and makes 2 "
+               "materials worse by ≤ 1.35 %. Symmetric in log (1/0.75 = 1.33); introduced with the correction "
+               "(c0dcead)")
     lobe_floor: float = tuned(
         1e-3, name="LOBE_FLOOR", units="fraction of the peak",
         what="texels below this fraction of the measured peak do not enter the lobe fit of the hole fill",
@@ -309,20 +312,28 @@ class NDFTuning:
     wide_smooth_start: float = tuned(
         0.25, name="WIDE_SMOOTH_START", units="fraction of max D",
         what="smooth_wide acts where D is below this fraction of its maximum…",
-        source="unrecorded: set with smooth_wide (226bcb1), whose result is recorded for the filter as a whole")
+        source="measurement: 0.125 and 0.5 change the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, "
+               "ideal device) by ≤ 0.7 %; the 25 tuning-half materials forced through the anisotropic path stay "
+               "bit-identical (smooth_wide does not act on them). Set with smooth_wide (226bcb1)")
     wide_smooth_full: float = tuned(
         0.03, name="WIDE_SMOOTH_FULL", units="fraction of max D",
         what="…blending in log-linearly to the full filter below this fraction",
-        source="unrecorded: set with smooth_wide (226bcb1), whose result is recorded for the filter as a whole")
+        source="measurement: 0.015 raises the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal "
+               "device) by up to 2.6 %, 0.06 changes it by ≤ 0.3 %; the 25 tuning-half materials forced through the "
+               "anisotropic path stay bit-identical (smooth_wide does not act on them)")
     wide_smooth_floor: float = tuned(
         1e-3, name="WIDE_SMOOTH_FLOOR", units="fraction of max D",
         what="below this fraction (deep tails: noise and diffuse residue) D's ratio to the lobe neither enters "
              "the filter…",
-        source="unrecorded: set with smooth_wide (226bcb1), whose result is recorded for the filter as a whole")
+        source="measurement: 5·10⁻⁴ and 2·10⁻³ change the NDF error of six analytic anisotropic GGX lobes (α_x/α_y "
+               "2–4, ideal device) by ≤ 0.06 %; the 25 tuning-half materials forced through the anisotropic path "
+               "stay bit-identical (smooth_wide does not act on them)")
     wide_smooth_fade: float = tuned(
         1e-2, name="WIDE_SMOOTH_FADE", units="fraction of max D",
         what="…nor is replaced; the blend fades out between this fraction and the floor",
-        source="unrecorded: set with smooth_wide (226bcb1), whose result is recorded for the filter as a whole")
+        source="measurement: 5·10⁻³ changes the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal "
+               "device) by ≤ 0.02 %, 2·10⁻² raises it by up to 4.8 %; the 25 tuning-half materials forced through "
+               "the anisotropic path stay bit-identical (smooth_wide does not act on them)")
     wide_smooth_misfit: float = tuned(
         0.08, name="WIDE_SMOOTH_MISFIT", units="log RMS",
         what="smooth_wide leaves the NDF alone when the fitted lobe misses it by more than this "
@@ -332,7 +343,10 @@ class NDFTuning:
     wide_smooth_n: int = tuned(
         64, name="WIDE_SMOOTH_N", units="texels per face side",
         what="resolution at which smooth_wide filters (texels of ≈ 1.4°)",
-        source="unrecorded: set with smooth_wide (226bcb1); no reason for the resolution")
+        source="measurement: 32 raises the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal "
+               "device) by up to 71 % (0.30 → 0.51 %), 128 by up to 22 % (0.30 → 0.36 %), at the same CPU time; the "
+               "25 tuning-half materials forced through the anisotropic path stay bit-identical (smooth_wide does "
+               "not act on them)")
     wide_smooth_max_passes: int = tuned(
         16, name="WIDE_SMOOTH_MAX_PASSES", units="binomial passes",
         what="at most this many passes of smooth_wide's filter (σ ≤ 2.8 texels ≈ 4°)",
@@ -340,11 +354,17 @@ class NDFTuning:
     tail_keep: float = tuned(
         10.0 ** -0.5, name="TAIL_KEEP", units="fraction of the peak",
         what="smooth_tails keeps texels at or above this fraction of the peak (10^-0.5) unchanged…",
-        source="unrecorded: introduced with the tail smoothing for the exports (b01dbdd); no reason for the value")
+        source="measurement: 0.1 changes the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal "
+               "device) by ≤ 0.65 % and the 25 tuning-half materials forced through the anisotropic path by ≤ 1.4 % "
+               "(eq. 10); smoothing the whole table (1) moves those materials by up to 8 % (7 better, 4 worse by > 1 "
+               "%); the exports it was introduced for (b01dbdd) were not re-measured")
     tail_full: float = tuned(
         1e-3, name="TAIL_FULL", units="fraction of the peak",
         what="…and replaces those at or below this fraction by the smoothed table (log-linear blend between)",
-        source="unrecorded: introduced with the tail smoothing for the exports (b01dbdd); no reason for the value")
+        source="measurement: 5·10⁻⁴ and 2·10⁻³ change the NDF error of six analytic anisotropic GGX lobes (α_x/α_y "
+               "2–4, ideal device) by ≤ 0.18 % and the 25 tuning-half materials forced through the anisotropic path "
+               "by ≤ 2.4 % (eq. 10; one material each by > 1 %); the exports it was introduced for (b01dbdd) were "
+               "not re-measured")
     deep_full: float = tuned(
         1e-5, name="DEEP_FULL", units="fraction of the peak",
         what="below this fraction the tail takes the wide filter only (128-texel scale, σ ≈ 1.3°; blended with "
@@ -354,11 +374,15 @@ class NDFTuning:
     tail_passes_512: int = tuned(
         8, name="TAIL_PASSES_512", units="binomial passes at N = 512",
         what="angular width of the tail smoothing (σ = 2 texels ≈ 0.45°)",
-        source="unrecorded: introduced with the tail smoothing for the exports (b01dbdd); no reason for the width")
+        source="measurement: 4 and 16 passes change the NDF error of six analytic anisotropic GGX lobes (α_x/α_y "
+               "2–4, ideal device) by ≤ 0.33 % and the 25 tuning-half materials forced through the anisotropic path "
+               "by ≤ 1 % (eq. 10); the exports it was introduced for (b01dbdd) were not re-measured")
     cubic_overshoot: float = tuned(
         1.2, name="CUBIC_OVERSHOOT", units="factor of the coarse maximum",
         what="a log-cubic value of the refined top face (output NDF) is clipped to this factor",
-        source="unrecorded: introduced with the log-cubic refinement (8846e6b); no reason for the value")
+        source="measurement: 1.1 and 1.5 leave six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal device) and "
+               "the 25 tuning-half materials forced through the anisotropic path bit-identical: the clip binds on "
+               "none of them. Introduced with the log-cubic refinement (8846e6b)")
     cubic_floor: tuple[float, float] = tuned(
         (1e-3, 1e-2), name="CUBIC_FLOOR", units="fractions of the peak",
         what="between these the refined top face goes from bilinear to log-cubic (the lobe takes the cubic, "
@@ -368,7 +392,9 @@ class NDFTuning:
     cubic_pad: int = tuned(
         4, name="_CUBIC_PAD", units="texels",
         what="edge replication around the top face before the cubic spline prefilter",
-        source="unrecorded: introduced with the log-cubic refinement (8846e6b); no reason for the value")
+        source="mechanism: the cubic's support reaches 2 coefficients beyond the face, so at least 2. Measured: 2 "
+               "and 8 change the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal device) and the "
+               "eq. 10 error of the 25 tuning-half materials forced through the anisotropic path by < 0.005 %")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -474,7 +500,10 @@ class SymmetryTestTuning:
     level: float = tuned(
         0.02, name="LEVEL", units="fraction of the 99.5th percentile",
         what="bins enter where their partial NDF is above this fraction of its 99.5th percentile…",
-        source="unrecorded: introduced with the test (5664aca); no reason for the value")
+        source="measurement: on single captures of the 25 tuning-half materials (default path) and of the eight "
+               "analytic asymmetric lobes of examples/asymmetric (rotation 0, seed 1, --isotropic no; ideal device) "
+               "0.01 and 0.04 change no verdict: symmetric ratios ≤ 1.97 where decided (18–19 of 25 decided), "
+               "asymmetric ≥ 3.22, all 8 broken")
     min_specular_fraction: float = tuned(
         0.5, name="MIN_SPECULAR_FRACTION", units="fraction of the BRDF",
         what="…and the specular part is at least this fraction of the measured BRDF",
@@ -483,7 +512,11 @@ class SymmetryTestTuning:
     min_pairs: int = tuned(
         30, name="MIN_PAIRS", units="pairs",
         what="τ pairs needed for a verdict, and direct pairs needed to measure their spread",
-        source="unrecorded: introduced with the test (5664aca); no reason for the value")
+        source="measurement: on single captures of the 25 tuning-half materials (default path) and of the eight "
+               "analytic asymmetric lobes of examples/asymmetric (rotation 0, seed 1, --isotropic no; ideal device) "
+               "15 lets 3 symmetric captures with 18–26 τ pairs break eq. 3 (chm_mint 3.04, specular-white-phenolic "
+               "2.29, steel 2.02); 60 leaves 2 more undecided; the asymmetric lobes hold ≥ 101 τ pairs and break at "
+               "either")
     unpaired_spread: float = tuned(
         0.3, name="UNPAIRED_SPREAD", units="log units",
         what="the direct pairs' spread assumed when fewer than MIN_PAIRS of them are in the lobe",
@@ -495,7 +528,8 @@ class SymmetryTestTuning:
         what="ratio of the τ pairs' RMS log ratio to the direct pairs' at and above which the data break eq. 3",
         source="measurement: single captures (ideal device) of the 50 shared materials and four analytic "
                "symmetric lobes read ≤ 1.93 where decided, the eight analytic asymmetric lobes of examples/asymmetric "
-               "≥ 3.2 (3.1 as-built) (docs/design/asymmetric.md); 2 lies just above the symmetric maximum. A ratio "
+               "≥ 3.2 (3.1 as-built) (docs/design/asymmetric.md); 2 lies just above the symmetric maximum (≤ 1.96 on "
+               "this branch's tuning half, white-paint). A ratio "
                "rather than a level because S and F miss both kinds of pair alike")
     direct_floor: float = tuned(
         0.01, name="DIRECT_FLOOR", units="log units",
@@ -504,7 +538,10 @@ class SymmetryTestTuning:
     test_resolution: int = tuned(
         128, name="TEST_RESOLUTION", units="texels per face side",
         what="working resolution of the test's bins (texels ≈ 0.9° at the pole)",
-        source="unrecorded: introduced with the test (5664aca); no reason for the resolution")
+        source="measurement: on single captures of the 25 tuning-half materials (default path) and of the eight "
+               "analytic asymmetric lobes of examples/asymmetric (rotation 0, seed 1, --isotropic no; ideal device) "
+               "64 leaves 12 of 25 symmetric and one asymmetric lobe (29 τ pairs) undecided; 256 breaks eq. 3 on 2 "
+               "symmetric captures (ratio up to 2.14) at 3× the test's CPU time")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -711,7 +748,10 @@ class AsymmetricTuning:
     min_cross_pairs: int = tuned(
         30, name="MIN_CROSS_PAIRS", units="pairs",
         what="cross-capture (and within-capture) pairs needed to judge two captures",
-        source="unrecorded: introduced with §5.5 (5664aca); no reason for the value")
+        source="mechanism: sampling: n independent pairs give an RMS log ratio to ≈ 1/√(2n), 13 % at 30, and the "
+               "ratio of two such RMS values to ≈ 18 %, so a factor INCONSISTENT_RATIO = 3 (log 3 = 1.1) stands "
+               "≈ 6 of those errors clear (neighbouring texels' pairs are correlated: fewer in effect). Introduced "
+               "with §5.5 (5664aca); no other value measured")
     cap_deg: float = tuned(
         80.0, name="CAP_DEG", units="deg",
         what="polar cap (θ_h ≤ this) over which the synthesized and hole fractions are reported",
