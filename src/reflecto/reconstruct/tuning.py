@@ -130,7 +130,9 @@ class IsotropicFitTuning:
     min_quiet_bins: int = tuned(
         100, name="MIN_QUIET_BINS", units="bins",
         what="…when at least this many bins are quiet (else ε is estimated over all measured bins)",
-        source="unrecorded: introduced with the isotropic fit (b0d5371); no reason in code, docs or history")
+        source="measurement: the 25 tuning-half materials' fits (ideal device) hold 86–8,520 quiet bins, the fewest "
+               "tungsten-carbide (86–106) and steel (93–141), which alone fall back to all bins in some fits; 50 and "
+               "200 leave all 25 eq. 10 errors (every 3rd bin) and isotropy verdicts bit-identical")
     eta_max: float = tuned(
         50.0, name="ETA_MAX", units="relative index η", also=("fresnel_fit.ETA_MAX",),
         what="largest relative index searched (eq. 4), in the isotropic fit and in the Fresnel fit of the "
@@ -149,11 +151,15 @@ class IsotropicFitTuning:
     lm_tolerance: float = tuned(
         1e-5, name="LM_TOLERANCE", units="fraction of the cost",
         what="Levenberg–Marquardt stops when the cost falls by less than this fraction",
-        source="unrecorded: introduced with the isotropic fit (b0d5371); no reason in code, docs or history")
+        source="measurement: on the 25 tuning-half materials (ideal device, eq. 10 at every 3rd bin) 10⁻⁶ moves the "
+               "median error by −0.003 % (3 of 25 by 1–2.7 %, two worse) at the same CPU time (6.5 s against 6.3 s "
+               "for the 25); 10⁻⁴ stops early: 5 of 25 worse by > 1 % (blue-fabric by 41 %)")
     lm_max_iterations: int = tuned(
         40, name="LM_MAX_ITERATIONS", units="iterations",
         what="Levenberg–Marquardt iterations at most",
-        source="unrecorded: introduced with the isotropic fit (b0d5371); no reason in code, docs or history")
+        source="measurement: 20 and 80 change the eq. 10 error of the 25 tuning-half materials (ideal device) by at "
+               "most 0.7 % and 0.4 % (tungsten-carbide; median 0) in the same time: LM_TOLERANCE, not the cap, ends "
+               "the fits")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,7 +181,9 @@ class IsotropyTestTuning:
     ring_end_deg: float = tuned(
         60.0, name="RING_END_DEG", units="deg",
         what="the rings end at this θ_h",
-        source="unrecorded: introduced with the isotropy test (b0d5371); no reason in code, docs or history")
+        source="measurement: on the 25 tuning-half materials and six analytic anisotropic GGX lobes (α_x/α_y 2–4, "
+               "ideal device) 45° and 75° change no verdict; 75° adds up to 7 rings and moves a capture's fractions "
+               "by ≤ 0.054, 45° drops up to 8 and moves them by ≤ 0.09")
     min_ring_samples: int = tuned(
         30, name="MIN_RING_SAMPLES", units="samples",
         what="a ring enters with at least this many samples",
@@ -184,7 +192,9 @@ class IsotropyTestTuning:
     max_condition: float = tuned(
         1e3, name="MAX_CONDITION", units="condition number",
         what="a ring enters only when the azimuthal spread of its samples conditions its regression below this",
-        source="unrecorded: introduced with the isotropy test (b0d5371); no reason in code, docs or history")
+        source="measurement: on the 25 tuning-half materials and six analytic anisotropic GGX lobes (ideal device) "
+               "10⁴ admits at most one more ring and moves the fractions by ≤ 0.001; 10² drops up to 3 rings and "
+               "moves the fractions by up to 0.09; neither changes a verdict")
     min_specular_fraction: float = tuned(
         0.5, name="MIN_SPECULAR_FRACTION", units="fraction of the BRDF",
         what="samples enter where the isotropic model's specular part is at least this fraction of the BRDF",
@@ -210,18 +220,25 @@ class IsotropyTestTuning:
     asymmetry_explained: float = tuned(
         0.5, name="ASYMMETRY_EXPLAINED", units="fraction of variance",
         what="explained fraction of the first harmonic (beyond the second) above which eq. 3 is broken",
-        source="unrecorded: introduced with the isotropy test (b0d5371); no reason in code, docs or history")
+        source="unrecorded: introduced with the isotropy test (b0d5371); no reason in code, docs or history. "
+               "Measured, it does not separate: the 25 tuning-half materials read up to 0.497, six analytic "
+               "anisotropic GGX lobes (which keep eq. 3) up to 0.708 (ideal device); only the reported "
+               "'symmetric' of the isotropy test reads it, the eq. 3 decision is symmetry_test's")
     min_rings: int = tuned(
         3, name="MIN_RINGS", units="rings",
         what="at least this many rings for a verdict; fewer (almost no specular signal) leave the material "
              "isotropic",
-        source="unrecorded: the former hand-written table grouped it with the ring sampling (enough samples "
-               "per ring), which sets the samples, not the count of rings")
+        source="measurement: the 25 tuning-half materials enter 0–30 rings (ideal device); those with 1–3 "
+               "(tungsten-carbide, specular-white-phenolic, specular-maroon-phenolic, white-marble, white-paint) "
+               "read second-harmonic fractions ≤ 0.25 and conditional ≤ 0.05, far below the thresholds, and the six "
+               "analytic anisotropic lobes enter 7–12: any bound from 1 to 5 gives the same verdicts")
     pixel_stride: int = tuned(
         3, name="PIXEL_STRIDE", units="pixels",
         what="every this many pixels (per image axis) enters the test",
-        source="unrecorded: a speed setting (the rings hold thousands of samples, says the docstring); "
-               "no measurement of the stride is recorded")
+        source="measurement: on the 25 tuning-half materials and six analytic anisotropic GGX lobes (ideal device) "
+               "every pixel (stride 1) moves a capture's fractions by ≤ 0.06 and changes no verdict at 4.2× the "
+               "test's CPU time (2.96 s against 0.71 s for the 31); strides 2 and 6 move them by up to 0.05 and 0.11 "
+               "and flip lobes within 0.04 of CONDITIONAL_EXPLAINED (1 and 2 of 6)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -242,7 +259,10 @@ class HemicubeFitTuning:
     work_sigma: tuple[int, int] = tuned(
         (46, 64), name="WORK_SIGMA", units="(n_θ, n_φ) nodes",
         what="size of the loop's σ tables (eq. 8); the final model uses the full grid",
-        source="unrecorded: a loop-only (speed) size introduced in 7266107; no measurement of it is recorded")
+        source="measurement: (23, 32) raises the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal "
+               "device) by up to 23 % (α 0.1 × 0.2: 0.30 → 0.37 %), (92, 128) changes it by ≤ 6 % (0.30 → 0.28 % at "
+               "best); the 25 tuning-half materials forced through the path move by ≤ 0.75 % (eq. 10); the CPU time "
+               "of the 31 fits is the same at all three sizes (21.3–22.0 s). Introduced in 7266107 as a speed size")
     work_quad: tuple[int, int] = tuned(
         (64, 256), name="WORK_QUAD", units="(rings, azimuths)",
         what="the loop's σ quadrature (the final model's: 128 × 256)",
@@ -252,8 +272,11 @@ class HemicubeFitTuning:
         0.25, name="LOST_LED_FRACTION", units="fraction of the median LED's samples",
         what="an LED with fewer usable samples is counted as lost (below a tilted sample's horizon, or its slice "
              "below the detection limit), and the holes take the lobe-guided fill in every iteration",
-        source="unrecorded: introduced with the tilted-capture fill (80a162b, whose result is recorded for the "
-               "change as a whole: validate_tilt normals within 0.05° on 24/24); no reason for 0.25")
+        source="measurement: on captures tilted 10° and 15° (six analytic anisotropic GGX lobes, 8 tuning-half "
+               "materials at 10°, forced through the anisotropic path, ideal device) an LED keeps either none or ≥ "
+               "0.71 of the median LED's samples (but on brass and blue-metallic-paint2, whose median LED holds "
+               "almost none), so 0.125 and 0.5 give bit-identical models there and on untilted captures. Introduced "
+               "with the tilted-capture fill (80a162b)")
     censored_fraction: float = tuned(
         0.25, name="CENSORED_FRACTION", units="fraction of the valid samples",
         what="above this fraction below the detection limit, the NDF's holes take the lobe-guided fill in every "
@@ -272,12 +295,18 @@ class NDFTuning:
     position_correction_clip: tuple[float, float] = tuned(
         (0.75, 1.33), name="POSITION_CORRECTION_CLIP", units="factor range",
         what="clip of the first-order correction that moves a texel's merged value (eq. 9) to its centre",
-        source="unrecorded: introduced with the correction (c0dcead, whose result is recorded for the change as a "
-               "whole: analytic grid BRDF ≤ 1 % 36 → 45/48); no reason for the range")
+        source="measurement: (0.9, 1.11) changes the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, "
+               "ideal device) by ≤ 0.13 % and moves the 25 tuning-half materials forced through the anisotropic path "
+               "by ≤ 2.8 % (eq. 10; 6 better, 1 worse by > 1 %); (0.5, 2) leaves the lobes unchanged and makes 2 "
+               "materials worse by ≤ 1.35 %. Symmetric in log (1/0.75 = 1.33); introduced with the correction "
+               "(c0dcead)")
     lobe_floor: float = tuned(
         1e-3, name="LOBE_FLOOR", units="fraction of the peak",
         what="texels below this fraction of the measured peak do not enter the lobe fit of the hole fill",
-        source="unrecorded: introduced with the lobe-guided fill (3afe7ab); no reason for the value")
+        source="measurement: 10⁻² lowers the NDF error of six analytic anisotropic GGX lobes (ideal device) by 1–29 % "
+               "(0.30 → 0.21 %, 4.55 → 4.17 %) and moves the 25 tuning-half materials forced through the anisotropic "
+               "path by ≤ 3.6 % (eq. 10; 2 worse, 1 better by > 1 %); 10⁻⁴ moves the lobes by −9 to +7 % and "
+               "irid_flake_paint1 by 15 %. 10⁻³ (from 3afe7ab) is not the best value measured")
     wide_smooth_fraction: float = tuned(
         0.2, name="WIDE_SMOOTH_FRACTION", units="fraction of the narrowest HWHM",
         what="smooth_wide filters a wide lobe's flanks at this fraction of the peak's narrowest half width at "
@@ -287,20 +316,28 @@ class NDFTuning:
     wide_smooth_start: float = tuned(
         0.25, name="WIDE_SMOOTH_START", units="fraction of max D",
         what="smooth_wide acts where D is below this fraction of its maximum…",
-        source="unrecorded: set with smooth_wide (226bcb1), whose result is recorded for the filter as a whole")
+        source="measurement: 0.125 and 0.5 change the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, "
+               "ideal device) by ≤ 0.74 %; the 25 tuning-half materials forced through the anisotropic path stay "
+               "bit-identical (smooth_wide does not act on them). Set with smooth_wide (226bcb1)")
     wide_smooth_full: float = tuned(
         0.03, name="WIDE_SMOOTH_FULL", units="fraction of max D",
         what="…blending in log-linearly to the full filter below this fraction",
-        source="unrecorded: set with smooth_wide (226bcb1), whose result is recorded for the filter as a whole")
+        source="measurement: 0.015 raises the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal "
+               "device) by up to 2.6 %, 0.06 changes it by ≤ 0.3 %; the 25 tuning-half materials forced through the "
+               "anisotropic path stay bit-identical (smooth_wide does not act on them)")
     wide_smooth_floor: float = tuned(
         1e-3, name="WIDE_SMOOTH_FLOOR", units="fraction of max D",
         what="below this fraction (deep tails: noise and diffuse residue) D's ratio to the lobe neither enters "
              "the filter…",
-        source="unrecorded: set with smooth_wide (226bcb1), whose result is recorded for the filter as a whole")
+        source="measurement: 5·10⁻⁴ and 2·10⁻³ change the NDF error of six analytic anisotropic GGX lobes (α_x/α_y "
+               "2–4, ideal device) by ≤ 0.06 %; the 25 tuning-half materials forced through the anisotropic path "
+               "stay bit-identical (smooth_wide does not act on them)")
     wide_smooth_fade: float = tuned(
         1e-2, name="WIDE_SMOOTH_FADE", units="fraction of max D",
         what="…nor is replaced; the blend fades out between this fraction and the floor",
-        source="unrecorded: set with smooth_wide (226bcb1), whose result is recorded for the filter as a whole")
+        source="measurement: 5·10⁻³ changes the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal "
+               "device) by ≤ 0.02 %, 2·10⁻² raises it by up to 4.8 %; the 25 tuning-half materials forced through "
+               "the anisotropic path stay bit-identical (smooth_wide does not act on them)")
     wide_smooth_misfit: float = tuned(
         0.08, name="WIDE_SMOOTH_MISFIT", units="log RMS",
         what="smooth_wide leaves the NDF alone when the fitted lobe misses it by more than this "
@@ -310,7 +347,10 @@ class NDFTuning:
     wide_smooth_n: int = tuned(
         64, name="WIDE_SMOOTH_N", units="texels per face side",
         what="resolution at which smooth_wide filters (texels of ≈ 1.4°)",
-        source="unrecorded: set with smooth_wide (226bcb1); no reason for the resolution")
+        source="measurement: 32 raises the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal "
+               "device) by up to 71 % (0.30 → 0.51 %), 128 by up to 22 % (0.30 → 0.36 %), at the same CPU time; the "
+               "25 tuning-half materials forced through the anisotropic path stay bit-identical (smooth_wide does "
+               "not act on them)")
     wide_smooth_max_passes: int = tuned(
         16, name="WIDE_SMOOTH_MAX_PASSES", units="binomial passes",
         what="at most this many passes of smooth_wide's filter (σ ≤ 2.8 texels ≈ 4°)",
@@ -318,11 +358,17 @@ class NDFTuning:
     tail_keep: float = tuned(
         10.0 ** -0.5, name="TAIL_KEEP", units="fraction of the peak",
         what="smooth_tails keeps texels at or above this fraction of the peak (10^-0.5) unchanged…",
-        source="unrecorded: introduced with the tail smoothing for the exports (b01dbdd); no reason for the value")
+        source="measurement: 0.1 changes the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal "
+               "device) by ≤ 0.65 % and the 25 tuning-half materials forced through the anisotropic path by ≤ 1.4 % "
+               "(eq. 10); smoothing the whole table (1) moves those materials by up to 8 % (7 better, 4 worse by > 1 "
+               "%); the exports it was introduced for (b01dbdd) were not re-measured")
     tail_full: float = tuned(
         1e-3, name="TAIL_FULL", units="fraction of the peak",
         what="…and replaces those at or below this fraction by the smoothed table (log-linear blend between)",
-        source="unrecorded: introduced with the tail smoothing for the exports (b01dbdd); no reason for the value")
+        source="measurement: 5·10⁻⁴ and 2·10⁻³ change the NDF error of six analytic anisotropic GGX lobes (α_x/α_y "
+               "2–4, ideal device) by ≤ 0.18 % and the 25 tuning-half materials forced through the anisotropic path "
+               "by ≤ 2.4 % (eq. 10; one material each by > 1 %); the exports it was introduced for (b01dbdd) were "
+               "not re-measured")
     deep_full: float = tuned(
         1e-5, name="DEEP_FULL", units="fraction of the peak",
         what="below this fraction the tail takes the wide filter only (128-texel scale, σ ≈ 1.3°; blended with "
@@ -332,11 +378,15 @@ class NDFTuning:
     tail_passes_512: int = tuned(
         8, name="TAIL_PASSES_512", units="binomial passes at N = 512",
         what="angular width of the tail smoothing (σ = 2 texels ≈ 0.45°)",
-        source="unrecorded: introduced with the tail smoothing for the exports (b01dbdd); no reason for the width")
+        source="measurement: 4 and 16 passes change the NDF error of six analytic anisotropic GGX lobes (α_x/α_y "
+               "2–4, ideal device) by ≤ 0.33 % and the 25 tuning-half materials forced through the anisotropic path "
+               "by ≤ 1 % (eq. 10); the exports it was introduced for (b01dbdd) were not re-measured")
     cubic_overshoot: float = tuned(
         1.2, name="CUBIC_OVERSHOOT", units="factor of the coarse maximum",
         what="a log-cubic value of the refined top face (output NDF) is clipped to this factor",
-        source="unrecorded: introduced with the log-cubic refinement (8846e6b); no reason for the value")
+        source="measurement: 1.1 and 1.5 leave six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal device) and "
+               "the 25 tuning-half materials forced through the anisotropic path bit-identical: the clip binds on "
+               "none of them. Introduced with the log-cubic refinement (8846e6b)")
     cubic_floor: tuple[float, float] = tuned(
         (1e-3, 1e-2), name="CUBIC_FLOOR", units="fractions of the peak",
         what="between these the refined top face goes from bilinear to log-cubic (the lobe takes the cubic, "
@@ -346,7 +396,9 @@ class NDFTuning:
     cubic_pad: int = tuned(
         4, name="_CUBIC_PAD", units="texels",
         what="edge replication around the top face before the cubic spline prefilter",
-        source="unrecorded: introduced with the log-cubic refinement (8846e6b); no reason for the value")
+        source="mechanism: the cubic's support reaches 2 coefficients beyond the face, so at least 2. Measured: 2 "
+               "and 8 change the NDF error of six analytic anisotropic GGX lobes (α_x/α_y 2–4, ideal device) and the "
+               "eq. 10 error of the 25 tuning-half materials forced through the anisotropic path by < 0.005 %")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -362,7 +414,10 @@ class FresnelFitTuning:
     min_level: float = tuned(
         1e-4, name="MIN_LEVEL", units="fraction of the maximum",
         what="only bins whose f cos θ_i cos θ_o / (S S) is above this fraction of the maximum take part",
-        source="unrecorded: introduced with the binned overlap fit (f43bf73); no reason for the value")
+        source="measurement: 10⁻⁵ and 10⁻³ leave six analytic anisotropic GGX lobes (ideal device) bit-identical; the "
+               "25 tuning-half materials forced through the anisotropic path keep their median eq. 10 error, but "
+               "single ones move by up to 61 % (10⁻⁵: 4 worse by > 1 %, 2 better; 10⁻³: 2 worse, 7 better): "
+               "no settled optimum. Introduced in f43bf73")
     min_count: int = tuned(
         1, name="MIN_COUNT", units="pixels per bin",
         what="minimum pixels in each bin of a pair",
@@ -385,8 +440,11 @@ class SamplesTuning:
     kd_bound_percentile: float = tuned(
         0.2, name="KD_BOUND_PERCENTILE", units="percent",
         what="percentile of f per channel whose π-multiple bounds ρ_d (k_d) from above",
-        source="unrecorded: a low percentile rather than the minimum, so that single noisy pixels cannot set it "
-               "(the comment's reason); no reason for 0.2 itself")
+        source="measurement: with KD_BOUND_Z following it, 0.1 raises the NDF error of one of six analytic anisotropic "
+               "GGX lobes by 21 % (α 0.4 × 0.1: 2.17 → 2.62 %); 0.5 raises three by 3–5 % and lowers 4 of the 25 "
+               "tuning-half materials forced through the anisotropic path by 1–4 % (eq. 10, none worse). The "
+               "default path's errors on the tuning half are bit-identical (only the normal estimate reads it, "
+               "without noise). A low percentile rather than the minimum so that single noisy pixels cannot set it")
     box_radius: int = tuned(
         2, name="BOX_RADIUS", units="pixels",
         what="half width of the box (5 × 5) over which box_mean averages the slices before the k_d bound",
@@ -405,16 +463,23 @@ class SymmetryTuning:
     search_deg: float = tuned(
         12.0, name="SEARCH_DEG", units="deg",
         what="plane angles searched: ±this, in steps of STEP_DEG, then a parabola",
-        source="unrecorded: introduced with the cue (7bfc0d2); no reason for the range")
+        source="measurement: on the clean and shaken captures of the 25 tuning-half materials (validate_shake's: "
+               "3–8° turns, ideal device) ±6° flags the plane on 5 of the 7 shaken captures ±12° flags (a turned "
+               "plane's minimum falls on the bound), ±24° locates 16 of the 38 clean planes and flags 2; the capture "
+               "verdicts (23/25 detected, no false alarm) do not change: the other cues")
     step_deg: float = tuned(
         1.0, name="STEP_DEG", units="deg",
         what="step of the plane-angle search",
-        source="unrecorded: introduced with the cue (7bfc0d2); no reason for the step")
+        source="measurement: on the clean and shaken captures of the 25 tuning-half materials (validate_shake's: "
+               "3–8° turns, ideal device) 0.5° locates the same planes and flags (clean maximum 1.17° against 1.25°) "
+               "at the same CPU time; 2° loses one plane and reads clean ones up to 1.52°, past PLANE_THRESHOLD_DEG")
     min_curvature: float = tuned(
         5.0, name="MIN_CURVATURE", units="per rad²",
         what="smallest curvature of the normalized symmetry distance at its minimum for the plane to count "
              "(flatter slices, rough materials, do not locate it)",
-        source="unrecorded: introduced with the cue (7bfc0d2); no reason for the value")
+        source="measurement: on the clean and shaken captures of the 25 tuning-half materials (validate_shake's: "
+               "3–8° turns, ideal device) 2.5 locates one more plane in the clean and the shaken captures, 10 two "
+               "fewer; no flag changes and the clean maximum stays 1.25°")
     plane_threshold_deg: float = tuned(
         1.5, name="PLANE_THRESHOLD_DEG", units="deg",
         what="a located plane further than this from the frame's normal flags a shake",
@@ -423,7 +488,10 @@ class SymmetryTuning:
     cube_n: int = tuned(
         64, name="CUBE_N", units="texels per face side",
         what="resolution of the view hemicube on which a slice is mirrored",
-        source="unrecorded: introduced with the cue (7bfc0d2); no reason for the resolution")
+        source="measurement: at 64 a texel (≈ 1.4°) averages a median of 8 of the default optics' 39,428 view pixels "
+               "(32: 33, 128: 2). On the clean and shaken captures of the 25 tuning-half materials "
+               "(validate_shake's: 3–8° turns, ideal device) 32 reads a clean plane 7.0° off, 128 reads clean ones ≤ "
+               "0.97° (64: ≤ 1.25°) and locates one shaken plane fewer, same flags and CPU time")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -436,7 +504,10 @@ class SymmetryTestTuning:
     level: float = tuned(
         0.02, name="LEVEL", units="fraction of the 99.5th percentile",
         what="bins enter where their partial NDF is above this fraction of its 99.5th percentile…",
-        source="unrecorded: introduced with the test (5664aca); no reason for the value")
+        source="measurement: on single captures of the 25 tuning-half materials (default path) and of the eight "
+               "analytic asymmetric lobes of examples/asymmetric (rotation 0, seed 1, --isotropic no; ideal device) "
+               "0.01 and 0.04 change no verdict: symmetric ratios ≤ 1.97 where decided (18–19 of 25 decided), "
+               "asymmetric ≥ 3.22, all 8 broken")
     min_specular_fraction: float = tuned(
         0.5, name="MIN_SPECULAR_FRACTION", units="fraction of the BRDF",
         what="…and the specular part is at least this fraction of the measured BRDF",
@@ -445,7 +516,11 @@ class SymmetryTestTuning:
     min_pairs: int = tuned(
         30, name="MIN_PAIRS", units="pairs",
         what="τ pairs needed for a verdict, and direct pairs needed to measure their spread",
-        source="unrecorded: introduced with the test (5664aca); no reason for the value")
+        source="measurement: on single captures of the 25 tuning-half materials (default path) and of the eight "
+               "analytic asymmetric lobes of examples/asymmetric (rotation 0, seed 1, --isotropic no; ideal device) "
+               "15 lets 3 symmetric captures with 18–26 τ pairs break eq. 3 (chm_mint 3.04, specular-white-phenolic "
+               "2.29, steel 2.02); 60 leaves 2 more undecided; the asymmetric lobes hold ≥ 101 τ pairs and break at "
+               "either")
     unpaired_spread: float = tuned(
         0.3, name="UNPAIRED_SPREAD", units="log units",
         what="the direct pairs' spread assumed when fewer than MIN_PAIRS of them are in the lobe",
@@ -455,8 +530,11 @@ class SymmetryTestTuning:
     threshold: float = tuned(
         2.0, name="THRESHOLD", units="ratio of RMS log ratios",
         what="ratio of the τ pairs' RMS log ratio to the direct pairs' at and above which the data break eq. 3",
-        source="unrecorded: a ratio rather than a level because S and F miss both kinds of pair alike "
-               "(docs/design/asymmetric.md); no reason for 2 is recorded")
+        source="measurement: single captures (ideal device) of the 50 shared materials and four analytic "
+               "symmetric lobes read ≤ 1.93 where decided, the eight analytic asymmetric lobes of examples/asymmetric "
+               "≥ 3.2 (3.1 as-built) (docs/design/asymmetric.md); 2 lies just above the symmetric maximum (≤ 1.96 on "
+               "this branch's tuning half, white-paint). A ratio "
+               "rather than a level because S and F miss both kinds of pair alike")
     direct_floor: float = tuned(
         0.01, name="DIRECT_FLOOR", units="log units",
         what="floor of the direct pairs' RMS in that ratio",
@@ -464,7 +542,10 @@ class SymmetryTestTuning:
     test_resolution: int = tuned(
         128, name="TEST_RESOLUTION", units="texels per face side",
         what="working resolution of the test's bins (texels ≈ 0.9° at the pole)",
-        source="unrecorded: introduced with the test (5664aca); no reason for the resolution")
+        source="measurement: on single captures of the 25 tuning-half materials (default path) and of the eight "
+               "analytic asymmetric lobes of examples/asymmetric (rotation 0, seed 1, --isotropic no; ideal device) "
+               "64 leaves 12 of 25 symmetric and one asymmetric lobe (29 τ pairs) undecided; 256 breaks eq. 3 on 2 "
+               "symmetric captures (ratio up to 2.14) at 3× the test's CPU time")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -477,23 +558,35 @@ class ConsistencyTuning:
     cube_n: int = tuned(
         64, name="CUBE_N", units="texels per face side",
         what="resolution of the view hemicube that a slice is averaged onto",
-        source="unrecorded: introduced with the cue (d589efe; texels ≈ 1.4°); no reason for the resolution")
+        source="measurement: at 64 a texel (≈ 1.4°) averages a median of 8 of the default optics' 39,428 view pixels "
+               "(32: 33, 128: 2). On the clean and shaken captures of the 25 tuning-half materials "
+               "(validate_shake's: 3–8° turns, ideal device) the pair cue alone detects 3 shakes at 32, 4 at 64, 5 "
+               "at 128, with no false alarm at any; the as-built device's noise was not measured")
     isotropy_max_deg: float = tuned(
         1.0, name="ISOTROPY_MAX_DEG", units="deg",
         what="LEDs whose incidence angles differ by at most this are compared by isotropy",
-        source="unrecorded: introduced with the cue (d589efe); no reason for the value")
+        source="mechanism: an LED's mirror direction moves with its incidence angle, so two LEDs within 1° put "
+               "their specular peaks within one texel (≈ 1.4°) of the 64² table they are compared on; the default "
+               "layout's pair (θ_i 82.66° and 83.01°) is 0.35° apart")
     min_pairs_isotropy: int = tuned(
         200, name='MIN_PAIRS["isotropy"]', units="texels",
         what="fewer paired directions (texels of the first LED's table) give no isotropy verdict for a pair",
-        source="unrecorded: introduced with the cue (d589efe); no reason for the value")
+        source="measurement: halved and doubled together with the reciprocity count, on the clean and shaken "
+               "captures of the 25 tuning-half materials (validate_shake's: 3–8° turns, ideal device) 100 and 10 "
+               "change nothing; 400 and 40 drop 2 of 39 clean and 1 of 27 shaken pair checks and one of the 4 shakes "
+               "the pair cue alone detects")
     min_pairs_reciprocity: int = tuned(
         20, name='MIN_PAIRS["reciprocity"]', units="steps of Δ",
         what="fewer paired directions (steps of the relative azimuth Δ) give no reciprocity verdict for a pair",
-        source="unrecorded: introduced with the cue (d589efe); no reason for the value")
+        source="measurement: halved and doubled with the isotropy count (see there; 10 steps change nothing, "
+               "40 lose checks and one detection)")
     reciprocity_step_deg: float = tuned(
         0.5, name="RECIPROCITY_STEP_DEG", units="deg",
         what="step of the relative azimuth Δ along a reciprocity curve",
-        source="unrecorded: introduced with the cue (d589efe); no reason for the value")
+        source="mechanism: at the reciprocity LEDs' polar angles (37.8°, 67.1°) a 0.5° step moves the direction "
+               "0.31–0.46°, 3–5 samples per 1.4° texel of the table. Measured on the clean and shaken captures of "
+               "the 25 tuning-half materials (validate_shake's: 3–8° turns, ideal device): 0.25° changes nothing, 1° "
+               "drops 2 of the 39 clean pair checks below MIN_PAIRS")
     threshold_isotropy: float = tuned(
         0.15, name='THRESHOLD["isotropy"]', units="|log ratio|",
         what="|log ratio| of an isotropy pair above which the capture is flagged as shaken",
@@ -532,11 +625,16 @@ class RepeatTuning:
     block_px: int = tuned(
         16, name="BLOCK_PX", units="pixels",
         what="side of the pixel blocks compared",
-        source="unrecorded: introduced with the check frames (be8823e); no reason for the size")
+        source="measurement: on the clean and shaken captures of the 25 tuning-half materials (validate_shake's: "
+               "3–8° turns) on the as-built device the block test alone (the whole-frame test disabled) flags the "
+               "check frames of 24/25 shaken and 0/25 clean captures at 8, 16 and 32 px alike (the ideal device: 8 "
+               "and 32 change no verdict either); no clean capture changes a block. Smaller shakes were not measured")
     block_min_fill: float = tuned(
         0.5, name="BLOCK_MIN_FILL", units="fraction of a block's pixels",
         what="a block takes part when at least this fraction of its pixels is valid in both frames",
-        source="unrecorded: introduced with the check frames (be8823e); no reason for the value")
+        source="measurement: on the clean and shaken captures of the 25 tuning-half materials (validate_shake's: "
+               "3–8° turns) on the as-built device the block test alone flags 24/25 shaken and 0/25 clean captures "
+               "at 0.25, 0.5 and 0.75 alike (BLOCK_PX's measurement)")
     threshold: float = tuned(
         0.02, name="THRESHOLD", units="|log ratio|",
         what="|log ratio| of the whole frame above which the sample moved",
@@ -550,7 +648,9 @@ class RepeatTuning:
     min_blocks: int = tuned(
         2, name="MIN_BLOCKS", units="blocks",
         what="blocks that must change to count as motion",
-        source="unrecorded: introduced with the check frames (be8823e); no reason for the value")
+        source="measurement: on the clean and shaken captures of the 25 tuning-half materials (validate_shake's: "
+               "3–8° turns) on the as-built device the block test alone flags 24/25 shaken and 0/25 clean captures "
+               "at 1, 2 and 3 blocks alike: no clean capture changes a block (BLOCK_PX's measurement)")
     min_z: float = tuned(
         6.0, name="MIN_Z", units="standard errors of the noise",
         what="significance a change must also reach",
@@ -597,7 +697,10 @@ class SynthesisTuning:
     max_rounds: int = tuned(
         24, name="MAX_ROUNDS", units="rounds",
         what="rounds of search and fill at most",
-        source="unrecorded: introduced with §5.5 (5664aca); no reason for the value")
+        source="measurement: on the eight asymmetric examples captured at 0/90° and 0/120/240° (ideal device) "
+               "synthesis ends after 3–24 rounds; where 24 binds (ggx-brushed-30, ggx-satin-100) 48 ends after 25–30 "
+               "with the same NDF and eq. 10 errors and synthesized fraction; 12 raises ggx-rough-m40's NDF error "
+               "(0/90°) from 2.76 to 3.00 %")
     resolution: int = tuned(
         32, name="SYNTHESIS_RESOLUTION", units="texels per face side",
         what="hemicube resolution of the search (texels ≈ 2.8° at the pole); the working NDF's holes take the "
@@ -607,7 +710,9 @@ class SynthesisTuning:
     blend_eps: float = tuned(
         1e-4, name="BLEND_EPS", units="log units²",
         what="ε of the blending weights 1/(d + ε) (a distance of 0.01 is a 10 % misfit)",
-        source="unrecorded: introduced with §5.5 (5664aca); no reason for the value")
+        source="mechanism: (0.01)², the distance of a 1 % RMS log misfit: candidates that match better than a "
+               "measured partial NDF is known (≈ 1 %, DIRECT_FLOOR) weigh about alike instead of an exact match "
+               "(d → 0) taking all the weight")
     floor: float = tuned(
         3e-3, name="SYNTHESIS_FLOOR", units="fraction of the peak",
         what="measured texels below this are no candidates and no known region; holes where the lobe is below "
@@ -648,7 +753,10 @@ class AsymmetricTuning:
     inconsistent_min: float = tuned(
         0.15, name="INCONSISTENT_MIN", units="RMS log ratio",
         what="…and at least this in absolute terms…",
-        source="unrecorded: introduced with §5.5 (5664aca); equal to INCONSISTENT_LEVEL, no further reason")
+        source="measurement: 0.075 and 0.3 refuse the same sets: 8/8 mixed sets (validate_asymmetric's part mixed) "
+               "and 0/20 single-material sets (the eight asymmetric examples and 12 tuning-half materials at "
+               "0/90/180/270°, ideal device); the set refused by shape alone (acrylic_felt_green + alum-bronze, "
+               "level 0.09) stays refused. Equal to INCONSISTENT_LEVEL")
     inconsistent_level_with_shape: float = tuned(
         0.03, name="INCONSISTENT_LEVEL_WITH_SHAPE", units="|weighted mean log ratio|",
         what="…and differ in level by at least this",
@@ -657,7 +765,11 @@ class AsymmetricTuning:
     min_cross_pairs: int = tuned(
         30, name="MIN_CROSS_PAIRS", units="pairs",
         what="cross-capture (and within-capture) pairs needed to judge two captures",
-        source="unrecorded: introduced with §5.5 (5664aca); no reason for the value")
+        source="mechanism: sampling: n independent pairs give an RMS log ratio to ≈ 1/√(2n), 13 % at 30, and the "
+               "ratio of two such RMS values to ≈ 18 %, so a factor INCONSISTENT_RATIO = 3 (log 3 = 1.1) stands ≈ 6 "
+               "of those errors clear (neighbouring texels' pairs are correlated: fewer in effect). Measured: 15 and "
+               "60 refuse the same sets, 8/8 mixed sets (validate_asymmetric's part mixed) and 0/20 single-material "
+               "sets (the eight asymmetric examples and 12 tuning-half materials at 0/90/180/270°, ideal device)")
     cap_deg: float = tuned(
         80.0, name="CAP_DEG", units="deg",
         what="polar cap (θ_h ≤ this) over which the synthesized and hole fractions are reported",
