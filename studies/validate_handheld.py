@@ -5,7 +5,7 @@ For every material (its seed ``crc32(name)``, :func:`reflecto.evaluate.sweep.mat
 * a tilt drawn from the seed, uniform in [0°, ``--max-tilt``] (default 10°), at the
   azimuth the simulator draws from the same seed;
 * four captures on the device (``--device``, default ``as-built``, with the virtual
-  calibration of :func:`reflecto.evaluate.sweep.prepare_calibration`): untilted
+  calibration of :func:`reflecto.workflow.calibration_file`): untilted
   steady, tilted steady, tilted shaken (``simulate_capture(..., shake=True)``) and,
   for the normal's share of the tilt range, the untilted one counted as a 0° tilt;
 * reconstructed with the default options (``normal="auto"``); the tilted steady one

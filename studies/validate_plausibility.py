@@ -80,11 +80,12 @@ def main() -> None:
     args = ap.parse_args()
     ideal = args.device
     built = "as-built" if ideal == "ideal" else f"{ideal}-as-built"
-    from reflecto.evaluate.sweep import find_materials, prepare_calibration
+    from reflecto import workflow
+    from reflecto.evaluate.sweep import find_materials
 
     files = find_materials([SHARED / "rgl", SHARED / "merl-nbrdf"])
     with tempfile.TemporaryDirectory() as tmp:
-        cal = prepare_calibration(Path(tmp), built)
+        cal = workflow.calibration_file(built, Path(tmp))
         jobs = [(str(p), d, cal if d == built else None, 0.0) for d in (ideal, built) for p in files]
         if not args.no_tilt:
             jobs += [(str(p), built, cal, t) for p in files[::5] for t in TILTS]

@@ -74,7 +74,8 @@ def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None, tuple[int
 
 
 def main() -> None:
-    from reflecto.evaluate.sweep import find_materials, prepare_calibration
+    from reflecto import workflow
+    from reflecto.evaluate.sweep import find_materials
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
@@ -86,7 +87,7 @@ def main() -> None:
     order = tuple(int(x) for x in args.firing_order.split(",")) if args.firing_order else None
     check = None if args.check_leds is None else (
         () if args.check_leds == "none" else tuple(int(x) for x in args.check_leds.split(",")))
-    cal_path = prepare_calibration(ROOT / "out", args.device)
+    cal_path = workflow.calibration_file(args.device, ROOT / "out")
     paths = find_materials([SHARED / "rgl", SHARED / "merl-nbrdf"])
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(one, [(k, str(p), args.device, cal_path, order, check) for k, p in enumerate(paths)]))

@@ -184,3 +184,23 @@ def test_capture_to_model_is_written_once():
     offenders = [o for o in offenders if not o.startswith(("src/reflecto/instrument/calibrate.py",
                                                            "src/reflecto/instrument/slices.py"))]
     assert not offenders, "\n".join(offenders)
+
+
+def test_studies_benchmarks_and_examples_import_names_that_exist():
+    """Every ``from reflecto… import NAME`` in studies/, benchmarks/ and examples/ (also inside
+    functions) names something the module has: a study that rots when the package moves a
+    name fails here, not on the day someone reruns it."""
+    import importlib
+
+    root = SRC.parents[1]
+    missing = []
+    for folder in ("studies", "benchmarks", "examples"):
+        for path in sorted((root / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("reflecto"):
+                    module = importlib.import_module(node.module)
+                    missing += [f"{path.relative_to(root)}:{node.lineno}: {node.module}.{a.name}"
+                                for a in node.names
+                                if not hasattr(module, a.name)
+                                and importlib.util.find_spec(f"{node.module}.{a.name}") is None]
+    assert not missing, "\n".join(missing)
