@@ -69,7 +69,7 @@ from .fresnel_fit import Pairs, fit_fresnel, overlap_pairs
 from .isotropic import fit_isotropic
 from .isotropy import CONDITIONAL_EXPLAINED, IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
-from .normal import estimate_normal_consistency, tilt_frame
+from .normal import MIN_PAIRS, estimate_normal_consistency, tilt_frame
 from .pipeline import Options, bound_notes, limit_energy, usable_samples
 from .samples import Bins, bin_samples, kd_bound
 from .symmetry_test import PairRatios, SymmetryTest, pair_ratios, symmetry_from_ratios
@@ -348,7 +348,7 @@ class SetDistance:
         a = bins.i[:, 2] * bins.o[:, 2] / np.maximum(self.shadowing(bins.i) * self.shadowing(bins.o), 1e-6)
         fit = fit_fresnel(bins, pairs, a, n_all, 0.5 * kd_max, np.full(3, 1.5), kd_max, per_channel=False,
                           diagnostics=False)
-        return float(fit.error) if np.isfinite(fit.error) and fit.n_pairs >= 40 else float("inf")
+        return float(fit.error) if np.isfinite(fit.error) and fit.n_pairs >= MIN_PAIRS else float("inf")
 
 
 @dataclasses.dataclass
