@@ -102,7 +102,7 @@ def _captures(src, dev, cal, rotations, seed0: int = 1):  # type: ignore[no-unty
 
 def _symmetric_path(caps, isotropic: str):  # type: ignore[no-untyped-def]
     from reflecto.reconstruct import Options, reconstruct
-    from reflecto.reconstruct.symmetry_test import symmetry_test_slices
+    from reflecto.reconstruct.eq3 import symmetry_test_slices
 
     res = reconstruct(caps[0].slices, Options(isotropic=isotropic))
     return res, symmetry_test_slices(caps[0].slices, caps[0].slices.valid, res.model)

@@ -15,7 +15,7 @@ Reported per half of the generalization split (:mod:`reflecto.evaluate.split`):
 
 * normal error of the steady captures (tilted and untilted): share within 0.5°, max;
 * false shake flags on steady captures; share of shaken captures detected;
-* false "eq. 3 BROKEN" (:func:`reflecto.reconstruct.symmetry_test.symmetry_test_slices`
+* false "eq. 3 BROKEN" (:func:`reflecto.reconstruct.eq3.symmetry_test_slices`
   against the reconstruction, in its frame, as ``reflecto reconstruct`` reports it) on
   the steady captures (all 50 materials are isotropic, so symmetric);
 * eq. 10 error (:func:`reflecto.evaluate.metrics.brdf_error`, every ``--metric-stride``-th
@@ -52,7 +52,7 @@ from reflecto.evaluate.sweep import find_materials, material_seed
 from reflecto.instrument.device import load_device
 from reflecto.instrument.simulate import simulate_capture
 from reflecto.reconstruct import Options, reconstruct
-from reflecto.reconstruct.symmetry_test import symmetry_test_slices
+from reflecto.reconstruct.eq3 import symmetry_test_slices
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"

@@ -85,7 +85,7 @@ def test_four_rotations_beat_the_symmetric_path_on_an_asymmetric_lobe(captures):
     from reflecto.load import load_source
     from reflecto.reconstruct import Options, reconstruct
     from reflecto.reconstruct.asymmetric import reconstruct_rotations
-    from reflecto.reconstruct.symmetry_test import symmetry_test_slices
+    from reflecto.reconstruct.eq3 import symmetry_test_slices
 
     src = load_source(BRUSHED)
     caps = [_slices(captures[f"r{r}"]) for r in ROTATIONS]
@@ -112,7 +112,7 @@ def test_a_symmetric_anisotropic_lobe_is_not_worse_and_reads_symmetric():
     from reflecto.instrument.slices import extract_slices
     from reflecto.reconstruct import Options, reconstruct
     from reflecto.reconstruct.asymmetric import RotatedCapture, reconstruct_rotations
-    from reflecto.reconstruct.symmetry_test import symmetry_test_slices
+    from reflecto.reconstruct.eq3 import symmetry_test_slices
     from reflecto.sources.analytic import AnalyticBRDF
 
     src = AnalyticBRDF(distribution="beckmann", alpha=[0.05, 0.2], rotation_deg=75, kd=0.1, ks=0.7, eta=1.5)

@@ -14,9 +14,9 @@ from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
 from reflecto.instrument.slices import extract_slices
 from reflecto.reconstruct import Options, reconstruct
+from reflecto.reconstruct.eq3 import symmetry_test_slices
 from reflecto.reconstruct.normal import estimate_normal, half_vector_pitch_deg, peak_normal
 from reflecto.reconstruct.pipeline import usable_samples
-from reflecto.reconstruct.symmetry_test import symmetry_test_slices
 from reflecto.sources.analytic import AnalyticBRDF
 
 DEV = Device.builtin("ideal")

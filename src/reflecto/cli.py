@@ -51,7 +51,7 @@ from .io import atomic_path, check_output, make_parents, read_json
 from .load import load_source
 from .reconstruct import Options
 from .reconstruct.asymmetric import MIN_CAPTURES
-from .reconstruct.symmetry_test import SymmetryTest
+from .reconstruct.eq3 import SymmetryTest
 from .render.mitsuba import DEFAULT_SPP, SCENES, compare, comparison_image, render, save_image, titled, to_srgb8
 from .sources import merl
 from .watch import Watcher, default_reconstructor

@@ -45,7 +45,7 @@ from .instrument.slices import Slices, extract_slices
 from .io import atomic_write
 from .reconstruct import Options, Reconstruction, reconstruct
 from .reconstruct.asymmetric import AsymmetricReconstruction, RotatedCapture, reconstruct_rotations, sample_frames
-from .reconstruct.symmetry_test import SymmetryTest, symmetry_test_slices
+from .reconstruct.eq3 import SymmetryTest, symmetry_test_slices
 
 __all__ = ["CaptureModel", "Missing", "StageSeconds", "calibration_file", "calibration_for", "capture_to_model",
            "measure", "reconstruct_folder", "rotations_to_model", "save_model", "save_rotations_model"]
@@ -250,7 +250,7 @@ def measure(capture: Capture, calibration: Calibration, where: str | Path | None
 
 
 def _symmetry(slices: Slices, res: Reconstruction) -> SymmetryTest:
-    """The eq. 3 test (:mod:`reflecto.reconstruct.symmetry_test`) of one capture in its sample frame."""
+    """The eq. 3 test (:mod:`reflecto.reconstruct.eq3`) of one capture in its sample frame."""
     sl = slices if np.array_equal(res.frame, np.eye(3)) else slices.reframe(res.frame)
     return symmetry_test_slices(sl, slices.valid & sl.valid, res.model)
 

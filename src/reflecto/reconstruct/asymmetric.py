@@ -7,7 +7,7 @@ Then::
 
     every capture in the sample frame (its rotation; one normal for the set, §5.4)
     bins of all captures on one working hemicube                     samples.py
-    partial NDFs at shared texels, against a 1-D fit of capture 1:   symmetry_test.py
+    partial NDFs at shared texels, against a 1-D fit of capture 1:   eq3.py
         captures consistent with one material?                       capture_consistency
         eq. 3 kept by the captures' own pairs, pooled?               within_captures
     isotropic? (eq. 3 kept and every capture's azimuthal test)       isotropy.py
@@ -33,7 +33,7 @@ throw away what isotropy gives: every ring of half vectors seen from every LED.
 So ``Options(isotropic="auto")`` takes the 1-D fit when every capture's azimuthal
 test (:mod:`.isotropy`) finds no second harmonic (its conditional fraction,
 :func:`_isotropic_for_set`) and the captures' own pairs, pooled, keep eq. 3
-(:mod:`.symmetry_test` against the 1-D fit, :func:`within_captures`: an asymmetric
+(:mod:`.eq3` against the 1-D fit, :func:`within_captures`: an asymmetric
 lobe can hide from the second harmonic); ``"no"`` always takes the hemicube.
 
 **The normal of the set.** The rotations turn the sample about its own normal while
@@ -65,6 +65,7 @@ from ..hemicube import Hemicube, hemicube
 from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
 from . import hemicube_fit as hf
+from .eq3 import PairRatios, SymmetryTest, pair_ratios, symmetry_from_ratios
 from .fresnel_fit import Pairs, fit_fresnel, overlap_pairs
 from .isotropic import fit_isotropic
 from .isotropy import CONDITIONAL_EXPLAINED, IsotropyTest, azimuthal_test
@@ -72,7 +73,6 @@ from .motion import MotionReport, detect_motion
 from .normal import MIN_PAIRS, estimate_normal_consistency, tilt_frame
 from .pipeline import Options, bound_notes, limit_energy, usable_samples
 from .samples import Bins, bin_samples, kd_bound
-from .symmetry_test import PairRatios, SymmetryTest, pair_ratios, symmetry_from_ratios
 from .synthesis import SynthesisFill, SynthesisOptions
 from .tuning import ASYMMETRIC
 
@@ -252,7 +252,7 @@ class CaptureConsistency:
 
 def capture_consistency(sb: _SetBins, ratios: PairRatios) -> CaptureConsistency:
     """:class:`CaptureConsistency` of the set's bins from their lobe's pair log ratios
-    (:func:`.symmetry_test.pair_ratios`; direct overlaps only)."""
+    (:func:`.eq3.pair_ratios`; direct overlaps only)."""
     n_c = len(sb.per_led) // sb.n_leds
     cross, mean = np.full((n_c, n_c), np.nan), np.full((n_c, n_c), np.nan)
     direct = ~ratios.symmetric
@@ -371,7 +371,7 @@ class AsymmetricReconstruction:
         up to the first anisotropic one; empty when not run (the data break eq. 3, or
         ``Options(isotropic="no")``).
     symmetry
-        The eq. 3 test on the merged data (:mod:`.symmetry_test`).
+        The eq. 3 test on the merged data (:mod:`.eq3`).
     consistency
         The captures compared with each other (:class:`CaptureConsistency`).
     motion

@@ -73,7 +73,7 @@ class IsotropyTest:
         Fraction of the variance left by the second harmonic that ``cos φ_h, sin φ_h``
         explain (0 … 1), reported only: it does not tell a break of eq. 3 (isotropic
         materials read up to 0.5, anisotropic lobes that keep eq. 3 up to 0.7); eq. 3 is
-        :mod:`.symmetry_test`'s decision.
+        :mod:`.eq3`'s decision.
     amplitude
         Sample-weighted mean amplitude of the second harmonic (in log D).
     rings

@@ -489,9 +489,9 @@ class SymmetryTuning:
 
 @dataclasses.dataclass(frozen=True)
 class SymmetryTestTuning:
-    """How far the data break eq. 3: τ pairs against direct pairs (:mod:`.symmetry_test`; eq. 3, §5.5)."""
+    """How far the data break eq. 3: τ pairs against direct pairs (:mod:`.eq3`; eq. 3, §5.5)."""
 
-    module: ClassVar[str] = "reflecto.reconstruct.symmetry_test"
+    module: ClassVar[str] = "reflecto.reconstruct.eq3"
     paper: ClassVar[str] = "eq. 3, §5.5"
 
     level: float = tuned(
