@@ -73,3 +73,30 @@ def test_bad_tensor_files(shared, tmp_path):
     f = read_tensor_file(shared / "rgl" / "paper_white_rgb.bsdf")
     assert f["rgb"].shape[:3] == (1, 8, 3) and f["ndf"].shape == (2, 128)
     assert struct.unpack("<I", raw[14:18])[0] == len(f)
+
+
+def test_marginal_warp_bisection_equals_the_column_count(rng):
+    """:meth:`Marginal2D.sample` finds the conditional CDF's column by bisection; it must be
+    the column the definition counts (the last whose interpolated CDF is ≤ the target),
+    also on rows with flat stretches (zero density: ties) and at the corners."""
+    from reflecto.sources.rgl import Marginal2D, _solve_quadratic
+
+    data = rng.random((1, 2, 9, 13))
+    data[0, 0, :, 3:7] = 0.0  # flat stretches of the CDF
+    data[0, 1, 2:5, :] = 0.0  # rows of no mass
+    m = Marginal2D(data, np.zeros(1), np.array([0.1, 0.6]))
+    u = np.concatenate([rng.random((5000, 2)), [[0, 0], [1, 1], [0, 1], [1, 0]]])
+    for k in range(2):
+        d, c, marg = m.norm_data[k], m.cond[k], m.marg[k]
+        uy = u[:, 1]
+        py = np.clip(np.searchsorted(marg, uy, side="right") - 1, 0, m.h - 2)
+        r0, r1 = c[py, -1], c[py + 1, -1]
+        sy = _solve_quadratic(r0, r1, uy - marg[py])
+        rows = (1 - sy)[:, None] * c[py] + sy[:, None] * c[py + 1]
+        target = u[:, 0] * ((1 - sy) * r0 + sy * r1)
+        px = np.clip(np.sum(rows <= target[:, None], axis=1) - 1, 0, m.w - 2)
+        c0 = (1 - sy) * d[py, px] + sy * d[py + 1, px]
+        c1 = (1 - sy) * d[py, px + 1] + sy * d[py + 1, px + 1]
+        sx = _solve_quadratic(c0, c1, target - rows[np.arange(len(u)), px])
+        expected = np.stack([(px + sx) / (m.w - 1), (py + sy) / (m.h - 1)], axis=-1)
+        assert np.array_equal(m.sample(u, k), expected)

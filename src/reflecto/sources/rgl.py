@@ -301,15 +301,25 @@ class Marginal2D:
         py = np.clip(np.searchsorted(marg, uy, side="right") - 1, 0, self.h - 2)
         r0, r1 = rows_tot[py], rows_tot[py + 1]
         sy = _solve_quadratic(r0, r1, uy - marg[py])
-        # conditional CDF of the row interpolated at sy
-        cond_rows = (1 - sy)[..., None] * c[py] + sy[..., None] * c[py + 1]
+        # the conditional CDF of the row interpolated at sy: the last column at or below the
+        # target, by bisection (the interpolated row is nondecreasing, as both rows are)
         total = (1 - sy) * r0 + sy * r1
         target = ux * total
-        px = np.clip(np.sum(cond_rows <= target[..., None], axis=-1) - 1, 0, self.w - 2)
-        take = np.take_along_axis
+
+        def cond(col: NDArray[np.intp]) -> Array:
+            return (1 - sy) * c[py, col] + sy * c[py + 1, col]
+
+        lo = np.full(np.shape(target), -1, dtype=np.intp)  # cond(lo) <= target (-1: none)
+        hi = np.full(np.shape(target), self.w, dtype=np.intp)  # cond(hi) > target (w: none)
+        while np.any(hi - lo > 1):
+            mid = (lo + hi) // 2
+            below = cond(np.clip(mid, 0, self.w - 1)) <= target
+            lo = np.where(below, mid, lo)
+            hi = np.where(below, hi, mid)
+        px = np.clip(lo, 0, self.w - 2)
         c0 = (1 - sy) * d[py, px] + sy * d[py + 1, px]
         c1 = (1 - sy) * d[py, px + 1] + sy * d[py + 1, px + 1]
-        base = take(cond_rows, px[..., None], axis=-1)[..., 0]
+        base = cond(px)
         sx = _solve_quadratic(c0, c1, target - base)
         return np.stack([(px + sx) / (self.w - 1), (py + sy) / (self.h - 1)], axis=-1)
 
