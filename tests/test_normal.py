@@ -4,6 +4,7 @@ lobes, the device axis kept where it holds, a given normal, and tilt kept apart 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -53,6 +54,27 @@ def test_cli_normal_argument():
     assert _normal_arg("0,0.6,0.8") == (0.0, 0.6, 0.8)
     with pytest.raises(argparse.ArgumentTypeError):
         _normal_arg("0,1")
+
+
+def test_the_model_file_and_info_carry_the_tilt_found(tmp_path, capsys):
+    """``reflecto reconstruct`` records the sample normal in the model's metadata, and
+    ``reflecto info`` shows it (a 5°-tilted analytic capture)."""
+    import json
+
+    from reflecto.cli import main
+
+    plastic = Path(__file__).resolve().parents[1] / "examples" / "ggx-plastic.json"
+    assert main(["simulate", str(plastic), "--tilt", "5", "--seed", "2", "-o", str(tmp_path / "cap"), "-q"]) == 0
+    assert main(["reconstruct", str(tmp_path / "cap"), "-o", str(tmp_path / "m.reflecto"), "-q"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "m.reflecto"), "--json"]) == 0
+    normal = json.loads(capsys.readouterr().out)["normal"]
+    assert normal["normal_source"] == "estimated" and abs(normal["normal_tilt_deg"] - 5.0) < 0.3
+    assert 0 < normal["normal_uncertainty_deg"] < 1 and abs(np.linalg.norm(normal["normal"]) - 1) < 1e-9
+    assert main(["info", str(tmp_path / "m.reflecto")]) == 0
+    line = [x for x in capsys.readouterr().out.splitlines() if x.strip().startswith("normal ")]
+    assert line and f"tilted {normal['normal_tilt_deg']:.2f}° from the device axis" in line[0]
+    assert "estimated" in line[0]
 
 
 @pytest.mark.parametrize("params,tilt", [

@@ -213,6 +213,13 @@ def cmd_info(args: argparse.Namespace) -> int:
     lines = [str(info["file"]),
              f"  kind        {info['kind']}  (isotropic: {info['isotropic']}, reciprocal: {info['reciprocal']})"]
     lines += [f"  {k:<11} {v}" for k, v in info["parameters"].items()]
+    meta = getattr(src, "metadata", None) or {}
+    if "normal_tilt_deg" in meta:  # a reconstruction: the sample normal it used (§5.4)
+        unc = meta.get("normal_uncertainty_deg")
+        info["normal"] = {k: meta.get(k) for k in workflow.NORMAL_KEYS}
+        detail = f"±{unc:.2f}°, " if isinstance(unc, (int, float)) and unc > 0 else ""
+        lines.append(f"  normal      tilted {meta['normal_tilt_deg']:.2f}° from the device axis "
+                     f"({detail}{meta.get('normal_source')})")
     lines.append("  directional albedo (RGB) at θ_i:")
     lines += [f"    {k:>6}  {v[0]:.4f} {v[1]:.4f} {v[2]:.4f}" for k, v in info["albedo"].items()]
     lines.append(f"  albedo range [{info['albedo_range'][0]:.4f}, {info['albedo_range'][1]:.4f}]")

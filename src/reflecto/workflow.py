@@ -326,6 +326,10 @@ def provenance(capture: Capture) -> dict[str, str]:
     return out
 
 
+#: The summary's keys of the sample normal that a saved model's metadata carries (``reflecto info`` shows them).
+NORMAL_KEYS = ("normal", "normal_tilt_deg", "normal_uncertainty_deg", "normal_source")
+
+
 def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path | None = None,
                calibration: str | Path | None = None) -> dict[str, Any]:
     """Write the model file and its ``.json`` summary beside it (each atomically); returns the summary.
@@ -337,7 +341,9 @@ def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path
     ----------
     result
         The result of :func:`capture_to_model`; its model's metadata gains the capture,
-        calibration, provenance and ``model_error``.
+        calibration, provenance, ``model_error`` and the sample normal used
+        (:data:`NORMAL_KEYS`: the normal in device coordinates, its tilt and uncertainty in
+        degrees, and whether it was estimated, §5.4).
     output
         The model file to write; the summary goes to the same path with suffix ``.json``.
     capture_dir
@@ -361,7 +367,8 @@ def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path
     if isinstance(calibration, (str, Path)):
         rel_cal = os.path.relpath(Path(calibration).resolve(), out.resolve().parent)
         result.model.metadata.update({"calibration": rel_cal})
-    result.model.metadata.update({**result.provenance, "model_error": summary["model_error"]})
+    result.model.metadata.update({**result.provenance, "model_error": summary["model_error"],
+                                  **{k: summary[k] for k in NORMAL_KEYS}})
     result.model.save(out)
     with atomic_write(out.with_suffix(".json"), "w") as fh:
         fh.write(json.dumps(summary, indent=1))
