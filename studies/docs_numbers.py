@@ -2,7 +2,9 @@
 
 Every number below comes from the sweep tables ``docs/sweep-<device>.csv`` (one row per
 material: errors of ours, the dense Cook–Torrance fit, the same-data fit and the earlier
-device; the material's half; the reconstruction's seconds). Each is written into a
+device; the material's half; the reconstruction's seconds) and from the exports' tables
+``docs/exports.csv`` and ``docs/exports-analytic.csv`` (``studies/validate_exports.py``:
+each exported file, evaluated by Mitsuba, against its model). Each is written into a
 marker-delimited block of a Markdown file::
 
     <!-- numbers:NAME -->
@@ -120,6 +122,36 @@ def speed() -> str:
             f"(the ideal sweep's `seconds_reconstruct`, {len(s)} materials)")
 
 
+def _table(name: str) -> list[dict[str, str]]:
+    with (DOCS / name).open(newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def exports() -> str:
+    """The 50 shared reconstructions' ``.bsdf`` exports read by Mitsuba against the models (eq. 10)."""
+    rs = _table("exports.csv")
+    err = [100 * float(r["error"]) for r in rs]
+    sec = [float(r["export_seconds"]) for r in rs]
+    mb = [float(r["size_mb"]) for r in rs]
+    worst = max(rs, key=lambda r: float(r["error"]))
+    layouts = sorted({r["layout"] for r in rs})
+    return (f"eq. 10 error median {statistics.median(err):.3f} %, p90 {_quantile(err, 0.9):.3f} %, max "
+            f"{max(err):.3f} % ({worst['name']}), {sum(e <= 2.0 for e in err)}/{len(rs)} within 2 %; export "
+            f"median {statistics.median(sec):.2f} s, max {max(sec):.2f} s on one core; "
+            f"{statistics.median(mb):.1f} MB per file ({' and '.join(layouts)} tables)")
+
+
+def exports_analytic() -> str:
+    """Analytic sources and their hemicube models, exported and read by Mitsuba."""
+    rs = _table("exports-analytic.csv")
+    err = [100 * float(r["error"]) for r in rs]
+    med = [100 * float(r["pair_median"]) for r in rs]
+    p95 = [100 * float(r["pair_p95"]) for r in rs]
+    names = ", ".join(dict.fromkeys(r["name"] for r in rs))
+    return (f"{names}, each analytic and as a 512² hemicube model: eq. 10 error ≤ {max(err):.2f} %, per-pair "
+            f"relative difference median ≤ {max(med):.2f} %, p95 ≤ {max(p95):.2f} %")
+
+
 #: (file, block name) → generator.
 BLOCKS: dict[tuple[str, str], Callable[[], str]] = {
     ("README.md", "sweep-table"): readme_sweep_table,
@@ -130,6 +162,9 @@ BLOCKS: dict[tuple[str, str], Callable[[], str]] = {
     ("docs/validation.md", "ours-ratio"): ours_ratio,
     ("docs/validation.md", "ours-median"): ours_median,
     ("docs/validation.md", "speed"): speed,
+    ("docs/validation.md", "exports"): exports,
+    ("docs/mitsuba.md", "exports"): exports,
+    ("docs/mitsuba.md", "exports-analytic"): exports_analytic,
 }
 
 

@@ -17,9 +17,13 @@ gives isotropic materials: isotropic files. ``--analytic``: also analytic models
 reader of the format instead (the same interpolation, float64; Mitsuba agrees to
 ≤ 2·10⁻⁵).
 
-Run: ``.venv/bin/python studies/validate_exports.py`` (≈ 6 minutes on one core; the
-first run also reconstructs the 50 materials, ≈ 30 s). Timings on a shared machine are
-noisy: compare paired runs.
+Results go to ``--csv`` (default ``docs/exports.csv`` for the full default run: one row
+per material) and, with ``--analytic``, ``docs/exports-analytic.csv``; ``make docs``
+(``studies/docs_numbers.py``) writes the numbers the docs quote from them.
+
+Run: ``.venv/bin/python studies/validate_exports.py --analytic`` (≈ 6 minutes on one
+core; the first run also reconstructs the 50 materials, ≈ 30 s). Timings on a shared
+machine are noisy: compare paired runs.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ import _bench  # noqa: E402, F401  (one core, single-threaded libraries: before 
 
 # isort: split
 import argparse  # noqa: E402
+import csv
 import tempfile
 import time
 
@@ -68,7 +73,7 @@ def _stats(values: list[float]) -> str:
     return f"median {np.median(v):.4g}, p90 {np.percentile(v, 90):.4g}, max {v.max():.4g}"
 
 
-def exports(names: list[str] | None, proxy: bool, reader: str) -> None:
+def exports(names: list[str] | None, proxy: bool, reader: str, out_csv: Path | None) -> None:
     read, label = _reader(reader)
     print(f"exported file ({label}) against the model, eq. 10 normalized error; export CPU time on one core")
     rows = []
@@ -82,10 +87,15 @@ def exports(names: list[str] | None, proxy: bool, reader: str) -> None:
             seconds = time.process_time() - t0
             err = brdf_error(src, read(path)).normalized
             layout = "isotropic" if len(RGLBRDF(path).phi_i) == 1 else "anisotropic"
-            rows.append((p.stem, err, seconds, path.stat().st_size / 1e6))
+            rows.append((p.stem, err, seconds, path.stat().st_size / 1e6, layout))
             print(f"{p.stem:28s} error {err:.4f}  export {seconds:.2f} s  {rows[-1][3]:.2f} MB  {layout}", flush=True)
             path.unlink()
-    errs, secs, sizes = zip(*[r[1:] for r in rows])
+    if out_csv is not None:
+        with out_csv.open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["name", "error", "export_seconds", "size_mb", "layout"])
+            w.writerows([(n, f"{e:.6g}", f"{t:.4f}", f"{mb:.3f}", lay) for n, e, t, mb, lay in rows])
+    errs, secs, sizes = zip(*[r[1:4] for r in rows])
     worst = max(rows, key=lambda r: r[1])
     print(f"{len(rows)} materials{' (1-D NDF versions)' if proxy else ''}:")
     print(f"  eq. 10 error: {_stats(errs)} ({worst[0]}); within 0.02: {sum(e <= 0.02 for e in errs)}/{len(rows)}")
@@ -93,7 +103,7 @@ def exports(names: list[str] | None, proxy: bool, reader: str) -> None:
     print(f"  file size:    {_stats(sizes)} MB")
 
 
-def analytic(reader: str) -> None:
+def analytic(reader: str, out_csv: Path | None) -> None:
     read, label = _reader(reader)
     models = {
         "GGX plastic": AnalyticBRDF(distribution="ggx", alpha=0.2, kd=(0.4, 0.2, 0.1), ks=0.5, eta=1.5),
@@ -104,6 +114,7 @@ def analytic(reader: str) -> None:
     rng = np.random.default_rng(2026)
     i, o = random_directions(rng, 100_000, 80), random_directions(rng, 100_000, 80)
     print(f"analytic sources and their 512 hemicube models ({label}): eq. 10; per-pair relative difference, θ ≤ 80°")
+    rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, a in models.items():
             for kind, src in (("analytic", a),
@@ -111,9 +122,16 @@ def analytic(reader: str) -> None:
                 path = export_rgl(src, Path(tmp) / "m.bsdf")
                 r = read(path)
                 rel = relative_difference(r.eval(i, o) * o[:, 2:3], src.eval(i, o) * o[:, 2:3])
+                rows.append((name, kind, brdf_error(src, r).normalized, float(np.median(rel)),
+                             float(np.percentile(rel, 95)), path.stat().st_size / 1e6))
                 print(f"{name:30s} {kind:8s} eq. 10 {brdf_error(src, r).normalized:.4f}  pairs: median "
                       f"{100 * np.median(rel):.2f} %, p95 {100 * np.percentile(rel, 95):.2f} %  "
                       f"({path.stat().st_size / 1e6:.1f} MB)", flush=True)
+    if out_csv is not None:
+        with out_csv.open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["name", "kind", "error", "pair_median", "pair_p95", "size_mb"])
+            w.writerows([(n, k, f"{e:.6g}", f"{a:.6g}", f"{b:.6g}", f"{mb:.2f}") for n, k, e, a, b, mb in rows])
 
 
 def main() -> None:
@@ -122,10 +140,14 @@ def main() -> None:
     ap.add_argument("--isotropic-proxy", action="store_true", help="the models' 1-D (ring-averaged) versions")
     ap.add_argument("--analytic", action="store_true", help="also analytic models")
     ap.add_argument("--reader", choices=("mitsuba", "numpy"), default="mitsuba")
+    ap.add_argument("--csv", type=Path, help="per-material results (default: docs/exports.csv for the full "
+                    "default run with Mitsuba's reader, else none); --analytic writes NAME-analytic.csv beside it")
     args = ap.parse_args()
-    exports(args.names.split(",") if args.names else None, args.isotropic_proxy, args.reader)
+    full = not args.names and not args.isotropic_proxy and args.reader == "mitsuba"
+    out_csv = args.csv or (ROOT / "docs" / "exports.csv" if full else None)
+    exports(args.names.split(",") if args.names else None, args.isotropic_proxy, args.reader, out_csv)
     if args.analytic:
-        analytic(args.reader)
+        analytic(args.reader, None if out_csv is None else out_csv.with_name(out_csv.stem + "-analytic.csv"))
 
 
 if __name__ == "__main__":
