@@ -516,7 +516,8 @@ class SymmetryTestTuning:
                "either")
     unpaired_spread: float = tuned(
         0.3, name="UNPAIRED_SPREAD", units="log units",
-        what="the direct pairs' spread assumed when fewer than MIN_PAIRS of them are in the lobe",
+        what="the least spread of the direct pairs assumed when fewer than MIN_PAIRS of them are in the lobe "
+             "(their measured spread counts where it is larger)",
         source="measurement: the model's S and F miss measured materials by 20–60 %; with 0.3 the τ pairs of "
                "blue-rubber and light-red-paint (0.13–0.18) are kept, the asymmetric satin's (0.91) broken "
                "(2a6335a, docs/design/asymmetric.md)")
@@ -524,10 +525,11 @@ class SymmetryTestTuning:
         2.0, name="THRESHOLD", units="ratio of RMS log ratios",
         what="ratio of the τ pairs' RMS log ratio to the direct pairs' at and above which the data break eq. 3",
         source="measurement: single captures (ideal device) of the 50 shared materials and four analytic "
-               "symmetric lobes read ≤ 1.93 where decided, the eight analytic asymmetric lobes of examples/asymmetric "
-               "≥ 3.2 (3.1 as-built) (docs/design/asymmetric.md); 2 lies just above the symmetric maximum (≤ 1.96 on "
-               "this branch's tuning half, white-paint). A ratio "
-               "rather than a level because S and F miss both kinds of pair alike")
+               "symmetric lobes read ≤ 1.60, the 100 steady as-built captures of the hand-held study ≤ 1.47 where "
+               "decided, the eight analytic asymmetric lobes of examples/asymmetric ≥ 3.2 (3.1 as-built) "
+               "(docs/design/asymmetric.md); 2 lies between, nearer the symmetric side, where an error costs a "
+               "needless §5.5 hint rather than a lost asymmetry. A ratio rather than a level because S and F miss "
+               "both kinds of pair alike")
     direct_floor: float = tuned(
         0.01, name="DIRECT_FLOOR", units="log units",
         what="floor of the direct pairs' RMS in that ratio",
