@@ -502,7 +502,10 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     else:
         iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
         if device_fit is not None and _tilt_explains_nothing(device_fit, iso):
-            est = NormalEstimate(np.array([0.0, 0.0, 1.0]), 0.0, "device", est.refits, est.tilt_estimate_deg)
+            # the device axis fits as well as the estimated tilt: the data tell the normal only to
+            # within the two, so that is its uncertainty (the motion cues must not read it as a turn)
+            est = NormalEstimate(np.array([0.0, 0.0, 1.0]), max(est.uncertainty_deg, est.tilt_deg), "device",
+                                 est.refits, est.tilt_estimate_deg)
             frame, sl = est.frame, slices
             ok = valid & sl.valid
             iso = device_fit
