@@ -15,9 +15,9 @@ Reported per half of the generalization split (:mod:`reflecto.evaluate.split`):
 
 * normal error of the steady captures (tilted and untilted): share within 0.5°, max;
 * false shake flags on steady captures; share of shaken captures detected;
-* false "eq. 3 BROKEN" (:func:`reflecto.reconstruct.eq3.symmetry_test_slices`
-  against the reconstruction, in its frame, as ``reflecto reconstruct`` reports it) on
-  the steady captures (all 50 materials are isotropic, so symmetric);
+* false "eq. 3 BROKEN" (:attr:`reflecto.workflow.CaptureModel.symmetry`, the eq. 3 test
+  as ``reflecto reconstruct`` reports it) on the steady captures (all 50 materials are
+  isotropic, so symmetric);
 * eq. 10 error (:func:`reflecto.evaluate.metrics.brdf_error`, every ``--metric-stride``-th
   θ_d/φ_d bin) with the estimated normal over that with the true normal (share ≤ 1.1)
   and over the untilted capture's (share ≤ 1.25); and with the true normal over the
@@ -52,7 +52,6 @@ from reflecto.evaluate.sweep import find_materials, material_seed
 from reflecto.instrument.device import load_device
 from reflecto.instrument.simulate import simulate_capture
 from reflecto.reconstruct import Options, reconstruct
-from reflecto.reconstruct.eq3 import symmetry_test_slices
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
@@ -60,12 +59,6 @@ SHARED = ROOT.parent / "shared" / "data"
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(math.acos(min(1.0, max(-1.0, float(np.dot(a, b))))))
-
-
-def symmetric_kept(slices, res) -> bool:
-    """The eq. 3 test as ``reflecto reconstruct`` reports it: in the reconstruction's frame."""
-    sl = slices if np.array_equal(res.frame, np.eye(3)) else slices.reframe(res.frame)
-    return bool(symmetry_test_slices(sl, slices.valid & sl.valid, res.model).symmetric)
 
 
 def pick(materials: list[Path], n: int | None) -> list[Path]:
@@ -107,7 +100,7 @@ def run_material(path: Path, device: str, cal, max_tilt: float, stride: int) -> 
              "uncertainty_deg": res.normal_uncertainty_deg, "normal_source": res.normal_source,
              "shake_detected": bool(res.shake_detected), "motion": res.motion.describe(), "seconds": res.seconds}
         if not shake:
-            r["symmetric"] = symmetric_kept(sl, res)
+            r["symmetric"] = bool(result.symmetry.symmetric)  # as `reflecto reconstruct` reports it
             r["error"] = error(res.model)
         if label == "tilted":
             t0 = time.perf_counter()

@@ -35,7 +35,9 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
+from . import geometry
 from .errors import ReflectoError, ReflectoWarning
 from .instrument.calibrate import Calibration, calibrate, load_calibration, needs_calibration, nominal_calibration
 from .instrument.capture import Capture, CaptureError, read_capture
@@ -250,9 +252,25 @@ def measure(capture: Capture, calibration: Calibration, where: str | Path | None
 
 
 def _symmetry(slices: Slices, res: Reconstruction) -> SymmetryTest:
-    """The eq. 3 test (:mod:`reflecto.reconstruct.eq3`) of one capture in its sample frame."""
-    sl = slices if np.array_equal(res.frame, np.eye(3)) else slices.reframe(res.frame)
-    return symmetry_test_slices(sl, slices.valid & sl.valid, res.model)
+    """The eq. 3 test (:mod:`reflecto.reconstruct.eq3`) of one capture in its sample frame.
+
+    Where the device axis was kept over an estimated tilt that fitted as well
+    (:attr:`~reflecto.reconstruct.normal.NormalEstimate.alternative`), the data are
+    tested in that frame too, and eq. 3 holds if it holds in either: a tilt the fit
+    could not rule out is no evidence of an asymmetric material (ideal device,
+    red-specular-plastic tilted 1.5° read in the device frame: BROKEN).
+    """
+    def in_frame(frame: NDArray[np.float64]) -> SymmetryTest:
+        sl = slices if np.array_equal(frame, np.eye(3)) else slices.reframe(frame)
+        return symmetry_test_slices(sl, slices.valid & sl.valid, res.model)
+
+    test = in_frame(res.frame)
+    alt = None if res.normal_estimate is None else res.normal_estimate.alternative
+    if test.decided and not test.symmetric and alt is not None:
+        other = in_frame(geometry.frame_from_normal(alt, np.array([1.0, 0.0, 0.0])))
+        if other.symmetric:
+            return other
+    return test
 
 
 def _calibration_label(calibration: str | Path | Calibration | None, missing: Missing, device: Device) -> str:

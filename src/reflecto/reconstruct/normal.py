@@ -339,6 +339,10 @@ class NormalEstimate:
     tilt_estimate_deg
         The estimated tilt before the decision for the device axis (degrees; NaN when
         nothing was estimated).
+    alternative
+        Where the device axis was kept over an estimate that fitted no better: that
+        estimate, shape ``(3,)``, a normal the data allow as well (the eq. 3 test looks
+        in its frame too); else ``None``.
     """
 
     normal: Array
@@ -346,6 +350,7 @@ class NormalEstimate:
     source: str
     refits: int = 0
     tilt_estimate_deg: float = math.nan
+    alternative: Array | None = None
 
     @property
     def tilt_deg(self) -> float:

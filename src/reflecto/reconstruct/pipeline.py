@@ -505,7 +505,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             # the device axis fits as well as the estimated tilt: the data tell the normal only to
             # within the two, so that is its uncertainty (the motion cues must not read it as a turn)
             est = NormalEstimate(np.array([0.0, 0.0, 1.0]), max(est.uncertainty_deg, est.tilt_deg), "device",
-                                 est.refits, est.tilt_estimate_deg)
+                                 est.refits, est.tilt_estimate_deg, alternative=est.normal)
             frame, sl = est.frame, slices
             ok = valid & sl.valid
             iso = device_fit
