@@ -254,7 +254,7 @@ def measure(capture: Capture, calibration: Calibration, where: str | Path | None
 def _symmetry(slices: Slices, res: Reconstruction) -> SymmetryTest:
     """The eq. 3 test (:mod:`reflecto.reconstruct.eq3`) of one capture in its sample frame.
 
-    Where the device axis was kept over an estimated tilt that fitted as well
+    Where the device axis was kept over an estimated tilt the data do not tell from it
     (:attr:`~reflecto.reconstruct.normal.NormalEstimate.alternative`), the data are
     tested in that frame too, and eq. 3 holds if it holds in either: a tilt the fit
     could not rule out is no evidence of an asymmetric material (ideal device,

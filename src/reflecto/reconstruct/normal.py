@@ -340,9 +340,9 @@ class NormalEstimate:
         The estimated tilt before the decision for the device axis (degrees; NaN when
         nothing was estimated).
     alternative
-        Where the device axis was kept over an estimate that fitted no better: that
-        estimate, shape ``(3,)``, a normal the data allow as well (the eq. 3 test looks
-        in its frame too); else ``None``.
+        Where the device axis was kept over an estimate (one within two uncertainties of
+        it, or one that fitted no better): that estimate, shape ``(3,)``, a normal the
+        data allow as well (the eq. 3 test looks in its frame too); else ``None``.
     """
 
     normal: Array

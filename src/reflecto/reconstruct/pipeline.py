@@ -349,7 +349,7 @@ def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> No
         return NormalEstimate(z, 0.0, "device")
     est = estimate_normal(slices, valid, opt.max_tilt_deg, opt.fixed_eta)
     if not (est.tilt_deg > DEVICE_AXIS_SIGMAS * est.uncertainty_deg):
-        return dataclasses.replace(est, normal=z, source="device")
+        return dataclasses.replace(est, normal=z, source="device", alternative=est.normal)  # not told apart
     return est
 
 
