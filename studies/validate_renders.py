@@ -16,7 +16,8 @@ is rendered as it is; its direct evaluation would differ by its non-reciprocity,
 table up from the camera's side.)
 
 Prints one line per material and median / p90 / max of the difference (target:
-median ≤ 10 %, none above 25 %) and of the noise floor, and writes
+median ≤ 10 %, none above 25 %), for all materials and for the tuning and validation
+halves (:mod:`reflecto.evaluate.split`), and of the noise floor, and writes
 reference | model | difference images of the best, the median, the worst materials and
 of ``--show`` ones to ``--out`` (default ``out/validate-renders``), to look for seams
 at the parameterization's pole (the highlight's centre) or rings.
@@ -35,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from _shared_models import ROOT, shared_models  # noqa: E402
+from reflecto.evaluate.split import half  # noqa: E402
 from reflecto.export.rgl import export_rgl  # noqa: E402
 from reflecto.load import load_source  # noqa: E402
 from reflecto.model import load_model  # noqa: E402
@@ -100,12 +102,16 @@ def main() -> None:
     chosen.update({name: name for name in show if name in pairs})
     for label, name in chosen.items():
         iio.imwrite(out / f"{args.scene}-{label}.png", pairs[name])
-    d = np.array([r[1] for r in rows])
     f = np.array([r[2] for r in rows])
     print(f"{len(rows)} materials, {args.scene}:")
-    print(f"  mean image difference: median {100 * np.median(d):.2f} %, p90 {100 * np.percentile(d, 90):.2f} %, "
-          f"max {100 * d.max():.2f} % ({order[-1][0]}); above 10 %: {int(np.sum(d > 0.10))}, "
-          f"above 25 %: {int(np.sum(d > 0.25))}")
+    for label, part in (("all", rows), *((h, [r for r in rows if half(r[0]) == h]) for h in ("tuning", "validation"))):
+        if not part:
+            continue
+        dh = np.array([r[1] for r in part])
+        worst = max(part, key=lambda r: r[1])[0]
+        print(f"  mean image difference, {label} ({len(part)}): median {100 * np.median(dh):.2f} %, "
+              f"p90 {100 * np.percentile(dh, 90):.2f} %, max {100 * dh.max():.2f} % ({worst}); "
+              f"above 10 %: {int(np.sum(dh > 0.10))}, above 25 %: {int(np.sum(dh > 0.25))}")
     print(f"  noise floor:           median {100 * np.median(f):.2f} %, max {100 * f.max():.2f} %")
     e = np.array([r[5] for r in rows])
     if np.any(np.isfinite(e)):

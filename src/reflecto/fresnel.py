@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _kernels
+from .errors import ParameterError
 
 Array = NDArray[np.float64]
 
@@ -221,19 +222,71 @@ def schlick(c: ArrayLike, f0: ArrayLike) -> Array:
     return f0 + (1.0 - f0) * (1.0 - c) ** 5
 
 
+#: Largest factor of a :class:`FresnelTint`: ``1/F0`` of η = 1.001, the smallest η fitted.
+MAX_TINT = 4.0e6
+
+
+class FresnelTint:
+    """A per-channel factor ``τ_c(θ_d) ≥ 0`` on the Fresnel term: ``F_c = min(1, τ_c(θ_d) F(cos θ_d; η))``.
+
+    The colour of a specular reflection that changes with angle in a way one η's curve
+    cannot (a metallic or colour-shifting paint, a coloured metal). ``τ`` is linear in
+    ``θ_d`` between its nodes and constant beyond the first and the last, so past the
+    largest ``θ_d`` the device observed the Fresnel curve keeps η's shape (eq. 4). The
+    product is clipped at 1 (:class:`FresnelTable`): a reflectance.
+
+    Parameters
+    ----------
+    theta
+        The nodes ``θ_d`` (radians), increasing, in ``[0, π/2]``; shape ``(K,)``, ``K ≥ 2``.
+    values
+        ``τ`` at the nodes, shape ``(K, 3)``, each ≥ 0.
+    """
+
+    def __init__(self, theta: ArrayLike, values: ArrayLike) -> None:
+        self.theta = np.asarray(theta, dtype=np.float64)
+        self.values = np.asarray(values, dtype=np.float64)
+        if (self.theta.ndim != 1 or len(self.theta) < 2 or self.values.shape != (len(self.theta), 3)
+                or not np.all(np.isfinite(self.theta)) or not np.all(np.isfinite(self.values))):
+            raise ParameterError("a Fresnel tint needs K >= 2 finite nodes and a (K, 3) table of finite values")
+        if np.any(np.diff(self.theta) <= 0) or self.theta[0] < 0 or self.theta[-1] > math.pi / 2 + 1e-12:
+            raise ParameterError("the Fresnel tint's nodes must increase within [0, pi/2]")
+        if np.any(self.values < 0) or np.any(self.values > MAX_TINT):
+            raise ParameterError(f"the Fresnel tint's values must lie in [0, {MAX_TINT:g}]")
+
+    def __call__(self, c: ArrayLike) -> Array:
+        """``τ`` at ``θ_d = arccos |c|``.
+
+        Parameters
+        ----------
+        c : array_like
+            ``cos θ_d``; any shape.
+
+        Returns
+        -------
+        ndarray, shape ``c.shape + (3,)``
+            The tint per RGB channel.
+        """
+        th = np.arccos(np.minimum(np.abs(np.asarray(c, dtype=np.float64)), 1.0))
+        return np.stack([np.interp(th, self.theta, self.values[:, k]) for k in range(3)], axis=-1)
+
+
 class FresnelTable:
-    """Per-channel ``F(c; η)`` tabulated on ``c ∈ [0, 1]`` for fast repeated evaluation.
+    """Per-channel ``F(c; η)`` (times a :class:`FresnelTint` when given) tabulated on
+    ``c ∈ [0, 1]`` for fast repeated evaluation.
 
     Linear interpolation on 4097 nodes spaced uniformly in √c (dense near grazing,
     where F rises steeply for large η); the error against :func:`fresnel` is below
     1e-5 for η ∈ [1.01, 100] (tested).
     """
 
-    def __init__(self, eta: ArrayLike, n: int = 4097) -> None:
+    def __init__(self, eta: ArrayLike, n: int = 4097, tint: FresnelTint | None = None) -> None:
         self.eta = np.atleast_1d(np.asarray(eta, dtype=np.float64))
         self.n = n
         c = np.linspace(0.0, 1.0, n) ** 2
         table = fresnel(c[:, None], self.eta[None, :])
+        if tint is not None:
+            table = np.minimum(table * tint(c), 1.0)
         self.table = np.concatenate([table, table[-1:]], axis=0)  # guard row for c = 1
 
     def __call__(self, c: ArrayLike) -> Array:

@@ -5,7 +5,10 @@
 * ``D`` — tabulated on a hemicube (§9 of algorithm-reference), normalized so that
   ``∫ D(h)(h·n) dω_h = 1`` (AR 1.2); one NDF shared by the three colour channels;
 * ``S`` — APS shadowing derived from D (eq. 8), tabulated as σ and clamped so S ≤ 1;
-* ``F`` — Cook–Torrance Fresnel (eq. 4) with a per-channel real index η;
+* ``F`` — Cook–Torrance Fresnel (eq. 4) with a per-channel real index η, optionally
+  times a per-channel tint ``τ_c(θ_d) ≥ 0`` (:class:`reflecto.fresnel.FresnelTint`,
+  the product clipped at 1): the specular colour where it changes with angle as no
+  single η's curve does;
 * ``k_d`` (diffuse albedo ρ_d), ``k_s`` — per channel.
 
 Two tabulations of ``D``: :class:`MicrofacetBRDF` holds any NDF on a hemicube
@@ -36,7 +39,7 @@ from . import _kernels
 from .brdf import BRDFSource, Reader, check_plausible, register_reader
 from .brdf import rgb_triplet as _rgb
 from .errors import FileFormatError, ParameterError, ReflectoWarning, short_repr
-from .fresnel import FresnelTable, eta_to_json, fresnel, is_constant
+from .fresnel import FresnelTable, FresnelTint, eta_to_json, fresnel, is_constant
 from .hemicube import Hemicube, hemicube
 from .io import (
     MAX_ARCHIVE_BYTES,
@@ -63,10 +66,11 @@ __all__ = ["MicrofacetBRDF", "IsotropicMicrofacetBRDF", "load_model", "MODEL_SUF
 
 
 
-def _common_scalars(model, kd, ks, eta, correlated, metadata, path) -> None:
+def _common_scalars(model, kd, ks, eta, correlated, metadata, path, tint=None) -> None:
     """Set and check what both microfacet models share: ``kd``, ``ks`` (≥ 0) and ``eta``
     (> 0, or ∞ for the constant Fresnel lobe, :data:`reflecto.fresnel.CONSTANT`) as RGB
-    triplets, the shadowing form, the metadata and the file path."""
+    triplets, the Fresnel tint (or ``None``), the shadowing form, the metadata and the
+    file path; and the Fresnel table evaluation uses."""
     model.kd = _rgb(kd, "kd")
     model.ks = _rgb(ks, "ks")
     model.eta = np.full(3, math.inf) if is_constant(eta) else _rgb(eta, "eta")  # ∞: the constant Fresnel lobe
@@ -74,10 +78,42 @@ def _common_scalars(model, kd, ks, eta, correlated, metadata, path) -> None:
         raise ParameterError("kd and ks must be >= 0")
     if np.any(model.eta <= 0):
         raise ParameterError("eta must be > 0")
+    if tint is not None and not isinstance(tint, FresnelTint):
+        tint = FresnelTint(*tint)
+    model.tint = tint
     model.correlated = bool(correlated)
     model.metadata = dict(metadata or {})
     model.path = path
     model.reciprocal = True
+    model._fresnel_table = FresnelTable(model.eta, tint=tint)
+
+
+def _tinted_fresnel(model, c: ArrayLike) -> Array:
+    """``min(1, τ_c(θ_d) F(c; η_c))`` per RGB channel (eq. 4 and the tint), shape ``c.shape + (3,)``."""
+    f = fresnel(np.asarray(c)[..., None], model.eta)
+    return f if model.tint is None else np.minimum(f * model.tint(c), 1.0)
+
+
+def _tint_arrays(model) -> dict[str, NDArray[Any]]:
+    """The Fresnel tint's arrays of a model file (none without a tint)."""
+    if model.tint is None:
+        return {}
+    return {"tint": model.tint.values.astype("<f8"), "tint_theta": model.tint.theta.astype("<f8")}
+
+
+def _tint_from_arrays(path: Path, arrays: dict[str, NDArray[Any]]) -> FresnelTint | None:
+    """The Fresnel tint of a model file's arrays, checked (``None`` when it has none)."""
+    values, theta = arrays.get("tint"), arrays.get("tint_theta")
+    if values is None and theta is None:
+        return None
+    if values is None or theta is None or values.dtype != np.dtype("<f8") or theta.dtype != np.dtype("<f8") \
+            or theta.ndim != 1 or not 2 <= len(theta) <= MAX_TINT_NODES:
+        raise FileFormatError(path, f"a Fresnel tint needs 2 to {MAX_TINT_NODES} float64 nodes (tint_theta.npy) "
+                                    "and a table of as many RGB float64 rows (tint.npy)")
+    try:
+        return FresnelTint(theta, values)
+    except ParameterError as e:
+        raise FileFormatError(path, f"invalid Fresnel tint ({e})") from None
 
 class MicrofacetBRDF(BRDFSource):
     """Generalized microfacet BRDF with a tabulated hemicube NDF.
@@ -95,12 +131,18 @@ class MicrofacetBRDF(BRDFSource):
         of the paper's separable product (algorithm-reference §1.3).
     metadata
         Free JSON-serializable information kept in the model file.
+    tint
+        Per-channel Fresnel tint ``τ_c(θ_d)`` (:class:`~reflecto.fresnel.FresnelTint`, or
+        ``(nodes, values)``): ``F_c = τ_c F(c; η_c)``; ``None``: eq. 4 alone.
     """
 
     #: Diffuse and specular albedos and the relative index, RGB, shape ``(3,)`` (set by the constructor).
     kd: Array
     ks: Array
     eta: Array
+    #: The per-channel Fresnel tint, or ``None`` (set by the constructor).
+    tint: FresnelTint | None
+    _fresnel_table: FresnelTable
     #: Height-correlated Smith shadowing (else separable), and free-form metadata.
     correlated: bool
     metadata: dict[str, Any]
@@ -119,6 +161,7 @@ class MicrofacetBRDF(BRDFSource):
         correlated: bool = False,
         metadata: dict[str, Any] | None = None,
         path: Path | None = None,
+        tint: FresnelTint | tuple[ArrayLike, ArrayLike] | None = None,
     ) -> None:
         d = np.asarray(ndf, dtype=np.float64).ravel()
         n = int(round(math.sqrt(d.size / 3)))
@@ -134,11 +177,10 @@ class MicrofacetBRDF(BRDFSource):
         if normalize and total <= 0:
             raise ParameterError("ndf is zero everywhere")
         self.ndf_values = q
-        _common_scalars(self, kd, ks, eta, correlated, metadata, path)
+        _common_scalars(self, kd, ks, eta, correlated, metadata, path, tint)
         self.isotropic = False
         self._padded = self.cube.pad(self.ndf_values)
         self._sigma: SigmaTable | None = None
-        self._fresnel_table = FresnelTable(self.eta)
 
     # ------------------------------------------------------------------ pieces
     @property
@@ -185,7 +227,7 @@ class MicrofacetBRDF(BRDFSource):
         return self.sigma_table.eval(k)
 
     def fresnel(self, c: ArrayLike) -> Array:
-        """Per-channel Cook–Torrance Fresnel ``F(c; η)`` (eq. 4).
+        """Per-channel Fresnel ``τ_c(θ_d) F(c; η)`` (eq. 4, times the tint when there is one).
 
         Parameters
         ----------
@@ -195,9 +237,9 @@ class MicrofacetBRDF(BRDFSource):
         Returns
         -------
         ndarray, shape ``c.shape + (3,)``
-            F per RGB channel (dimensionless, in [0, 1]); 1 for the constant lobe (η = ∞).
+            F per RGB channel (dimensionless, in [0, 1]); 1 for the constant lobe (η = ∞) without a tint.
         """
-        return fresnel(np.asarray(c)[..., None], self.eta)
+        return _tinted_fresnel(self, c)
 
     def specular_lobe(self, i: ArrayLike, o: ArrayLike) -> Array:
         """The specular lobe of eq. 2 without ``k_s`` and ``F``: ``D(h) S(i) S(o) / (4 cos θ_i cos θ_o)``.
@@ -306,6 +348,7 @@ class MicrofacetBRDF(BRDFSource):
             "kd": self.kd.tolist(),
             "ks": self.ks.tolist(),
             **eta_to_json(self.eta),
+            **_tint_parameters(self),
             "shadowing": "height-correlated Smith" if self.correlated else "separable APS (eq. 8)",
             **({"metadata": self.metadata} if self.metadata else {}),
         }
@@ -367,7 +410,7 @@ class MicrofacetBRDF(BRDFSource):
             "correlated": self.correlated,
             "metadata": self.metadata,
         }
-        arrays = {"ndf": self.ndf_values.astype("<f4")}
+        arrays = {"ndf": self.ndf_values.astype("<f4"), **_tint_arrays(self)}
         try:
             _check_model(path, self)
         except FileFormatError as e:
@@ -423,7 +466,8 @@ class MicrofacetBRDF(BRDFSource):
             got = None if ndf is None else f"{ndf.shape} {ndf.dtype}"
             raise FileFormatError(path, f"NDF array is {got}, expected (3·{n}²,) float32")
         try:
-            model = cls(ndf, kd, ks, eta, normalize=False, correlated=correlated, metadata=metadata, path=path)
+            model = cls(ndf, kd, ks, eta, normalize=False, correlated=correlated, metadata=metadata, path=path,
+                        tint=_tint_from_arrays(path, arrays))
         except ParameterError as e:
             raise FileFormatError(path, f"invalid model parameters ({e})") from None
         _check_model(path, model)
@@ -433,6 +477,7 @@ class MicrofacetBRDF(BRDFSource):
 #: Limits and ranges of model files (docs/limits.md).
 MAX_MODEL_RESOLUTION = 2048
 MAX_POLAR_NODES = 1 << 16
+MAX_TINT_NODES = 1024
 MAX_MODEL_META_BYTES = 16 << 20
 ETA_RANGE = (1.0, 100.0)
 #: Largest directional albedo of a model file: the reconstruction clamps it to 1
@@ -440,6 +485,14 @@ ETA_RANGE = (1.0, 100.0)
 MODEL_ALBEDO_MAX = 1.05
 #: How far ``∫ D cos θ dω`` of a stored NDF may be from 1 (float32 rounding: 1e-7).
 NDF_NORM_TOLERANCE = 1e-4
+
+
+def _tint_parameters(model) -> dict[str, Any]:
+    """``fresnel_tint`` for ``reflecto info``: ``τ`` per channel at its nodes (degrees), when there is a tint."""
+    if model.tint is None:
+        return {}
+    return {"fresnel_tint": {f"{math.degrees(t):.0f}°": np.round(v, 3).tolist()
+                             for t, v in zip(model.tint.theta, model.tint.values)}}
 
 
 def _write_model_file(path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> None:
@@ -635,12 +688,18 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         Height-correlated Smith form instead of the separable product (§1.3).
     metadata
         Free JSON-serializable information kept in the model file.
+    tint
+        Per-channel Fresnel tint ``τ_c(θ_d)`` (:class:`~reflecto.fresnel.FresnelTint`, or
+        ``(nodes, values)``): ``F_c = τ_c F(c; η_c)``; ``None``: eq. 4 alone.
     """
 
     #: Diffuse and specular albedos and the relative index, RGB, shape ``(3,)`` (set by the constructor).
     kd: Array
     ks: Array
     eta: Array
+    #: The per-channel Fresnel tint, or ``None`` (set by the constructor).
+    tint: FresnelTint | None
+    _fresnel_table: FresnelTable
     #: Height-correlated Smith shadowing (else separable), and free-form metadata.
     correlated: bool
     metadata: dict[str, Any]
@@ -650,7 +709,8 @@ class IsotropicMicrofacetBRDF(BRDFSource):
 
     def __init__(self, ndf: IsotropicNDF | tuple[ArrayLike, ArrayLike], kd: ArrayLike = 0.0, ks: ArrayLike = 1.0,
                  eta: ArrayLike = 1.5, *, normalize: bool = True, correlated: bool = False,
-                 metadata: dict[str, Any] | None = None, path: Path | None = None) -> None:
+                 metadata: dict[str, Any] | None = None, path: Path | None = None,
+                 tint: FresnelTint | tuple[ArrayLike, ArrayLike] | None = None) -> None:
         if not isinstance(ndf, IsotropicNDF):
             nodes, values = ndf
             # stored as float32 in model files: round now so that save/load is exact
@@ -660,9 +720,8 @@ class IsotropicMicrofacetBRDF(BRDFSource):
             ndf = IsotropicNDF(np.asarray(nodes, np.float64), np.asarray(values, "<f4").astype(np.float64),
                                normalize=False)
         self.ndf_table = ndf
-        _common_scalars(self, kd, ks, eta, correlated, metadata, path)
+        _common_scalars(self, kd, ks, eta, correlated, metadata, path, tint)
         self.isotropic = True
-        self._fresnel_table = FresnelTable(self.eta)
         self._hemicube: dict[int, MicrofacetBRDF] = {}
 
     @property
@@ -702,7 +761,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         return self.ndf_table.shadowing(k[..., 2] / np.maximum(np.linalg.norm(k, axis=-1), 1e-300))
 
     def fresnel(self, c: ArrayLike) -> Array:
-        """Per-channel Cook–Torrance Fresnel ``F(c; η)`` (eq. 4).
+        """Per-channel Fresnel ``τ_c(θ_d) F(c; η)`` (eq. 4, times the tint when there is one).
 
         Parameters
         ----------
@@ -712,9 +771,9 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         Returns
         -------
         ndarray, shape ``c.shape + (3,)``
-            F per RGB channel (dimensionless); 1 for the constant lobe (η = ∞).
+            F per RGB channel (dimensionless); 1 for the constant lobe (η = ∞) without a tint.
         """
-        return fresnel(np.asarray(c)[..., None], self.eta)
+        return _tinted_fresnel(self, c)
 
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
         """The BRDF ``f = k_d/π + k_s D(θ_h) F(c; η) / (4 σ(i) σ(o))`` (eqs. 1–2, AR 1.6).
@@ -770,7 +829,8 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         if resolution not in self._hemicube:
             cube = hemicube(resolution)
             self._hemicube[resolution] = MicrofacetBRDF(self.ndf(cube.directions), self.kd, self.ks, self.eta,
-                                                        correlated=self.correlated, metadata=self.metadata)
+                                                        correlated=self.correlated, metadata=self.metadata,
+                                                        tint=self.tint)
         return self._hemicube[resolution]
 
     def parameters(self) -> dict[str, Any]:
@@ -787,6 +847,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
             "kd": self.kd.tolist(),
             "ks": self.ks.tolist(),
             **eta_to_json(self.eta),
+            **_tint_parameters(self),
             "shadowing": "height-correlated Smith" if self.correlated else "separable APS (eq. 8)",
             **({"metadata": self.metadata} if self.metadata else {}),
         }
@@ -819,7 +880,8 @@ class IsotropicMicrofacetBRDF(BRDFSource):
             "correlated": self.correlated,
             "metadata": self.metadata,
         }
-        arrays = {"ndf": self.ndf_table.values.astype("<f4"), "ndf_theta": self.ndf_table.nodes.astype("<f8")}
+        arrays = {"ndf": self.ndf_table.values.astype("<f4"), "ndf_theta": self.ndf_table.nodes.astype("<f8"),
+                  **_tint_arrays(self)}
         try:
             _check_model(path, self)
         except FileFormatError as e:
@@ -842,7 +904,8 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         kd, ks, eta, correlated, metadata = params
         try:
             ndf = IsotropicNDF(nodes, values.astype(np.float64), normalize=False)
-            model = cls(ndf, kd, ks, eta, correlated=correlated, metadata=metadata, path=path)
+            model = cls(ndf, kd, ks, eta, correlated=correlated, metadata=metadata, path=path,
+                        tint=_tint_from_arrays(path, arrays))
         except ParameterError as e:
             raise FileFormatError(path, f"invalid model parameters ({e})") from None
         _check_model(path, model)

@@ -43,10 +43,11 @@ import math
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import optimize
 
 from ..colour import LUM
 from ..errors import ReflectoError
-from ..fresnel import CONSTANT, fresnel
+from ..fresnel import CONSTANT, MAX_TINT, FresnelTint, fresnel
 from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF
 from ..polar import IsotropicNDF, _quadrature, interpolation_cells, polar_nodes
@@ -72,6 +73,7 @@ ETA_MIN = ISOTROPIC.eta_min
 OUTER_ITERATIONS = ISOTROPIC.outer_iterations
 LM_TOLERANCE = ISOTROPIC.lm_tolerance
 LM_MAX_ITERATIONS = ISOTROPIC.lm_max_iterations
+MIRROR_THETA_H = ISOTROPIC.mirror_theta_h
 
 
 @dataclasses.dataclass
@@ -661,6 +663,101 @@ def scalars_under_ceilings(fit: LuminanceFit, ceilings: list[Array | None]) -> l
     return out
 
 
+def tint_nodes(theta_d: Array, theta_h: Array, information: Array, led: NDArray[np.intp]) -> Array:
+    """The ``θ_d`` nodes of the Fresnel tint: one per cluster of the specular information.
+
+    An LED whose slice holds the mirror direction (a bin within :data:`MIRROR_THETA_H`
+    of ``θ_h = 0``) measures the specular scale around one ``θ_d``: the
+    information-weighted mean of its bins' ``θ_d`` (``information`` = the weight times the
+    squared derivative of the model by the scale, per bin), with the weighted spread
+    ``σ``. At the peak of a sharp lobe that is the LED's incidence angle, ``σ`` a
+    fraction of a degree; a broad lobe spreads it over tens of degrees. An LED that
+    sees only the lobe's flank measures the scale times a part of ``D`` the fit
+    extrapolates, and sets no node (its bins still enter the fit). Clusters whose
+    means lie closer than the sum of their spreads measure the same part of the
+    Fresnel curve and are pooled (closest first), so nodes stand only where the data
+    tell the scale at one ``θ_d`` from the scale at another.
+
+    Returns the nodes (radians, increasing; one node: the tint is constant).
+    """
+    clusters = []
+    for k in np.unique(led):
+        sel = led == k
+        if theta_h[sel].min() > MIRROR_THETA_H:
+            continue
+        w = information[sel]
+        total = float(w.sum())
+        if total <= 0:
+            continue
+        mu = float(w @ theta_d[sel]) / total
+        clusters.append([total, mu, float(w @ theta_d[sel] ** 2) / total])  # weight, mean, mean square
+    clusters.sort(key=lambda c: c[1])
+    while len(clusters) > 1:
+        spread = [math.sqrt(max(c[2] - c[1] ** 2, 0.0)) for c in clusters]
+        gaps = [clusters[i + 1][1] - clusters[i][1] - spread[i] - spread[i + 1] for i in range(len(clusters) - 1)]
+        i = int(np.argmin(gaps))
+        if gaps[i] > 0:
+            break
+        a, b = clusters[i], clusters[i + 1]
+        w = a[0] + b[0]
+        clusters[i:i + 2] = [[w, (a[0] * a[1] + b[0] * b[1]) / w, (a[0] * a[2] + b[0] * b[2]) / w]]
+    return np.array([c[1] for c in clusters])
+
+
+def tinted_scalars(fit: LuminanceFit, kd_max: Array | None = None) -> tuple[Array, Array, FresnelTint | None]:
+    """``k_d``, ``k_s`` and the Fresnel tint per channel with the fitted ``D``, ``S`` and ``η``.
+
+    The specular scale becomes a function of ``θ_d``, piecewise linear between the
+    nodes of :func:`tint_nodes` (where the data measure it) and constant beyond the
+    first and the last: per channel
+
+    ``f_c = k_{d,c}/π + g_c(θ_d) F(θ_d; η) D S S / (4 cos θ_i cos θ_o)``,  ``g_c = Σ_j g_{c,j} H_j(θ_d)``
+
+    (``H_j`` the hat functions of the nodes), fitted by linear least squares over the
+    measured bins with the luminance fit's weights (eq. 10's), on the box
+    ``0 ≤ g_{c,j} ≤ 1/F(θ_j; η)`` (the specular reflectance ``k_s F_c`` is at most 1) and
+    ``0 ≤ k_d ≤ k_d,max`` (:func:`channel_scalars`). Past the largest measured ``θ_d``
+    the Fresnel curve keeps η's shape (eq. 4).
+
+    Returns ``k_d`` (3,), ``k_s = min(1, max_j g_{c,j})`` (3,) and the tint ``τ = g / k_s``
+    (so ``F_c = τ F ≤ 1`` at the nodes; the model clips it at 1 between them), or ``None``
+    where the data hold one node (then ``k_s`` is :func:`channel_scalars`'s).
+    """
+    p = fit.problem
+    s = fit.state
+    n, _ = normalization(p.nodes, s.z)
+    base, _ = p.specular(LuminanceState(s.z, 0.0, 1.0 / n, s.eta))  # k_s = 1
+    me = p.measured
+    td = np.arccos(np.clip(p.bins.cos_d[me], 0.0, 1.0))
+    w = p.w[me]
+    nodes = tint_nodes(td, p.bins.theta_h[me], w * base[me] ** 2, p.bins.led[me])
+    if len(nodes) < 2:
+        kd, ks = channel_scalars(fit, kd_max)
+        return kd, ks, None
+    k = len(nodes)
+    j = np.clip(np.searchsorted(nodes, td) - 1, 0, k - 2)
+    t = np.clip((td - nodes[j]) / (nodes[j + 1] - nodes[j]), 0.0, 1.0)
+    rows = np.arange(len(td))
+    a = np.zeros((len(td), k + 1))
+    a[:, 0] = 1.0 / math.pi
+    a[rows, 1 + j] = base[me] * (1.0 - t)
+    a[rows, 2 + j] += base[me] * t
+    m = a.T @ (a * w[:, None])
+    m += 1e-12 * np.trace(m) * np.eye(k + 1)
+    chol = np.linalg.cholesky(m)
+    upper = np.full(3, np.inf) if kd_max is None else np.asarray(kd_max, dtype=np.float64)
+    g_max = 1.0 / np.maximum(fresnel(np.cos(nodes), s.eta), 1e-300)  # k_s F_c ≤ 1 at the nodes
+    kd, g = np.zeros(3), np.zeros((k, 3))
+    for c in range(3):
+        v = a.T @ (w * p.bins.f[me, c])
+        x = optimize.lsq_linear(chol.T, np.linalg.solve(chol, v),
+                                bounds=(np.zeros(k + 1), np.r_[max(upper[c], 1e-300), g_max]), method="bvls").x
+        kd[c], g[:, c] = x[0], x[1:]
+    ks = np.minimum(g.max(axis=0), 1.0)
+    tau = np.divide(g, ks, out=np.ones_like(g), where=ks > 0)
+    return kd, ks, FresnelTint(nodes, np.clip(tau, 0.0, MAX_TINT))
+
+
 def _box_least_squares(m: Array, v: Array, xb: tuple[float, float], yb: tuple[float, float]) -> tuple[float, float]:
     """``argmin xᵀMx − 2vᵀx`` over the box ``xb × yb`` (2 × 2 SPD ``M``): the interior
     minimum if it lies in the box, else the best of the four edges' minima."""
@@ -723,10 +820,10 @@ def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | N
     bins = bin_polar(slices, nodes, valid)
     lum = fit_luminance(bins, nodes, fixed_eta)
     ceiling = kd_median_bound(slices.light, slices.view, slices.values, valid, kd_bound_max_deg)
-    (kd, ks), (kd_ls, ks_ls) = scalars_under_ceilings(lum, [ceiling, None])
+    ((kd_ls, ks_ls),) = scalars_under_ceilings(lum, [None])
+    kd, ks, tint = tinted_scalars(lum, ceiling)
     d = np.exp(lum.state.z - lum.state.z.max())
-    model = IsotropicMicrofacetBRDF((nodes, d), kd, ks, lum.state.eta)
-    ls = model if np.array_equal(kd_ls, kd) and np.array_equal(ks_ls, ks) else \
-        IsotropicMicrofacetBRDF((nodes, d), kd_ls, ks_ls, lum.state.eta)
+    model = IsotropicMicrofacetBRDF((nodes, d), kd, ks, lum.state.eta, tint=tint)
+    ls = IsotropicMicrofacetBRDF((nodes, d), kd_ls, ks_ls, lum.state.eta)
     return IsotropicFit(model, lum.state.eta, lum.eps, lum.ks_bound,
                         (int(np.count_nonzero(~bins.censored)), int(np.count_nonzero(bins.censored))), ls)

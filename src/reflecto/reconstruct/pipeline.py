@@ -405,10 +405,10 @@ def limit_energy(model: IsotropicMicrofacetBRDF | MicrofacetBRDF, clamp: bool = 
     out: IsotropicMicrofacetBRDF | MicrofacetBRDF
     if isinstance(model, IsotropicMicrofacetBRDF):
         out = IsotropicMicrofacetBRDF(model.ndf_table, model.kd * scale, model.ks * scale, model.eta,
-                                      correlated=model.correlated, metadata=model.metadata)
+                                      correlated=model.correlated, metadata=model.metadata, tint=model.tint)
     else:
         out = MicrofacetBRDF(model.ndf_values, model.kd * scale, model.ks * scale, model.eta, normalize=False,
-                             correlated=model.correlated, metadata=model.metadata)
+                             correlated=model.correlated, metadata=model.metadata, tint=model.tint)
     return out, scale, 1.0
 
 

@@ -143,6 +143,13 @@ class IsotropicFitTuning:
         what="smallest relative index searched (eq. 4)",
         source="mechanism: just above η = 1 (no interface): F0 = 2.5·10⁻⁷, below any dielectric "
                "(algorithm-reference §2.1)")
+    mirror_theta_h: float = tuned(
+        math.radians(0.5), name="MIRROR_THETA_H", units="rad (0.5°)",
+        what="an LED's slice holds the mirror direction when one of its bins lies this close to θ_h = 0 "
+             "(it then sets a node of the Fresnel tint)",
+        source="mechanism: a camera pixel moves h by ≈ 0.2°, so a slice that holds the mirror direction has a "
+               "sample within a pixel or two of it; on the paper's layout those LEDs reach 0.1° and the others "
+               "16–29° (ideal device, red-metallic-paint)")
     outer_iterations: int = tuned(
         5, name="OUTER_ITERATIONS", units="iterations",
         what="outer iterations of fit_luminance (S from D, ε from the residuals)",
