@@ -205,7 +205,9 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
                       **eta_to_json(m.eta), "kd": m.kd.tolist(), "ks": m.ks.tolist(), "isotropic": res.isotropic,
                       "model_error": res.model_error, "shake_detected": res.shake_detected,
                       "albedo_max": res.albedo_max, "energy_scale": res.energy_scale, "notes": res.notes,
-                      "finite": bool(np.isfinite(err.normalized))}
+                      "finite": bool(np.isfinite(err.normalized)),
+                      "tint_nodes_deg": [] if getattr(m, "tint", None) is None else
+                      np.degrees(m.tint.theta).round(2).tolist()}
         renders[label] = render_sphere(res.model, SPHERE_RES, supersample=2)
     t0 = time.perf_counter()
     ct = fit_cook_torrance(src)
@@ -398,7 +400,7 @@ def write_failures(path: Path, failures: list[tuple[str, str]]) -> None:
 
 COLUMNS = ("name", "half", "device", "ours", "earlier", "cook_torrance", "same_data_ct", "ours_over_ct",
            "ours_over_same_data_ct", "ours_log_rmse", "ct_log_rmse", "eta", "ks_max", "isotropic", "ours_albedo_max",
-           "ours_finite", "seconds_total", "seconds_reconstruct", "seconds_ct_fit")
+           "ours_finite", "tint_nodes_deg", "seconds_total", "seconds_reconstruct", "seconds_ct_fit")
 
 
 def _eta_cell(result: dict[str, Any]) -> str:
@@ -412,7 +414,8 @@ def write_table(records: list[dict[str, Any]], path: Path) -> Path:
 
     Columns :data:`COLUMNS`: the normalized errors of eq. 10 (``ours``, ``earlier``,
     ``cook_torrance``, ``same_data_ct``), the ratios ``ours/ct`` and ``ours/same_data_ct``,
-    log-RMSEs, the model's η, largest ``ks``, isotropy, largest albedo and finiteness, and
+    log-RMSEs, the model's η, largest ``ks``, isotropy, largest albedo and finiteness, the
+    θ_d nodes of the Fresnel tint (degrees, space-separated; empty without a tint), and
     seconds (total, reconstruction, Cook–Torrance fit).
 
     Parameters
@@ -439,6 +442,7 @@ def write_table(records: list[dict[str, Any]], path: Path) -> Path:
                     f"{r['ours']['log_rmse']:.6g}", f"{r['cook_torrance']['log_rmse']:.6g}",
                     _eta_cell(r["ours"]), f"{max(r['ours']['ks']):.4g}", r["ours"].get("isotropic"),
                     f"{r['ours']['albedo_max']:.4g}", r["ours"]["finite"],
+                    " ".join(f"{t:.1f}" for t in r["ours"].get("tint_nodes_deg", [])),
                     f"{tm['total_s']:.2f}", f"{tm['ours_reconstruct_s']:.3f}", f"{tm['cook_torrance_fit_s']:.2f}"])
     with atomic_write(path, "w") as fh:
         fh.write(buf.getvalue())

@@ -704,6 +704,51 @@ def tint_nodes(theta_d: Array, theta_h: Array, information: Array, led: NDArray[
     return np.array([c[1] for c in clusters])
 
 
+def unit_specular(fit: LuminanceFit) -> Array:
+    """The specular term of every bin with ``k_s = 1``: ``F(θ_d; η) D(θ_h) S(θ_i) S(θ_o) /
+    (4 cos θ_i cos θ_o)`` (sr⁻¹, shape ``(B,)``), with the fitted ``D``, ``S`` and ``η``."""
+    p, s = fit.problem, fit.state
+    n, _ = normalization(p.nodes, s.z)
+    return p.specular(LuminanceState(s.z, 0.0, 1.0 / n, s.eta))[0]
+
+
+def _tint_design(base: Array, theta_d: Array, nodes: Array) -> Array:
+    """Columns ``[1/π, base·H_j(θ_d)]`` of the per-channel least squares (``H_j`` the hat
+    functions of ``nodes``, constant beyond the ends; one node: one column ``base``)."""
+    k = len(nodes)
+    a = np.zeros((len(theta_d), k + 1))
+    a[:, 0] = 1.0 / math.pi
+    if k == 1:
+        a[:, 1] = base
+        return a
+    j = np.clip(np.searchsorted(nodes, theta_d) - 1, 0, k - 2)
+    t = np.clip((theta_d - nodes[j]) / (nodes[j + 1] - nodes[j]), 0.0, 1.0)
+    rows = np.arange(len(theta_d))
+    a[rows, 1 + j] = base * (1.0 - t)
+    a[rows, 2 + j] += base * t
+    return a
+
+
+def _bounded_scalars(a: Array, w: Array, f: Array, kd_max: Array, g_max: Array) -> Array:
+    """Per channel ``argmin Σ w (a x − f_c)²`` on ``0 ≤ x_0 ≤ k_d,max``, ``0 ≤ x_j ≤ g_max``;
+    shape ``(K + 1, 3)``. Solved on the Cholesky factor of the normal matrix (``K + 1`` rows)."""
+    m = a.T @ (a * w[:, None])
+    m += 1e-12 * np.trace(m) * np.eye(len(m))
+    chol = np.linalg.cholesky(m)
+    x = np.zeros((len(m), 3))
+    for c in range(3):
+        v = a.T @ (w * f[:, c])
+        x[:, c] = optimize.lsq_linear(chol.T, np.linalg.solve(chol, v),
+                                      bounds=(np.zeros(len(m)), np.r_[max(kd_max[c], 1e-300), g_max]),
+                                      method="bvls").x
+    return x
+
+
+def _scale_bound(nodes: Array, eta: float) -> Array:
+    """``1/F(θ_j; η)`` at the nodes: the specular reflectance ``g F`` stays ≤ 1."""
+    return 1.0 / np.maximum(fresnel(np.cos(nodes), eta), 1e-300)
+
+
 def tinted_scalars(fit: LuminanceFit, kd_max: Array | None = None) -> tuple[Array, Array, FresnelTint | None]:
     """``k_d``, ``k_s`` and the Fresnel tint per channel with the fitted ``D``, ``S`` and ``η``.
 
@@ -715,45 +760,27 @@ def tinted_scalars(fit: LuminanceFit, kd_max: Array | None = None) -> tuple[Arra
 
     (``H_j`` the hat functions of the nodes), fitted by linear least squares over the
     measured bins with the luminance fit's weights (eq. 10's), on the box
-    ``0 ≤ g_{c,j} ≤ 1/F(θ_j; η)`` (the specular reflectance ``k_s F_c`` is at most 1) and
-    ``0 ≤ k_d ≤ k_d,max`` (:func:`channel_scalars`). Past the largest measured ``θ_d``
-    the Fresnel curve keeps η's shape (eq. 4).
+    ``0 ≤ g_{c,j} ≤ 1/F(θ_j; η)`` (the specular reflectance ``k_s F_c`` is at most 1)
+    and ``0 ≤ k_d ≤ k_d,max`` (:func:`channel_scalars`). Past the largest measured
+    ``θ_d`` the Fresnel curve keeps η's shape (eq. 4).
 
     Returns ``k_d`` (3,), ``k_s = min(1, max_j g_{c,j})`` (3,) and the tint ``τ = g / k_s``
     (so ``F_c = τ F ≤ 1`` at the nodes; the model clips it at 1 between them), or ``None``
-    where the data hold one node (then ``k_s`` is :func:`channel_scalars`'s).
+    where the data hold one node (then ``g`` is one number per channel: ``k_s``).
     """
     p = fit.problem
-    s = fit.state
-    n, _ = normalization(p.nodes, s.z)
-    base, _ = p.specular(LuminanceState(s.z, 0.0, 1.0 / n, s.eta))  # k_s = 1
     me = p.measured
+    base = unit_specular(fit)[me]
     td = np.arccos(np.clip(p.bins.cos_d[me], 0.0, 1.0))
     w = p.w[me]
-    nodes = tint_nodes(td, p.bins.theta_h[me], w * base[me] ** 2, p.bins.led[me])
-    if len(nodes) < 2:
-        kd, ks = channel_scalars(fit, kd_max)
-        return kd, ks, None
-    k = len(nodes)
-    j = np.clip(np.searchsorted(nodes, td) - 1, 0, k - 2)
-    t = np.clip((td - nodes[j]) / (nodes[j + 1] - nodes[j]), 0.0, 1.0)
-    rows = np.arange(len(td))
-    a = np.zeros((len(td), k + 1))
-    a[:, 0] = 1.0 / math.pi
-    a[rows, 1 + j] = base[me] * (1.0 - t)
-    a[rows, 2 + j] += base[me] * t
-    m = a.T @ (a * w[:, None])
-    m += 1e-12 * np.trace(m) * np.eye(k + 1)
-    chol = np.linalg.cholesky(m)
+    nodes = tint_nodes(td, p.bins.theta_h[me], w * base ** 2, p.bins.led[me])
     upper = np.full(3, np.inf) if kd_max is None else np.asarray(kd_max, dtype=np.float64)
-    g_max = 1.0 / np.maximum(fresnel(np.cos(nodes), s.eta), 1e-300)  # k_s F_c ≤ 1 at the nodes
-    kd, g = np.zeros(3), np.zeros((k, 3))
-    for c in range(3):
-        v = a.T @ (w * p.bins.f[me, c])
-        x = optimize.lsq_linear(chol.T, np.linalg.solve(chol, v),
-                                bounds=(np.zeros(k + 1), np.r_[max(upper[c], 1e-300), g_max]), method="bvls").x
-        kd[c], g[:, c] = x[0], x[1:]
+    g_max = _scale_bound(nodes, fit.state.eta) if len(nodes) > 1 else np.ones(1)
+    x = _bounded_scalars(_tint_design(base, td, nodes), w, p.bins.f[me], upper, g_max)
+    kd, g = x[0], x[1:]
     ks = np.minimum(g.max(axis=0), 1.0)
+    if len(nodes) < 2:
+        return kd, ks, None
     tau = np.divide(g, ks, out=np.ones_like(g), where=ks > 0)
     return kd, ks, FresnelTint(nodes, np.clip(tau, 0.0, MAX_TINT))
 
