@@ -233,3 +233,16 @@ def test_reconstruction_recovers_a_colour_that_changes_with_angle():
     lum = isotropic.fit_luminance(isotropic.bin_polar(slices, polar_nodes(), usable_samples(slices)), polar_nodes())
     one_eta = IsotropicMicrofacetBRDF(model.ndf_table, *isotropic.channel_scalars(lum), model.eta)
     assert brdf_error(src, model, stride=3).normalized < 0.75 * brdf_error(src, one_eta, stride=3).normalized
+
+
+def test_tint_nodes_stand_where_a_slice_holds_the_mirror_direction():
+    rng = np.random.default_rng(3)
+    td = np.radians(np.r_[rng.normal(38, 0.3, 50), rng.normal(67, 0.3, 50), rng.uniform(10, 70, 100)])
+    th = np.radians(np.r_[rng.uniform(0, 3, 100), rng.uniform(20, 40, 100)])
+    led = np.r_[np.zeros(50, int), np.ones(50, int), np.full(100, 2)]
+    info = np.r_[np.ones(100), np.full(100, 1e-3)]
+    assert np.allclose(np.degrees(isotropic.tint_nodes(td, th, info, led)), [38, 67], atol=0.2)
+    # LED 2 sees only the flank (θ_h ≥ 20°): no node of its own, whatever its θ_d
+    broad = np.radians(np.r_[rng.normal(40, 15, 50), rng.normal(50, 15, 50)])
+    assert len(isotropic.tint_nodes(broad, th[:100], np.ones(100), led[:100])) == 1  # the spreads overlap: pooled
+    assert len(isotropic.tint_nodes(td[100:], th[100:], info[100:], led[100:])) == 0  # no mirror direction

@@ -678,7 +678,8 @@ def tint_nodes(theta_d: Array, theta_h: Array, information: Array, led: NDArray[
     Fresnel curve and are pooled (closest first), so nodes stand only where the data
     tell the scale at one ``θ_d`` from the scale at another.
 
-    Returns the nodes (radians, increasing; one node: the tint is constant).
+    Returns the nodes (radians, increasing; one node, or none where no slice holds the
+    mirror direction: the tint is constant).
     """
     clusters = []
     for k in np.unique(led):
@@ -774,6 +775,8 @@ def tinted_scalars(fit: LuminanceFit, kd_max: Array | None = None) -> tuple[Arra
     td = np.arccos(np.clip(p.bins.cos_d[me], 0.0, 1.0))
     w = p.w[me]
     nodes = tint_nodes(td, p.bins.theta_h[me], w * base ** 2, p.bins.led[me])
+    if len(nodes) == 0:  # no slice holds the mirror direction: one scale per channel
+        nodes = np.zeros(1)
     upper = np.full(3, np.inf) if kd_max is None else np.asarray(kd_max, dtype=np.float64)
     g_max = _scale_bound(nodes, fit.state.eta) if len(nodes) > 1 else np.ones(1)
     x = _bounded_scalars(_tint_design(base, td, nodes), w, p.bins.f[me], upper, g_max)
