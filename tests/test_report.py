@@ -12,6 +12,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import require
@@ -87,3 +88,12 @@ def test_report_refuses_a_bad_model_summary(tmp_path):
         with pytest.raises(FileFormatError) as e:
             write_report(path, tmp_path / "r", render=False)
         assert e.value.path == summary
+
+
+def test_report_shows_the_specular_colour_of_a_fresnel_tint(tmp_path):
+    a = AnalyticBRDF(distribution="ggx", alpha=0.3, kd=0.3, ks=0.5, eta=1.5)
+    model = MicrofacetBRDF.from_ndf_function(a.ndf, resolution=16, kd=a.kd, ks=0.5, eta=a.eta,
+                                             tint=(np.radians([38.0, 67.0]), [[1.0, 0.5, 0.2], [0.5, 1.0, 1.0]]))
+    page = write_report(model.save(tmp_path / "m.reflecto"), tmp_path / "r", render=False)
+    text = page.read_text()
+    assert "specular colour" in text and "[0.5, 0.25, 0.1]" in text and "67°" in text

@@ -344,6 +344,9 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
         "η (R, G, B)": "∞: constant Fresnel, F ≡ 1" if is_constant(model.eta) else np.round(model.eta, 4).tolist(),
         "k_d (R, G, B)": np.round(model.kd, 4).tolist(),
         "k_s (R, G, B)": np.round(model.ks, 4).tolist(),
+        **({} if model.tint is None else {
+            "specular colour k_s·τ (R, G, B) at θ_d": {f"{np.degrees(t):.0f}°": np.round(model.ks * v, 4).tolist()
+                                                      for t, v in zip(model.tint.theta, model.tint.values)}}),
         "NDF": model.parameters().get("resolution", "isotropic" if model.isotropic else "anisotropic"),
         "max directional albedo": round(float(model.albedo(np.array([0.0, 30.0, 60.0, 80.0])).max()), 4),
     }
