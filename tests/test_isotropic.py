@@ -246,3 +246,28 @@ def test_tint_nodes_stand_where_a_slice_holds_the_mirror_direction():
     broad = np.radians(np.r_[rng.normal(40, 15, 50), rng.normal(50, 15, 50)])
     assert len(isotropic.tint_nodes(broad, th[:100], np.ones(100), led[:100])) == 1  # the spreads overlap: pooled
     assert len(isotropic.tint_nodes(td[100:], th[100:], info[100:], led[100:])) == 0  # no mirror direction
+
+
+def test_a_tint_peak_between_fixed_angles_is_held_to_albedo_one(tmp_path):
+    """A tint can make the specular level peak at one θ_d; the energy limit and the file
+    check look at the tint's nodes and midpoints, not only at fixed incidence angles."""
+    import json
+    import zipfile
+
+    from reflecto.fresnel import fresnel
+    from reflecto.reconstruct.pipeline import limit_energy
+
+    src = _ggx(0.05)
+    th = polar_nodes()
+    nodes = np.radians([35.0, 45.0, 55.0])
+    tint = (nodes, np.outer([0.0, 1.0 / float(fresnel(np.cos(nodes[1]), 1.5)), 0.0], np.ones(3)))
+    m = IsotropicMicrofacetBRDF((th, src.ndf(np.stack([np.sin(th), 0 * th, np.cos(th)], 1))), 0.45, 0.9, 1.5,
+                                tint=tint)
+    assert m.albedo(np.array([45.0])).max() > 1.1
+    with pytest.raises(ParameterError):
+        m.save(tmp_path / "bright.reflecto")
+    limited, scale, albedo = limit_energy(m)
+    assert scale < 0.95 and limited.albedo(np.array([45.0])).max() <= 1.0 + 1e-3 and limited.tint is m.tint
+    path = limited.save(tmp_path / "m.reflecto")
+    with zipfile.ZipFile(path) as z:
+        assert json.loads(z.read("meta.json"))["version"] == 4  # a version-3 reader refuses it

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, overload
 
@@ -306,6 +306,26 @@ ALBEDO_RANGE = (-0.05, 1.5)
 PLAUSIBILITY_ANGLES_DEG = (0.0, 20.0, 40.0, 60.0, 75.0)
 
 
+def albedo_angles(source: BRDFSource, angles_deg: Sequence[float]) -> list[float]:
+    """``angles_deg`` and, for a model with a Fresnel tint, its nodes and their midpoints
+    (degrees): the tint can make the specular level peak between fixed angles.
+
+    Parameters
+    ----------
+    source
+        The BRDF.
+    angles_deg
+        The incidence angles to check in any case (degrees).
+
+    Returns
+    -------
+    list of float
+        The angles, sorted, in degrees.
+    """
+    tint = getattr(source, "tint", None)
+    return sorted({*map(float, angles_deg), *(tint.angles_deg() if tint is not None else [])})
+
+
 def check_plausible(source: BRDFSource, path: Path, albedo_range: tuple[float, float] = ALBEDO_RANGE) -> None:
     """Refuse a loaded BRDF whose values or directional albedo are impossible.
 
@@ -338,7 +358,7 @@ def check_plausible(source: BRDFSource, path: Path, albedo_range: tuple[float, f
         if not np.all(np.isfinite(f)):
             raise FileFormatError(path, "the BRDF evaluates to NaN or infinity: the file is damaged")
         check_projected(f * (d[0, :, 2] * d[1, :, 2])[:, None], path)
-        a = directional_albedo(source, PLAUSIBILITY_ANGLES_DEG, n_u=48, n_phi=64)
+        a = directional_albedo(source, albedo_angles(source, PLAUSIBILITY_ANGLES_DEG), n_u=48, n_phi=64)
     if not np.all(np.isfinite(a)):
         raise FileFormatError(path, "its directional albedo is NaN or infinite: the file is damaged")
     lo, hi = albedo_range

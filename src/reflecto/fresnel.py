@@ -222,8 +222,8 @@ def schlick(c: ArrayLike, f0: ArrayLike) -> Array:
     return f0 + (1.0 - f0) * (1.0 - c) ** 5
 
 
-#: Largest factor of a :class:`FresnelTint`: ``1/F0`` of η = 1.001, the smallest η fitted.
-MAX_TINT = 4.0e6
+#: Largest factor of a :class:`FresnelTint`: above ``1/F0`` of η = 1.001 (4.004·10⁶), the smallest η fitted.
+MAX_TINT = 4.1e6
 
 
 class FresnelTint:
@@ -254,6 +254,11 @@ class FresnelTint:
         if np.any(self.values < 0) or np.any(self.values > MAX_TINT):
             raise ParameterError(f"the Fresnel tint's values must lie in [0, {MAX_TINT:g}]")
 
+    def angles_deg(self) -> list[float]:
+        """The nodes and the midpoints between them (degrees): where the tinted specular level can peak."""
+        t = np.degrees(self.theta)
+        return sorted({*t.tolist(), *(0.5 * (t[1:] + t[:-1])).tolist()})
+
     def __call__(self, c: ArrayLike) -> Array:
         """``τ`` at ``θ_d = arccos |c|``.
 
@@ -277,7 +282,8 @@ class FresnelTable:
 
     Linear interpolation on 4097 nodes spaced uniformly in √c (dense near grazing,
     where F rises steeply for large η); the error against :func:`fresnel` is below
-    1e-5 for η ∈ [1.01, 100] (tested).
+    1e-5 for η ∈ [1.01, 100] (tested). A tint is resolved to the table's cells: 0.04° at
+    θ_d = 38°, 1.8° at normal incidence (a tint varying within 2° of θ_d = 0 is smoothed).
     """
 
     def __init__(self, eta: ArrayLike, n: int = 4097, tint: FresnelTint | None = None) -> None:

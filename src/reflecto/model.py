@@ -59,7 +59,9 @@ Array = NDArray[np.float64]
 
 #: Format identifier and version of reflecto model files.
 MODEL_FORMAT = "reflecto-model"
-MODEL_VERSION = 3
+#: The newest format version read; a model with a Fresnel tint is written as version 4
+#: (a reader of version 3 would ignore its arrays), any other as version 3.
+MODEL_VERSION = 4
 MODEL_SUFFIX = ".reflecto"
 
 __all__ = ["MicrofacetBRDF", "IsotropicMicrofacetBRDF", "load_model", "MODEL_SUFFIX"]
@@ -401,7 +403,7 @@ class MicrofacetBRDF(BRDFSource):
         path = Path(path)
         meta = {
             "format": MODEL_FORMAT,
-            "version": MODEL_VERSION,
+            "version": MODEL_VERSION if self.tint is not None else 3,
             "ndf_kind": "hemicube",
             "resolution": self.cube.n,
             "kd": self.kd.tolist(),
@@ -491,7 +493,7 @@ def _tint_parameters(model) -> dict[str, Any]:
     """``fresnel_tint`` for ``reflecto info``: ``τ`` per channel at its nodes (degrees), when there is a tint."""
     if model.tint is None:
         return {}
-    return {"fresnel_tint": {f"{math.degrees(t):.0f}°": np.round(v, 3).tolist()
+    return {"fresnel_tint": {f"{math.degrees(t):.1f}°": np.round(v, 3).tolist()
                              for t, v in zip(model.tint.theta, model.tint.values)}}
 
 
@@ -871,7 +873,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         path = Path(path)
         meta = {
             "format": MODEL_FORMAT,
-            "version": MODEL_VERSION,
+            "version": MODEL_VERSION if self.tint is not None else 3,
             "ndf_kind": "isotropic",
             "resolution": self.resolution,
             "kd": self.kd.tolist(),

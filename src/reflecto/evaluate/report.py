@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import geometry, workflow
-from ..brdf import BRDFSource, HasNDF
+from ..brdf import BRDFSource, HasNDF, albedo_angles
 from ..colour import LUM
 from ..errors import FileFormatError, ReflectoError
 from ..fresnel import is_constant
@@ -345,10 +345,11 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
         "k_d (R, G, B)": np.round(model.kd, 4).tolist(),
         "k_s (R, G, B)": np.round(model.ks, 4).tolist(),
         **({} if model.tint is None else {
-            "specular colour k_s·τ (R, G, B) at θ_d": {f"{np.degrees(t):.0f}°": np.round(model.ks * v, 4).tolist()
+            "specular colour k_s·τ (R, G, B) at θ_d": {f"{np.degrees(t):.1f}°": np.round(model.ks * v, 4).tolist()
                                                       for t, v in zip(model.tint.theta, model.tint.values)}}),
         "NDF": model.parameters().get("resolution", "isotropic" if model.isotropic else "anisotropic"),
-        "max directional albedo": round(float(model.albedo(np.array([0.0, 30.0, 60.0, 80.0])).max()), 4),
+        "max directional albedo": round(float(model.albedo(np.array(
+            albedo_angles(model, (0.0, 30.0, 60.0, 80.0)))).max()), 4),
     }
     summary_path = model_path.with_suffix(".json")
     summary = read_json(summary_path) if summary_path.is_file() else {}

@@ -688,7 +688,7 @@ def tint_nodes(theta_d: Array, theta_h: Array, information: Array, led: NDArray[
             continue
         w = information[sel]
         total = float(w.sum())
-        if total <= 0:
+        if not total > 0 or not math.isfinite(total):
             continue
         mu = float(w @ theta_d[sel]) / total
         clusters.append([total, mu, float(w @ theta_d[sel] ** 2) / total])  # weight, mean, mean square

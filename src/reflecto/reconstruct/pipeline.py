@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import geometry
+from ..brdf import albedo_angles
 from ..errors import ParameterError, ReflectoError
 from ..fresnel import eta_to_json, is_constant
 from ..instrument.slices import Slices
@@ -376,7 +377,8 @@ def _tilt_explains_nothing(device_fit: IsotropicFit, estimated: IsotropicFit) ->
 
 def limit_energy(model: IsotropicMicrofacetBRDF | MicrofacetBRDF, clamp: bool = True
                  ) -> tuple[IsotropicMicrofacetBRDF | MicrofacetBRDF, float, float]:
-    """Scale ``k_d, k_s`` so that the directional albedo is ≤ 1 at :data:`ALBEDO_ANGLES`.
+    """Scale ``k_d, k_s`` so that the directional albedo is ≤ 1 at :data:`ALBEDO_ANGLES`
+    (and, with a Fresnel tint, at its nodes and their midpoints, :func:`reflecto.brdf.albedo_angles`).
 
     A passive surface reflects at most what it receives. Returns the model, the scale
     (1 when nothing was needed) and the largest albedo after it.
@@ -395,9 +397,10 @@ def limit_energy(model: IsotropicMicrofacetBRDF | MicrofacetBRDF, clamp: bool = 
         exceeds 1, else ``model``), the scale applied, and the largest directional albedo
         (dimensionless) after it.
     """
-    albedo = float(model.albedo(np.array(ALBEDO_ANGLES), n_u=ALBEDO_QUAD, n_phi=ALBEDO_QUAD).max())
+    angles = np.array(albedo_angles(model, ALBEDO_ANGLES))
+    albedo = float(model.albedo(angles, n_u=ALBEDO_QUAD, n_phi=ALBEDO_QUAD).max())
     if albedo > ALBEDO_REFINE_ABOVE:
-        fine = model.albedo(np.array(ALBEDO_ANGLES), n_u=ALBEDO_QUAD_FINE, n_phi=ALBEDO_QUAD_FINE)
+        fine = model.albedo(angles, n_u=ALBEDO_QUAD_FINE, n_phi=ALBEDO_QUAD_FINE)
         albedo = max(albedo, float(fine.max()))
     if not clamp or albedo <= 1.0:
         return model, 1.0, albedo
