@@ -96,4 +96,4 @@ def test_report_shows_the_specular_colour_of_a_fresnel_tint(tmp_path):
                                              tint=(np.radians([38.0, 67.0]), [[1.0, 0.5, 0.2], [0.5, 1.0, 1.0]]))
     page = write_report(model.save(tmp_path / "m.reflecto"), tmp_path / "r", render=False)
     text = page.read_text()
-    assert "specular colour" in text and "[0.5, 0.25, 0.1]" in text and "67°" in text
+    assert "specular colour" in text and "[0.5, 0.25, 0.1]" in text and "67.0°" in text
