@@ -227,7 +227,8 @@ class Reconstruction:
         -------
         dict
             ``isotropic``; ``fresnel`` and ``eta`` (:func:`reflecto.fresnel.eta_to_json`);
-            ``kd``, ``ks`` (RGB lists); ``normal`` (unit vector, device frame),
+            ``kd``, ``ks`` (RGB lists); ``fresnel_tint`` (``theta_d_deg``, the nodes, and ``tau``,
+            one RGB row per node; ``None`` without a tint); ``normal`` (unit vector, device frame),
             ``normal_tilt_deg``, ``normal_uncertainty_deg`` (degrees), ``normal_source``;
             ``isotropy_test`` (:meth:`IsotropyTest.to_dict`); the motion cues
             (:meth:`MotionReport.to_dict`: ``shake_detected``, …); ``model_error``,
@@ -236,8 +237,12 @@ class Reconstruction:
             ``None``.
         """
         nan = (lambda x: x if math.isfinite(x) else None)
+        tint = self.model.tint
         return {"isotropic": self.isotropic, **eta_to_json(self.model.eta), "kd": self.model.kd.tolist(),
-                "ks": self.model.ks.tolist(), "normal": self.frame[2].tolist(), "normal_tilt_deg": self.normal_tilt_deg,
+                "ks": self.model.ks.tolist(),
+                "fresnel_tint": None if tint is None else {"theta_d_deg": np.degrees(tint.theta).tolist(),
+                                                           "tau": tint.values.tolist()},
+                "normal": self.frame[2].tolist(), "normal_tilt_deg": self.normal_tilt_deg,
                 "normal_uncertainty_deg": nan(self.normal_uncertainty_deg), "normal_source": self.normal_source,
                 "isotropy_test": self.isotropy.to_dict(), **self.motion.to_dict(),
                 "model_error": nan(self.model_error), "fresnel_error": nan(self.fresnel_error),

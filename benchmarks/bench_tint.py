@@ -1,0 +1,75 @@
+"""Benchmark of what the Fresnel tint adds to a reconstruction, on the 50 shared measured materials.
+
+Each material is captured with the ideal device (the sweep's seed) and its luminance fit
+done once (:func:`reflecto.reconstruct.isotropic.fit_luminance`); then the channel scalars
+are timed both ways, :data:`REPEATS` rounds, one core, CPU time: the tint's fit
+(:func:`~reflecto.reconstruct.isotropic.tinted_scalars`: its nodes, the bounded least
+squares per channel) and one scale per channel
+(:func:`~reflecto.reconstruct.isotropic.channel_scalars`). Prints the median and p90 of
+the difference (the issue's budget: 20 ms per capture) and, as the last line,
+``ms_tint_extra: X`` (the median).
+
+Run: ``.venv/bin/python benchmarks/bench_tint.py [--quick]`` (``--quick``: every fifth material).
+"""
+
+from __future__ import annotations
+
+import _bench  # noqa: F401  (pins to one core before NumPy loads)
+
+# isort: split
+import argparse  # noqa: E402
+import statistics  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from reflecto import workflow  # noqa: E402
+from reflecto.evaluate.sweep import find_materials, material_seed  # noqa: E402
+from reflecto.instrument.device import Device  # noqa: E402
+from reflecto.instrument.simulate import simulate_capture  # noqa: E402
+from reflecto.load import load_source  # noqa: E402
+from reflecto.polar import polar_nodes  # noqa: E402
+from reflecto.reconstruct import isotropic  # noqa: E402
+from reflecto.reconstruct.pipeline import usable_samples  # noqa: E402
+from reflecto.reconstruct.samples import kd_median_bound  # noqa: E402
+
+#: Rounds over all captures.
+REPEATS = 5
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def _cpu_ms(fn, *args) -> float:  # type: ignore[no-untyped-def]
+    t = time.process_time()
+    fn(*args)
+    return 1000.0 * (time.process_time() - t)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="every fifth material")
+    args = ap.parse_args()
+    dev = Device.builtin("ideal")
+    cal = workflow.calibration_for(dev, missing="nominal")
+    nodes = polar_nodes()
+    fits = []
+    for p in find_materials([SHARED / "rgl", SHARED / "merl-nbrdf"])[:: 5 if args.quick else 1]:
+        sl = workflow.measure(simulate_capture(load_source(p), dev, seed=material_seed(p.stem)), cal)
+        ok = usable_samples(sl) & sl.valid
+        lum = isotropic.fit_luminance(isotropic.bin_polar(sl, nodes, ok), nodes)
+        fits.append((lum, kd_median_bound(sl.light, sl.view, sl.values, ok, 75.0)))
+    isotropic.tinted_scalars(*fits[0])  # warm caches
+    extra = []
+    for lum, ceiling in fits:
+        tint = [_cpu_ms(isotropic.tinted_scalars, lum, ceiling) for _ in range(REPEATS)]
+        plain = [_cpu_ms(isotropic.channel_scalars, lum, ceiling) for _ in range(REPEATS)]
+        extra.append(statistics.median(tint) - statistics.median(plain))
+    ms = np.array(extra)
+    print(f"Fresnel tint, {len(fits)} measured materials × {REPEATS}, ideal device, one core {_bench.cpus()}: "
+          f"extra CPU time median {np.median(ms):.2f} ms, p90 {np.percentile(ms, 90):.2f} ms, max {ms.max():.2f} ms "
+          "per capture (budget 20 ms)")
+    print(f"ms_tint_extra: {np.median(ms):.2f}")
+
+
+if __name__ == "__main__":
+    main()
