@@ -123,7 +123,7 @@ def main() -> None:
         k = int(np.nanargmax(e))
         print(f"  exported references' render vs their direct evaluation ({int(np.sum(np.isfinite(e)))}): median "
               f"{100 * np.nanmedian(e):.2f} %, max {100 * e[k]:.2f} % ({rows[k][0]})")
-    print(f"  image pairs (reference | model | difference 0-20 %): {out}")
+    print(f"  image pairs (reference | model | difference, % of the mean reference radiance): {out}")
 
 
 if __name__ == "__main__":
