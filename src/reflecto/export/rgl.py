@@ -58,7 +58,7 @@ from .. import __version__
 from ..brdf import BRDFSource
 from ..colour import LUM
 from ..errors import FileFormatError
-from ..fresnel import f0_from_eta, fresnel, is_constant
+from ..fresnel import fresnel, is_constant
 from ..io import atomic_path, atomic_write
 from ..sources.rgl import MAGIC, RGLBRDF, Marginal2D
 
@@ -299,7 +299,7 @@ def _floor(source: BRDFSource, ring: Array, u0: Array, scale: float, min_floor: 
     peak = float(ring.max())
     kd, ks, eta = (getattr(source, k, None) for k in ("kd", "ks", "eta"))
     if kd is not None and ks is not None and eta is not None:
-        f0 = float(f0_from_eta(eta) @ LUM)
+        f0 = float(_fresnel_luminance(source, np.ones(1))[0])
         kdl, ksl = float(np.asarray(kd) @ LUM), float(np.asarray(ks) @ LUM)
         c = 4.0 * kdl / (math.pi * max(ksl * f0, 1e-6))
     else:
@@ -328,7 +328,8 @@ def _sigma_isotropic(d_norm: Array, u: Array, theta_k: Array) -> Array:
 
 
 def _fresnel_ratio(source: BRDFSource, u: Array, grid: RGLGrid) -> Array:
-    """``F(cos θ)/F(1)`` (luminance of the per-channel eq. 4) at ``θ = π/2·u²``; 1 without ``eta``.
+    """``F(cos θ)/F(1)`` (luminance of the per-channel eq. 4, and of the model's Fresnel
+    tint where it has one) at ``θ = π/2·u²``; 1 without ``eta``.
 
     Dividing Σ by it leaves ``rgb ≈ k_s S(o) F(i·h)/F(θ_i) ≈ k_s`` at the specular
     peak (h ≈ n, so i·h ≈ cos θ_i), which linear interpolation in θ_i reproduces.
@@ -337,10 +338,18 @@ def _fresnel_ratio(source: BRDFSource, u: Array, grid: RGLGrid) -> Array:
     if eta is None or not grid.fresnel_sigma:
         return np.ones_like(u)
 
-    eta = np.asarray(eta, dtype=np.float64)
     th = 0.5 * math.pi * u * u
-    f = fresnel(np.cos(th)[:, None], eta[None, :]) @ LUM
-    return f / (fresnel(np.ones(1)[:, None], eta[None, :]) @ LUM)[0]
+    return _fresnel_luminance(source, np.cos(th)) / max(float(_fresnel_luminance(source, np.ones(1))[0]), 1e-300)
+
+
+def _fresnel_luminance(source: BRDFSource, c: Array) -> Array:
+    """The luminance of the source's per-channel Fresnel term at ``c = cos θ_d``: its own
+    ``fresnel`` where it has one (a model's includes its tint), else eq. 4 with its ``eta``."""
+    own = getattr(source, "fresnel", None)
+    if callable(own):
+        return np.asarray(own(c), dtype=np.float64) @ LUM
+    eta = np.asarray(source.eta, dtype=np.float64)  # type: ignore[attr-defined]  # callers check it
+    return fresnel(c[:, None], eta[None, :]) @ LUM
 
 
 # ------------------------------------------------------------------ tables
