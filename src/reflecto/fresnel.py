@@ -255,7 +255,13 @@ class FresnelTint:
             raise ParameterError(f"the Fresnel tint's values must lie in [0, {MAX_TINT:g}]")
 
     def angles_deg(self) -> list[float]:
-        """The nodes and the midpoints between them (degrees): where the tinted specular level can peak."""
+        """The nodes and the midpoints between them: where the tinted specular level can peak.
+
+        Returns
+        -------
+        list of float
+            The angles ``θ_d`` in degrees, sorted.
+        """
         t = np.degrees(self.theta)
         return sorted({*t.tolist(), *(0.5 * (t[1:] + t[:-1])).tolist()})
 
