@@ -25,12 +25,14 @@ from ``D`` (eq. 8). The stages:
    ``k_s ≤ 1`` (a microfacet reflects at most ``F``): when the unconstrained optimum
    needs ``k_s > 1``, the fit continues with ``k_s = 1``, where the specular level
    fixes ``η``.
-4. :func:`channel_scalars` — ``k_d`` and ``k_s ≤ 1`` per colour channel with the
-   shared ``D`` and ``η`` (linear least squares).
+4. :func:`tinted_scalars` — ``k_d`` and the specular scale per colour channel with the
+   shared ``D`` and ``η`` (bounded linear least squares); the scale is a function of
+   ``θ_d`` between the nodes where LEDs see the mirror direction (:func:`tint_nodes`),
+   which the model holds as ``k_s`` and a Fresnel tint (:class:`reflecto.fresnel.FresnelTint`).
 
-One ``η`` serves the three channels: the per-channel ``k_s`` carries the specular
-colour, and within the device's ``θ_d`` range a per-channel real ``η`` is not
-identifiable from the Fresnel curve's shape (algorithm-reference §2.2–2.3). Where the
+One ``η`` serves the three channels: within the device's ``θ_d`` range a per-channel
+real ``η`` is not identifiable from the Fresnel curve's shape (algorithm-reference
+§2.2–2.3); the tint carries the specular colour and its change with ``θ_d``. Where the
 data want a flatter curve than ``η = ETA_MAX`` gives, the fit takes the constant
 Fresnel lobe ``F ≡ 1`` (``η = ∞``, :func:`fit_luminance`) instead of the bound.
 """
