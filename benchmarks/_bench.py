@@ -36,3 +36,22 @@ def cpus() -> list[int]:
         return sorted(os.sched_getaffinity(0))
     except AttributeError:
         return []
+
+
+def shared_ideal_slices(quick: bool = False) -> list[tuple[object, object]]:
+    """``(material file, slices)`` of the 50 shared measured materials (every fifth with
+    ``quick``), each captured once by the ideal device with the sweep's seed."""
+    from pathlib import Path
+
+    from reflecto import workflow
+    from reflecto.evaluate.sweep import find_materials, material_seed
+    from reflecto.instrument.device import Device
+    from reflecto.instrument.simulate import simulate_capture
+    from reflecto.load import load_source
+
+    shared = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+    dev = Device.builtin("ideal")
+    cal = workflow.calibration_for(dev, missing="nominal")
+    files = find_materials([shared / "rgl", shared / "merl-nbrdf"])[:: 5 if quick else 1]
+    return [(p, workflow.measure(simulate_capture(load_source(p), dev, seed=material_seed(p.stem)), cal))
+            for p in files]

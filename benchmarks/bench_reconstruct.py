@@ -21,30 +21,21 @@ import _bench  # noqa: F401  (pins to one core before NumPy loads)
 import argparse  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from reflecto import workflow
-from reflecto.evaluate.sweep import find_materials, material_seed  # noqa: E402
-from reflecto.instrument.device import Device  # noqa: E402
-from reflecto.instrument.simulate import simulate_capture  # noqa: E402
-from reflecto.load import load_source  # noqa: E402
 from reflecto.reconstruct import reconstruct  # noqa: E402
 
 #: Rounds over all captures (a slow spell of the machine then hits every capture alike).
 REPEATS = 3
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="every fifth material")
     args = ap.parse_args()
-    dev = Device.builtin("ideal")
-    cal = workflow.calibration_for(dev, missing="nominal")
-    files = find_materials([SHARED / "rgl", SHARED / "merl-nbrdf"])[:: 5 if args.quick else 1]
-    slices = [workflow.measure(simulate_capture(load_source(p), dev, seed=material_seed(p.stem)), cal) for p in files]
+    captured = _bench.shared_ideal_slices(args.quick)
+    files, slices = [p for p, _ in captured], [sl for _, sl in captured]
     reconstruct(slices[0])  # compile kernels, fill caches
     times: dict[str, list[float]] = {p.stem: [] for p in files}
     walls: list[float] = []

@@ -20,15 +20,9 @@ import _bench  # noqa: F401  (pins to one core before NumPy loads)
 import argparse  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from reflecto import workflow  # noqa: E402
-from reflecto.evaluate.sweep import find_materials, material_seed  # noqa: E402
-from reflecto.instrument.device import Device  # noqa: E402
-from reflecto.instrument.simulate import simulate_capture  # noqa: E402
-from reflecto.load import load_source  # noqa: E402
 from reflecto.polar import polar_nodes  # noqa: E402
 from reflecto.reconstruct import isotropic  # noqa: E402
 from reflecto.reconstruct.pipeline import usable_samples  # noqa: E402
@@ -36,7 +30,6 @@ from reflecto.reconstruct.samples import kd_median_bound  # noqa: E402
 
 #: Rounds over all captures.
 REPEATS = 5
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
 def _cpu_ms(fn, *args) -> float:  # type: ignore[no-untyped-def]
@@ -49,12 +42,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="every fifth material")
     args = ap.parse_args()
-    dev = Device.builtin("ideal")
-    cal = workflow.calibration_for(dev, missing="nominal")
     nodes = polar_nodes()
     fits = []
-    for p in find_materials([SHARED / "rgl", SHARED / "merl-nbrdf"])[:: 5 if args.quick else 1]:
-        sl = workflow.measure(simulate_capture(load_source(p), dev, seed=material_seed(p.stem)), cal)
+    for _, sl in _bench.shared_ideal_slices(args.quick):
         ok = usable_samples(sl) & sl.valid
         lum = isotropic.fit_luminance(isotropic.bin_polar(sl, nodes, ok), nodes)
         fits.append((lum, kd_median_bound(sl.light, sl.view, sl.values, ok, 75.0)))
