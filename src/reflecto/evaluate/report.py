@@ -345,8 +345,9 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
         "k_d (R, G, B)": np.round(model.kd, 4).tolist(),
         "k_s (R, G, B)": np.round(model.ks, 4).tolist(),
         **({} if model.tint is None else {
-            "specular colour k_s·τ (R, G, B) at θ_d": {f"{np.degrees(t):.1f}°": np.round(model.ks * v, 4).tolist()
-                                                      for t, v in zip(model.tint.theta, model.tint.values)}}),
+            "specular colour k_s·τ (R, G, B) at θ_d": "; ".join(
+                f"{np.degrees(t):.1f}°: {np.round(model.ks * v, 4).tolist()}"
+                for t, v in zip(model.tint.theta, model.tint.values))}),
         "NDF": model.parameters().get("resolution", "isotropic" if model.isotropic else "anisotropic"),
         "max directional albedo": round(float(model.albedo(np.array(
             albedo_angles(model, (0.0, 30.0, 60.0, 80.0)))).max()), 4),
