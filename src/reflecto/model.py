@@ -135,7 +135,7 @@ class MicrofacetBRDF(BRDFSource):
         Free JSON-serializable information kept in the model file.
     tint
         Per-channel Fresnel tint ``τ_c(θ_d)`` (:class:`~reflecto.fresnel.FresnelTint`, or
-        ``(nodes, values)``): ``F_c = τ_c F(c; η_c)``; ``None``: eq. 4 alone.
+        ``(nodes, values)``): ``F_c = min(1, τ_c F(c; η_c))``; ``None``: eq. 4 alone.
     """
 
     #: Diffuse and specular albedos and the relative index, RGB, shape ``(3,)`` (set by the constructor).
@@ -692,7 +692,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         Free JSON-serializable information kept in the model file.
     tint
         Per-channel Fresnel tint ``τ_c(θ_d)`` (:class:`~reflecto.fresnel.FresnelTint`, or
-        ``(nodes, values)``): ``F_c = τ_c F(c; η_c)``; ``None``: eq. 4 alone.
+        ``(nodes, values)``): ``F_c = min(1, τ_c F(c; η_c))``; ``None``: eq. 4 alone.
     """
 
     #: Diffuse and specular albedos and the relative index, RGB, shape ``(3,)`` (set by the constructor).
