@@ -59,7 +59,8 @@ def test_peak_reach_of_the_papers_device_is_its_two_steep_leds():
 
 def test_firing_order_is_derived_from_the_layout():
     assert steep_last_order(DEFAULT_LED_ANGLES) == DEFAULT_FIRING_ORDER
-    assert steep_last_order([(5, 0), (30, 10), (6, 90), (60, 200)]) == (0, 2, 3, 1)
+    assert steep_last_order([(5, 0), (30, 10), (6, 90), (60, 200)]) == (2, 0, 3, 1)
+    assert steep_last_order([(40, 0), (30, 10)]) == (0, 1)  # no grazing LED: the steep ones, steepest first
     dev = Device.design("x", WIDE_OPTICS, WIDE_LED_ANGLES)
     assert dev.check_leds == (dev.order[0],) and dev.camera.noiseless
 

@@ -276,13 +276,14 @@ def _edit_manifest(d, fn):
         (lambda d: _edit_manifest(d, lambda m: m["frames"].pop()), "missing from the manifest"),
         (lambda d: _edit_manifest(d, lambda m: m["frames"].append(dict(m["frames"][0]))), "listed twice"),
         (lambda d: _edit_manifest(d, lambda m: m["image"].update(width=640)), "does not match"),
-        (lambda d: _edit_manifest(d, lambda m: (m["device"]["leds"].pop(), m["device"].pop("firing_order", None))),
+        (lambda d: _edit_manifest(d, lambda m: (m["device"]["leds"].pop(), m["device"].pop("firing_order", None),
+                                                m["device"].update(check_leds=[0]))),
          "not part of the device"),
         (lambda d: [cv2.imwrite(str(d / f"led4_t{t}ms.png"), np.full((240, 320, 3), 4095, np.uint16)) for t in (1, 8)],
          "saturated"),
         (lambda d: (d / "manifest.json").write_text("{not json"), "not valid JSON"),
-        (lambda d: (d / "led0_t8ms_check.png").unlink(), "frame is missing"),
-        (lambda d: _edit_manifest(d, lambda m: m["frames"].pop()), "check frame of LED 0 at 8 ms"),
+        (lambda d: (d / "led5_t8ms_check.png").unlink(), "frame is missing"),
+        (lambda d: _edit_manifest(d, lambda m: m["frames"].pop()), "check frame of LED 5 at 8 ms"),
         (lambda d: _edit_manifest(d, lambda m: m["frames"].append({**m["frames"][2], "check": True})),
          "check frame for LED 1 at 1 ms is not part of the device"),
         (lambda d: _edit_manifest(d, lambda m: m["device"].update(check_leds=[0, 9])), "check_leds"),
@@ -298,10 +299,10 @@ def test_cli_simulate_calibrate_and_errors(tmp_path, capsys):
     src = tmp_path / "s.json"
     src.write_text('{"type": "analytic", "distribution": "beckmann", "alpha": 0.3, "kd": 0.2, "ks": 0.5}')
     assert main(["simulate", str(src), "--device", "as-built", "--tilt", "5", "-o", str(tmp_path / "c"), "-q"]) == 0
-    # 6 LEDs × 2 exposures, and the check frames of LED 0 fired again at the end
+    # 6 LEDs × 2 exposures, and the check frames of LED 5 (fired first) fired again at the end
     assert len(list((tmp_path / "c").glob("*.png"))) == 14
     assert (sorted(p.name for p in (tmp_path / "c").glob("*_check.png"))
-            == ["led0_t1ms_check.png", "led0_t8ms_check.png"])
+            == ["led5_t1ms_check.png", "led5_t8ms_check.png"])
     assert main(["simulate", str(src), "--tilt", "45", "-o", str(tmp_path / "t")]) == 1
     assert "tilt" in capsys.readouterr().err and not (tmp_path / "t").exists()
     assert main(["simulate", str(src), "--device", str(tmp_path / "nodev.toml"), "-o", str(tmp_path / "u")]) == 1
@@ -326,7 +327,7 @@ def test_device_files(tmp_path):
         load_device(p)
     back = Device.from_dict(Device.builtin("as-built").to_dict(with_truth=True))
     assert back.truth == Device.builtin("as-built").truth
-    assert back.firing_order == Device.builtin("as-built").firing_order == (0, 1, 3, 5, 4, 2)
+    assert back.firing_order == Device.builtin("as-built").firing_order == (5, 0, 1, 3, 4, 2)
     p.write_text('leds = [[5.0, 0.0], [10.0, 120.0], [10.0, 240.0]]\nfiring_order = [2, 0, 1]\n')
     assert load_device(p).order == (2, 0, 1)
     for bad in ("[0, 1]", "[0, 1, 1]", "[0, 1, 3]", '"abc"'):
@@ -342,7 +343,7 @@ def test_check_frames_round_trip_and_older_captures_without_them(tmp_path):
     assert cap.check.shape == (1,) + cap.raw.shape[1:]
     back = read_capture(write_capture(cap, tmp_path / "cap"))
     assert np.array_equal(back.check, cap.check) and np.array_equal(back.raw, cap.raw)
-    assert back.device.check_leds == (0,)
+    assert back.device.check_leds == (5,)
     # a capture written by a device without check frames reads, and gives the same
     # slices as the same sequence with them
     plain = dataclasses.replace(dev, check_leds=())
@@ -361,7 +362,8 @@ def test_check_frames_round_trip_and_older_captures_without_them(tmp_path):
     # reframing carries the check slice with its LED's cos θ_i correction
     s1 = extract_slices(cap, nominal_calibration(dev))
     tilted = s1.reframe(g.frame_from_normal(g.normalize(np.array([0.05, 0.0, 1.0])), np.array([1.0, 0.0, 0.0])))
-    ratio = tilted.values[0] / np.where(s1.values[0] > 0, s1.values[0], np.nan)
+    k = dev.check_leds[0]
+    ratio = tilted.values[k] / np.where(s1.values[k] > 0, s1.values[k], np.nan)
     ratio_check = tilted.check_values[0] / np.where(s1.check_values[0] > 0, s1.check_values[0], np.nan)
     assert np.nanmax(np.abs(ratio - ratio_check)) < 1e-12
     with pytest.raises(ParameterError, match="check_leds"):

@@ -645,8 +645,8 @@ def test_isotropy_and_reciprocity_of_a_shaken_lambertian_read_the_turned_cosines
 
 @pytest.mark.parametrize("device", ["ideal", "as-built"])
 def test_check_frame_of_a_shaken_lambertian_reads_the_turned_cosine(device):
-    """The check frame fires LED 0 again after the sequence. On a Lambertian it differs
-    from LED 0's slice by exactly cos θ_0'/cos θ_0 of the turned sample (ground truth
+    """The check frame fires the first LED (LED 5, 12.7° elevation) again after the sequence.
+    On a Lambertian it differs from that LED's slice by exactly cos θ_0'/cos θ_0 of the turned sample (ground truth
     from the manifest's axis and angle and the device's true LED direction), whatever LED the shake started at; a clean
     capture repeats the slice (bit for bit on the noiseless camera, within noise on
     the as-built one, whose calibration cancels in the comparison) and is not flagged."""
@@ -654,25 +654,26 @@ def test_check_frame_of_a_shaken_lambertian_reads_the_turned_cosine(device):
     from reflecto.reconstruct.repeat import MIN_Z, THRESHOLD, repeat_checks
 
     dev = Device.builtin(device)
-    assert dev.check_leds == (0,) and dev.order[0] == 0
+    assert dev.check_leds == (dev.order[0],) == (5,)
+    k = dev.check_leds[0]
     cal = nominal_calibration(dev)
     src = AnalyticBRDF(distribution="ggx", alpha=0.3, kd=(0.5, 0.4, 0.3), ks=0.0, eta=1.5)
     clean = extract_slices(simulate_capture(src, dev, seed=3), cal)
     (c,) = repeat_checks(clean)
-    assert not c.moved and c.led == 0 and c.blocks > 100
+    assert not c.moved and c.led == k and c.blocks > 100
     if device == "ideal":
-        assert np.array_equal(clean.check_values[0], clean.values[0]) and c.log_ratio == 0.0
+        assert np.array_equal(clean.check_values[0], clean.values[k]) and c.log_ratio == 0.0
         assert not reconstruct(clean).shake_detected
     else:  # (without its calibration the as-built LEDs' spread reads as broken isotropy)
         assert abs(c.log_ratio) < 0.1 * THRESHOLD and c.z < MIN_Z and c.changed_blocks == 0
     # a NaN pixel in either frame is left out, not read as motion
     clean.check_values[0, :50] = np.nan
-    clean.values[0, 50:60] = np.nan
+    clean.values[k, 50:60] = np.nan
     (c,) = repeat_checks(clean)
     assert not c.moved and np.isfinite(c.log_ratio)
     for seed in range(5):
         cap = simulate_capture(src, dev, seed=seed, shake=True, shake_deg=3.0)
-        expect = np.log(_turned_cos_scale(cap, dev, every_led=True, leds=_truth(dev)[1])[0])
+        expect = np.log(_turned_cos_scale(cap, dev, every_led=True, leds=_truth(dev)[1])[k])
         (c,) = repeat_checks(extract_slices(cap, cal))
         assert abs(c.log_ratio - expect) < 0.003 + 0.01 * abs(expect), (seed, c, expect)
         assert c.moved == (abs(expect) > 0.03), (seed, c, expect)

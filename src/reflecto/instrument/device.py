@@ -49,20 +49,25 @@ DEFAULT_LED_ANGLES = (
     (12.71, 272.66),
 )
 
-#: Firing order of the default layout: the two steep LEDs (22.9° and 52.2° elevation)
-#: fire last. Their slices are the ones whose mirror-symmetry plane can be located
-#: (:mod:`reflecto.reconstruct.symmetry`), so a hand shake at any point of the capture
-#: turns at least one of them and shows as a plane off the normal. In index order a
-#: shake after the 52.2° LED went unseen (0/11 in studies/validate_shake.py).
-DEFAULT_FIRING_ORDER = (0, 1, 3, 5, 4, 2)
+#: Firing order of the default layout: the highest grazing LED (12.7° elevation) first,
+#: the other grazing ones, then the two steep LEDs (52.2° and 22.9°) last
+#: (:func:`steep_last_order`). The steep LEDs' slices are the ones whose mirror-symmetry
+#: plane can be located (:mod:`reflecto.reconstruct.symmetry`), so a hand shake at any
+#: point of the capture turns at least one of them and shows as a plane off the normal
+#: (in index order a shake after the 52.2° LED went unseen: 0/11 in
+#: studies/validate_shake.py). The first LED is the one fired again as the check frame.
+DEFAULT_FIRING_ORDER = (5, 0, 1, 3, 4, 2)
 
 #: LEDs fired once more after the whole sequence: a check frame (both exposures) of the
 #: first LED. A clean capture repeats it exactly (up to camera noise); after a shake
-#: at any point of the sequence the sample has turned, and the grazing (85°) LED's
-#: slice changes by |log ratio| 0.06–5.4 on the 50 shared materials wherever it holds
-#: signal (:mod:`reflecto.reconstruct.repeat`: no model needed, anisotropic materials
-#: too). It costs two frames: 14 instead of 12, 8.6 instead of 10 captures per second
-#: (docs/instrument.md).
+#: at any point of the sequence the sample has turned, and the grazing LED's slice
+#: changes with its irradiance ``cos θ_i`` (``tan θ_i`` = 4.4 per radian of turn at
+#: 77.3° from the normal) and with every view direction (:mod:`reflecto.reconstruct.repeat`:
+#: no model needed, anisotropic materials too). Of the grazing LEDs it is the highest:
+#: a hand tilt of ``t`` toward the far side lowers an LED by up to ``t``, and the 5–7°
+#: LEDs sink below a tilted sample's horizon from 5–7° of tilt on (then both firings
+#: are dark and the check tells nothing), the 12.7° LED only beyond 12.7°. It costs two
+#: frames: 14 instead of 12, 8.6 instead of 10 captures per second (docs/instrument.md).
 DEFAULT_CHECK_LEDS = (DEFAULT_FIRING_ORDER[0],)
 
 #: LEDs at least this high above the sample plane (degrees) count as *steep*: their
@@ -72,12 +77,16 @@ STEEP_ELEVATION_DEG = 20.0
 
 
 def steep_last_order(led_angles: Sequence[Sequence[float]]) -> tuple[int, ...]:
-    """A firing order derived from the layout: the LEDs below :data:`STEEP_ELEVATION_DEG`
-    first, in index order, then the steep ones, the steepest first.
+    """A firing order derived from the layout: the highest LED below
+    :data:`STEEP_ELEVATION_DEG` first (the check frame's LED), the other LEDs below it in
+    index order, then the steep ones, the steepest first.
 
     A hand shake moves the sample for every LED fired after it; with the steep LEDs last,
-    any shake turns at least one slice whose mirror plane can be located. For the
-    default layout this is :data:`DEFAULT_FIRING_ORDER`.
+    any shake turns at least one slice whose mirror plane can be located. The first LED
+    is fired again after the sequence (:data:`DEFAULT_CHECK_LEDS`): of the grazing LEDs,
+    the highest stays above the horizon of the largest hand tilt (a tilt ``t`` lowers an
+    LED by up to ``t``) while its irradiance still changes by ``tan θ_i`` per radian of
+    turn. For the default layout this is :data:`DEFAULT_FIRING_ORDER`.
 
     Parameters
     ----------
@@ -92,6 +101,9 @@ def steep_last_order(led_angles: Sequence[Sequence[float]]) -> tuple[int, ...]:
     el = [float(a[0]) for a in led_angles]
     flat = [k for k in range(len(el)) if el[k] < STEEP_ELEVATION_DEG]
     steep = sorted((k for k in range(len(el)) if el[k] >= STEEP_ELEVATION_DEG), key=lambda k: (-el[k], k))
+    if flat:
+        first = max(flat, key=lambda k: (el[k], -k))
+        flat = [first] + [k for k in flat if k != first]
     return tuple(flat + steep)
 
 
