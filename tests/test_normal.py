@@ -185,3 +185,39 @@ def test_eq3_looks_in_the_frame_of_a_tilt_the_fit_could_not_rule_out(shared):
     device_only = symmetry_test_slices(res.slices, res.slices.valid, rec.model)
     assert device_only.decided and not device_only.symmetric  # the tilt read as an asymmetry
     assert res.symmetry.symmetric
+
+
+def test_a_sharp_metal_seen_by_two_leds_is_estimated():
+    """A sharp lobe without a diffuse floor on the noiseless camera: only the LEDs whose
+    slices hold the peak read anything, too few clusters for the LED-clustered covariance;
+    the samples are the clusters, and the 2° tilt is estimated, not left at the device axis."""
+    src = AnalyticBRDF(distribution="ggx", alpha=0.03, kd=0.0, ks=0.9, eta=20.0)
+    sl, truth = _capture(src, 2.0, azimuth=60.0)
+    res = reconstruct(sl)
+    assert res.normal_source == "estimated", res.normal_uncertainty_deg
+    assert math.isfinite(res.normal_uncertainty_deg) and res.normal_uncertainty_deg < 0.5
+    assert _off(res.frame[2], truth) < 0.1
+
+
+def test_weighting_shift_is_nil_where_the_model_holds_and_large_on_a_felt(shared):
+    """The normal's uncertainty includes how far the tilt moves when the samples are
+    weighted alike instead of by (n·l)²: under 0.05° on an analytic lobe the model
+    holds, above 0.5° on a felt the 1-D model misfits (tilted as in the hand-held study)."""
+    from reflecto import load_source
+    from reflecto.reconstruct.normal import TiltProblem, _light_model, light_fit, weighting_shift_deg
+    from reflecto import geometry
+
+    def shift(sl):
+        valid = usable_samples(sl)
+        est = estimate_normal(sl, valid)
+        frame = geometry.frame_from_normal(est.normal, np.array([1.0, 0.0, 0.0]))
+        model = _light_model(light_fit(sl, valid, frame, None))
+        return weighting_shift_deg(TiltProblem(sl, valid), model, est.normal), est
+
+    lobe, _ = _capture(AnalyticBRDF(distribution="ggx", alpha=0.15, kd=0.1, ks=0.7, eta=1.5), 6.0)
+    d, est = shift(lobe)
+    assert d < 0.05 and est.uncertainty_deg < 0.3
+    cap = simulate_capture(load_source(shared / "rgl" / "acrylic_felt_green_rgb.bsdf"), DEV,
+                           tilt_deg=7.7705912561226675, seed=356090836)
+    d, est = shift(extract_slices(cap, CAL))
+    assert d > 0.5 and est.uncertainty_deg > 0.5

@@ -643,6 +643,33 @@ def test_isotropy_and_reciprocity_of_a_shaken_lambertian_read_the_turned_cosines
     assert flagged >= 2  # these seeds straddle both pairs at least twice
 
 
+def test_pairs_leave_out_readings_the_camera_noise_dominates():
+    """A slice read a few DN above the black level is rounded and censored into a biased
+    ratio: samples whose noise exceeds MAX_NOISE of their value take no part in a pair.
+    Two LEDs at one elevation over a Lambertian: where LED b's reading is biased by ×0.6
+    its noise is 20 % of it; the pair reads the bias without the noise, 0 with it."""
+    from reflecto.reconstruct.consistency import MAX_NOISE, pair_checks
+
+    rng = np.random.default_rng(0)
+    theta = np.radians(80.0)
+    light = np.array([[np.sin(theta), 0.0, np.cos(theta)], [0.0, np.sin(theta), np.cos(theta)]])
+    v = rng.normal(size=(40000, 3))
+    v[:, 2] = np.abs(v[:, 2])
+    view = v / np.linalg.norm(v, axis=1, keepdims=True)
+    view = view[view[:, 2] > 0.3]
+    values = np.full((2, len(view), 3), 0.1)
+    dim = view[:, 0] > -0.5  # most of the paired directions
+    values[1, dim] *= 0.6
+    noise = 0.01 * values[..., 0]
+    noise[1, dim] = 0.2 * values[1, dim, 0]
+    valid = np.ones((2, len(view)), dtype=bool)
+    (raw,) = [c for c in pair_checks(light, view, values, valid) if c.kind == "isotropy"]
+    assert raw.inconsistent and abs(raw.log_ratio - np.log(1 / 0.6)) < 0.05
+    (quiet,) = [c for c in pair_checks(light, view, values, valid, noise) if c.kind == "isotropy"]
+    assert abs(quiet.log_ratio) < 1e-9 and quiet.count < raw.count
+    assert 0.2 > MAX_NOISE > 0.01
+
+
 @pytest.mark.parametrize("device", ["ideal", "as-built"])
 def test_check_frame_of_a_shaken_lambertian_reads_the_turned_cosine(device):
     """The check frame fires the first LED (LED 5, 12.7° elevation) again after the sequence.

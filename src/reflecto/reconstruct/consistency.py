@@ -53,6 +53,7 @@ THRESHOLD = {"isotropy": CONSISTENCY.threshold_isotropy, "reciprocity": CONSISTE
 STEP_DEG = CONSISTENCY.step_deg
 MAX_STEP = CONSISTENCY.max_step
 FLOOR = CONSISTENCY.floor
+MAX_NOISE = CONSISTENCY.max_noise
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,8 +140,13 @@ def _median_log_ratio(fa: Array, fb: Array, ok: NDArray[np.bool_], kind: str) ->
     return float(np.median(np.log(fa[ok] / fb[ok]))), n
 
 
-def pair_checks(light: Array, view: Array, values: Array, valid: NDArray[np.bool_]) -> list[PairCheck]:
+def pair_checks(light: Array, view: Array, values: Array, valid: NDArray[np.bool_],
+                noise: Array | None = None) -> list[PairCheck]:
     """Every isotropy and reciprocity comparison the layout allows.
+
+    Samples whose camera noise exceeds :data:`MAX_NOISE` of their luminance take no part:
+    a slice read a few DN above the black level is rounded and censored into a biased
+    ratio (a tilted capture's grazing LEDs), which no turn of the sample caused.
 
     Parameters
     ----------
@@ -152,6 +158,9 @@ def pair_checks(light: Array, view: Array, values: Array, valid: NDArray[np.bool
         BRDF values (sr⁻¹), shape ``(L, P, 3)``.
     valid
         Usable samples (not saturated, not censored), shape ``(L, P)``.
+    noise
+        Standard deviation of one channel's reading (sr⁻¹, :attr:`Slices.noise`), shape
+        ``(L, P)``, or ``None`` (a camera without a noise model: every valid sample).
 
     Returns the pairs that have at least :data:`MIN_PAIRS` paired directions above the
     floor; LEDs below the horizon take no part.
@@ -162,6 +171,8 @@ def pair_checks(light: Array, view: Array, values: Array, valid: NDArray[np.bool
     theta = np.arccos(np.clip(light[:, 2], -1.0, 1.0))
     phi = np.arctan2(light[:, 1], light[:, 0])
     lum = values @ LUM
+    if noise is not None:
+        valid = valid & (noise <= MAX_NOISE * lum)
     tables: dict[int, _SliceTable] = {}
 
     def table(k: int) -> _SliceTable:

@@ -154,7 +154,8 @@ def detect_motion(device_frame: Slices, sample_frame: Slices, valid: NDArray[np.
         report.plane_allowance_deg = [NORMAL_SIGMAS * u / max(math.sqrt(max(1.0 - float(l[2]) ** 2, 0.0)), 1e-3)
                                       for l in light]
         report.pair_checks = [dataclasses.replace(c, allowance=normal_allowance(light, c.a, c.b, u, NORMAL_SIGMAS))
-                              for c in pair_checks(light, sample_frame.view, sample_frame.values, meas)]
+                              for c in pair_checks(light, sample_frame.view, sample_frame.values, meas,
+                                                  sample_frame.noise)]
     return report
 
 

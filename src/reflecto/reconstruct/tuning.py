@@ -611,6 +611,14 @@ class ConsistencyTuning:
         what="largest change of the slice within STEP_DEG for a direction to take part",
         source="mechanism: sharp lobes, where small direction errors dominate the ratio, are left out; "
                "no reason for 0.1 itself is recorded")
+    max_noise: float = tuned(
+        0.05, name="MAX_NOISE", units="fraction of a sample's value",
+        what="samples whose camera noise (read, shot and quantization) exceeds this fraction of their value take no "
+             "part in a pair",
+        source="mechanism: a slice read a few DN above the black level is rounded and censored (0–1 DN) into a "
+               "biased ratio: a tilted capture's grazing LEDs on the wide device read 1–3 DN and put the isotropy "
+               "pair 1-7 of a steady specular-maroon-phenolic at ×1.54 with the true normal (LED 1 +12 %, LED 7 −31 % "
+               "against the true BRDF); 5 % is a reading of ≳ 6 DN on the noiseless 12-bit camera")
     floor: float = tuned(
         0.02, name="FLOOR", units="fraction of the 99th percentile",
         what="samples below this fraction of the pair's 99th-percentile value are left out",
