@@ -203,9 +203,8 @@ def test_weighting_shift_is_nil_where_the_model_holds_and_large_on_a_felt(shared
     """The normal's uncertainty includes how far the tilt moves when the samples are
     weighted alike instead of by (n·l)²: under 0.05° on an analytic lobe the model
     holds, above 0.5° on a felt the 1-D model misfits (tilted as in the hand-held study)."""
-    from reflecto import load_source
+    from reflecto import geometry, load_source
     from reflecto.reconstruct.normal import TiltProblem, _light_model, light_fit, weighting_shift_deg
-    from reflecto import geometry
 
     def shift(sl):
         valid = usable_samples(sl)

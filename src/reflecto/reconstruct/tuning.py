@@ -665,8 +665,8 @@ class RepeatTuning:
         6.0, name="MIN_Z", units="standard errors of the noise",
         what="significance a change must also reach",
         source="measurement: clean captures repeat to noise (z ≤ 3.4 on the 100 steady as-built captures of "
-               "the hand-held study, tilted 0–10°, check LED 5); the check frames raise 0/100 false alarms on the ideal, "
-               "as-built and wide devices (studies/validate_handheld.py)")
+               "the hand-held study, tilted 0–10°, check LED 5); the check frames raise 0/100 false alarms on the "
+               "ideal, as-built and wide devices (studies/validate_handheld.py)")
 
 
 @dataclasses.dataclass(frozen=True)
