@@ -13,7 +13,7 @@ from reflecto.evaluate.metrics import brdf_error, ndf_error
 from reflecto.instrument.calibrate import nominal_calibration
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
-from reflecto.instrument.slices import extract_slices
+from reflecto.instrument.slices import Slices, extract_slices
 from reflecto.model import IsotropicMicrofacetBRDF, MicrofacetBRDF
 from reflecto.reconstruct import Options, reconstruct
 from reflecto.sources.analytic import AnalyticBRDF
@@ -704,6 +704,39 @@ def test_check_frame_of_a_shaken_lambertian_reads_the_turned_cosine(device):
         (c,) = repeat_checks(extract_slices(cap, cal))
         assert abs(c.log_ratio - expect) < 0.003 + 0.01 * abs(expect), (seed, c, expect)
         assert c.moved == (abs(expect) > 0.03), (seed, c, expect)
+
+
+def test_a_check_slice_lit_in_one_firing_only_needs_a_significant_change():
+    """An LED that sank below a turned sample's horizon is lit in one firing only: moved.
+    A slice at the detection threshold can pass it in one firing and not in the other by
+    noise alone (a 10°-tilted chrome-steel's check LED 3° above its horizon): not moved,
+    the change judged against the camera's noise model."""
+    import dataclasses as dc
+
+    from reflecto.reconstruct.repeat import MIN_Z, repeat_checks
+
+    rng = np.random.default_rng(1)
+    n = 20000
+    base = Slices(light=np.array([[0.0, 0.0, 1.0]]), view=np.tile([0.0, 0.0, 1.0], (n, 1)),
+                  values=np.zeros((1, n, 3)), valid=np.ones((1, n), dtype=bool),
+                  pixels=np.stack([np.arange(n) // 200, np.arange(n) % 200], axis=1), check_leds=(0,),
+                  check_values=np.zeros((1, n, 3)), check_valid=np.ones((1, n), dtype=bool),
+                  noise=np.ones((1, n)))  # the camera noise of one reading: σ = 1
+    sigma = 1.0
+    # a mean of MIN_Z standard errors (of the mean) above 0, give or take one: lit or not by noise
+    mean = MIN_Z * sigma / math.sqrt(n)
+    a = mean * 0.85 + sigma * rng.standard_normal(n)
+    b = mean * 1.15 + sigma * rng.standard_normal(n)
+    a += mean * 0.85 - a.mean()
+    b += mean * 1.15 - b.mean()
+    flicker = dc.replace(base, values=np.repeat(a[None, :, None], 3, axis=2),
+                         check_values=np.repeat(b[None, :, None], 3, axis=2))
+    (c,) = repeat_checks(flicker)
+    assert not c.moved and c.z < MIN_Z
+    sank = dc.replace(base, values=np.repeat((5.0 + a)[None, :, None], 3, axis=2),
+                      check_values=np.repeat((b - b.mean())[None, :, None], 3, axis=2))
+    (c,) = repeat_checks(sank)
+    assert c.moved and c.log_ratio == math.inf and c.z > MIN_Z
 
 
 def test_check_frames_flag_a_shaken_anisotropic_capture():

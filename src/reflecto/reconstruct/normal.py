@@ -738,7 +738,7 @@ def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0
         normal = tilt_frame(*xy)[2]
         if _angle_deg(normal, start) < max(CONVERGED_DEG, CONVERGED_SHARE * sd):
             break
-    if refits and math.isfinite(sd):
+    if refits and math.isfinite(sd) and np.all(np.isfinite(new)):
         sd = math.hypot(sd, weighting_shift_deg(problem, model, new))
     sd = max(sd, half_vector_pitch_deg(slices))
     return NormalEstimate(normal, sd, "estimated", refits, _angle_deg(normal, z))
