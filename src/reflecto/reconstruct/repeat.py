@@ -96,7 +96,23 @@ def _noise_significance(delta: Array, noise: Array) -> float:
     return total / math.sqrt(var) if var > 0 else (math.inf if total > 0 else 0.0)
 
 
-def _lit_once(k: int, ya: Array, yb: Array, blk: NDArray[np.intp], n_blocks: int, noise: Array | None) -> RepeatCheck:
+def _block_sums(blk: NDArray[np.intp], ya: Array, yb: Array, n_blocks: int) -> tuple[Array, Array, Array]:
+    """Per block of :data:`BLOCK_PX` × :data:`BLOCK_PX` pixels: pixel count and the sums of ``Y_a`` and ``Y_b``."""
+    n = np.bincount(blk, minlength=n_blocks).astype(float)
+    sums = (np.bincount(blk, ya, minlength=n_blocks).astype(np.float64),
+            np.bincount(blk, yb, minlength=n_blocks).astype(np.float64))  # weighted: float64 (the stub says intp)
+    return n, *sums
+
+
+def _block_log_ratio(ba: Array, bb: Array, total: float, n_used: int) -> Array:
+    """``|g_j| = |log(Σ_j Y_b / Σ_j Y_a)|`` of the blocks given, each sum floored at 0 plus
+    a millionth of the mean block's share of ``total`` (so an empty block reads 0, not NaN)."""
+    eps = 1e-6 * total / max(n_used, 1) + 1e-300
+    return np.abs(np.log((np.maximum(bb, 0.0) + eps) / (np.maximum(ba, 0.0) + eps)))
+
+
+def _lit_once(k: int, ya: Array, yb: Array, delta: Array, blk: NDArray[np.intp], n_blocks: int,
+              noise: Array | None) -> RepeatCheck:
     """The check of an LED lit in one firing only: it sank below a turned sample's horizon
     (moved) if the change exceeds what two readings' camera noise ``σ`` allows
     (:attr:`Slices.noise`), over the frame (``|Σ δ| > MIN_Z √(2 Σ σ²)``) or in at least
@@ -111,16 +127,11 @@ def _lit_once(k: int, ya: Array, yb: Array, blk: NDArray[np.intp], n_blocks: int
     """
     if noise is None:
         return RepeatCheck(k, math.inf, math.inf, 0, 0, True)
-    delta = yb - ya
-    var = 2.0 * noise * noise
     z = _noise_significance(delta, noise)
-    n = np.bincount(blk, minlength=n_blocks).astype(float)
-    ba = np.bincount(blk, ya, minlength=n_blocks)
-    bb = np.bincount(blk, yb, minlength=n_blocks)
-    bvar = np.bincount(blk, var, minlength=n_blocks)
+    n, ba, bb = _block_sums(blk, ya, yb, n_blocks)
+    bvar = np.bincount(blk, 2.0 * noise * noise, minlength=n_blocks)
     use = (n >= BLOCK_MIN_FILL * BLOCK_PX * BLOCK_PX) & (bvar > 0)
-    eps = 1e-6 * float(np.abs(ya).sum() + np.abs(yb).sum()) / max(int(use.sum()), 1) + 1e-300
-    gj = np.abs(np.log((np.maximum(bb[use], 0.0) + eps) / (np.maximum(ba[use], 0.0) + eps)))
+    gj = _block_log_ratio(ba[use], bb[use], float(np.abs(ya).sum() + np.abs(yb).sum()), int(use.sum()))
     zj = np.abs(bb[use] - ba[use]) / np.sqrt(bvar[use])
     changed = int(np.count_nonzero((gj > BLOCK_THRESHOLD) & (zj > MIN_Z)))
     moved = z > MIN_Z or changed >= MIN_BLOCKS
@@ -149,20 +160,17 @@ def repeat_checks(slices: Slices) -> list[RepeatCheck]:
         delta = yb - ya
         if not (lit_a and lit_b):
             noise = None if slices.noise is None else slices.noise[k][both]
-            out.append(_lit_once(int(k), ya, yb, blk, n_blocks, noise))
+            out.append(_lit_once(int(k), ya, yb, delta, blk, n_blocks, noise))
             continue
         g = math.log(sb / sa)
         z = float(_significance(np.array(delta.sum()), np.array(np.sum((delta - delta.mean()) ** 2))))
         # per block: sums, and the spread of δ about the block's mean
-        n = np.bincount(blk, minlength=n_blocks).astype(float)
-        ba = np.bincount(blk, ya, minlength=n_blocks)
-        bb = np.bincount(blk, yb, minlength=n_blocks)
+        n, ba, bb = _block_sums(blk, ya, yb, n_blocks)
         bd = bb - ba
         mean = np.divide(bd, n, out=np.zeros_like(bd), where=n > 0)
         spread = np.bincount(blk, (delta - mean[blk]) ** 2, minlength=n_blocks)
         use = (n >= BLOCK_MIN_FILL * BLOCK_PX * BLOCK_PX) & (ba + bb > 0)
-        eps = 1e-6 * (sa + sb) / max(int(use.sum()), 1)
-        gj = np.abs(np.log((np.maximum(bb[use], 0.0) + eps) / (np.maximum(ba[use], 0.0) + eps)))
+        gj = _block_log_ratio(ba[use], bb[use], sa + sb, int(use.sum()))
         zj = _significance(bd[use], spread[use])  # type: ignore[arg-type]  # numpy stub: weighted bincount is float64, not intp
         changed = int(np.count_nonzero((gj > BLOCK_THRESHOLD) & (zj > MIN_Z)))
         moved = (abs(g) > THRESHOLD and z > MIN_Z) or changed >= MIN_BLOCKS
