@@ -58,6 +58,7 @@ INLINED_INTO = {
     "reflecto._kernels._texel": ("cube_index", "bin_accumulate", "splat"),
     "reflecto._kernels._fresnel": ("fresnel_flat", "pair_residuals"),
     "reflecto._kernels._fresnel_dlog": ("pair_residuals_jac",),
+    "reflecto.reconstruct._normal_kernels._projected_area": ("tilt_pass",),
 }
 
 
@@ -915,3 +916,51 @@ def test_png_unfilter_inverts_every_row_filter(bpp):
     bad = data.copy()
     bad[7 * (n + 1)] = 5  # row 7's filter type is not 0–4
     assert _kernels.png_unfilter(bad, h, n, bpp, np.zeros((h, n), dtype=np.uint8)) == 7
+
+
+@twin("reflecto.reconstruct._normal_kernels.tilt_pass", "reflecto.reconstruct._normal_kernels.theta_cells")
+def test_tilt_pass_matches_its_numpy_reference_and_finite_differences():
+    """The compiled pass of the tilt's least squares gives the NumPy reference's residuals,
+    θ_h cells and samples, and its analytic tilt columns are the residuals' central
+    differences (away from the NDF's nodes, where log D has a kink)."""
+    from reflecto import geometry
+    from reflecto.instrument.calibrate import nominal_calibration
+    from reflecto.instrument.device import Device
+    from reflecto.instrument.simulate import simulate_capture
+    from reflecto.instrument.slices import extract_slices
+    from reflecto.reconstruct.normal import TiltProblem, _light_model, _tilt_normal, light_fit
+    from reflecto.reconstruct.pipeline import usable_samples
+    from reflecto.sources.analytic import AnalyticBRDF
+
+    dev = Device.builtin("ideal")
+    cap = simulate_capture(AnalyticBRDF(distribution="ggx", alpha=0.2, kd=0.1, ks=0.6, eta=1.5), dev,
+                           tilt_deg=4.0, tilt_azimuth_deg=130.0, seed=3)
+    sl, truth = extract_slices(cap, nominal_calibration(dev)), np.array(cap.extra["simulation"]["normal"])
+    valid = usable_samples(sl)
+    problem = TiltProblem(sl, valid)
+    model = _light_model(light_fit(sl, valid, geometry.frame_from_normal(truth, np.array([1.0, 0, 0])), None))
+    ndf = model.ndf_table
+    z = ndf.log_values + math.log(float(model.ks @ LUM))
+    kd, fresnel = float(model.kd @ LUM), problem.fresnel(model)
+    xy = truth[:2] / truth[2] + np.array([0.004, -0.003])
+    ev = problem.evaluate(ndf, xy, z, kd, fresnel, jacobian=True)
+    r, spec, j, t, use = problem.residuals_numpy(ndf, _tilt_normal(xy)[0], z, kd, fresnel)
+    np.testing.assert_allclose(ev.r, r, rtol=1e-9, atol=1e-12 * np.abs(r).max())
+    np.testing.assert_array_equal(ev.j, j)
+    np.testing.assert_allclose(ev.t, t, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(ev.use, use)
+    assert 0 < np.count_nonzero(use) < len(use) or np.all(use)
+    np.testing.assert_allclose(ev.cost, float(np.sum(ev.w * ev.r ** 2)), rtol=1e-12)
+    eps = 1e-6
+    for q in range(2):
+        e = np.zeros(2)
+        e[q] = eps
+        up = problem.residuals_numpy(ndf, _tilt_normal(xy + e)[0], z, kd, fresnel)
+        down = problem.residuals_numpy(ndf, _tilt_normal(xy - e)[0], z, kd, fresnel)
+        smooth = use & (up[2] == j) & (down[2] == j)  # the same θ_h cell on both sides
+        fd = (up[0] - down[0]) / (2 * eps)
+        scale = np.abs(fd[smooth]).max()
+        assert scale > 0
+        close = np.abs(ev.dr[smooth, q] - fd[smooth]) <= 1e-4 * np.abs(fd[smooth]) + 1e-6 * scale
+        # all but the few samples on a kink of σ's table (a node of its θ grid, or where σ meets cos θ)
+        assert np.count_nonzero(~close) <= 1e-3 * len(close), np.count_nonzero(~close)

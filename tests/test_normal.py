@@ -220,3 +220,4 @@ def test_weighting_shift_is_nil_where_the_model_holds_and_large_on_a_felt(shared
                            tilt_deg=7.7705912561226675, seed=356090836)
     d, est = shift(extract_slices(cap, CAL))
     assert d > 0.5 and est.uncertainty_deg > 0.5
+

@@ -40,6 +40,7 @@ The old §5.4 search (HLHZ08's consistency criterion on a grid of tilts, Nelder�
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Protocol
 
@@ -54,7 +55,7 @@ from ..hemicube import hemicube
 from ..instrument.slices import MIN_LIGHT_COS
 from ..model import IsotropicMicrofacetBRDF
 from ..polar import interpolation_cells, polar_nodes
-from . import isotropic
+from . import _normal_kernels, _polar_kernels, isotropic
 from .fresnel_fit import fit_fresnel, overlap_pairs
 from .samples import bin_samples, kd_bound
 from .tuning import NORMAL
@@ -316,8 +317,9 @@ AITKEN_MAX_STEP_DEG = NORMAL.aitken_max_step_deg
 INNER_STEPS = NORMAL.inner_steps
 #: Largest step of one Gauss–Newton iteration (degrees; a trust region).
 MAX_STEP_DEG = NORMAL.max_step_deg
-#: Tangent offset of the finite differences of the residuals.
-FD_STEP = NORMAL.fd_step
+#: Samples whose view is within this of the candidate's horizon (degrees) take no part in the tilt's step.
+MIN_VIEW_DEG = NORMAL.min_view_deg
+MIN_VIEW_COS = math.sin(math.radians(MIN_VIEW_DEG))
 #: A peak stands clear of its slice's floor when its luminance is this many times
 #: the slice's median …
 PEAK_CONTRAST = NORMAL.peak_contrast
@@ -503,28 +505,105 @@ class TiltProblem:
             self._fresnel = (model, (model._fresnel_table(self.cos_d) * model.ks) @ LUM / max(ks, 1e-300))
         return self._fresnel[1]
 
-    def _parts(self, sigma, nodes: Array, normal: Array, z: Array, kd: float, fresnel: Array):
-        """Residuals ``r`` (N,), the specular part ``s`` (N,), the cells ``j, t`` of θ_h
-        and the samples that take part, at ``normal`` for log nodes ``z`` (``log(k_s D)``)."""
-
-        # per LED and per view first (σ and the cosines), then per sample
+    def residuals_numpy(self, ndf, normal: Array, z: Array, kd: float, fresnel: Array
+                        ) -> tuple[Array, Array, NDArray[np.intp], Array, NDArray[np.bool_]]:
+        """NumPy reference of :func:`._normal_kernels.tilt_pass` without the Jacobian:
+        residuals ``r`` (N,), the specular part (N,), the cells ``j, t`` of θ_h and the
+        samples that take part, at ``normal`` for log nodes ``z`` (``log(k_s D)``)."""
+        sigma = ndf.projected_area
         ci_l = np.maximum(self.lights @ normal, 1e-6)
         co_p = np.maximum(self.views @ normal, 1e-6)
         ci, co = ci_l[self.led], co_p[self.pix]
-        use = (ci > MIN_LIGHT_COS) & (co > math.sin(math.radians(1.0)))
-        j, t = interpolation_cells(nodes, np.arccos(np.clip(self.half @ normal, -1.0, 1.0)))
+        use = (ci > MIN_LIGHT_COS) & (co > MIN_VIEW_COS)
+        j, t = interpolation_cells(ndf.nodes, np.arccos(np.clip(self.half @ normal, -1.0, 1.0)))
         log_d = (1.0 - t) * z[j] + t * z[j + 1]
         spec = fresnel * np.exp(np.minimum(log_d, 700.0)) / (4.0 * sigma(ci_l)[self.led] * sigma(co_p)[self.pix])
         r = kd / math.pi + spec - self.f_dev / ci
-        return r, spec, j, t, use, ci
+        return r, spec, j, t, use
+
+    def evaluate(self, ndf, xy: Array, z: Array, kd: float, fresnel: Array, cos_power: float = 2.0,
+                 jacobian: bool = False, use: NDArray[np.bool_] | None = None) -> _TiltPass:
+        """The residuals at the tangent offset ``xy`` (:func:`._normal_kernels.tilt_pass`):
+        with ``use`` given, only those samples take part (a trial step is judged on the
+        samples of its base); with ``jacobian`` the tilt's columns of the Jacobian."""
+        normal, dn = _tilt_normal(xy)
+        out = _TiltPass.empty(len(self.led), use)
+        cos_h = np.clip(self.half @ normal, -1.0, 1.0)
+        theta_h = np.arccos(cos_h)
+        d_h = np.empty(len(cos_h))
+        _normal_kernels.theta_cells(theta_h, ndf.nodes, _cell_table(ndf.nodes.tobytes()), z, out.j, out.t, d_h)
+        np.exp(d_h, out=d_h)
+        out.cost = _normal_kernels.tilt_pass(
+            self.lights, self.views, self.led, self.pix, self.half, cos_h, theta_h, d_h, self.f_dev, fresnel,
+            self.weight, ndf.nodes, z, kd, ndf._quad.sigma_theta[1], ndf.sigma, normal, dn, cos_power,
+            MIN_LIGHT_COS, MIN_VIEW_COS, use is not None, out.use, jacobian, out.j, out.r, out.spec, out.w, out.dr)
+        out.normal = normal
+        return out
+
+    def _normal_matrix(self, ev: _TiltPass, k: int, lam: float, curv: Array, z: Array) -> tuple[Array, Array]:
+        """``JᵀWJ + λC`` over ``(t_x, t_y, k_d, z)`` and the gradient ``JᵀWr + λCz``
+        (:func:`._polar_kernels.normal_equations`)."""
+        dense_cols = np.empty((len(ev.r), 3))
+        dense_cols[:, :2] = ev.dr
+        dense_cols[:, 2] = 1.0 / math.pi
+        diag, off, cross = np.empty(k), np.empty(k - 1), np.empty((k, 3))
+        dense, grad_z, grad_d = np.empty((3, 3)), np.empty(k), np.empty(3)
+        _polar_kernels.normal_equations(ev.j, ev.t, ev.spec, dense_cols, ev.r, ev.w, k, diag, off, cross, dense,
+                                        grad_z, grad_d)
+        a_mat = np.zeros((k + 3, k + 3))
+        a_mat[:3, :3] = dense
+        a_mat[:3, 3:] = cross.T
+        a_mat[3:, :3] = cross
+        iz = np.arange(k)
+        a_mat[3 + iz, 3 + iz] += diag
+        a_mat[3 + iz[:-1], 4 + iz[:-1]] += off
+        a_mat[4 + iz[:-1], 3 + iz[:-1]] += off
+        a_mat[3:, 3:] += lam * curv
+        return a_mat, np.concatenate([grad_d, grad_z + lam * curv @ z])
+
+    def _scores(self, ev: _TiltPass, k: int) -> tuple[Array, Array]:
+        """Per-sample score columns for the covariance: each sample's ``J_b w_b r_b`` as
+        its dense part (N, 3) and its z part's two entries ``(w r a₀, w r a₁)`` at ``j, j + 1``."""
+        wr = ev.w * ev.r
+        dense = np.empty((len(ev.r), 3))
+        dense[:, :2] = ev.dr * wr[:, None]
+        dense[:, 2] = wr / math.pi
+        return dense, np.stack([wr * ev.spec * (1.0 - ev.t), wr * ev.spec * ev.t], axis=1)
+
+    def _covariance_sd(self, ev: _TiltPass, a_mat: Array, k: int) -> float:
+        """The tilt's standard uncertainty (degrees): the cluster-robust (sandwich)
+        covariance with the LEDs as clusters, or the samples where fewer than three LEDs
+        hold data (module docstring, step 3); ``inf`` where it cannot be formed."""
+        wd, wz = self._scores(ev, k)
+        g_d_led = np.stack([np.bincount(self.led, wd[:, q], self.n_leds) for q in range(3)], axis=1)
+        lk = self.led * k
+        g_z_led = (np.bincount(lk + ev.j, wz[:, 0], self.n_leds * k)
+                   + np.bincount(lk + ev.j + 1, wz[:, 1], self.n_leds * k)).reshape(self.n_leds, k)
+        scores = np.concatenate([g_d_led, g_z_led], axis=1)  # (L, K + 3)
+        leds = [q for q in range(self.n_leds) if np.any(scores[q] != 0)]
+        if not leds:
+            return math.inf
+        try:
+            b = np.linalg.solve(a_mat, np.eye(k + 3)[:, :2])  # the tilt's columns of A⁻¹
+        except np.linalg.LinAlgError:
+            return math.inf
+        if len(leds) >= 3:
+            u = scores[leds] @ b  # (L', 2)
+            cov = u.T @ u * len(leds) / (len(leds) - 1)
+        else:
+            # one or two LEDs hold data (a sharp metal on a noiseless camera: the others
+            # read 0): too few clusters for their spread; the samples are the clusters
+            u = wd @ b[:3] + wz[:, :1] * b[3 + ev.j] + wz[:, 1:] * b[4 + ev.j]
+            cov = u.T @ u
+        return math.degrees(math.atan(math.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0))))
 
     def solve(self, model, normal: Array, steps: int | None = None, cos_power: float = 2.0
               ) -> tuple[Array, float, float]:
         """Gauss–Newton (Levenberg–Marquardt) on ``(t_x, t_y, k_d, z)`` with ``S``, ``F``
         and ``η`` of ``model`` held fixed, from ``normal``; ``z`` the log of ``k_s D`` at
         the NDF's nodes (luminance), under the fit's curvature prior on ``log D``
-        (:func:`.isotropic.prior`). The tilt columns of the Jacobian are finite differences
-        (:data:`FD_STEP`), the others analytic. A sample weighs ``(n·l)^cos_power`` times its
+        (:func:`.isotropic.prior`). The Jacobian is analytic
+        (:func:`._normal_kernels.tilt_pass`). A sample weighs ``(n·l)^cos_power`` times its
         sampling weight: ``cos_power`` = 2 is eq. 10's cosine weight (the estimate), 0
         weighs the samples alike (:func:`weighting_shift_deg`).
 
@@ -534,66 +613,30 @@ class TiltProblem:
 
         steps = INNER_STEPS if steps is None else steps
         ndf = model.ndf_table
-        nodes = ndf.nodes
-        k = len(nodes)
-        sigma = ndf.projected_area
+        k = len(ndf.nodes)
         fresnel = self.fresnel(model)
         z = ndf.log_values + math.log(max(float(model.ks @ LUM), 1e-300))
         kd = float(model.kd @ LUM)
         xy = np.asarray(normal[:2], dtype=np.float64) / float(normal[2])
-        curv = isotropic._curvature_matrix(nodes.tobytes())
-        lam = None
+        curv = isotropic._curvature_matrix(ndf.nodes.tobytes())
+        lam = math.nan
         mu = 1e-3
-        sd, rms = math.inf, math.nan
-
-        def state_cost(xy_, z_, kd_, use_):
-            r, *_ = self._parts(sigma, nodes, tilt_frame(*xy_)[2], z_, kd_, fresnel)
-            w = np.where(use_, self.weight * (self.light @ tilt_frame(*xy_)[2]) ** cos_power, 0.0)
-            with np.errstate(over="ignore", invalid="ignore"):  # a trial whose NDF overflows costs inf: rejected
-                return float(np.sum(w * r * r) + lam * z_ @ curv @ z_)
-
+        lim = math.tan(math.radians(MAX_STEP_DEG))
+        a_mat = None
+        ev = self.evaluate(ndf, xy, z, kd, fresnel, cos_power, jacobian=True)
         for it in range(steps + 1):
-            n = tilt_frame(*xy)[2]
-            r, spec, j, t, use, ci = self._parts(sigma, nodes, n, z, kd, fresnel)
-            w = np.where(use, self.weight * ci ** cos_power, 0.0)
-            if np.count_nonzero(w) < 100:
-                return n, math.inf, math.nan
-            if lam is None:  # the fit's curvature prior: ρ ℓ⁴ with ρ the data's weight per radian
-                m = r + self.f_dev / np.maximum(ci, 1e-6)
-                span = max(float(np.ptp(np.arccos(np.clip(self.half[use] @ n, -1, 1)))), 1e-3)
-                lam = float(np.sum(w * m * m)) / span * isotropic.SMOOTH_LENGTH ** 4
-            cols = []
-            for e in (np.array([FD_STEP, 0.0]), np.array([0.0, FD_STEP])):
-                r1, *_ = self._parts(sigma, nodes, tilt_frame(*(xy + e))[2], z, kd, fresnel)
-                cols.append((r1 - r) / FD_STEP)
-            dense = np.stack(cols + [np.full(len(r), 1.0 / math.pi)], axis=1)  # (N, 3)
-            a0, a1 = spec * (1.0 - t), spec * t
-            # per-LED scores (for the covariance) and the normal equations
-            lk = self.led * k
-            g_z_led = (np.bincount(lk + j, w * a0 * r, self.n_leds * k)
-                       + np.bincount(lk + j + 1, w * a1 * r, self.n_leds * k)).reshape(self.n_leds, k)
-            wd = dense * (w * r)[:, None]
-            g_d_led = np.stack([np.bincount(self.led, wd[:, q], self.n_leds) for q in range(3)], axis=1)
+            if np.count_nonzero(ev.w) < 100:
+                return ev.normal, math.inf, math.nan
+            if math.isnan(lam):  # the fit's curvature prior: ρ ℓ⁴ with ρ the data's weight per radian
+                m = ev.r + self.f_dev / np.maximum(self.lights[self.led] @ ev.normal, 1e-6)
+                span = max(float(np.ptp(np.arccos(np.clip(self.half[ev.use] @ ev.normal, -1, 1)))), 1e-3)
+                lam = float(np.sum(ev.w * m * m)) / span * isotropic.SMOOTH_LENGTH ** 4
             if it == steps:
                 break
-            a_mat = np.zeros((k + 3, k + 3))
-            wdj = dense * w[:, None]
-            a_mat[:3, :3] = dense.T @ wdj
-            cross = np.stack([np.bincount(j, wdj[:, q] * a0, k) + np.bincount(j + 1, wdj[:, q] * a1, k)
-                              for q in range(3)])
-            a_mat[:3, 3:] = cross
-            a_mat[3:, :3] = cross.T
-            diag = np.bincount(j, w * a0 * a0, k) + np.bincount(j + 1, w * a1 * a1, k)
-            off = np.bincount(j, w * a0 * a1, k)[: k - 1]
-            iz = np.arange(k)
-            a_mat[3 + iz, 3 + iz] += diag
-            a_mat[3 + iz[:-1], 4 + iz[:-1]] += off
-            a_mat[4 + iz[:-1], 3 + iz[:-1]] += off
-            a_mat[3:, 3:] += lam * curv
-            grad = np.concatenate([g_d_led.sum(axis=0), g_z_led.sum(axis=0) + lam * curv @ z])
+            a_mat, grad = self._normal_matrix(ev, k, lam, curv, z)
             dg = np.diag(a_mat).copy()
             dg += 1e-12 * dg.max()
-            cost0 = float(np.sum(w * r * r) + lam * z @ curv @ z)
+            cost0 = ev.cost + lam * z @ curv @ z
             improved = False
             while mu < 1e8:
                 try:
@@ -601,55 +644,70 @@ class TiltProblem:
                 except np.linalg.LinAlgError:
                     mu *= 10.0
                     continue
-                dxy = step[:2]
-                lim = math.tan(math.radians(MAX_STEP_DEG))
-                length = float(np.hypot(*dxy))
+                length = float(np.hypot(*step[:2]))
                 if length > lim:
                     step = step * (lim / length)
                 trial = (xy + step[:2], z + step[3:], max(kd + float(step[2]), 0.0))
-                c = state_cost(*trial, use)
+                with np.errstate(over="ignore", invalid="ignore"):  # an NDF that overflows costs inf: rejected
+                    c = self.evaluate(ndf, trial[0], trial[1], trial[2], fresnel, cos_power, use=ev.use).cost
+                    c += lam * trial[1] @ curv @ trial[1]
                 if math.isfinite(c) and c < cost0:
                     xy, z, kd = trial
                     mu = max(mu / 10.0, 1e-9)
                     improved = True
                     break
                 mu *= 10.0
+            if improved:
+                ev = self.evaluate(ndf, xy, z, kd, fresnel, cos_power, jacobian=True)
             if not improved or float(np.hypot(*step[:2])) < math.tan(math.radians(0.2 * CONVERGED_DEG)):
-                n = tilt_frame(*xy)[2]
-                r, spec, j, t, use, ci = self._parts(sigma, nodes, n, z, kd, fresnel)
-                w = np.where(use, self.weight * ci ** cos_power, 0.0)
-                a0, a1 = spec * (1.0 - t), spec * t
-                lk = self.led * k
-                g_z_led = (np.bincount(lk + j, w * a0 * r, self.n_leds * k)
-                           + np.bincount(lk + j + 1, w * a1 * r, self.n_leds * k)).reshape(self.n_leds, k)
-                cols = []
-                for e in (np.array([FD_STEP, 0.0]), np.array([0.0, FD_STEP])):
-                    r1, *_ = self._parts(sigma, nodes, tilt_frame(*(xy + e))[2], z, kd, fresnel)
-                    cols.append((r1 - r) / FD_STEP)
-                dense = np.stack(cols + [np.full(len(r), 1.0 / math.pi)], axis=1)
-                wd = dense * (w * r)[:, None]
-                g_d_led = np.stack([np.bincount(self.led, wd[:, q], self.n_leds) for q in range(3)], axis=1)
                 break
-        # cluster-robust (sandwich) covariance with the LEDs as clusters (module docstring, step 3)
-        n = tilt_frame(*xy)[2]
-        scores = np.concatenate([g_d_led, g_z_led], axis=1)  # (L, K + 3)
-        leds = [q for q in range(self.n_leds) if np.any(scores[q] != 0)]
-        if leds and 'a_mat' in locals():
-            try:
-                b = np.linalg.solve(a_mat, np.eye(k + 3)[:, :2])  # the tilt's columns of A⁻¹
-                if len(leds) >= 3:
-                    u = scores[leds] @ b  # (L', 2)
-                    cov = u.T @ u * len(leds) / (len(leds) - 1)
-                else:
-                    # one or two LEDs hold data (a sharp metal on a noiseless camera: the others
-                    # read 0): too few clusters for their spread; the samples are the clusters
-                    u = wd @ b[:3] + (w * a0 * r)[:, None] * b[3 + j] + (w * a1 * r)[:, None] * b[4 + j]
-                    cov = u.T @ u
-                sd = math.degrees(math.atan(math.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0))))
-            except np.linalg.LinAlgError:
-                pass
-        rms = float(np.sqrt(np.sum(w * r * r) / max(np.sum(w), 1e-300)))
-        return n, sd, rms
+        sd = self._covariance_sd(ev, a_mat, k) if a_mat is not None else math.inf
+        rms = float(np.sqrt(np.sum(ev.w * ev.r ** 2) / max(np.sum(ev.w), 1e-300)))
+        return ev.normal, sd, rms
+
+
+@dataclasses.dataclass
+class _TiltPass:
+    """One pass of :func:`._normal_kernels.tilt_pass`: per sample the residual, the
+    specular part, the θ_h cell and weight, the sample weight (0: not taking part),
+    whether it takes part and the tilt's two Jacobian columns; the weighted cost."""
+
+    r: Array
+    spec: Array
+    j: NDArray[np.intp]
+    t: Array
+    w: Array
+    use: NDArray[np.bool_]
+    dr: Array
+    cost: float = math.nan
+    normal: Array = dataclasses.field(default_factory=lambda: np.zeros(3))
+
+    @classmethod
+    def empty(cls, n: int, use: NDArray[np.bool_] | None) -> _TiltPass:
+        return cls(np.empty(n), np.empty(n), np.empty(n, dtype=np.intp), np.empty(n), np.empty(n),
+                   np.empty(n, dtype=bool) if use is None else use, np.zeros((n, 2)))
+
+
+@functools.lru_cache(maxsize=8)
+def _cell_table(nodes_key: bytes) -> NDArray[np.intp]:
+    """The θ_h cell of each of :data:`CELL_TABLE` equal steps of ``[0, nodes[-1])``: the
+    kernel's first guess, which it moves up by at most the nodes inside one step."""
+    nodes = np.frombuffer(nodes_key, dtype=np.float64)
+    theta = np.arange(CELL_TABLE) * (nodes[-1] / CELL_TABLE)
+    return np.clip(np.searchsorted(nodes, theta, side="right") - 1, 0, len(nodes) - 2).astype(np.intp)
+
+
+#: Steps of the θ_h cell table (:func:`_cell_table`).
+CELL_TABLE = 2048
+
+
+def _tilt_normal(xy: Array) -> tuple[Array, Array]:
+    """``n = normalize(t_x, t_y, 1)`` and ``∂n/∂t_q = (I − n nᵀ) e_q / |(t_x, t_y, 1)|``, shape (2, 3)."""
+    u = np.array([float(xy[0]), float(xy[1]), 1.0])
+    length = float(np.linalg.norm(u))
+    n = u / length
+    dn = (np.eye(3)[:2] - n[:2, None] * n[None, :]) / length
+    return n, np.ascontiguousarray(dn)
 
 
 def light_fit(slices, valid: NDArray[np.bool_], frame: Array, fixed_eta: float | None) -> isotropic.LuminanceFit:
@@ -708,6 +766,7 @@ def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0
     problem = TiltProblem(slices, valid)
     sd = math.inf
     refits = 0
+    moving = 0.0  # the last refit's move while the estimate has not converged (degrees)
     history: list[Array] = []  # tangent offsets of the normal before each refit
     limit = math.tan(math.radians(max_tilt_deg))
     for _ in range(MAX_REFITS):
@@ -736,10 +795,13 @@ def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0
         if float(np.hypot(*xy)) > limit:  # held within the searched cone
             xy = xy * limit / float(np.hypot(*xy))
         normal = tilt_frame(*xy)[2]
-        if _angle_deg(normal, start) < max(CONVERGED_DEG, CONVERGED_SHARE * sd):
+        moving = _angle_deg(normal, start)
+        if moving < max(CONVERGED_DEG, CONVERGED_SHARE * sd):
+            moving = 0.0
             break
     if refits and math.isfinite(sd) and np.all(np.isfinite(new)):
-        sd = math.hypot(sd, weighting_shift_deg(problem, model, new))
+        # an estimate still moving after MAX_REFITS is not known better than its last move
+        sd = math.hypot(sd, weighting_shift_deg(problem, model, new), moving)
     sd = max(sd, half_vector_pitch_deg(slices))
     return NormalEstimate(normal, sd, "estimated", refits, _angle_deg(normal, z))
 

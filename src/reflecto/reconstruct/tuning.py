@@ -817,6 +817,12 @@ class NormalTuning:
                "grid's local minima (a narrow basin where an LED nears the horizon; "
                "estimate_normal_consistency's docstring), so at least 4 are needed; 6 is that with two in "
                "reserve, not swept further (each start costs ≈ 30 distance evaluations)")
+    min_view_deg: float = tuned(
+        1.0, name="MIN_VIEW_DEG", units="deg",
+        what="samples whose view is within this of the candidate normal's horizon take no part in the tilt's step",
+        source="mechanism: the residual divides by σ(v·n), which falls to cos θ_o → 0 at the horizon, and "
+               "reframe's correction of the view's foreshortening is as unreliable there as for an LED; the "
+               "view cone reaches 1° above a 10°-tilted sample's horizon only at its rim, so few samples leave")
     sample_stride: int = tuned(
         7, name="SAMPLE_STRIDE", units="pixels",
         what="every SAMPLE_STRIDE-th pixel off the specular peaks enters the tilt's least squares (weight "
@@ -879,10 +885,6 @@ class NormalTuning:
         what="largest step of one Gauss–Newton iteration (a trust region)",
         source="measurement: 1.5° and 6° gave the same normals as 3° (31/40 within 0.5°, max 2.19° and 2.36° "
                "against 2.25°) on 20 as-built tilted captures of the 50 shared: the steps stay inside it")
-    fd_step: float = tuned(
-        1e-4, name="FD_STEP", units="rad (tangent offset)",
-        what="offset of the finite differences of the residuals with respect to the two tilt angles",
-        source="mechanism: about √(float64 ε) of the unit tangent, balancing truncation and round-off")
     peak_contrast: float = tuned(
         2.0, name="PEAK_CONTRAST", units="ratio",
         what="a slice's peak stands clear of its floor when its luminance is this many times the slice's median",
