@@ -58,7 +58,8 @@ INLINED_INTO = {
     "reflecto._kernels._texel": ("cube_index", "bin_accumulate", "splat"),
     "reflecto._kernels._fresnel": ("fresnel_flat", "pair_residuals"),
     "reflecto._kernels._fresnel_dlog": ("pair_residuals_jac",),
-    "reflecto.reconstruct._normal_kernels._projected_area": ("tilt_pass",),
+    "reflecto.reconstruct._normal_kernels._projected_area": ("_cosines",),
+    "reflecto.reconstruct._normal_kernels._cosines": ("tilt_pass",),
 }
 
 

@@ -31,6 +31,29 @@ def _projected_area(c, sig_step, sig_vals):  # pragma: no cover - compiled
     return cc, 1.0
 
 
+@njit(inline="always", **_OPTS)
+def _cosines(dirs, n, dn, sig_step, sig_vals, jacobian):  # pragma: no cover - compiled
+    """Per direction ``d`` (rows of ``dirs``): ``c = max(d·n, 10⁻⁶)``, ``σ(c)``
+    (:func:`_projected_area`), and with ``jacobian`` ``∂c/∂t_q = d·dn[q]`` and
+    ``∂σ/∂t_q`` (0 where ``d·n`` is clamped), shapes ``(M,)``, ``(M,)``, ``(M, 2)``, ``(M, 2)``."""
+    m = dirs.shape[0]
+    c_out = dirs[:, 0] * 0.0
+    s_out = c_out.copy()
+    dc_out = dirs[:, :2] * 0.0
+    ds_out = dirs[:, :2] * 0.0
+    for a in range(m):
+        c = dirs[a, 0] * n[0] + dirs[a, 1] * n[1] + dirs[a, 2] * n[2]
+        c_out[a] = max(c, 1e-6)
+        sig, dsig = _projected_area(c_out[a], sig_step, sig_vals)
+        s_out[a] = sig
+        if jacobian and c > 1e-6:
+            for q in range(2):
+                d = dirs[a, 0] * dn[q, 0] + dirs[a, 1] * dn[q, 1] + dirs[a, 2] * dn[q, 2]
+                dc_out[a, q] = d
+                ds_out[a, q] = dsig * d
+    return c_out, s_out, dc_out, ds_out
+
+
 @njit(**_OPTS)
 def theta_cells(theta_h, nodes, cell_table, z, j_out, t_out, log_d_out):  # pragma: no cover - compiled
     """The cell ``j`` (``nodes[j] ≤ θ < nodes[j+1]``) and weight ``t`` of each ``θ_h``,
@@ -72,33 +95,8 @@ def tilt_pass(lights, views, led, pix, half, cos_h, theta_h, d_h, f_dev, fresnel
     ``dn[q] = ∂n/∂t_q`` (analytic, ``log D`` linear in θ_h within its cell). Returns
     ``Σ w r²``.
     """
-    n_l = lights.shape[0]
-    n_p = views.shape[0]
-    ci_l = lights[:, 0] * 0.0
-    si_l = ci_l.copy()
-    dsi_l = lights[:, :2] * 0.0
-    dci_l = lights[:, :2] * 0.0
-    for a in range(n_l):
-        c = lights[a, 0] * n[0] + lights[a, 1] * n[1] + lights[a, 2] * n[2]
-        ci_l[a] = max(c, 1e-6)
-        s, ds = _projected_area(ci_l[a], sig_step, sig_vals)
-        si_l[a] = s
-        if c > 1e-6:
-            for q in range(2):
-                d = lights[a, 0] * dn[q, 0] + lights[a, 1] * dn[q, 1] + lights[a, 2] * dn[q, 2]
-                dci_l[a, q] = d
-                dsi_l[a, q] = ds * d
-    co_p = views[:, 0] * 0.0
-    so_p = co_p.copy()
-    dso_p = views[:, :2] * 0.0
-    for p in range(n_p):
-        c = views[p, 0] * n[0] + views[p, 1] * n[1] + views[p, 2] * n[2]
-        co_p[p] = max(c, 1e-6)
-        s, ds = _projected_area(co_p[p], sig_step, sig_vals)
-        so_p[p] = s
-        if jacobian and c > 1e-6:
-            for q in range(2):
-                dso_p[p, q] = ds * (views[p, 0] * dn[q, 0] + views[p, 1] * dn[q, 1] + views[p, 2] * dn[q, 2])
+    ci_l, si_l, dci_l, dsi_l = _cosines(lights, n, dn, sig_step, sig_vals, True)
+    co_p, so_p, _, dso_p = _cosines(views, n, dn, sig_step, sig_vals, jacobian)
     n_cells = nodes.shape[0] - 1
     kd_pi = kd / math.pi
     cost = 0.0
