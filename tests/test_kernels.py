@@ -58,6 +58,7 @@ INLINED_INTO = {
     "reflecto._kernels._texel": ("cube_index", "bin_accumulate", "splat"),
     "reflecto._kernels._fresnel": ("fresnel_flat", "pair_residuals"),
     "reflecto._kernels._fresnel_dlog": ("pair_residuals_jac",),
+    "reflecto.reconstruct._polar_kernels._bin_model": ("luminance_pass", "luminance_normal_equations"),
     "reflecto.reconstruct._normal_kernels._projected_area": ("_cosines",),
     "reflecto.reconstruct._normal_kernels._cosines": ("tilt_pass",),
 }
@@ -756,28 +757,20 @@ def test_normal_equations():
     assert np.allclose(out[4], jtr[:k], rtol=1e-11, atol=1e-12) and np.allclose(out[5], jtr[k:], rtol=1e-11)
 
 
-@twin("reflecto.reconstruct._polar_kernels.luminance_pass")
-@pytest.mark.parametrize("eta", [1.5, 3.0, np.inf])
-def test_luminance_pass(eta):
-    """``m = k_d/π + g F(c; η) e^{z(θ)} G``, ``z`` linear between nodes (its exponent capped
-    at 700), ``r = m − f`` (one-sided where not measured), cost ``Σ w r²``; the Jacobian's
-    specular column and ``∂r/∂ log(η − 1) = spec (∂F/∂η)/F (η − 1)`` (0 for η = ∞ and inactive bins)."""
-    from reflecto.fresnel import fresnel_numpy
-
-    rng = np.random.default_rng(25)
-    b, k = 3000, 10
+def _luminance_problem(seed: int = 25, b: int = 3000, k: int = 10):
+    """A random luminance problem: cells, weights, log nodes (one overflowing), geometry, …"""
+    rng = np.random.default_rng(seed)
     j = rng.integers(0, k - 1, b).astype(np.intp)
     t = rng.random(b)
     z = rng.normal(0, 2, k)
     z[4] = 800.0  # overflow guard: e^{min(z, 700)}
-    geo = rng.uniform(0.25, 3.0, b)
-    cos_d = rng.random(b)
-    f = rng.random(b) * 3
-    w = rng.random(b)
-    measured = rng.random(b) < 0.7
-    kd, g = 0.3, 0.02
-    r, spec, deta = np.empty(b), np.empty(b), np.empty(b)
-    cost = _polar_kernels.luminance_pass(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, True, r, spec, deta)
+    return (j, t, z, rng.uniform(0.25, 3.0, b), rng.random(b), rng.random(b) * 3, rng.random(b),
+            rng.random(b) < 0.7, 0.3, 0.02)
+
+
+def _luminance_reference(j, t, z, geo, cos_d, f, measured, kd, g, eta):
+    """NumPy: the specular part, the residual (0 where a bound is not active), and activity."""
+    from reflecto.fresnel import fresnel_numpy
 
     lz = np.minimum((1 - t) * z[j] + t * z[j + 1], 700.0)
     fr = fresnel_numpy(cos_d, eta)
@@ -785,32 +778,64 @@ def test_luminance_pass(eta):
         s = g * fr * np.exp(lz) * geo
         r0 = kd / np.pi + s - f
     active = measured | (r0 > 0)
-    r_ref = np.where(active, r0, 0.0)
+    return s, np.where(active, r0, 0.0), active, fr
+
+
+@twin("reflecto.reconstruct._polar_kernels.luminance_pass")
+@pytest.mark.parametrize("eta", [1.5, 3.0, np.inf])
+def test_luminance_pass(eta):
+    """``m = k_d/π + g F(c; η) e^{z(θ)} G``, ``z`` linear between nodes (its exponent capped
+    at 700), ``r = m − f`` (one-sided where not measured), cost ``Σ w r²``."""
+    j, t, z, geo, cos_d, f, w, measured, kd, g = _luminance_problem()
+    b = len(j)
+    r = np.empty(b)
+    cost = _polar_kernels.luminance_pass(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, r)
+    s, r_ref, active, fr = _luminance_reference(j, t, z, geo, cos_d, f, measured, kd, g, eta)
     finite = np.isfinite(r_ref)
     assert np.array_equal(np.isfinite(r), finite) and np.allclose(r[finite], r_ref[finite], rtol=1e-13, atol=1e-15)
-    assert np.any(~measured & (r0 <= 0)) and np.any(~measured & (r0 > 0))  # both sides of the bound
-    ok = finite & np.isfinite(s)
-    assert np.allclose(spec[ok], np.where(active, s, 0.0)[ok], rtol=1e-13, atol=1e-300)
-    if math.isfinite(eta):
-        h = 1e-5
-        dF = (fresnel_numpy(cos_d, eta + h) - fresnel_numpy(cos_d, eta - h)) / (2 * h)
-        d_ref = np.where(active, s * dF / fr * (eta - 1.0), 0.0)
-        small = ok & (np.abs(s) < 1e100)
-        # the kernel's forward difference (step 1e-6 η) is good to about 1e-5
-        assert np.allclose(deta[small], d_ref[small], rtol=1e-4, atol=1e-9 * np.abs(s[small]).max())
-    else:
-        assert not deta.any() and np.all(fr == 1.0)
+    assert np.any(~measured & ~active) and np.any(~measured & active)  # both sides of the bound
+    if not math.isfinite(eta):
+        assert np.all(fr == 1.0)
     with np.errstate(over="ignore", invalid="ignore"):
         assert cost == pytest.approx(np.sum(w * r_ref**2), rel=1e-12) or not math.isfinite(cost)
     # without the overflowing node the cost is finite and equals the sum
     z[4] = 1.0
-    cost = _polar_kernels.luminance_pass(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, False, r, spec, deta)
-    lz = (1 - t) * z[j] + t * z[j + 1]
-    r0 = kd / np.pi + g * fr * np.exp(lz) * geo - f
-    r_ref = np.where(measured | (r0 > 0), r0, 0.0)
+    cost = _polar_kernels.luminance_pass(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, r)
+    _, r_ref, _, _ = _luminance_reference(j, t, z, geo, cos_d, f, measured, kd, g, eta)
     assert np.allclose(r, r_ref, rtol=1e-13, atol=1e-15) and cost == pytest.approx(np.sum(w * r_ref**2), rel=1e-12)
     assert _polar_kernels.luminance_pass(j[:0], t[:0], z, geo[:0], cos_d[:0], f[:0], w[:0], measured[:0], kd, g, eta,
-                                         True, r[:0], spec[:0], deta[:0]) == 0.0
+                                         r[:0]) == 0.0
+
+
+@twin("reflecto.reconstruct._polar_kernels.luminance_normal_equations")
+@pytest.mark.parametrize("eta", [1.5, 3.0, np.inf])
+def test_luminance_normal_equations(eta):
+    """The fused pass gives the normal equations of the columns ``[1/π, spec, ∂r/∂ log(η − 1)]``
+    (``spec (∂F/∂η)/F (η − 1)``, 0 for η = ∞ and on inactive bins) with the weight where
+    the bin is active: NumPy's :func:`normal_equations_numpy` of the reference columns;
+    the η column also against a central difference."""
+    from reflecto.fresnel import fresnel_numpy
+    from reflecto.reconstruct.isotropic import normal_equations_numpy
+
+    j, t, z, geo, cos_d, f, w, measured, kd, g = _luminance_problem(seed=27)
+    z[4] = 1.0
+    k = len(z)
+    s, r_ref, active, fr = _luminance_reference(j, t, z, geo, cos_d, f, measured, kd, g, eta)
+    if math.isfinite(eta):
+        de = 1e-6 * eta  # the kernel's forward difference
+        d_eta = s * (fresnel_numpy(cos_d, eta + de) - fr) / de / fr * (eta - 1.0)
+        h = 1e-5
+        d_central = s * (fresnel_numpy(cos_d, eta + h) - fresnel_numpy(cos_d, eta - h)) / (2 * h) / fr * (eta - 1.0)
+        assert np.allclose(d_eta[active], d_central[active], rtol=1e-4, atol=1e-9 * np.abs(s).max())
+    else:
+        d_eta = np.zeros(len(j))
+    w_act = np.where(active, w, 0.0)
+    cols = np.stack([np.full(len(j), 1 / np.pi), s, d_eta], axis=1)
+    ref = normal_equations_numpy(j, t, s, cols, r_ref, w_act, k)
+    out = (np.empty(k), np.empty(k - 1), np.empty((k, 3)), np.empty((3, 3)), np.empty(k), np.empty(3))
+    _polar_kernels.luminance_normal_equations(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, k, *out)
+    for got, want in zip(out, ref):
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
 
 
 # ----------------------------------------------------------------------------- layout

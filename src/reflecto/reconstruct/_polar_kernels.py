@@ -101,40 +101,89 @@ def normal_equations(j, t, spec, dcols, r, w, n_nodes, diag, off, cross, dense, 
             dense[q, u] = dense[u, q]
 
 
+@njit(inline="always", **_OPTS)
+def _bin_model(k, tb, z, geometry_b, cos_d_b, f_b, measured_b, kd, g, eta):  # pragma: no cover - compiled
+    """One bin of the luminance fit: ``(r, spec, F, active)`` with ``spec = g F(c; η) e^{z(θ)} G``
+    (``z`` interpolated in cell ``k`` at weight ``tb``, its exponent capped at 700),
+    ``r = k_d/π + spec − f`` and ``active`` unless the bin is a bound the model stays under."""
+    lz = (1.0 - tb) * z[k] + tb * z[k + 1]
+    if lz > 700.0:
+        lz = 700.0
+    fr = _fresnel(cos_d_b, eta)
+    spec = g * fr * math.exp(lz) * geometry_b
+    r = kd / math.pi + spec - f_b
+    return r, spec, fr, measured_b or r > 0.0
+
+
 @njit(**_OPTS)
-def luminance_pass(j, t, z, shadow_geometry, cos_d, f, w, measured, kd, g, eta, jacobian, r_out, spec_out,
-                   deta_out):  # pragma: no cover - compiled
+def luminance_pass(j, t, z, shadow_geometry, cos_d, f, w, measured, kd, g, eta, r_out):  # pragma: no cover
     """One pass of the luminance fit over the bins: residuals and the weighted cost.
 
     ``m_b = k_d/π + g F(c_b; η) e^{z(θ_b)} G_b`` with ``z`` interpolated at ``(j, t)`` and
     ``G_b = S_b / (4 cos θ_i cos θ_o)`` (``shadow_geometry``); ``r_b = m_b − f_b``,
-    one-sided (``max(0, r_b)``) where ``measured[b]`` is False. Writes ``r_out``; with
-    ``jacobian`` also the specular part ``spec_out`` (``∂r/∂ log g``) and
-    ``deta_out = ∂r/∂ log(η − 1)`` (0 for an inactive bound and for the constant Fresnel
-    ``η = ∞``, where F ≡ 1). Returns ``Σ w r²``.
+    one-sided (``max(0, r_b)``) where ``measured[b]`` is False. Writes ``r_out``;
+    returns ``Σ w r²``.
     """
     cost = 0.0
-    de = 1e-6 * eta
-    finite_eta = math.isfinite(eta)
     for b in range(r_out.shape[0]):
-        k = j[b]
-        lz = (1.0 - t[b]) * z[k] + t[b] * z[k + 1]
-        if lz > 700.0:
-            lz = 700.0
-        fr = _fresnel(cos_d[b], eta)
-        spec = g * fr * math.exp(lz) * shadow_geometry[b]
-        r = kd / math.pi + spec - f[b]
-        active = measured[b] or r > 0.0
+        r, _, _, active = _bin_model(j[b], t[b], z, shadow_geometry[b], cos_d[b], f[b], measured[b], kd, g, eta)
         if not active:
             r = 0.0
         r_out[b] = r
         cost += w[b] * r * r
-        if jacobian:
-            if active and finite_eta:
-                spec_out[b] = spec
-                dfr = (_fresnel(cos_d[b], eta + de) - fr) / de
-                deta_out[b] = spec * dfr / (fr if fr > 0.0 else 1e-300) * (eta - 1.0)
-            else:
-                spec_out[b] = spec if active else 0.0
-                deta_out[b] = 0.0
     return cost
+
+
+@njit(**_OPTS)
+def luminance_normal_equations(j, t, z, shadow_geometry, cos_d, f, w, measured, kd, g, eta, n_nodes, diag, off,
+                               cross, dense, grad_z, grad_d):  # pragma: no cover - compiled
+    """The Gauss–Newton normal equations of the luminance fit in one pass over the bins:
+    each active bin's residual ``r`` and specular part (:func:`_bin_model`, as in
+    :func:`luminance_pass`), its η column ``∂r/∂ log(η − 1) = spec (∂F/∂η)/F (η − 1)``
+    (a forward difference of step ``10⁻⁶ η``; 0 for the constant Fresnel ``η = ∞``),
+    accumulated as :func:`normal_equations` does for the columns ``[1/π, spec, η]`` with
+    the weight ``w`` (inactive bins: 0)."""
+    diag[:] = 0.0
+    off[:] = 0.0
+    cross[:, :] = 0.0
+    dense[:, :] = 0.0
+    grad_z[:] = 0.0
+    grad_d[:] = 0.0
+    de = 1e-6 * eta
+    finite_eta = math.isfinite(eta)
+    inv_pi = 1.0 / math.pi
+    col = [0.0, 0.0, 0.0]
+    for b in range(j.shape[0]):
+        k = j[b]
+        r, spec, fr, active = _bin_model(k, t[b], z, shadow_geometry[b], cos_d[b], f[b], measured[b], kd, g, eta)
+        if not active:
+            continue
+        if finite_eta:
+            dfr = (_fresnel(cos_d[b], eta + de) - fr) / de
+            deta = spec * dfr / (fr if fr > 0.0 else 1e-300) * (eta - 1.0)
+        else:
+            deta = 0.0
+        wb = w[b]
+        if wb == 0.0:
+            continue
+        col[0] = inv_pi
+        col[1] = spec
+        col[2] = deta
+        a0 = spec * (1.0 - t[b])
+        a1 = spec * t[b]
+        wr = wb * r
+        diag[k] += wb * a0 * a0
+        diag[k + 1] += wb * a1 * a1
+        off[k] += wb * a0 * a1
+        grad_z[k] += a0 * wr
+        grad_z[k + 1] += a1 * wr
+        for q in range(3):
+            cq = col[q] * wb
+            cross[k, q] += a0 * cq
+            cross[k + 1, q] += a1 * cq
+            grad_d[q] += col[q] * wr
+            for u in range(q, 3):
+                dense[q, u] += cq * col[u]
+    for q in range(3):
+        for u in range(q):
+            dense[q, u] = dense[u, q]

@@ -224,8 +224,6 @@ class LuminanceProblem:
         self.shadow_geometry = self.geometry.copy()  # S · geometry, kept with the shadowing
         self.w = np.ones(len(bins))
         self._r = np.empty(len(bins))
-        self._spec = np.empty(len(bins))
-        self._deta = np.empty(len(bins))
         self.h = np.zeros((len(nodes), len(nodes)))
         self.beta = np.zeros(len(nodes))
         self.prior_constant = 0.0
@@ -244,12 +242,10 @@ class LuminanceProblem:
         r = m - self.f
         return np.where(self.measured, r, np.maximum(r, 0.0)), m
 
-    def data_pass(self, s: LuminanceState, jacobian: bool = False) -> float:
-        """``Σ w r²`` in one compiled pass (:func:`._polar_kernels.luminance_pass`); fills
-        the residual, and with ``jacobian`` the specular and η columns, in place."""
+    def data_pass(self, s: LuminanceState) -> float:
+        """``Σ w r²`` in one compiled pass (:func:`._polar_kernels.luminance_pass`)."""
         return _polar_kernels.luminance_pass(self.j, self.t, s.z, self.shadow_geometry, self.bins.cos_d, self.f,
-                                             self.w, self.measured, s.kd, s.g, s.eta, jacobian, self._r,
-                                             self._spec, self._deta)
+                                             self.w, self.measured, s.kd, s.g, s.eta, self._r)
 
     def cost(self, s: LuminanceState) -> float:
         """The cost; ``inf`` for a state whose NDF overflows (a rejected trial step)."""
@@ -456,14 +452,13 @@ def _apply(problem: LuminanceProblem, s: LuminanceState, step: NDArray[np.floati
 def _normal_equations(problem: LuminanceProblem, s: LuminanceState, tie_ks: bool) -> tuple[Array, Array]:
     """``JᵀWJ + H`` and ``JᵀWr + Hz − β`` over ``(z, k_d, log g, log(η − 1))``."""
     k = len(problem.nodes)
-    problem.data_pass(s, jacobian=True)
-    r, spec, d_eta = problem._r, problem._spec, problem._deta
-    w = np.where(problem.measured | (r > 0), problem.w, 0.0)
-    dcols = np.ascontiguousarray(np.stack([np.full(len(r), 1.0 / math.pi), spec, d_eta], axis=1))
     diag, off = np.empty(k), np.empty(k - 1)
     cross, dense = np.empty((k, 3)), np.empty((3, 3))
     gz, gd = np.empty(k), np.empty(3)
-    _polar_kernels.normal_equations(problem.j, problem.t, spec, dcols, r, w, k, diag, off, cross, dense, gz, gd)
+    # the Jacobian's pass and its normal equations in one loop (columns [1/π, spec, ∂/∂log(η−1)])
+    _polar_kernels.luminance_normal_equations(problem.j, problem.t, s.z, problem.shadow_geometry, problem.bins.cos_d,
+                                              problem.f, problem.w, problem.measured, s.kd, s.g, s.eta, k, diag,
+                                              off, cross, dense, gz, gd)
     a = np.zeros((k + 3, k + 3))
     a[np.arange(k), np.arange(k)] = diag
     a[np.arange(k - 1), np.arange(1, k)] = off
