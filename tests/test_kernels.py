@@ -28,6 +28,7 @@ from conftest import random_directions
 from reflecto import _kernels
 from reflecto.colour import LUM
 from reflecto.hemicube import hemicube
+from reflecto.polar import cell_table
 from reflecto.reconstruct import _polar_kernels
 
 PACKAGE = Path(reflecto.__file__).resolve().parent
@@ -725,7 +726,8 @@ def test_bin_polar():
     n_td = int(math.ceil(0.5 * math.pi / isotropic.TD_STEP)) + 1
     n_keys = len(light) * (len(edges) - 1) * n_td
     count, sums, fs = np.zeros(n_keys), np.zeros((n_keys, 5)), np.zeros((n_keys, 3))
-    _polar_kernels.bin_polar(mask, light, view, values, noise, bound, edges, isotropic.TD_STEP, n_td, count, sums, fs)
+    _polar_kernels.bin_polar(mask, light, view, values, noise, bound, edges, cell_table(edges.tobytes()),
+                             isotropic.TD_STEP, n_td, count, sums, fs)
     ref = isotropic.bin_polar_numpy(mask, light, view, values, noise, bound, edges, n_td)
     assert np.array_equal(count, ref[0]) and count.sum() == mask.sum()
     assert np.allclose(sums, ref[1], rtol=1e-12, atol=1e-13) and np.allclose(fs, ref[2], rtol=1e-12, atol=1e-13)

@@ -30,8 +30,6 @@ NOT_TUNED = {
     ("samples", "_SUBSAMPLE"): "speed only: the stride of a pre-selection threshold; the percentile is exact "
                                "whatever the stride (kd_upper_bound gathers a whole channel when it keeps too few)",
     ("normal", "MIN_VIEW_COS"): "derived: sin of MIN_VIEW_DEG, the tuned field",
-    ("normal", "CELL_TABLE"): "speed only: the steps of the kernel's first guess of the θ_h cell, which it "
-                              "corrects node by node to the exact cell",
     ("symmetry", "MIN_ELEVATION_DEG"): "the device's definition of a steep LED "
                                        "(instrument.device.STEEP_ELEVATION_DEG), not a reconstruction choice",
 }

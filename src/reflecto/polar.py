@@ -71,6 +71,23 @@ def interpolation_cells(nodes: Array, theta: ArrayLike) -> tuple[NDArray[np.intp
     return j, t
 
 
+@functools.lru_cache(maxsize=8)
+def cell_table(edges_key: bytes, steps: int = 2048) -> NDArray[np.intp]:
+    """The cell of ``steps`` equal steps of ``[0, edges[-1])`` (``edges`` increasing from 0,
+    as bytes): ``c[i]`` with ``edges[c] ≤ i · edges[-1]/steps < edges[c + 1]``, read-only.
+
+    A compiled loop's first guess of an angle's cell (:mod:`reflecto.reconstruct._polar_kernels`,
+    :mod:`~reflecto.reconstruct._normal_kernels`), which it moves up edge by edge to the
+    exact cell (the one bisection finds): one table read and a step or two instead of a
+    bisection's ≈ 8 branches.
+    """
+    edges = np.frombuffer(edges_key, dtype=np.float64)
+    theta = np.arange(steps) * (edges[-1] / steps)
+    out = np.clip(np.searchsorted(edges, theta, side="right") - 1, 0, len(edges) - 2).astype(np.intp)
+    out.setflags(write=False)
+    return out
+
+
 def azimuthal_kernel(theta_k: Array, theta_h: Array) -> Array:
     """``A(θ_k, θ_h) = ∫₀^{2π} max(0, cos θ_k cos θ_h + sin θ_k sin θ_h cos φ) dφ``.
 

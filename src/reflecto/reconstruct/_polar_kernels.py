@@ -16,17 +16,21 @@ _OPTS: dict[str, Any] = dict(cache=True, nogil=True, fastmath=False, error_model
 
 
 @njit(**_OPTS)
-def bin_polar(mask, light, view, values, noise, bound, edges, td_step, n_td, count, sums, out_f):  # pragma: no cover
+def bin_polar(mask, light, view, values, noise, bound, edges, cell_table, td_step, n_td, count, sums,
+              out_f):  # pragma: no cover
     """Accumulate the samples where ``mask`` (L, P) holds into (LED, θ_h cell, θ_d cell) bins.
 
     For LED ``l`` and pixel ``p``: ``h = normalize(i + o)``, its θ_h cell ``j``
-    (``edges[j] ≤ θ_h < edges[j+1]``, bisection) and θ_d cell ``⌊θ_d / td_step⌋``; the
+    (``edges[j] ≤ θ_h < edges[j+1]``: ``cell_table``'s first guess, :func:`reflecto.polar.cell_table`,
+    moved up to it) and θ_d cell ``⌊θ_d / td_step⌋``; the
     bin is ``(l · (len(edges) − 1) + j) · n_td + k``. ``count`` (keys,) receives the
     pixel count, ``sums`` (keys, 5) the sums of θ_h, ``c = cos θ_d``, ``cos θ_o``, the
     noise variance ``noise²`` and ``bound``, ``out_f`` (keys, 3) the sums of ``f``.
     ``noise`` and ``bound`` are (L, P) (zeros where the slices carry none).
     """
     n_cells = edges.shape[0] - 1
+    n_table = cell_table.shape[0]
+    table_scale = n_table / edges[n_cells]
     for l in range(mask.shape[0]):
         ix, iy, iz = light[l, 0], light[l, 1], light[l, 2]
         for p in range(mask.shape[1]):
@@ -39,13 +43,9 @@ def bin_polar(mask, light, view, values, noise, bound, edges, td_step, n_td, cou
             hz /= nrm
             th = math.acos(min(max(hz, -1.0), 1.0))
             c = min(max((ix * hx + iy * hy) / nrm + iz * hz, 0.0), 1.0)
-            lo, hi = 0, n_cells
-            while hi - lo > 1:
-                mid = (lo + hi) // 2
-                if edges[mid] <= th:
-                    lo = mid
-                else:
-                    hi = mid
+            lo = cell_table[min(int(th * table_scale), n_table - 1)]
+            while lo + 1 < n_cells and edges[lo + 1] <= th:
+                lo += 1
             k = min(int(math.acos(c) / td_step), n_td - 1)
             key = (l * n_cells + lo) * n_td + k
             count[key] += 1.0

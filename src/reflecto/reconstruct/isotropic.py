@@ -52,7 +52,7 @@ from ..errors import ReflectoError
 from ..fresnel import CONSTANT, MAX_TINT, FresnelTint, fresnel
 from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF
-from ..polar import IsotropicNDF, _quadrature, interpolation_cells, polar_nodes
+from ..polar import IsotropicNDF, _quadrature, cell_table, interpolation_cells, polar_nodes
 from . import _polar_kernels
 from .samples import kd_median_bound
 from .tuning import ISOTROPIC
@@ -153,7 +153,8 @@ def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: 
     fsum = np.zeros((n_keys, 3))
     _polar_kernels.bin_polar(np.ascontiguousarray(mask), np.ascontiguousarray(slices.light, dtype=np.float64),
                              np.ascontiguousarray(slices.view, dtype=np.float64),
-                             np.ascontiguousarray(slices.values, dtype=np.float64), noise, bound, edges, TD_STEP, n_td,
+                             np.ascontiguousarray(slices.values, dtype=np.float64), noise, bound, edges,
+                             cell_table(edges.tobytes()), TD_STEP, n_td,
                              count, sums, fsum)
     used = np.flatnonzero(count)
     n = count[used]
@@ -361,6 +362,13 @@ def lobe_log(nodes: Array, z: Array, observed: NDArray[np.bool_]) -> Array | Non
     return np.maximum(log_l, peak - 50.0)
 
 
+def ndf_integral(nodes: Array, z: Array) -> float:
+    """``N = ∫ e^z cos θ dω`` (the first value of :func:`normalization`, without its gradient)."""
+    q = _quadrature(nodes.tobytes())
+    d = np.exp(np.minimum((1.0 - q.t) * z[q.cells] + q.t * z[q.cells + 1], 700.0))
+    return float((q.norm_weights * d).sum())
+
+
 def normalization(nodes: Array, z: Array) -> tuple[float, Array]:
     """``N = ∫ e^z cos θ dω`` and its gradient ``∂ log N / ∂z`` (shape ``(K,)``)."""
 
@@ -386,7 +394,7 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
     k = len(problem.nodes)
     if tie_ks:  # k_s = 1 with the NDF normalized
         s = s.copy()
-        s.z = s.z - math.log(normalization(problem.nodes, s.z)[0])
+        s.z = s.z - math.log(ndf_integral(problem.nodes, s.z))
         s.g = 1.0
     cost = problem.cost(s)
     mu = 1e-3
@@ -437,7 +445,7 @@ def _apply(problem: LuminanceProblem, s: LuminanceState, step: NDArray[np.floati
     lower, so it must be rejected here, not by its cost."""
     k = len(problem.nodes)
     z = s.z + step[:k]
-    n = normalization(problem.nodes, z)[0]
+    n = ndf_integral(problem.nodes, z)
     if not (math.isfinite(n) and n > 0):
         return None
     z = z - math.log(n)
@@ -557,7 +565,7 @@ def initial_state(problem: LuminanceProblem, eta: float = 1.5) -> LuminanceState
     if not seen.any():
         raise ReflectoError("capture: no measured sample above the detection limit")
     z = np.interp(np.arange(k), np.flatnonzero(seen), num[seen] / den[seen])
-    n = normalization(problem.nodes, z)[0]
+    n = ndf_integral(problem.nodes, z)
     return LuminanceState(z - math.log(n), kd, n, eta)
 
 
@@ -574,7 +582,7 @@ class LuminanceFit:
     @property
     def ks(self) -> float:
         """The specular albedo ``k_s = g ∫ e^z cos θ dω`` of the fitted state (luminance)."""
-        return self.state.g * normalization(self.problem.nodes, self.state.z)[0]
+        return self.state.g * ndf_integral(self.problem.nodes, self.state.z)
 
 
 def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
@@ -641,7 +649,7 @@ def scalars_under_ceilings(fit: LuminanceFit, ceilings: list[Array | None]) -> l
     from one pass over the bins (the normal equations do not depend on the ceiling)."""
     p = fit.problem
     s = fit.state
-    n, _ = normalization(p.nodes, s.z)
+    n = ndf_integral(p.nodes, s.z)
     unit = LuminanceState(s.z, 0.0, 1.0 / n, s.eta)  # k_s = 1
     base, _ = p.specular(unit)
     me = p.measured
@@ -706,7 +714,7 @@ def unit_specular(fit: LuminanceFit) -> Array:
     """The specular term of every bin with ``k_s = 1``: ``F(θ_d; η) D(θ_h) S(θ_i) S(θ_o) /
     (4 cos θ_i cos θ_o)`` (sr⁻¹, shape ``(B,)``), with the fitted ``D``, ``S`` and ``η``."""
     p, s = fit.problem, fit.state
-    n, _ = normalization(p.nodes, s.z)
+    n = ndf_integral(p.nodes, s.z)
     return p.specular(LuminanceState(s.z, 0.0, 1.0 / n, s.eta))[0]
 
 

@@ -40,7 +40,6 @@ The old §5.4 search (HLHZ08's consistency criterion on a grid of tilts, Nelder�
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from typing import Protocol
 
@@ -54,7 +53,7 @@ from ..errors import ReflectoError
 from ..hemicube import hemicube
 from ..instrument.slices import MIN_LIGHT_COS
 from ..model import IsotropicMicrofacetBRDF
-from ..polar import interpolation_cells, polar_nodes
+from ..polar import cell_table, interpolation_cells, polar_nodes
 from . import _normal_kernels, _polar_kernels, isotropic
 from .fresnel_fit import fit_fresnel, overlap_pairs
 from .samples import bin_samples, kd_bound
@@ -531,7 +530,7 @@ class TiltProblem:
         cos_h = np.clip(self.half @ normal, -1.0, 1.0)
         theta_h = np.arccos(cos_h)
         d_h = np.empty(len(cos_h))
-        _normal_kernels.theta_cells(theta_h, ndf.nodes, _cell_table(ndf.nodes.tobytes()), z, out.j, out.t, d_h)
+        _normal_kernels.theta_cells(theta_h, ndf.nodes, cell_table(ndf.nodes.tobytes()), z, out.j, out.t, d_h)
         np.exp(d_h, out=d_h)
         out.cost = _normal_kernels.tilt_pass(
             self.lights, self.views, self.led, self.pix, self.half, cos_h, theta_h, d_h, self.f_dev, fresnel,
@@ -686,19 +685,6 @@ class _TiltPass:
     def empty(cls, n: int, use: NDArray[np.bool_] | None) -> _TiltPass:
         return cls(np.empty(n), np.empty(n), np.empty(n, dtype=np.intp), np.empty(n), np.empty(n),
                    np.empty(n, dtype=bool) if use is None else use, np.zeros((n, 2)))
-
-
-@functools.lru_cache(maxsize=8)
-def _cell_table(nodes_key: bytes) -> NDArray[np.intp]:
-    """The θ_h cell of each of :data:`CELL_TABLE` equal steps of ``[0, nodes[-1])``: the
-    kernel's first guess, which it moves up by at most the nodes inside one step."""
-    nodes = np.frombuffer(nodes_key, dtype=np.float64)
-    theta = np.arange(CELL_TABLE) * (nodes[-1] / CELL_TABLE)
-    return np.clip(np.searchsorted(nodes, theta, side="right") - 1, 0, len(nodes) - 2).astype(np.intp)
-
-
-#: Steps of the θ_h cell table (:func:`_cell_table`).
-CELL_TABLE = 2048
 
 
 def _tilt_normal(xy: Array) -> tuple[Array, Array]:
