@@ -12,7 +12,7 @@ from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
 from reflecto.instrument.slices import extract_slices
 from reflecto.model import IsotropicMicrofacetBRDF, load_model
-from reflecto.polar import IsotropicNDF, azimuthal_kernel, polar_nodes
+from reflecto.polar import IsotropicNDF, azimuthal_kernel, cell_table, polar_nodes
 from reflecto.reconstruct import _polar_kernels, isotropic
 from reflecto.sources.analytic import AnalyticBRDF
 
@@ -89,9 +89,11 @@ def test_compiled_polar_binning_matches_numpy():
     edges = np.interp(np.arange((len(nodes) - 1) * 2 + 1) / 2, np.arange(len(nodes)), nodes)
     mask = sl.valid & ~sl.censored
     n_td = int(math.ceil(0.5 * math.pi / isotropic.TD_STEP)) + 1
+    n_keys = sl.n_leds * (len(edges) - 1) * n_td
+    count, sums, fs = np.zeros(n_keys), np.zeros((n_keys, 5)), np.zeros((n_keys, 3))
     bound = np.ascontiguousarray(sl.limit)
-    count, sums, fs = isotropic.bin_keys(np.ascontiguousarray(mask), sl.light, sl.view, sl.values, sl.noise, bound,
-                                         edges, n_td)
+    _polar_kernels.bin_polar(mask, sl.light, sl.view, sl.values, sl.noise, bound, edges, cell_table(edges.tobytes()),
+                             isotropic.TD_STEP, n_td, count, sums, fs)
     ref = isotropic.bin_polar_numpy(mask, sl.light, sl.view, sl.values, sl.noise, bound, edges, n_td)
     assert np.array_equal(count, ref[0]) and count.sum() == mask.sum()
     assert np.allclose(sums, ref[1], rtol=1e-10, atol=1e-12) and np.allclose(fs, ref[2], rtol=1e-10, atol=1e-14)

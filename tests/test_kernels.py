@@ -28,6 +28,7 @@ from conftest import random_directions
 from reflecto import _kernels
 from reflecto.colour import LUM
 from reflecto.hemicube import hemicube
+from reflecto.polar import cell_table
 from reflecto.reconstruct import _polar_kernels
 
 PACKAGE = Path(reflecto.__file__).resolve().parent
@@ -710,10 +711,9 @@ def test_ct_residual():
 
 
 # ----------------------------------------------------------------------------- isotropic fit
-@twin("reflecto.reconstruct._polar_kernels.bin_polar", "reflecto.reconstruct._polar_kernels.half_cosines")
+@twin("reflecto.reconstruct._polar_kernels.bin_polar")
 def test_bin_polar():
-    """(LED, θ_h cell, θ_d cell) bins (:func:`isotropic.bin_keys`: the half vectors' cosines,
-    their arccos, the accumulation): :func:`isotropic.bin_polar_numpy` (the cell by
+    """(LED, θ_h cell, θ_d cell) bins: :func:`isotropic.bin_polar_numpy` (bisection =
     ``searchsorted``), including θ_h beyond the last edge."""
     from reflecto.polar import polar_nodes
     from reflecto.reconstruct import isotropic
@@ -724,7 +724,10 @@ def test_bin_polar():
     nodes = polar_nodes()
     edges = np.interp(np.arange((len(nodes) - 1) * 2 + 1) / 2, np.arange(len(nodes)), nodes)
     n_td = int(math.ceil(0.5 * math.pi / isotropic.TD_STEP)) + 1
-    count, sums, fs = isotropic.bin_keys(mask, light, view, values, noise, bound, edges, n_td)
+    n_keys = len(light) * (len(edges) - 1) * n_td
+    count, sums, fs = np.zeros(n_keys), np.zeros((n_keys, 5)), np.zeros((n_keys, 3))
+    _polar_kernels.bin_polar(mask, light, view, values, noise, bound, edges, cell_table(edges.tobytes()),
+                             isotropic.TD_STEP, n_td, count, sums, fs)
     ref = isotropic.bin_polar_numpy(mask, light, view, values, noise, bound, edges, n_td)
     assert np.array_equal(count, ref[0]) and count.sum() == mask.sum()
     assert np.allclose(sums, ref[1], rtol=1e-12, atol=1e-13) and np.allclose(fs, ref[2], rtol=1e-12, atol=1e-13)

@@ -16,13 +16,21 @@ _OPTS: dict[str, Any] = dict(cache=True, nogil=True, fastmath=False, error_model
 
 
 @njit(**_OPTS)
-def half_cosines(mask, light, view, cos_h_out, cos_d_out):  # pragma: no cover - compiled
-    """``cos θ_h = h_z`` and ``c = cos θ_d = i·h`` of the samples where ``mask`` (L, P)
-    holds, in row-major order (LED, then pixel), ``h = normalize(i + o)``; both
-    clipped (θ_h's to [−1, 1], θ_d's to [0, 1]). Returns the number written. The
-    arccos of both is taken vectorized by NumPy before :func:`bin_polar` (called per
-    sample here, libm's took most of the binning's time)."""
-    s = 0
+def bin_polar(mask, light, view, values, noise, bound, edges, cell_table, td_step, n_td, count, sums,
+              out_f):  # pragma: no cover
+    """Accumulate the samples where ``mask`` (L, P) holds into (LED, θ_h cell, θ_d cell) bins.
+
+    For LED ``l`` and pixel ``p``: ``h = normalize(i + o)``, its θ_h cell ``j``
+    (``edges[j] ≤ θ_h < edges[j+1]``: ``cell_table``'s first guess, :func:`reflecto.polar.cell_table`,
+    moved up to it) and θ_d cell ``⌊θ_d / td_step⌋``; the
+    bin is ``(l · (len(edges) − 1) + j) · n_td + k``. ``count`` (keys,) receives the
+    pixel count, ``sums`` (keys, 5) the sums of θ_h, ``c = cos θ_d``, ``cos θ_o``, the
+    noise variance ``noise²`` and ``bound``, ``out_f`` (keys, 3) the sums of ``f``.
+    ``noise`` and ``bound`` are (L, P) (zeros where the slices carry none).
+    """
+    n_cells = edges.shape[0] - 1
+    n_table = cell_table.shape[0]
+    table_scale = n_table / edges[n_cells]
     for l in range(mask.shape[0]):
         ix, iy, iz = light[l, 0], light[l, 1], light[l, 2]
         for p in range(mask.shape[1]):
@@ -33,50 +41,22 @@ def half_cosines(mask, light, view, cos_h_out, cos_d_out):  # pragma: no cover -
             hz = iz + view[p, 2]
             nrm = math.sqrt(hx * hx + hy * hy + hz * hz)
             hz /= nrm
-            cos_h_out[s] = min(max(hz, -1.0), 1.0)
-            cos_d_out[s] = min(max((ix * hx + iy * hy) / nrm + iz * hz, 0.0), 1.0)
-            s += 1
-    return s
-
-
-@njit(**_OPTS)
-def bin_polar(mask, view, values, noise, bound, theta_h, cos_d, theta_d, edges, cell_table, td_step, n_td, count,
-              sums, out_f):  # pragma: no cover - compiled
-    """Accumulate the samples where ``mask`` (L, P) holds into (LED, θ_h cell, θ_d cell) bins.
-
-    The ``s``-th sample in row-major order (LED ``l``, pixel ``p``) has ``theta_h[s]``,
-    ``cos_d[s]`` and ``theta_d[s]`` (:func:`half_cosines` and their arccos); its θ_h
-    cell ``j`` (``edges[j] ≤ θ_h < edges[j+1]``: ``cell_table``'s first guess,
-    :func:`reflecto.polar.cell_table`, moved up to it) and θ_d cell ``⌊θ_d / td_step⌋``;
-    the bin is ``(l · (len(edges) − 1) + j) · n_td + k``. ``count`` (keys,) receives
-    the pixel count, ``sums`` (keys, 5) the sums of θ_h, ``c = cos θ_d``, ``cos θ_o``,
-    the noise variance ``noise²`` and ``bound``, ``out_f`` (keys, 3) the sums of ``f``.
-    ``noise`` and ``bound`` are (L, P) (zeros where the slices carry none).
-    """
-    n_cells = edges.shape[0] - 1
-    n_table = cell_table.shape[0]
-    table_scale = n_table / edges[n_cells]
-    s = 0
-    for l in range(mask.shape[0]):
-        for p in range(mask.shape[1]):
-            if not mask[l, p]:
-                continue
-            th = theta_h[s]
+            th = math.acos(min(max(hz, -1.0), 1.0))
+            c = min(max((ix * hx + iy * hy) / nrm + iz * hz, 0.0), 1.0)
             lo = cell_table[min(int(th * table_scale), n_table - 1)]
             while lo + 1 < n_cells and edges[lo + 1] <= th:
                 lo += 1
-            k = min(int(theta_d[s] / td_step), n_td - 1)
+            k = min(int(math.acos(c) / td_step), n_td - 1)
             key = (l * n_cells + lo) * n_td + k
             count[key] += 1.0
             sums[key, 0] += th
-            sums[key, 1] += cos_d[s]
+            sums[key, 1] += c
             sums[key, 2] += view[p, 2]
             sums[key, 3] += noise[l, p] * noise[l, p]
             sums[key, 4] += bound[l, p]
             out_f[key, 0] += values[l, p, 0]
             out_f[key, 1] += values[l, p, 1]
             out_f[key, 2] += values[l, p, 2]
-            s += 1
 
 
 @njit(**_OPTS)

@@ -147,9 +147,15 @@ def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: 
         bound = slices.limit if slices.limit is not None else slices.values @ LUM
         bound = np.ascontiguousarray(bound, dtype=np.float64)
     n_td = int(math.ceil(0.5 * math.pi / TD_STEP)) + 1
-    count, sums, fsum = bin_keys(np.ascontiguousarray(mask), np.ascontiguousarray(slices.light, dtype=np.float64),
-                                 np.ascontiguousarray(slices.view, dtype=np.float64),
-                                 np.ascontiguousarray(slices.values, dtype=np.float64), noise, bound, edges, n_td)
+    n_keys = slices.n_leds * (len(edges) - 1) * n_td
+    count = np.zeros(n_keys)
+    sums = np.zeros((n_keys, 5))
+    fsum = np.zeros((n_keys, 3))
+    _polar_kernels.bin_polar(np.ascontiguousarray(mask), np.ascontiguousarray(slices.light, dtype=np.float64),
+                             np.ascontiguousarray(slices.view, dtype=np.float64),
+                             np.ascontiguousarray(slices.values, dtype=np.float64), noise, bound, edges,
+                             cell_table(edges.tobytes()), TD_STEP, n_td,
+                             count, sums, fsum)
     used = np.flatnonzero(count)
     n = count[used]
     led = (used // ((len(edges) - 1) * n_td)).astype(np.intp)
@@ -158,22 +164,6 @@ def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: 
         f = np.repeat((sums[used, 4] / n)[:, None], 3, axis=1)
     return PolarBins(led, n, sums[used, 0] / n, sums[used, 1] / n, slices.light[led, 2].copy(), sums[used, 2] / n, f,
                      np.sqrt(sums[used, 3]) / n, np.full(len(used), is_bound))
-
-
-def bin_keys(mask: NDArray[np.bool_], light: Array, view: Array, values: Array, noise: Array, bound: Array,
-             edges: Array, n_td: int) -> tuple[Array, Array, Array]:
-    """Per key (LED, θ_h cell, θ_d cell) the pixel count, the sums of θ_h, ``cos θ_d``,
-    ``cos θ_o``, ``noise²``, ``bound`` and of ``f``: :func:`._polar_kernels.half_cosines`,
-    the arccos vectorized, then :func:`._polar_kernels.bin_polar` (NumPy twin:
-    :func:`bin_polar_numpy`)."""
-    n = int(np.count_nonzero(mask))
-    cos_h, cos_d = np.empty(n), np.empty(n)
-    _polar_kernels.half_cosines(mask, light, view, cos_h, cos_d)
-    n_keys = light.shape[0] * (len(edges) - 1) * n_td
-    count, sums, fsum = np.zeros(n_keys), np.zeros((n_keys, 5)), np.zeros((n_keys, 3))
-    _polar_kernels.bin_polar(mask, view, values, noise, bound, np.arccos(cos_h), cos_d, np.arccos(cos_d), edges,
-                             cell_table(edges.tobytes()), TD_STEP, n_td, count, sums, fsum)
-    return count, sums, fsum
 
 
 def bin_polar_numpy(mask: NDArray[np.bool_], light: Array, view: Array, values: Array, noise: Array, bound: Array,
