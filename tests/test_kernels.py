@@ -60,6 +60,9 @@ INLINED_INTO = {
     "reflecto._kernels._fresnel": ("fresnel_flat", "pair_residuals"),
     "reflecto._kernels._fresnel_dlog": ("pair_residuals_jac",),
     "reflecto.reconstruct._polar_kernels._bin_model": ("luminance_pass", "luminance_normal_equations"),
+    "reflecto.reconstruct._polar_kernels._accumulate_bin": ("normal_equations", "luminance_normal_equations"),
+    "reflecto.reconstruct._polar_kernels._zero": ("normal_equations", "luminance_normal_equations"),
+    "reflecto.reconstruct._polar_kernels._mirror_dense": ("normal_equations", "luminance_normal_equations"),
     "reflecto.reconstruct._normal_kernels._projected_area": ("_cosines",),
     "reflecto.reconstruct._normal_kernels._cosines": ("tilt_pass",),
 }

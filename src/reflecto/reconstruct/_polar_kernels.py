@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
 from numba import njit
 
 from .._kernels import _fresnel
@@ -59,6 +60,48 @@ def bin_polar(mask, light, view, values, noise, bound, edges, cell_table, td_ste
             out_f[key, 2] += values[l, p, 2]
 
 
+@njit(inline="always", **_OPTS)
+def _accumulate_bin(k, tb, spec, cols, wb, r, diag, off, cross, dense, grad_z, grad_d):  # pragma: no cover
+    """Add one residual ``r`` (weight ``wb``) to the normal equations: its z columns
+    ``spec (1 − tb)``, ``spec tb`` at nodes ``k``, ``k + 1`` and its dense columns
+    ``cols`` (D,); the dense block's upper triangle only (mirrored at the end)."""
+    a0 = spec * (1.0 - tb)
+    a1 = spec * tb
+    wr = wb * r
+    diag[k] += wb * a0 * a0
+    diag[k + 1] += wb * a1 * a1
+    off[k] += wb * a0 * a1
+    grad_z[k] += a0 * wr
+    grad_z[k + 1] += a1 * wr
+    n_d = cols.shape[0]
+    for q in range(n_d):
+        cq = cols[q] * wb
+        cross[k, q] += a0 * cq
+        cross[k + 1, q] += a1 * cq
+        grad_d[q] += cols[q] * wr
+        for u in range(q, n_d):
+            dense[q, u] += cq * cols[u]
+
+
+@njit(inline="always", **_OPTS)
+def _zero(diag, off, cross, dense, grad_z, grad_d):  # pragma: no cover - compiled
+    """Zero the normal equations' blocks and gradients before they are accumulated."""
+    diag[:] = 0.0
+    off[:] = 0.0
+    cross[:, :] = 0.0
+    dense[:, :] = 0.0
+    grad_z[:] = 0.0
+    grad_d[:] = 0.0
+
+
+@njit(inline="always", **_OPTS)
+def _mirror_dense(dense):  # pragma: no cover - compiled
+    """Fill the dense block's lower triangle from its upper one."""
+    for q in range(dense.shape[0]):
+        for u in range(q):
+            dense[q, u] = dense[u, q]
+
+
 @njit(**_OPTS)
 def normal_equations(j, t, spec, dcols, r, w, n_nodes, diag, off, cross, dense, grad_z, grad_d):  # pragma: no cover
     """Gauss–Newton normal equations of the luminance fit, ``JᵀWJ`` and ``JᵀWr``.
@@ -69,36 +112,13 @@ def normal_equations(j, t, spec, dcols, r, w, n_nodes, diag, off, cross, dense, 
     (K − 1,)), the z–dense block ``cross`` (K, D), the dense block ``dense`` (D, D)
     and the gradients ``grad_z`` (K,), ``grad_d`` (D,). ``w`` is 0 for inactive residuals.
     """
-    n_d = dcols.shape[1]
-    diag[:] = 0.0
-    off[:] = 0.0
-    cross[:, :] = 0.0
-    dense[:, :] = 0.0
-    grad_z[:] = 0.0
-    grad_d[:] = 0.0
+    _zero(diag, off, cross, dense, grad_z, grad_d)
     for b in range(r.shape[0]):
         wb = w[b]
         if wb == 0.0:
             continue
-        k = j[b]
-        a0 = spec[b] * (1.0 - t[b])
-        a1 = spec[b] * t[b]
-        wr = wb * r[b]
-        diag[k] += wb * a0 * a0
-        diag[k + 1] += wb * a1 * a1
-        off[k] += wb * a0 * a1
-        grad_z[k] += a0 * wr
-        grad_z[k + 1] += a1 * wr
-        for q in range(n_d):
-            cq = dcols[b, q] * wb
-            cross[k, q] += a0 * cq
-            cross[k + 1, q] += a1 * cq
-            grad_d[q] += dcols[b, q] * wr
-            for u in range(q, n_d):
-                dense[q, u] += cq * dcols[b, u]
-    for q in range(n_d):
-        for u in range(q):
-            dense[q, u] = dense[u, q]
+        _accumulate_bin(j[b], t[b], spec[b], dcols[b], wb, r[b], diag, off, cross, dense, grad_z, grad_d)
+    _mirror_dense(dense)
 
 
 @njit(inline="always", **_OPTS)
@@ -143,16 +163,11 @@ def luminance_normal_equations(j, t, z, shadow_geometry, cos_d, f, w, measured, 
     (a forward difference of step ``10⁻⁶ η``; 0 for the constant Fresnel ``η = ∞``),
     accumulated as :func:`normal_equations` does for the columns ``[1/π, spec, η]`` with
     the weight ``w`` (inactive bins: 0)."""
-    diag[:] = 0.0
-    off[:] = 0.0
-    cross[:, :] = 0.0
-    dense[:, :] = 0.0
-    grad_z[:] = 0.0
-    grad_d[:] = 0.0
+    _zero(diag, off, cross, dense, grad_z, grad_d)
     de = 1e-6 * eta
     finite_eta = math.isfinite(eta)
-    inv_pi = 1.0 / math.pi
-    col = [0.0, 0.0, 0.0]
+    col = np.empty(3)
+    col[0] = 1.0 / math.pi
     for b in range(j.shape[0]):
         k = j[b]
         r, spec, fr, active = _bin_model(k, t[b], z, shadow_geometry[b], cos_d[b], f[b], measured[b], kd, g, eta)
@@ -166,24 +181,7 @@ def luminance_normal_equations(j, t, z, shadow_geometry, cos_d, f, w, measured, 
         wb = w[b]
         if wb == 0.0:
             continue
-        col[0] = inv_pi
         col[1] = spec
         col[2] = deta
-        a0 = spec * (1.0 - t[b])
-        a1 = spec * t[b]
-        wr = wb * r
-        diag[k] += wb * a0 * a0
-        diag[k + 1] += wb * a1 * a1
-        off[k] += wb * a0 * a1
-        grad_z[k] += a0 * wr
-        grad_z[k + 1] += a1 * wr
-        for q in range(3):
-            cq = col[q] * wb
-            cross[k, q] += a0 * cq
-            cross[k + 1, q] += a1 * cq
-            grad_d[q] += col[q] * wr
-            for u in range(q, 3):
-                dense[q, u] += cq * col[u]
-    for q in range(3):
-        for u in range(q):
-            dense[q, u] = dense[u, q]
+        _accumulate_bin(k, t[b], spec, col, wb, r, diag, off, cross, dense, grad_z, grad_d)
+    _mirror_dense(dense)
