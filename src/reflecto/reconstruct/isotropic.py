@@ -362,19 +362,21 @@ def lobe_log(nodes: Array, z: Array, observed: NDArray[np.bool_]) -> Array | Non
     return np.maximum(log_l, peak - 50.0)
 
 
-def ndf_integral(nodes: Array, z: Array) -> float:
-    """``N = ∫ e^z cos θ dω`` (the first value of :func:`normalization`, without its gradient)."""
+def _ndf_weights(nodes: Array, z: Array):
+    """The polar quadrature of ``nodes`` and ``e^z cos θ dω`` on its rings (summing to ``N``)."""
     q = _quadrature(nodes.tobytes())
     d = np.exp(np.minimum((1.0 - q.t) * z[q.cells] + q.t * z[q.cells + 1], 700.0))
-    return float((q.norm_weights * d).sum())
+    return q, q.norm_weights * d
+
+
+def ndf_integral(nodes: Array, z: Array) -> float:
+    """``N = ∫ e^z cos θ dω`` (the first value of :func:`normalization`, without its gradient)."""
+    return float(_ndf_weights(nodes, z)[1].sum())
 
 
 def normalization(nodes: Array, z: Array) -> tuple[float, Array]:
     """``N = ∫ e^z cos θ dω`` and its gradient ``∂ log N / ∂z`` (shape ``(K,)``)."""
-
-    q = _quadrature(nodes.tobytes())
-    d = np.exp(np.minimum((1.0 - q.t) * z[q.cells] + q.t * z[q.cells + 1], 700.0))
-    wd = q.norm_weights * d
+    q, wd = _ndf_weights(nodes, z)
     n = float(wd.sum())
     if not (math.isfinite(n) and n > 0):  # no normalizable NDF: the caller rejects the state
         return n, np.zeros(len(nodes))

@@ -684,7 +684,7 @@ class _TiltPass:
     @classmethod
     def empty(cls, n: int, use: NDArray[np.bool_] | None) -> _TiltPass:
         return cls(np.empty(n), np.empty(n), np.empty(n, dtype=np.intp), np.empty(n), np.empty(n),
-                   np.empty(n, dtype=bool) if use is None else use, np.zeros((n, 2)))
+                   np.empty(n, dtype=bool) if use is None else use, np.empty((n, 2)))
 
 
 def _tilt_normal(xy: Array) -> tuple[Array, Array]:
