@@ -93,7 +93,7 @@ def test_compiled_polar_binning_matches_numpy():
     count, sums, fs = np.zeros(n_keys), np.zeros((n_keys, 5)), np.zeros((n_keys, 3))
     bound = np.ascontiguousarray(sl.limit)
     _polar_kernels.bin_polar(mask, sl.light, sl.view, sl.values, sl.noise, bound, edges, cell_table(edges.tobytes()),
-                             isotropic.TD_STEP, n_td, count, sums, fs)
+                             isotropic.TD_STEP, n_td, *isotropic.theta_d_tables(n_td), count, sums, fs)
     ref = isotropic.bin_polar_numpy(mask, sl.light, sl.view, sl.values, sl.noise, bound, edges, n_td)
     assert np.array_equal(count, ref[0]) and count.sum() == mask.sum()
     assert np.allclose(sums, ref[1], rtol=1e-10, atol=1e-12) and np.allclose(fs, ref[2], rtol=1e-10, atol=1e-14)

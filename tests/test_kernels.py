@@ -62,6 +62,7 @@ INLINED_INTO = {
     "reflecto.reconstruct._polar_kernels._bin_model": ("luminance_pass", "luminance_normal_equations"),
     "reflecto.reconstruct._polar_kernels._accumulate_bin": ("normal_equations", "luminance_normal_equations"),
     "reflecto.reconstruct._polar_kernels._zero": ("normal_equations", "luminance_normal_equations"),
+    "reflecto.reconstruct._polar_kernels._theta_d_cell": ("bin_polar",),
     "reflecto.reconstruct._polar_kernels._mirror_dense": ("normal_equations", "luminance_normal_equations"),
     "reflecto.reconstruct._normal_kernels._projected_area": ("_cosines",),
     "reflecto.reconstruct._normal_kernels._cosines": ("tilt_pass",),
@@ -730,10 +731,32 @@ def test_bin_polar():
     n_keys = len(light) * (len(edges) - 1) * n_td
     count, sums, fs = np.zeros(n_keys), np.zeros((n_keys, 5)), np.zeros((n_keys, 3))
     _polar_kernels.bin_polar(mask, light, view, values, noise, bound, edges, cell_table(edges.tobytes()),
-                             isotropic.TD_STEP, n_td, count, sums, fs)
+                             isotropic.TD_STEP, n_td, *isotropic.theta_d_tables(n_td), count, sums, fs)
     ref = isotropic.bin_polar_numpy(mask, light, view, values, noise, bound, edges, n_td)
     assert np.array_equal(count, ref[0]) and count.sum() == mask.sum()
     assert np.allclose(sums, ref[1], rtol=1e-12, atol=1e-13) and np.allclose(fs, ref[2], rtol=1e-12, atol=1e-13)
+
+
+def test_theta_d_cell_is_the_arccos_cell_at_and_beside_every_edge():
+    """The binning's θ_d cell without the arccos equals ``min(⌊arccos(c)/step⌋, n_td − 1)``
+    on random cosines and on each cell edge, a few ulps and 10⁻¹³–10⁻⁹ either side of it."""
+    from reflecto.reconstruct import _polar_kernels, isotropic
+
+    step = isotropic.TD_STEP
+    n_td = int(math.ceil(0.5 * math.pi / step)) + 1
+    td_cos, table = isotropic.theta_d_tables(n_td)
+    cs = [0.0, 1.0, *np.random.default_rng(25).random(20000)]
+    for edge in td_cos[:n_td]:
+        near = [edge]
+        for direction in (-1.0, 2.0):
+            x = float(edge)
+            for _ in range(4):
+                x = float(np.nextafter(x, direction))
+                near.append(x)
+        near += [edge + s * d for d in (1e-13, 1e-12, 2e-12, 1e-9) for s in (-1.0, 1.0)]
+        cs += [float(x) for x in near if 0.0 <= x <= 1.0]
+    got = [_polar_kernels._theta_d_cell(c, step, n_td, td_cos, table) for c in cs]
+    assert got == [min(int(math.acos(c) / step), n_td - 1) for c in cs]
 
 
 @twin("reflecto.reconstruct._polar_kernels.normal_equations")

@@ -17,13 +17,13 @@ _OPTS: dict[str, Any] = dict(cache=True, nogil=True, fastmath=False, error_model
 
 
 @njit(**_OPTS)
-def bin_polar(mask, light, view, values, noise, bound, edges, cell_table, td_step, n_td, count, sums,
-              out_f):  # pragma: no cover
+def bin_polar(mask, light, view, values, noise, bound, edges, cell_table, td_step, n_td, td_cos, td_table,
+              count, sums, out_f):  # pragma: no cover
     """Accumulate the samples where ``mask`` (L, P) holds into (LED, θ_h cell, θ_d cell) bins.
 
     For LED ``l`` and pixel ``p``: ``h = normalize(i + o)``, its θ_h cell ``j``
     (``edges[j] ≤ θ_h < edges[j+1]``: ``cell_table``'s first guess, :func:`reflecto.polar.cell_table`,
-    moved up to it) and θ_d cell ``⌊θ_d / td_step⌋``; the
+    moved up to it) and θ_d cell ``min(⌊arccos(c) / td_step⌋, n_td − 1)`` (:func:`_theta_d_cell`); the
     bin is ``(l · (len(edges) − 1) + j) · n_td + k``. ``count`` (keys,) receives the
     pixel count, ``sums`` (keys, 5) the sums of θ_h, ``c = cos θ_d``, ``cos θ_o``, the
     noise variance ``noise²`` and ``bound``, ``out_f`` (keys, 3) the sums of ``f``.
@@ -47,7 +47,7 @@ def bin_polar(mask, light, view, values, noise, bound, edges, cell_table, td_ste
             lo = cell_table[min(int(th * table_scale), n_table - 1)]
             while lo + 1 < n_cells and edges[lo + 1] <= th:
                 lo += 1
-            k = min(int(math.acos(c) / td_step), n_td - 1)
+            k = _theta_d_cell(c, td_step, n_td, td_cos, td_table)
             key = (l * n_cells + lo) * n_td + k
             count[key] += 1.0
             sums[key, 0] += th
@@ -58,6 +58,31 @@ def bin_polar(mask, light, view, values, noise, bound, edges, cell_table, td_ste
             out_f[key, 0] += values[l, p, 0]
             out_f[key, 1] += values[l, p, 1]
             out_f[key, 2] += values[l, p, 2]
+
+
+#: Distance in ``cos θ_d`` from a θ_d cell's edge within which :func:`_theta_d_cell` takes
+#: the arccos: ≥ 10⁻¹² rad of angle, ten thousand times arccos's and the division's
+#: rounding (≈ 10⁻¹⁶), so outside it the comparison decides exactly as the arccos would.
+TD_EDGE_MARGIN = 1e-12
+
+
+@njit(inline="always", **_OPTS)
+def _theta_d_cell(c, td_step, n_td, td_cos, td_table):  # pragma: no cover - compiled
+    """``min(⌊arccos(c) / td_step⌋, n_td − 1)`` for ``c ∈ [0, 1]``, mostly without the arccos.
+
+    ``td_cos[j] = cos(j · td_step)`` (``j = 0 … n_td``) are the cells' edges in ``c``: cell
+    ``j`` holds ``td_cos[j + 1] < c ≤ td_cos[j]``. ``td_table[i]`` is the cell of
+    ``c = i / len(td_table)``, a step finer than the narrowest cell, so ``c``'s cell is
+    that or the one below. Where ``c`` lies within :data:`TD_EDGE_MARGIN` of an edge the
+    arccos decides: the cells are those of the arccos everywhere.
+    """
+    n_tab = td_table.shape[0]
+    k = td_table[min(int(c * n_tab), n_tab - 1)]
+    if k > 0 and c > td_cos[k]:
+        k -= 1
+    if abs(c - td_cos[k]) < TD_EDGE_MARGIN or abs(c - td_cos[k + 1]) < TD_EDGE_MARGIN:
+        return min(int(math.acos(c) / td_step), n_td - 1)
+    return min(k, n_td - 1)
 
 
 @njit(inline="always", **_OPTS)

@@ -154,7 +154,7 @@ def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: 
     _polar_kernels.bin_polar(np.ascontiguousarray(mask), np.ascontiguousarray(slices.light, dtype=np.float64),
                              np.ascontiguousarray(slices.view, dtype=np.float64),
                              np.ascontiguousarray(slices.values, dtype=np.float64), noise, bound, edges,
-                             cell_table(edges.tobytes()), TD_STEP, n_td,
+                             cell_table(edges.tobytes()), TD_STEP, n_td, *theta_d_tables(n_td),
                              count, sums, fsum)
     used = np.flatnonzero(count)
     n = count[used]
@@ -164,6 +164,25 @@ def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: 
         f = np.repeat((sums[used, 4] / n)[:, None], 3, axis=1)
     return PolarBins(led, n, sums[used, 0] / n, sums[used, 1] / n, slices.light[led, 2].copy(), sums[used, 2] / n, f,
                      np.sqrt(sums[used, 3]) / n, np.full(len(used), is_bound))
+
+
+@functools.cache
+def theta_d_tables(n_td: int) -> tuple[Array, NDArray[np.intp]]:
+    """The θ_d cells' edges in ``c = cos θ_d`` and a table of the cell of ``c = i / m``
+    (read-only), with which the binning finds a sample's θ_d cell
+    (:func:`._polar_kernels._theta_d_cell`) without an arccos.
+
+    ``td_cos[j] = cos(j · TD_STEP)``, ``j = 0 … n_td``: cell ``j`` holds
+    ``td_cos[j + 1] < c ≤ td_cos[j]``. ``m`` makes the table's step half the narrowest
+    cell (``1 − cos TD_STEP``), so a sample's cell is its table entry's or the one below.
+    """
+    td_cos = np.cos(np.arange(n_td + 1) * TD_STEP)
+    m = int(math.ceil(2.0 / (1.0 - math.cos(TD_STEP))))
+    c = np.arange(m) / m
+    table = (np.searchsorted(-td_cos, -c, side="right") - 1).astype(np.intp)
+    td_cos.setflags(write=False)
+    table.setflags(write=False)
+    return td_cos, table
 
 
 def bin_polar_numpy(mask: NDArray[np.bool_], light: Array, view: Array, values: Array, noise: Array, bound: Array,
