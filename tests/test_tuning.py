@@ -30,6 +30,8 @@ NOT_TUNED = {
     ("samples", "_SUBSAMPLE"): "speed only: the stride of a pre-selection threshold; the percentile is exact "
                                "whatever the stride (kd_upper_bound gathers a whole channel when it keeps too few)",
     ("normal", "MIN_VIEW_COS"): "derived: sin of MIN_VIEW_DEG, the tuned field",
+    ("_polar_kernels", "TD_EDGE_MARGIN"): "exactness, not a choice: any margin well above arccos's rounding "
+                                          "(≈ 1e-16) and below the cells' width gives the arccos's cells",
     ("symmetry", "MIN_ELEVATION_DEG"): "the device's definition of a steep LED "
                                        "(instrument.device.STEEP_ELEVATION_DEG), not a reconstruction choice",
 }
