@@ -323,6 +323,10 @@ def estimate_frame(slices: Slices, valid: NDArray[np.bool_], max_tilt_deg: float
 #: ``normal="auto"`` keeps the device axis when the estimated tilt is at most this many
 #: standard uncertainties (a two-sided 95 % test that the data tell the normal from it).
 DEVICE_AXIS_SIGMAS = PIPELINE.device_axis_sigmas
+#: An estimated tilt beyond this many standard uncertainties is kept without the device
+#: frame's full fit (:func:`_tilt_explains_nothing`): no tilt the estimate finds where
+#: there is none lies that far out.
+DEVICE_CHECK_SIGMAS = PIPELINE.device_check_sigmas
 
 
 def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> NormalEstimate:
@@ -359,12 +363,20 @@ def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> No
     return est
 
 
-def _device_frame_fit(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> IsotropicFit | None:
-    """The isotropic fit in the device frame, where the normal is to be estimated
-    (``normal="auto"``, isotropy not imposed as "no"); else None."""
-    if not (isinstance(opt.normal, str) and opt.normal == "auto") or opt.isotropic == "no":
-        return None
+def _device_frame_fit(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> IsotropicFit:
+    """The isotropic fit in the device frame."""
     return fit_isotropic(slices, valid & slices.valid, opt.fixed_eta, opt.kd_bound_max_deg)
+
+
+def _needs_device_check(est: NormalEstimate, opt: Options) -> bool:
+    """Whether an estimated tilt is checked against the device frame's fit
+    (:func:`_tilt_explains_nothing`): under ``normal="auto"`` with isotropy not imposed
+    as "no", for a tilt within :data:`DEVICE_CHECK_SIGMAS` uncertainties. A tilt the
+    estimate finds where there is none comes from the 1-D model's misfit, which the
+    uncertainty (the weighting shift) largely holds: such tilts lie a few uncertainties
+    out, a sample's real tilt of a few degrees tens of them."""
+    return (isinstance(opt.normal, str) and opt.normal == "auto" and opt.isotropic != "no"
+            and not (est.tilt_deg > DEVICE_CHECK_SIGMAS * est.uncertainty_deg))
 
 
 def _tilt_explains_nothing(device_fit: IsotropicFit, estimated: IsotropicFit) -> bool:
@@ -500,15 +512,17 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         opt = dataclasses.replace(opt, normal="auto")
     t0 = time.perf_counter()
     valid = usable_samples(slices)
-    device_fit = _device_frame_fit(slices, valid, opt)
     est = resolve_normal(slices, valid, opt)
     frame = est.frame
     sl = slices if est.source == "device" else slices.reframe(frame)
     ok = valid & sl.valid
-    if est.source == "device" and device_fit is not None:
-        iso = device_fit
+    device_fit: IsotropicFit | None = None
+    if est.source == "device":
+        iso = device_fit = _device_frame_fit(slices, valid, opt)
     else:
         iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
+        if _needs_device_check(est, opt):
+            device_fit = _device_frame_fit(slices, valid, opt)
         if device_fit is not None and _tilt_explains_nothing(device_fit, iso):
             # the device axis fits as well as the estimated tilt: the data tell the normal only to
             # within the two, so that is its uncertainty (the motion cues must not read it as a turn)
@@ -524,7 +538,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         est = dataclasses.replace(est, normal=np.array([0.0, 0.0, 1.0]), uncertainty_deg=0.0, source="device")
         frame, sl = est.frame, slices
         ok = valid & sl.valid
-        iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
+        iso = device_fit if device_fit is not None else _device_frame_fit(slices, valid, opt)
         test = azimuthal_test(sl, ok, iso.least_squares)
     fit: IsotropicFit | HemicubeFit = iso
     if not isotropic:
