@@ -60,8 +60,11 @@ INLINED_INTO = {
     "reflecto._kernels._fresnel": ("fresnel_flat", "pair_residuals"),
     "reflecto._kernels._fresnel_dlog": ("pair_residuals_jac",),
     "reflecto.reconstruct._polar_kernels._bin_model": ("luminance_pass", "luminance_normal_equations"),
-    "reflecto.reconstruct._polar_kernels._accumulate_bin": ("normal_equations", "luminance_normal_equations"),
-    "reflecto.reconstruct._polar_kernels._zero": ("normal_equations", "luminance_normal_equations"),
+    "reflecto.reconstruct._polar_kernels._eta_column": ("luminance_normal_equations", "pass_normal_equations"),
+    "reflecto.reconstruct._polar_kernels._accumulate_bin": ("normal_equations", "luminance_normal_equations",
+                                                           "pass_normal_equations"),
+    "reflecto.reconstruct._polar_kernels._zero": ("normal_equations", "luminance_normal_equations",
+                                                  "pass_normal_equations"),
     "reflecto.reconstruct._polar_kernels._theta_d_cell": ("bin_polar",),
     "reflecto.reconstruct._polar_kernels._mirror_dense": ("normal_equations", "luminance_normal_equations"),
     "reflecto.reconstruct._normal_kernels._projected_area": ("_cosines",),
@@ -816,11 +819,15 @@ def test_luminance_pass(eta):
     at 700), ``r = m − f`` (one-sided where not measured), cost ``Σ w r²``."""
     j, t, z, geo, cos_d, f, w, measured, kd, g = _luminance_problem()
     b = len(j)
-    r = np.empty(b)
-    cost = _polar_kernels.luminance_pass(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, r)
+    r, spec, fr_out, act = np.empty(b), np.empty(b), np.empty(b), np.empty(b, dtype=bool)
+    out = (r, spec, fr_out, act)
+    cost = _polar_kernels.luminance_pass(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, *out)
     s, r_ref, active, fr = _luminance_reference(j, t, z, geo, cos_d, f, measured, kd, g, eta)
     finite = np.isfinite(r_ref)
     assert np.array_equal(np.isfinite(r), finite) and np.allclose(r[finite], r_ref[finite], rtol=1e-13, atol=1e-15)
+    assert np.array_equal(act[finite], active[finite]) and np.allclose(fr_out, fr, rtol=1e-13)
+    ok = np.isfinite(s)
+    assert np.allclose(spec[ok], s[ok], rtol=1e-13, atol=0.0)
     assert np.any(~measured & ~active) and np.any(~measured & active)  # both sides of the bound
     if not math.isfinite(eta):
         assert np.all(fr == 1.0)
@@ -828,11 +835,11 @@ def test_luminance_pass(eta):
         assert cost == pytest.approx(np.sum(w * r_ref**2), rel=1e-12) or not math.isfinite(cost)
     # without the overflowing node the cost is finite and equals the sum
     z[4] = 1.0
-    cost = _polar_kernels.luminance_pass(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, r)
+    cost = _polar_kernels.luminance_pass(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, *out)
     _, r_ref, _, _ = _luminance_reference(j, t, z, geo, cos_d, f, measured, kd, g, eta)
     assert np.allclose(r, r_ref, rtol=1e-13, atol=1e-15) and cost == pytest.approx(np.sum(w * r_ref**2), rel=1e-12)
     assert _polar_kernels.luminance_pass(j[:0], t[:0], z, geo[:0], cos_d[:0], f[:0], w[:0], measured[:0], kd, g, eta,
-                                         r[:0]) == 0.0
+                                         *(a[:0] for a in out)) == 0.0
 
 
 @twin("reflecto.reconstruct._polar_kernels.luminance_normal_equations")
@@ -864,6 +871,27 @@ def test_luminance_normal_equations(eta):
     _polar_kernels.luminance_normal_equations(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, k, *out)
     for got, want in zip(out, ref):
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+
+
+@twin("reflecto.reconstruct._polar_kernels.pass_normal_equations")
+@pytest.mark.parametrize("eta", [1.5, 3.0, np.inf])
+def test_pass_normal_equations_are_those_of_the_state_bit_for_bit(eta):
+    """From the values a :func:`luminance_pass` stored, the normal equations are exactly
+    (every bit) those :func:`luminance_normal_equations` computes at the same state, which
+    the test above checks against NumPy."""
+    j, t, z, geo, cos_d, f, w, measured, kd, g = _luminance_problem(seed=28)
+    z[4] = 1.0
+    k, b = len(z), len(j)
+    kept = (np.empty(b), np.empty(b), np.empty(b), np.empty(b, dtype=bool))
+    _polar_kernels.luminance_pass(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, *kept)
+    r, spec, fr, active = kept
+    assert np.any(~active) and np.any(active)
+    want = (np.empty(k), np.empty(k - 1), np.empty((k, 3)), np.empty((3, 3)), np.empty(k), np.empty(3))
+    _polar_kernels.luminance_normal_equations(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, k, *want)
+    got = tuple(np.full_like(a, np.nan) for a in want)
+    _polar_kernels.pass_normal_equations(j, t, cos_d, r, spec, fr, active, w, eta, k, *got)
+    for a, e in zip(got, want):
+        assert np.array_equal(a, e)
 
 
 # ----------------------------------------------------------------------------- layout

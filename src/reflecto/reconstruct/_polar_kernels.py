@@ -161,22 +161,60 @@ def _bin_model(k, tb, z, geometry_b, cos_d_b, f_b, measured_b, kd, g, eta):  # p
 
 
 @njit(**_OPTS)
-def luminance_pass(j, t, z, shadow_geometry, cos_d, f, w, measured, kd, g, eta, r_out):  # pragma: no cover
+def luminance_pass(j, t, z, shadow_geometry, cos_d, f, w, measured, kd, g, eta, r_out, spec_out, fr_out,
+                   active_out):  # pragma: no cover - compiled
     """One pass of the luminance fit over the bins: residuals and the weighted cost.
 
     ``m_b = k_d/π + g F(c_b; η) e^{z(θ_b)} G_b`` with ``z`` interpolated at ``(j, t)`` and
     ``G_b = S_b / (4 cos θ_i cos θ_o)`` (``shadow_geometry``); ``r_b = m_b − f_b``,
-    one-sided (``max(0, r_b)``) where ``measured[b]`` is False. Writes ``r_out``;
-    returns ``Σ w r²``.
+    one-sided (``max(0, r_b)``) where ``measured[b]`` is False. Writes ``r_out`` (0 where
+    inactive), the specular part ``spec_out``, ``F`` (``fr_out``) and ``active_out``, which
+    :func:`pass_normal_equations` takes at the same state; returns ``Σ w r²``.
     """
     cost = 0.0
     for b in range(r_out.shape[0]):
-        r, _, _, active = _bin_model(j[b], t[b], z, shadow_geometry[b], cos_d[b], f[b], measured[b], kd, g, eta)
+        r, spec, fr, active = _bin_model(j[b], t[b], z, shadow_geometry[b], cos_d[b], f[b], measured[b], kd, g, eta)
         if not active:
             r = 0.0
         r_out[b] = r
+        spec_out[b] = spec
+        fr_out[b] = fr
+        active_out[b] = active
         cost += w[b] * r * r
     return cost
+
+
+@njit(inline="always", **_OPTS)
+def _eta_column(cos_d_b, eta, de, finite_eta, spec, fr):  # pragma: no cover - compiled
+    """``∂r/∂ log(η − 1) = spec (∂F/∂η)/F (η − 1)``, ``∂F/∂η`` a forward difference of step ``de``."""
+    if not finite_eta:
+        return 0.0
+    dfr = (_fresnel(cos_d_b, eta + de) - fr) / de
+    return spec * dfr / (fr if fr > 0.0 else 1e-300) * (eta - 1.0)
+
+
+@njit(**_OPTS)
+def pass_normal_equations(j, t, cos_d, r, spec, fr, active, w, eta, n_nodes, diag, off, cross, dense, grad_z,
+                          grad_d):  # pragma: no cover - compiled
+    """:func:`luminance_normal_equations` from the values a :func:`luminance_pass` at the
+    same state stored (``r``, ``spec``, ``F``, ``active``): the same arithmetic on the same
+    numbers, without evaluating the model again."""
+    _zero(diag, off, cross, dense, grad_z, grad_d)
+    de = 1e-6 * eta
+    finite_eta = math.isfinite(eta)
+    col = np.empty(3)
+    col[0] = 1.0 / math.pi
+    for b in range(j.shape[0]):
+        if not active[b]:
+            continue
+        deta = _eta_column(cos_d[b], eta, de, finite_eta, spec[b], fr[b])
+        wb = w[b]
+        if wb == 0.0:
+            continue
+        col[1] = spec[b]
+        col[2] = deta
+        _accumulate_bin(j[b], t[b], spec[b], col, wb, r[b], diag, off, cross, dense, grad_z, grad_d)
+    _mirror_dense(dense)
 
 
 @njit(**_OPTS)
@@ -198,11 +236,7 @@ def luminance_normal_equations(j, t, z, shadow_geometry, cos_d, f, w, measured, 
         r, spec, fr, active = _bin_model(k, t[b], z, shadow_geometry[b], cos_d[b], f[b], measured[b], kd, g, eta)
         if not active:
             continue
-        if finite_eta:
-            dfr = (_fresnel(cos_d[b], eta + de) - fr) / de
-            deta = spec * dfr / (fr if fr > 0.0 else 1e-300) * (eta - 1.0)
-        else:
-            deta = 0.0
+        deta = _eta_column(cos_d[b], eta, de, finite_eta, spec, fr)
         wb = w[b]
         if wb == 0.0:
             continue

@@ -243,7 +243,11 @@ class LuminanceProblem:
         self.shadow = np.ones(len(bins))
         self.shadow_geometry = self.geometry.copy()  # S · geometry, kept with the shadowing
         self.w = np.ones(len(bins))
+        # the last data pass's residuals, specular parts, F and activity (pass_normal_equations)
         self._r = np.empty(len(bins))
+        self._spec = np.empty(len(bins))
+        self._fr = np.empty(len(bins))
+        self._active = np.empty(len(bins), dtype=np.bool_)
         self.h = np.zeros((len(nodes), len(nodes)))
         self.beta = np.zeros(len(nodes))
         self.prior_constant = 0.0
@@ -263,9 +267,11 @@ class LuminanceProblem:
         return np.where(self.measured, r, np.maximum(r, 0.0)), m
 
     def data_pass(self, s: LuminanceState) -> float:
-        """``Σ w r²`` in one compiled pass (:func:`._polar_kernels.luminance_pass`)."""
+        """``Σ w r²`` in one compiled pass (:func:`._polar_kernels.luminance_pass`); the
+        pass's values at ``s`` are kept for :func:`_normal_equations` (``from_pass``)."""
         return _polar_kernels.luminance_pass(self.j, self.t, s.z, self.shadow_geometry, self.bins.cos_d, self.f,
-                                             self.w, self.measured, s.kd, s.g, s.eta, self._r)
+                                             self.w, self.measured, s.kd, s.g, s.eta, self._r, self._spec, self._fr,
+                                             self._active)
 
     def cost(self, s: LuminanceState) -> float:
         """The cost; ``inf`` for a state whose NDF overflows (a rejected trial step)."""
@@ -420,7 +426,8 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
     cost = problem.cost(s)
     mu = 1e-3
     for _ in range(LM_MAX_ITERATIONS):
-        a, grad = _normal_equations(problem, s, tie_ks)
+        # the last pass was at s: the entry's cost, or the trial step just accepted
+        a, grad = _normal_equations(problem, s, tie_ks, from_pass=True)
         frozen = [k + 2] if fix_eta else []
         if (s.eta >= ETA_MAX and grad[k + 2] < 0) or (s.eta <= ETA_MIN and grad[k + 2] > 0):
             frozen.append(k + 2)
@@ -478,16 +485,26 @@ def _apply(problem: LuminanceProblem, s: LuminanceState, step: NDArray[np.floati
     return LuminanceState(z, max(s.kd + float(step[k]), 0.0), g, eta)
 
 
-def _normal_equations(problem: LuminanceProblem, s: LuminanceState, tie_ks: bool) -> tuple[Array, Array]:
-    """``JᵀWJ + H`` and ``JᵀWr + Hz − β`` over ``(z, k_d, log g, log(η − 1))``."""
+def _normal_equations(problem: LuminanceProblem, s: LuminanceState, tie_ks: bool,
+                      from_pass: bool = False) -> tuple[Array, Array]:
+    """``JᵀWJ + H`` and ``JᵀWr + Hz − β`` over ``(z, k_d, log g, log(η − 1))``.
+
+    ``from_pass``: the problem's last :meth:`~LuminanceProblem.data_pass` was at ``s``
+    (as in :func:`solve`, which evaluates every state it moves to), and its stored
+    values are used instead of evaluating the model again (the same numbers)."""
     k = len(problem.nodes)
     diag, off = np.empty(k), np.empty(k - 1)
     cross, dense = np.empty((k, 3)), np.empty((3, 3))
     gz, gd = np.empty(k), np.empty(3)
-    # the Jacobian's pass and its normal equations in one loop (columns [1/π, spec, ∂/∂log(η−1)])
-    _polar_kernels.luminance_normal_equations(problem.j, problem.t, s.z, problem.shadow_geometry, problem.bins.cos_d,
-                                              problem.f, problem.w, problem.measured, s.kd, s.g, s.eta, k, diag,
-                                              off, cross, dense, gz, gd)
+    # the Jacobian's columns [1/π, spec, ∂/∂log(η−1)] and the normal equations in one loop
+    if from_pass:
+        _polar_kernels.pass_normal_equations(problem.j, problem.t, problem.bins.cos_d, problem._r, problem._spec,
+                                             problem._fr, problem._active, problem.w, s.eta, k, diag, off, cross,
+                                             dense, gz, gd)
+    else:
+        _polar_kernels.luminance_normal_equations(problem.j, problem.t, s.z, problem.shadow_geometry,
+                                                  problem.bins.cos_d, problem.f, problem.w, problem.measured, s.kd,
+                                                  s.g, s.eta, k, diag, off, cross, dense, gz, gd)
     a = np.zeros((k + 3, k + 3))
     a[np.arange(k), np.arange(k)] = diag
     a[np.arange(k - 1), np.arange(1, k)] = off
