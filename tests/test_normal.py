@@ -223,42 +223,25 @@ def test_weighting_shift_is_nil_where_the_model_holds_and_large_on_a_felt(shared
 
 
 
-def test_the_device_frame_is_refitted_only_for_a_tilt_within_a_few_uncertainties(monkeypatch):
-    """The device frame's full fit checks an estimated tilt within DEVICE_CHECK_SIGMAS
-    uncertainties (1°, ≈ 5 of them) and is skipped for one far beyond (7°); either way
-    the estimate is the true normal's within 0.3°."""
+
+def test_the_device_frame_is_fitted_once_where_it_is_used(monkeypatch):
+    """The device frame's full fit is made once: it checks an estimated tilt (1° and 7°),
+    and it is the model where the device axis is kept (untilted) or where the estimated
+    frame's lobe is anisotropic (GGX α 0.2 × 0.05: the fallback reuses it)."""
     from reflecto.reconstruct import pipeline
 
     calls = []
     real = pipeline._device_frame_fit
     monkeypatch.setattr(pipeline, "_device_frame_fit", lambda *a: calls.append(1) or real(*a))
     src = AnalyticBRDF(distribution="ggx", alpha=0.1, kd=0.1, ks=0.8, eta=1.5)
-    for tilt, checked in ((7.0, False), (1.0, True)):
+    for tilt, source in ((7.0, "estimated"), (1.0, "estimated"), (0.0, "device")):
         calls.clear()
         sl, truth = _capture(src, tilt)
         res = reconstruct(sl)
-        est = res.normal_estimate
-        assert est is not None and res.normal_source == "estimated"
-        assert (est.tilt_deg <= pipeline.DEVICE_CHECK_SIGMAS * est.uncertainty_deg) == checked
-        assert len(calls) == int(checked)
+        assert res.normal_source == source and len(calls) == 1
         assert _off(res.frame[2], truth) < 0.3
-
-
-def test_an_anisotropic_lobe_whose_tilt_is_not_checked_keeps_the_device_axis(monkeypatch):
-    """With the device-frame check skipped for every tilt (DEVICE_CHECK_SIGMAS = 0), the
-    tilt the estimate finds on an anisotropic lobe (GGX α 0.2 × 0.05, untilted) is still
-    not kept: the azimuthal test in the estimated frame finds the lobe anisotropic, and
-    the reconstruction is the device frame's, fitted once."""
-    from reflecto.reconstruct import pipeline
-
-    calls = []
-    real = pipeline._device_frame_fit
-    monkeypatch.setattr(pipeline, "_device_frame_fit", lambda *a: calls.append(1) or real(*a))
-    monkeypatch.setattr(pipeline, "DEVICE_CHECK_SIGMAS", 0.0)
-    src = AnalyticBRDF(distribution="ggx", alpha=(0.2, 0.05), rotation_deg=120, kd=0.1, ks=0.7, eta=1.5)
-    sl = extract_slices(simulate_capture(src, DEV, seed=1), CAL)
-    res = reconstruct(sl)
-    est = res.normal_estimate
-    assert est is not None and est.tilt_estimate_deg > 1.0  # a tilt was found
+    calls.clear()
+    aniso = AnalyticBRDF(distribution="ggx", alpha=(0.2, 0.05), rotation_deg=120, kd=0.1, ks=0.7, eta=1.5)
+    res = reconstruct(extract_slices(simulate_capture(aniso, DEV, seed=1), CAL))
     assert not res.isotropic and res.normal_source == "device" and np.array_equal(res.frame, np.eye(3))
     assert len(calls) == 1

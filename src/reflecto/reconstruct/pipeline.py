@@ -323,10 +323,6 @@ def estimate_frame(slices: Slices, valid: NDArray[np.bool_], max_tilt_deg: float
 #: ``normal="auto"`` keeps the device axis when the estimated tilt is at most this many
 #: standard uncertainties (a two-sided 95 % test that the data tell the normal from it).
 DEVICE_AXIS_SIGMAS = PIPELINE.device_axis_sigmas
-#: An estimated tilt beyond this many standard uncertainties is kept without the device
-#: frame's full fit (:func:`_tilt_explains_nothing`): no tilt the estimate finds where
-#: there is none lies that far out.
-DEVICE_CHECK_SIGMAS = PIPELINE.device_check_sigmas
 
 
 def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> NormalEstimate:
@@ -368,15 +364,10 @@ def _device_frame_fit(slices: Slices, valid: NDArray[np.bool_], opt: Options) ->
     return fit_isotropic(slices, valid & slices.valid, opt.fixed_eta, opt.kd_bound_max_deg)
 
 
-def _needs_device_check(est: NormalEstimate, opt: Options) -> bool:
+def _needs_device_check(opt: Options) -> bool:
     """Whether an estimated tilt is checked against the device frame's fit
-    (:func:`_tilt_explains_nothing`): under ``normal="auto"`` with isotropy not imposed
-    as "no", for a tilt within :data:`DEVICE_CHECK_SIGMAS` uncertainties. A tilt the
-    estimate finds where there is none comes from the 1-D model's misfit, which the
-    uncertainty (the weighting shift) largely holds: such tilts lie a few uncertainties
-    out, a sample's real tilt of a few degrees tens of them."""
-    return (isinstance(opt.normal, str) and opt.normal == "auto" and opt.isotropic != "no"
-            and not (est.tilt_deg > DEVICE_CHECK_SIGMAS * est.uncertainty_deg))
+    (:func:`_tilt_explains_nothing`): under ``normal="auto"``, isotropy not imposed as "no"."""
+    return isinstance(opt.normal, str) and opt.normal == "auto" and opt.isotropic != "no"
 
 
 def _tilt_explains_nothing(device_fit: IsotropicFit, estimated: IsotropicFit) -> bool:
@@ -521,7 +512,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         iso = device_fit = _device_frame_fit(slices, valid, opt)
     else:
         iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
-        if _needs_device_check(est, opt):
+        if _needs_device_check(opt):
             device_fit = _device_frame_fit(slices, valid, opt)
         if device_fit is not None and _tilt_explains_nothing(device_fit, iso):
             # the device axis fits as well as the estimated tilt: the data tell the normal only to

@@ -925,15 +925,6 @@ class PipelineTuning:
         source="mechanism: a tilt within the normal's two-sided 95 % bound is not told apart from none "
                "(docs/design/normal.md); on the hand-held study the untilted captures kept the device axis on "
                "44 of 50")
-    device_check_sigmas: float = tuned(
-        10.0, name="DEVICE_CHECK_SIGMAS", units="standard uncertainties",
-        what='normal="auto" checks an estimated tilt against a full fit in the device frame only when the tilt is '
-             "at most this many uncertainties (beyond, the device axis is not refitted)",
-        source="measurement: the tilts the estimate finds where there is none (untilted captures the 1-D model "
-               "misfits) lie at most 3.2 uncertainties out on the tuning half of the hand-held study (as-built, "
-               "ideal, wide), ×3 for a margin; checked on the validation half (at most 5.9); the check's "
-               "rejections beyond 10 were real tilts (ideal natural-209 at 26σ) or a shaken capture "
-               "(docs/design/normal.md)")
     albedo_angles: tuple[float, ...] = tuned(
         (0.0, 30.0, 60.0, 75.0, 85.0, 89.0), name="ALBEDO_ANGLES", units="deg",
         what="incidence angles at which the directional albedo is checked against 1 (limit_energy)",
