@@ -51,7 +51,7 @@ from .. import geometry
 from ..colour import LUM
 from ..errors import ReflectoError
 from ..hemicube import hemicube
-from ..instrument.slices import MIN_LIGHT_COS
+from ..instrument.slices import MIN_LIGHT_COS, Slices
 from ..model import IsotropicMicrofacetBRDF
 from ..polar import cell_table, interpolation_cells, polar_nodes
 from . import _normal_kernels, _polar_kernels, isotropic
@@ -702,7 +702,12 @@ def light_fit(slices, valid: NDArray[np.bool_], frame: Array, fixed_eta: float |
     data's initial state each time: a start from the previous refit's state was
     measured worse (untilted captures given tilts of 0.5–2.4°, a rubber's normal off by
     2.1° instead of 0.15°) and no faster."""
+    return _light_fit_of(*light_subset(slices, valid), frame, fixed_eta)
 
+
+def light_subset(slices: Slices, valid: NDArray[np.bool_]) -> tuple[Slices, NDArray[np.bool_]]:
+    """Every :data:`FIT_STRIDE`-th pixel of the slices (device frame) and of ``valid``,
+    the samples of :func:`light_fit` (taken once per estimate, refitted in each frame)."""
     px = np.arange(0, slices.view.shape[0], FIT_STRIDE)
     sub = dataclasses.replace(slices, view=slices.view[px], values=slices.values[:, px], valid=slices.valid[:, px],
                               pixels=slices.pixels[px],
@@ -710,8 +715,14 @@ def light_fit(slices, valid: NDArray[np.bool_], frame: Array, fixed_eta: float |
                               noise=None if slices.noise is None else slices.noise[:, px],
                               limit=None if slices.limit is None else slices.limit[:, px],
                               check_leds=(), check_values=None, check_valid=None)
+    return sub, valid[:, px]
+
+
+def _light_fit_of(sub: Slices, valid_sub: NDArray[np.bool_], frame: Array,
+                  fixed_eta: float | None) -> isotropic.LuminanceFit:
+    """:func:`light_fit` on the samples :func:`light_subset` took."""
     sl = sub.reframe(frame)
-    ok = valid[:, px] & sl.valid
+    ok = valid_sub & sl.valid
     nodes = polar_nodes()
     bins = isotropic.bin_polar(sl, nodes, ok)
     return isotropic.fit_luminance(bins, nodes, fixed_eta, outer_iterations=FIT_OUTER_ITERATIONS)
@@ -755,10 +766,11 @@ def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0
     moving = 0.0  # the last refit's move while the estimate has not converged (degrees)
     history: list[Array] = []  # tangent offsets of the normal before each refit
     limit = math.tan(math.radians(max_tilt_deg))
+    subset = light_subset(slices, valid)
     for _ in range(MAX_REFITS):
         frame = geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
         try:
-            lum = light_fit(slices, valid, frame, fixed_eta)
+            lum = _light_fit_of(*subset, frame, fixed_eta)
         except ReflectoError:
             break
         model = _light_model(lum)
