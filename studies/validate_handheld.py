@@ -22,7 +22,10 @@ Reported per half of the generalization split (:mod:`reflecto.evaluate.split`):
   θ_d/φ_d bin) with the estimated normal over that with the true normal (share ≤ 1.1)
   and over the untilted capture's (share ≤ 1.25); and with the true normal over the
   untilted capture's: the tilt's cost that no normal estimate can remove (the
-  reconstruction's resampling and the geometry of what the tilted cone sees);
+  reconstruction's resampling and the geometry of what the tilted cone sees), split by
+  whether the tilt took a slice's specular peak out of view (:func:`peaks_lost`: an LED
+  whose untilted slice reaches its mirror direction sees, tilted, no half vector within
+  the fitted lobe's half width);
 * time per default reconstruction (median, p90), one process.
 
 Records go to ``OUT/records.jsonl`` as each material finishes (a rerun skips finished
@@ -45,13 +48,15 @@ from pathlib import Path
 
 import numpy as np
 
-from reflecto import load_source, workflow
+from reflecto import geometry, load_source, workflow
 from reflecto.evaluate.metrics import brdf_error, evaluate_on_grid, max_albedo, metric_grid
 from reflecto.evaluate.split import half
 from reflecto.evaluate.sweep import find_materials, material_seed
 from reflecto.instrument.device import load_device
 from reflecto.instrument.simulate import simulate_capture
 from reflecto.reconstruct import Options, reconstruct
+from reflecto.reconstruct.normal import half_vector_pitch_deg
+from reflecto.reconstruct.pipeline import usable_samples
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
@@ -75,6 +80,41 @@ def pick(materials: list[Path], n: int | None) -> list[Path]:
         if cand not in out:
             out.append(cand)
     return out
+
+
+def nearest_half_deg(slices, valid: np.ndarray, normal: np.ndarray) -> list[float]:
+    """Per LED, the angle (degrees) between ``normal`` and the nearest half vector any
+    usable sample of its slice has: how close to its mirror direction the slice looks."""
+    out = []
+    for k in range(slices.n_leds):
+        h = slices.light[k][None, :] + slices.view[valid[k]]
+        if not len(h):
+            out.append(90.0)
+            continue
+        c = (h @ normal) / np.linalg.norm(h, axis=1)
+        out.append(math.degrees(math.acos(min(1.0, float(c.max())))))
+    return out
+
+
+def lobe_hwhm_deg(model) -> float:
+    """Half width at half maximum (degrees) of a fitted isotropic NDF ``D(θ_h)``; NaN for another model."""
+    table = getattr(model, "ndf_table", None)
+    if table is None:
+        return math.nan
+    theta = np.radians(np.linspace(0.0, 60.0, 6001))
+    d = np.interp(theta, table.nodes, table.values)
+    below = np.flatnonzero(d < 0.5 * d[0])
+    return float(np.degrees(theta[below[0]])) if len(below) else 60.0
+
+
+def peaks_lost(rec: dict) -> bool:
+    """Whether the tilt took a slice's specular peak out of view: an LED whose untilted
+    slice reaches its mirror direction (within the camera's half-vector pitch) sees, tilted
+    (in the true frame), no half vector within the fitted lobe's half width (or the pitch)."""
+    pitch = rec["half_vector_pitch_deg"]
+    reach = max(rec["flat"]["lobe_hwhm_deg"], pitch)
+    return any(u <= pitch and t > reach
+               for u, t in zip(rec["flat"]["nearest_half_deg"], rec["tilted"]["nearest_half_deg"]))
 
 
 def run_material(path: Path, device: str, cal, max_tilt: float, stride: int) -> dict:
@@ -102,6 +142,13 @@ def run_material(path: Path, device: str, cal, max_tilt: float, stride: int) -> 
         if not shake:
             r["symmetric"] = bool(result.symmetry.symmetric)  # as `reflecto reconstruct` reports it
             r["error"] = error(res.model)
+        if not shake:
+            usable = usable_samples(sl)
+            true_frame = sl.reframe(geometry.frame_from_normal(truth, np.array([1.0, 0.0, 0.0])))
+            r["nearest_half_deg"] = nearest_half_deg(true_frame, usable & true_frame.valid, np.array([0.0, 0.0, 1.0]))
+        if label == "flat":
+            r["lobe_hwhm_deg"] = lobe_hwhm_deg(res.model)
+            rec["half_vector_pitch_deg"] = half_vector_pitch_deg(sl)
         if label == "tilted":
             t0 = time.perf_counter()
             known = reconstruct(sl, Options(normal=truth))
@@ -129,6 +176,9 @@ def summarize(records: list[dict]) -> dict:
         ratio_flat = [r["tilted"]["error"] / max(r["flat"]["error"], 1e-12) for r in rs]
         # the tilt's cost with the normal known: the reconstruction's and the geometry's share
         ratio_known = [r["tilted"]["error_true_normal"] / max(r["flat"]["error"], 1e-12) for r in rs]
+        lost = [peaks_lost(r) for r in rs if "nearest_half_deg" in r["flat"]]
+        known_lost = [x for x, q in zip(ratio_known, lost) if q]
+        known_seen = [x for x, q in zip(ratio_known, lost) if not q]
         secs = [s["seconds"] for s in steady]
         out[h] = {
             "materials": len(rs),
@@ -145,6 +195,9 @@ def summarize(records: list[dict]) -> dict:
             "error_vs_untilted_median": float(np.median(ratio_flat)),
             "true_normal_error_vs_untilted_within_1.25": share([x <= 1.25 for x in ratio_known]),
             "true_normal_error_vs_untilted_median": float(np.median(ratio_known)),
+            "tilt_took_a_peak_out_of_view": share(lost),
+            "true_normal_within_1.25_peak_lost": share([x <= 1.25 for x in known_lost]),
+            "true_normal_within_1.25_peak_seen": share([x <= 1.25 for x in known_seen]),
             "untilted_normal_source_device": share([r["flat"]["normal_source"] == "device" for r in rs]),
             "seconds_median": float(np.median(secs)), "seconds_p90": float(np.percentile(secs, 90)),
         }
