@@ -245,3 +245,20 @@ def test_the_device_frame_is_fitted_once_where_it_is_used(monkeypatch):
     res = reconstruct(extract_slices(simulate_capture(aniso, DEV, seed=1), CAL))
     assert not res.isotropic and res.normal_source == "device" and np.array_equal(res.frame, np.eye(3))
     assert len(calls) == 1
+
+
+@pytest.mark.parametrize("alpha,azimuth,hidden", [(0.02, 0.0, True), (0.02, 180.0, False), (0.3, 0.0, False)])
+def test_a_tilt_that_hides_the_grazing_peak_is_reported(alpha, azimuth, hidden):
+    """1.5° toward the view cone's rim moves LED 2's mirror direction (θ_d ≈ 67°) out of
+    view: a sharp lobe (GGX α 0.02, half width 0.74°) is told its peak there is hidden;
+    the same tilt the other way, or a broad lobe (α 0.3), is not."""
+    src = AnalyticBRDF(distribution="ggx", alpha=alpha, kd=0.05, ks=0.9, eta=1.5)
+    sl, truth = _capture(src, 1.5, azimuth=azimuth)
+    res = reconstruct(sl)
+    assert res.normal_source == "estimated" and _off(res.frame[2], truth) < 0.3
+    notes = [n for n in res.notes if "hides LED" in n]
+    assert bool(notes) == hidden, notes
+    if hidden:
+        assert "LED 2's" in notes[0] and "θ_d 69°" in notes[0]
+    untilted, _ = _capture(src, 0.0)
+    assert not [n for n in reconstruct(untilted).notes if "hides LED" in n]

@@ -350,6 +350,9 @@ class NormalEstimate:
         Where the device axis was kept over an estimate (one within two uncertainties of
         it, or one that fitted no better): that estimate, shape ``(3,)``, a normal the
         data allow as well (the eq. 3 test looks in its frame too); else ``None``.
+    half_vector_pitch_deg
+        The camera's sampling of the half vector (:func:`half_vector_pitch_deg`) where the
+        estimate measured it (the floor of its uncertainty); else NaN.
     """
 
     normal: Array
@@ -358,6 +361,7 @@ class NormalEstimate:
     refits: int = 0
     tilt_estimate_deg: float = math.nan
     alternative: Array | None = None
+    half_vector_pitch_deg: float = math.nan
 
     @property
     def tilt_deg(self) -> float:
@@ -735,6 +739,65 @@ def _light_model(lum: isotropic.LuminanceFit) -> IsotropicMicrofacetBRDF:
     return IsotropicMicrofacetBRDF((nodes, d), lum.state.kd, lum.ks, lum.state.eta)
 
 
+@dataclasses.dataclass(frozen=True)
+class HiddenPeak:
+    """An LED whose specular peak the tilt hides: its slice reaches its mirror direction
+    about the device axis, but in the sample frame its nearest half vector lies
+    ``nearest_deg`` from the normal, beyond the fitted lobe's half width ``half_width_deg``
+    (degrees); ``theta_d_deg`` is the peak's θ_d (the LED's incidence in the sample frame)."""
+
+    led: int
+    theta_d_deg: float
+    nearest_deg: float
+    half_width_deg: float
+
+
+def lobe_half_width_deg(nodes: Array, values: Array) -> float:
+    """Half width at half maximum (degrees) of a tabulated isotropic NDF ``D(θ_h)``
+    (``nodes`` in radians), linear between the nodes; 90 where it never halves."""
+    theta = np.linspace(0.0, float(nodes[-1]), 9001)
+    d = np.interp(theta, nodes, values)
+    below = np.flatnonzero(d < 0.5 * d[0])
+    return math.degrees(float(theta[below[0]])) if len(below) else 90.0
+
+
+def hidden_peaks(slices, valid: NDArray[np.bool_], normal: Array, nodes: Array, values: Array,
+                 pitch_deg: float | None = None) -> list[HiddenPeak]:
+    """The LEDs whose specular peak the tilt to ``normal`` hides (:class:`HiddenPeak`).
+
+    A hand-held tilt of a few tenths of a degree toward the view cone's rim moves a
+    grazing LED's mirror direction out of view (the paper's layout: LED 2, θ_d ≈ 67°,
+    within a degree of the rim; docs/design/normal.md). For a lobe narrower than the
+    distance, the slice then holds no sample of the peak, and the lobe at that θ_d is
+    extrapolated from the others. An LED counts when some usable sample's half vector
+    ``h = (l + v)/|l + v|`` lies within the half-vector pitch of the device axis, and
+    none within the lobe's half width (or the pitch) of ``normal``. ``slices`` and
+    ``normal`` in the device frame, ``valid`` the usable samples ``(L, P)``, the fitted
+    NDF's ``nodes`` (radians) and ``values``; ``pitch_deg`` the camera's half-vector
+    pitch where known (:attr:`NormalEstimate.half_vector_pitch_deg`).
+    """
+    pitch = half_vector_pitch_deg(slices) if pitch_deg is None or not math.isfinite(pitch_deg) else pitch_deg
+    width = lobe_half_width_deg(nodes, values)
+    reach = math.cos(math.radians(max(width, pitch)))
+    seen = math.cos(math.radians(pitch))
+    view = slices.view
+    v_z, v_n = view[:, 2], view @ normal
+    out = []
+    for k in range(slices.n_leds):
+        ok = valid[k]
+        if not ok.any():
+            continue
+        light = slices.light[k]
+        inv_length = 1.0 / np.sqrt(np.maximum(2.0 + 2.0 * (view @ light), 1e-300))  # |l + v| of unit vectors
+        if float(np.max(np.where(ok, (light[2] + v_z) * inv_length, -1.0))) < seen:
+            continue  # the untilted slice does not reach its mirror direction
+        near = float(np.max(np.where(ok, (float(light @ normal) + v_n) * inv_length, -1.0)))
+        if near < reach:
+            out.append(HiddenPeak(k, math.degrees(math.acos(min(1.0, float(light @ normal)))),
+                                  math.degrees(math.acos(min(1.0, near))), width))
+    return out
+
+
 def half_vector_pitch_deg(slices) -> float:
     """Half the median angle between horizontally adjacent pixels' view directions
     (degrees): how finely the camera samples the half vector of one LED's slice
@@ -800,8 +863,9 @@ def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0
     if refits and math.isfinite(sd) and np.all(np.isfinite(new)):
         # an estimate still moving after MAX_REFITS is not known better than its last move
         sd = math.hypot(sd, weighting_shift_deg(problem, model, new), moving)
-    sd = max(sd, half_vector_pitch_deg(slices))
-    return NormalEstimate(normal, sd, "estimated", refits, _angle_deg(normal, z))
+    pitch = half_vector_pitch_deg(slices)
+    sd = max(sd, pitch)
+    return NormalEstimate(normal, sd, "estimated", refits, _angle_deg(normal, z), half_vector_pitch_deg=pitch)
 
 
 def weighting_shift_deg(problem: TiltProblem, model, normal: Array) -> float:

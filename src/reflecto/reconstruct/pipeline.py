@@ -48,6 +48,7 @@ from .normal import (
     NormalEstimate,
     estimate_normal,
     estimate_normal_consistency,
+    hidden_peaks,
     refine_normal,
 )
 from .tuning import PIPELINE
@@ -540,11 +541,23 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     if isinstance(fit, HemicubeFit):
         motion.excluded_leds = fit.excluded_leds
     model, scale, albedo = limit_energy(fit.model, opt.energy_clamp)
-    notes = _normal_notes(est, opt, isotropic) + _notes(fit, model, isotropic, test, scale)
+    notes = _normal_notes(est, opt, isotropic) + _hidden_peak_notes(slices, ok, est, fit.model)
+    notes += _notes(fit, model, isotropic, test, scale)
     return Reconstruction(model, fit.eta, test, motion, frame, iso.model_error,
                           fit.fresnel_error if isinstance(fit, HemicubeFit) else math.nan, scale, albedo,
                           notes, time.perf_counter() - t0, est.uncertainty_deg, est.source,
                           est if isinstance(opt.normal, str) and opt.normal == "auto" else None)
+
+
+def _hidden_peak_notes(slices: Slices, valid: NDArray[np.bool_], est: NormalEstimate, model) -> list[str]:
+    """What the tilt hid from view (:func:`.normal.hidden_peaks`), for a tilted frame and an isotropic model."""
+    table = getattr(model, "ndf_table", None)
+    if est.source == "device" or table is None:
+        return []
+    return [f"the tilt hides LED {p.led}'s specular peak (θ_d {p.theta_d_deg:.0f}°; its nearest view "
+            f"{p.nearest_deg:.2f}° off the mirror direction, the lobe's half width {p.half_width_deg:.2f}°): "
+            "the lobe there is extrapolated; a capture with the device flatter on the sample sees it"
+            for p in hidden_peaks(slices, valid, est.normal, table.nodes, table.values, est.half_vector_pitch_deg)]
 
 
 def _normal_notes(est: NormalEstimate, opt: Options, isotropic: bool) -> list[str]:
