@@ -59,14 +59,12 @@ INLINED_INTO = {
     "reflecto._kernels._texel": ("cube_index", "bin_accumulate", "splat"),
     "reflecto._kernels._fresnel": ("fresnel_flat", "pair_residuals"),
     "reflecto._kernels._fresnel_dlog": ("pair_residuals_jac",),
-    "reflecto.reconstruct._polar_kernels._bin_model": ("luminance_pass", "luminance_normal_equations"),
-    "reflecto.reconstruct._polar_kernels._eta_column": ("luminance_normal_equations", "pass_normal_equations"),
-    "reflecto.reconstruct._polar_kernels._accumulate_bin": ("normal_equations", "luminance_normal_equations",
-                                                           "pass_normal_equations"),
-    "reflecto.reconstruct._polar_kernels._zero": ("normal_equations", "luminance_normal_equations",
-                                                  "pass_normal_equations"),
+    "reflecto.reconstruct._polar_kernels._bin_model": ("luminance_pass",),
+    "reflecto.reconstruct._polar_kernels._eta_column": ("pass_normal_equations",),
+    "reflecto.reconstruct._polar_kernels._accumulate_bin": ("normal_equations", "pass_normal_equations"),
+    "reflecto.reconstruct._polar_kernels._zero": ("normal_equations", "pass_normal_equations"),
     "reflecto.reconstruct._polar_kernels._theta_d_cell": ("bin_polar",),
-    "reflecto.reconstruct._polar_kernels._mirror_dense": ("normal_equations", "luminance_normal_equations"),
+    "reflecto.reconstruct._polar_kernels._mirror_dense": ("normal_equations", "pass_normal_equations"),
     "reflecto.reconstruct._normal_kernels._projected_area": ("_cosines",),
     "reflecto.reconstruct._normal_kernels._cosines": ("tilt_pass",),
 }
@@ -842,20 +840,22 @@ def test_luminance_pass(eta):
                                          *(a[:0] for a in out)) == 0.0
 
 
-@twin("reflecto.reconstruct._polar_kernels.luminance_normal_equations")
+@twin("reflecto.reconstruct._polar_kernels.pass_normal_equations")
 @pytest.mark.parametrize("eta", [1.5, 3.0, np.inf])
-def test_luminance_normal_equations(eta):
-    """The fused pass gives the normal equations of the columns ``[1/π, spec, ∂r/∂ log(η − 1)]``
-    (``spec (∂F/∂η)/F (η − 1)``, 0 for η = ∞ and on inactive bins) with the weight where
-    the bin is active: NumPy's :func:`normal_equations_numpy` of the reference columns;
-    the η column also against a central difference."""
+def test_pass_normal_equations(eta):
+    """From the values a :func:`luminance_pass` stored, the normal equations of the columns
+    ``[1/π, spec, ∂r/∂ log(η − 1)]`` (``spec (∂F/∂η)/F (η − 1)``, 0 for η = ∞ and on
+    inactive bins) with the weight where the bin is active: NumPy's
+    :func:`normal_equations_numpy` of the reference columns; the η column also against a
+    central difference."""
     from reflecto.fresnel import fresnel_numpy
     from reflecto.reconstruct.isotropic import normal_equations_numpy
 
     j, t, z, geo, cos_d, f, w, measured, kd, g = _luminance_problem(seed=27)
     z[4] = 1.0
-    k = len(z)
+    k, b = len(z), len(j)
     s, r_ref, active, fr = _luminance_reference(j, t, z, geo, cos_d, f, measured, kd, g, eta)
+    assert np.any(~active) and np.any(active)
     if math.isfinite(eta):
         de = 1e-6 * eta  # the kernel's forward difference
         d_eta = s * (fresnel_numpy(cos_d, eta + de) - fr) / de / fr * (eta - 1.0)
@@ -867,31 +867,12 @@ def test_luminance_normal_equations(eta):
     w_act = np.where(active, w, 0.0)
     cols = np.stack([np.full(len(j), 1 / np.pi), s, d_eta], axis=1)
     ref = normal_equations_numpy(j, t, s, cols, r_ref, w_act, k)
-    out = (np.empty(k), np.empty(k - 1), np.empty((k, 3)), np.empty((3, 3)), np.empty(k), np.empty(3))
-    _polar_kernels.luminance_normal_equations(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, k, *out)
-    for got, want in zip(out, ref):
-        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
-
-
-@twin("reflecto.reconstruct._polar_kernels.pass_normal_equations")
-@pytest.mark.parametrize("eta", [1.5, 3.0, np.inf])
-def test_pass_normal_equations_are_those_of_the_state_bit_for_bit(eta):
-    """From the values a :func:`luminance_pass` stored, the normal equations are exactly
-    (every bit) those :func:`luminance_normal_equations` computes at the same state, which
-    the test above checks against NumPy."""
-    j, t, z, geo, cos_d, f, w, measured, kd, g = _luminance_problem(seed=28)
-    z[4] = 1.0
-    k, b = len(z), len(j)
     kept = (np.empty(b), np.empty(b), np.empty(b), np.empty(b, dtype=bool))
     _polar_kernels.luminance_pass(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, *kept)
-    r, spec, fr, active = kept
-    assert np.any(~active) and np.any(active)
-    want = (np.empty(k), np.empty(k - 1), np.empty((k, 3)), np.empty((3, 3)), np.empty(k), np.empty(3))
-    _polar_kernels.luminance_normal_equations(j, t, z, geo, cos_d, f, w, measured, kd, g, eta, k, *want)
-    got = tuple(np.full_like(a, np.nan) for a in want)
-    _polar_kernels.pass_normal_equations(j, t, cos_d, r, spec, fr, active, w, eta, k, *got)
-    for a, e in zip(got, want):
-        assert np.array_equal(a, e)
+    out = (np.empty(k), np.empty(k - 1), np.empty((k, 3)), np.empty((3, 3)), np.empty(k), np.empty(3))
+    _polar_kernels.pass_normal_equations(j, t, cos_d, *kept, w, eta, k, *out)
+    for got, want in zip(out, ref):
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
 
 
 # ----------------------------------------------------------------------------- layout

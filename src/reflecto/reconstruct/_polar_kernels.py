@@ -196,9 +196,12 @@ def _eta_column(cos_d_b, eta, de, finite_eta, spec, fr):  # pragma: no cover - c
 @njit(**_OPTS)
 def pass_normal_equations(j, t, cos_d, r, spec, fr, active, w, eta, n_nodes, diag, off, cross, dense, grad_z,
                           grad_d):  # pragma: no cover - compiled
-    """:func:`luminance_normal_equations` from the values a :func:`luminance_pass` at the
-    same state stored (``r``, ``spec``, ``F``, ``active``): the same arithmetic on the same
-    numbers, without evaluating the model again."""
+    """The Gauss–Newton normal equations of the luminance fit at the state of the last
+    :func:`luminance_pass`, from the values it stored (``r``, ``spec``, ``F``, ``active``):
+    each active bin's η column ``∂r/∂ log(η − 1) = spec (∂F/∂η)/F (η − 1)`` (a forward
+    difference of step ``10⁻⁶ η``; 0 for the constant Fresnel ``η = ∞``), accumulated as
+    :func:`normal_equations` does for the columns ``[1/π, spec, η]`` with the weight ``w``
+    (inactive bins: 0)."""
     _zero(diag, off, cross, dense, grad_z, grad_d)
     de = 1e-6 * eta
     finite_eta = math.isfinite(eta)
@@ -214,33 +217,4 @@ def pass_normal_equations(j, t, cos_d, r, spec, fr, active, w, eta, n_nodes, dia
         col[1] = spec[b]
         col[2] = deta
         _accumulate_bin(j[b], t[b], spec[b], col, wb, r[b], diag, off, cross, dense, grad_z, grad_d)
-    _mirror_dense(dense)
-
-
-@njit(**_OPTS)
-def luminance_normal_equations(j, t, z, shadow_geometry, cos_d, f, w, measured, kd, g, eta, n_nodes, diag, off,
-                               cross, dense, grad_z, grad_d):  # pragma: no cover - compiled
-    """The Gauss–Newton normal equations of the luminance fit in one pass over the bins:
-    each active bin's residual ``r`` and specular part (:func:`_bin_model`, as in
-    :func:`luminance_pass`), its η column ``∂r/∂ log(η − 1) = spec (∂F/∂η)/F (η − 1)``
-    (a forward difference of step ``10⁻⁶ η``; 0 for the constant Fresnel ``η = ∞``),
-    accumulated as :func:`normal_equations` does for the columns ``[1/π, spec, η]`` with
-    the weight ``w`` (inactive bins: 0)."""
-    _zero(diag, off, cross, dense, grad_z, grad_d)
-    de = 1e-6 * eta
-    finite_eta = math.isfinite(eta)
-    col = np.empty(3)
-    col[0] = 1.0 / math.pi
-    for b in range(j.shape[0]):
-        k = j[b]
-        r, spec, fr, active = _bin_model(k, t[b], z, shadow_geometry[b], cos_d[b], f[b], measured[b], kd, g, eta)
-        if not active:
-            continue
-        deta = _eta_column(cos_d[b], eta, de, finite_eta, spec, fr)
-        wb = w[b]
-        if wb == 0.0:
-            continue
-        col[1] = spec
-        col[2] = deta
-        _accumulate_bin(k, t[b], spec, col, wb, r, diag, off, cross, dense, grad_z, grad_d)
     _mirror_dense(dense)

@@ -491,20 +491,18 @@ def _normal_equations(problem: LuminanceProblem, s: LuminanceState, tie_ks: bool
 
     ``from_pass``: the problem's last :meth:`~LuminanceProblem.data_pass` was at ``s``
     (as in :func:`solve`, which evaluates every state it moves to), and its stored
-    values are used instead of evaluating the model again (the same numbers)."""
+    values are used; otherwise the pass is made here."""
     k = len(problem.nodes)
     diag, off = np.empty(k), np.empty(k - 1)
     cross, dense = np.empty((k, 3)), np.empty((3, 3))
     gz, gd = np.empty(k), np.empty(3)
+    if not from_pass:
+        with np.errstate(over="ignore", invalid="ignore"):
+            problem.data_pass(s)
     # the Jacobian's columns [1/π, spec, ∂/∂log(η−1)] and the normal equations in one loop
-    if from_pass:
-        _polar_kernels.pass_normal_equations(problem.j, problem.t, problem.bins.cos_d, problem._r, problem._spec,
-                                             problem._fr, problem._active, problem.w, s.eta, k, diag, off, cross,
-                                             dense, gz, gd)
-    else:
-        _polar_kernels.luminance_normal_equations(problem.j, problem.t, s.z, problem.shadow_geometry,
-                                                  problem.bins.cos_d, problem.f, problem.w, problem.measured, s.kd,
-                                                  s.g, s.eta, k, diag, off, cross, dense, gz, gd)
+    _polar_kernels.pass_normal_equations(problem.j, problem.t, problem.bins.cos_d, problem._r, problem._spec,
+                                         problem._fr, problem._active, problem.w, s.eta, k, diag, off, cross, dense,
+                                         gz, gd)
     a = np.zeros((k + 3, k + 3))
     a[np.arange(k), np.arange(k)] = diag
     a[np.arange(k - 1), np.arange(1, k)] = off
