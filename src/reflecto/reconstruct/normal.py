@@ -761,7 +761,7 @@ def lobe_half_width_deg(nodes: Array, values: Array) -> float:
     return math.degrees(float(theta[below[0]])) if len(below) else 90.0
 
 
-def hidden_peaks(slices, valid: NDArray[np.bool_], normal: Array, nodes: Array, values: Array,
+def hidden_peaks(slices: Slices, valid: NDArray[np.bool_], normal: Array, nodes: Array, values: Array,
                  pitch_deg: float | None = None) -> list[HiddenPeak]:
     """The LEDs whose specular peak the tilt to ``normal`` hides (:class:`HiddenPeak`).
 
