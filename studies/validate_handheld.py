@@ -55,7 +55,7 @@ from reflecto.evaluate.sweep import find_materials, material_seed
 from reflecto.instrument.device import load_device
 from reflecto.instrument.simulate import simulate_capture
 from reflecto.reconstruct import Options, reconstruct
-from reflecto.reconstruct.normal import half_vector_pitch_deg
+from reflecto.reconstruct.normal import half_vector_pitch_deg, lobe_half_width_deg
 from reflecto.reconstruct.pipeline import usable_samples
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -97,14 +97,9 @@ def nearest_half_deg(slices, valid: np.ndarray, normal: np.ndarray) -> list[floa
 
 
 def lobe_hwhm_deg(model) -> float:
-    """Half width at half maximum (degrees) of a fitted isotropic NDF ``D(θ_h)``; NaN for another model."""
+    """Half width at half maximum (degrees) of a fitted isotropic NDF; NaN for another model."""
     table = getattr(model, "ndf_table", None)
-    if table is None:
-        return math.nan
-    theta = np.radians(np.linspace(0.0, 60.0, 6001))
-    d = np.interp(theta, table.nodes, table.values)
-    below = np.flatnonzero(d < 0.5 * d[0])
-    return float(np.degrees(theta[below[0]])) if len(below) else 60.0
+    return math.nan if table is None else lobe_half_width_deg(table.nodes, table.values)
 
 
 def peaks_lost(rec: dict) -> bool:
