@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import require
+from reflecto import geometry
 from reflecto.evaluate import design as ds
 from reflecto.hemicube import hemicube
 from reflecto.instrument import layout
@@ -55,6 +56,34 @@ def test_peak_reach_of_the_papers_device_is_its_two_steep_leds():
     assert len(layout.peak_theta_d(e.optics, e.leds, e.occluder_deg)) == 0
     # goal 4 of the design objective: reach / 80°
     assert layout.objective_terms(dev.optics, dev.leds, hemicube(32))[3] == pytest.approx(67.1 / 80.0)
+
+
+def test_tilt_margin_is_the_smallest_tilt_that_hides_a_seen_peak():
+    """The paper's layout sees LED 2's peak (θ_d 67.1°) within a degree of the cone's rim:
+    a hand tilt of ≈ 0.28° toward the rim hides it, while LED 4's (37.8°) stays in view
+    to 13.9°. At the margin the mirror view leaves the cone in some direction; 0.01° less
+    keeps it in view in every direction; a layout that sees no peak has no margin."""
+    dev = Device.builtin("ideal")
+    leds = geometry.normalize(np.asarray(dev.leds))
+    margin = layout.tilt_margin_deg(dev.optics, leds)
+    assert 0.2 < margin < 0.4
+    steep = leds[np.isclose(np.degrees(np.arccos(leds[:, 2])), 37.8, atol=0.1)]
+    assert 13.0 < layout.tilt_margin_deg(dev.optics, steep) < 15.0
+
+    def in_view(tilt_deg: float) -> np.ndarray:
+        psi = np.radians(np.arange(3600) / 10.0)
+        t = math.radians(tilt_deg)
+        normals = np.stack([np.sin(t) * np.cos(psi), np.sin(t) * np.sin(psi), np.full(len(psi), np.cos(t))], axis=1)
+        ln = normals @ leds.T
+        o = 2.0 * ln[..., None] * normals[:, None, :] - leds[None]
+        return (o @ dev.optics.axis >= math.cos(math.radians(dev.optics.cone_half_angle_deg))) & (ln > 0.05)
+
+    seen = in_view(0.0)[0]
+    assert seen.sum() == 2
+    assert np.all(in_view(margin - 0.01)[:, seen])
+    assert not np.all(in_view(margin + 0.01)[:, seen])
+    e = Device.builtin("earlier")
+    assert layout.tilt_margin_deg(e.optics, e.leds, e.occluder_deg) == math.inf
 
 
 def test_firing_order_is_derived_from_the_layout():

@@ -214,7 +214,9 @@ def lay_out(design: Design, seed: int = 0, maxiter: int = 80) -> dict[str, Any]:
     Keys: ``key, cone_half_angle_deg, axis_tilt_deg, n_leds, leds`` ([elevation,
     azimuth] pairs), ``coverage_after_tau, coverage_bound`` (fractions of the θ_h ≤ 80°
     cap, N = 64), ``peak_theta_d_deg`` (θ_d at which h = n is seen), ``theta_d_reach_deg``,
-    ``objective_terms``, ``frames, capture_s``, the :class:`Condenser` fields, ``seconds``.
+    ``tilt_margin_deg`` (the smallest hand tilt that takes one of those peaks out of view,
+    :func:`~reflecto.instrument.layout.tilt_margin_deg`), ``objective_terms``,
+    ``frames, capture_s``, the :class:`Condenser` fields, ``seconds``.
 
     Parameters
     ----------
@@ -284,6 +286,7 @@ def geometry_record(key: str, optics: Any, angles: Any, seconds: float = 0.0, oc
             "n_leds": len(angles), "leds": angles.tolist(), "coverage_after_tau": cov.after_tau,
             "coverage_bound": cov.upper_bound_after_tau, "peak_theta_d_deg": [round(float(x), 2) for x in peak],
             "theta_d_reach_deg": float(peak.max()) if len(peak) else 0.0,
+            "tilt_margin_deg": round(layout.tilt_margin_deg(optics, leds, occluder_deg), 3),
             "objective_terms": list(terms) if terms is not None else None,
             "frames": frames, "capture_s": capture_seconds(frames),
             **dataclasses.asdict(condenser(design)), "seconds": seconds}
@@ -602,6 +605,11 @@ def table_row(geo: dict[str, Any], runs: dict[str, dict[str, Any]], cts: dict[st
     row = {k: geo[k] for k in ("key", "cone_half_angle_deg", "axis_tilt_deg", "n_leds", "na", "focal_mm",
                                "rim_elevation_deg", "realisable", "limit", "coverage_after_tau", "coverage_bound",
                                "theta_d_reach_deg", "peak_theta_d_deg", "frames", "capture_s")}
+    if "tilt_margin_deg" in geo:
+        row["tilt_margin_deg"] = geo["tilt_margin_deg"]
+    else:  # a layout recorded before the margin was: from its optics and LEDs
+        dev = design_device(geo)
+        row["tilt_margin_deg"] = round(layout.tilt_margin_deg(dev.optics, dev.leds), 3)
     row["leds"] = geo["leds"]
     row["materials"] = len(names)
     if names:
@@ -623,9 +631,9 @@ def table_row(geo: dict[str, Any], runs: dict[str, dict[str, Any]], cts: dict[st
 
 TABLE_COLUMNS = ("key", "cone_half_angle_deg", "axis_tilt_deg", "n_leds", "na", "focal_mm", "rim_elevation_deg",
                  "realisable", "limit", "coverage_after_tau", "coverage_bound", "theta_d_reach_deg",
-                 "peak_theta_d_deg", "frames", "capture_s", "materials", "ours_below_ct", "fraction_below_ct",
-                 "median_ratio", "median_error", "median_ct_error", "shaken", "anisotropic", "max_albedo", "max_eta",
-                 "constant_fresnel", "seconds", "leds")
+                 "peak_theta_d_deg", "tilt_margin_deg", "frames", "capture_s", "materials", "ours_below_ct",
+                 "fraction_below_ct", "median_ratio", "median_error", "median_ct_error", "shaken", "anisotropic",
+                 "max_albedo", "max_eta", "constant_fresnel", "seconds", "leds")
 
 
 def write_design_table(rows: list[dict[str, Any]], path: Path) -> Path:

@@ -558,6 +558,54 @@ def peak_theta_d(optics: Optics, leds: ArrayLike, occluder_deg: float = 0.0) -> 
     return np.sort(np.degrees(np.arccos(np.clip(leds[ok, 2], -1.0, 1.0))))
 
 
+def _mirror_views_in_view(optics: Optics, leds: Array, normals: Array, occluder_deg: float) -> NDArray[np.bool_]:
+    """Whether each LED's mirror view ``o = 2(l·n)n − l`` about each normal lies in the view
+    cone (outside an occluder) and above the grazing limit of that normal, shape ``(M, L)``."""
+    ln = normals @ leds.T  # (M, L)
+    o = 2.0 * ln[..., None] * normals[:, None, :] - leds[None, :, :]
+    cos_axis = o @ optics.axis
+    ok = (cos_axis >= math.cos(math.radians(optics.cone_half_angle_deg))) & (ln > MIN_VIEW_COS)
+    if occluder_deg > 0:
+        ok &= cos_axis <= math.cos(math.radians(occluder_deg))
+    return ok
+
+
+def tilt_margin_deg(optics: Optics, leds: ArrayLike, occluder_deg: float = 0.0, max_tilt_deg: float = 15.0,
+                    n_azimuths: int = 360) -> float:
+    """The smallest hand tilt (degrees) that takes a specular peak the layout sees out of view.
+
+    The peaks of :func:`peak_theta_d` are seen where LED ``l``'s mirror view about the
+    normal, ``o = 2(l·n)n − l``, lies in the view cone; tilting ``n`` by ``δ`` turns ``o``
+    by up to ``2δ`` (exactly ``2δ`` within the plane of incidence), so a peak seen near the
+    rim of the cone is lost at small tilts, and the slice then holds only the lobe's flank
+    (docs/design/normal.md). For each LED that sees its peak untilted, the smallest tilt
+    over ``n_azimuths`` directions (bisection to 0.001°) at which its mirror view leaves
+    the cone, the occluder or the grazing limit; the minimum over those LEDs. ``inf``
+    when no LED sees a peak, ``max_tilt_deg`` when none is lost below it.
+    """
+    dirs = geometry.normalize(np.atleast_2d(np.asarray(leds, dtype=np.float64)))
+    z = np.array([[0.0, 0.0, 1.0]])
+    seen = _mirror_views_in_view(optics, dirs, z, occluder_deg)[0]
+    if not seen.any():
+        return math.inf
+    dirs = dirs[seen]
+    psi = np.arange(n_azimuths) * (2.0 * math.pi / n_azimuths)
+
+    def normals(tilt: Array) -> Array:
+        t = np.radians(tilt)
+        return np.stack([np.sin(t) * np.cos(psi), np.sin(t) * np.sin(psi), np.cos(t)], axis=-1)
+
+    lo = np.zeros((n_azimuths, len(dirs)))  # in view at lo, not at hi (where hi < max)
+    hi = np.full((n_azimuths, len(dirs)), float(max_tilt_deg))
+    for _ in range(int(math.ceil(math.log2(max_tilt_deg / 1e-3)))):
+        mid = 0.5 * (lo + hi)
+        inside = np.stack([_mirror_views_in_view(optics, dirs[k:k + 1], normals(mid[:, k]), occluder_deg)[:, 0]
+                           for k in range(len(dirs))], axis=1)
+        lo = np.where(inside, mid, lo)
+        hi = np.where(inside, hi, mid)
+    return float(hi.min())
+
+
 def optimize_layout(
     optics: Optics,
     n_leds: int = 6,
