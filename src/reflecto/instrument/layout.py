@@ -580,8 +580,26 @@ def tilt_margin_deg(optics: Optics, leds: ArrayLike, occluder_deg: float = 0.0, 
     rim of the cone is lost at small tilts, and the slice then holds only the lobe's flank
     (docs/design/normal.md). For each LED that sees its peak untilted, the smallest tilt
     over ``n_azimuths`` directions (bisection to 0.001°) at which its mirror view leaves
-    the cone, the occluder or the grazing limit; the minimum over those LEDs. ``inf``
-    when no LED sees a peak, ``max_tilt_deg`` when none is lost below it.
+    the cone, the occluder or the grazing limit; the minimum over those LEDs.
+
+    Parameters
+    ----------
+    optics
+        The condenser optics.
+    leds : array_like, shape (L, 3)
+        LED directions.
+    occluder_deg
+        Half angle of a central occluder, degrees (0: none).
+    max_tilt_deg
+        The largest tilt searched, degrees.
+    n_azimuths
+        Directions of tilt searched (evenly over 360°).
+
+    Returns
+    -------
+    float
+        The margin in degrees; ``inf`` when no LED sees a peak, ``max_tilt_deg`` when
+        none is lost below it.
     """
     dirs = geometry.normalize(np.atleast_2d(np.asarray(leds, dtype=np.float64)))
     z = np.array([[0.0, 0.0, 1.0]])
