@@ -86,6 +86,25 @@ def test_tilt_margin_is_the_smallest_tilt_that_hides_a_seen_peak():
     assert layout.tilt_margin_deg(e.optics, e.leds, e.occluder_deg) == math.inf
 
 
+def test_a_layout_for_hand_held_use_keeps_its_peaks_in_view_under_the_margin():
+    """``min_tilt_margin_deg`` holds every peak the layout sees in view for tilts up to it
+    (the bound of ``peak_margins_deg`` below the exact margin); raising the paper's LED 2
+    by 4° buys 2° of margin for 4° of reach."""
+    optics = Optics()
+    leds = layout.optimize_layout(optics, 6, maxiter=15, min_tilt_margin_deg=2.0)
+    bound = layout.peak_margins_deg(optics, leds)
+    assert len(bound) and np.all(bound >= 2.0)
+    assert layout.tilt_margin_deg(optics, leds) >= bound.min() - 1e-3
+    dev = Device.builtin("ideal")
+    angles = np.array(dev.led_angles, dtype=float)
+    k = int(np.argmin(np.abs(angles[:, 0] - 22.9)))
+    angles[k, 0] += 4.0
+    raised = layout.led_direction(angles[:, 0], angles[:, 1])
+    assert np.allclose(layout.peak_theta_d(optics, raised), [37.8, 63.1], atol=0.05)
+    assert layout.tilt_margin_deg(optics, raised) == pytest.approx(2.28, abs=0.02)
+    assert not layout.layout_violations(optics, raised)
+
+
 def test_firing_order_is_derived_from_the_layout():
     assert steep_last_order(DEFAULT_LED_ANGLES) == DEFAULT_FIRING_ORDER
     assert steep_last_order([(5, 0), (30, 10), (6, 90), (60, 200)]) == (2, 0, 3, 1)

@@ -570,6 +570,35 @@ def _mirror_views_in_view(optics: Optics, leds: Array, normals: Array, occluder_
     return ok
 
 
+def peak_margins_deg(optics: Optics, leds: ArrayLike) -> Array:
+    """A lower bound (degrees) of the tilt that hides each specular peak the layout sees.
+
+    LED ``l`` sees its peak where its mirror view ``o = (−l_x, −l_y, l_z)`` lies in the
+    view cone and above the grazing limit (:func:`peak_theta_d`); a tilt ``δ`` of the
+    normal turns ``o`` by at most ``2δ``, so the peak stays in view while ``2δ`` is below
+    the angle from ``o`` to the cone's rim and to the grazing limit. Shape ``(k,)`` for the
+    ``k`` LEDs that see their peak (:func:`tilt_margin_deg` gives the exact minimum).
+
+    Parameters
+    ----------
+    optics
+        The condenser optics.
+    leds : array_like, shape (L, 3)
+        LED directions.
+
+    Returns
+    -------
+    ndarray, shape (k,)
+        Half the angular distance of each seen mirror view to the edge of the view, degrees.
+    """
+    dirs = geometry.normalize(np.atleast_2d(np.asarray(leds, dtype=np.float64)))
+    o = dirs * np.array([-1.0, -1.0, 1.0])
+    from_axis = np.degrees(np.arccos(np.clip(o @ optics.axis, -1.0, 1.0)))
+    above = np.degrees(np.arcsin(np.clip(o[:, 2], -1.0, 1.0))) - math.degrees(math.asin(MIN_VIEW_COS))
+    seen = (from_axis <= optics.cone_half_angle_deg) & (above > 0)
+    return 0.5 * np.minimum(optics.cone_half_angle_deg - from_axis[seen], above[seen])
+
+
 def tilt_margin_deg(optics: Optics, leds: ArrayLike, occluder_deg: float = 0.0, max_tilt_deg: float = 15.0,
                     n_azimuths: int = 360) -> float:
     """The smallest hand tilt (degrees) that takes a specular peak the layout sees out of view.
@@ -633,6 +662,7 @@ def optimize_layout(
     seed: int = 0,
     maxiter: int = 80,
     weights: tuple[float, ...] = LAYOUT_WEIGHTS,
+    min_tilt_margin_deg: float = 0.0,
 ) -> Array:
     """Place the free LEDs (paper §4.1) for coverage, central overlaps and small θ_d.
 
@@ -668,6 +698,10 @@ def optimize_layout(
         Its generations.
     weights
         Three or four weights of the goals.
+    min_tilt_margin_deg
+        For hand-held use: every specular peak the layout sees stays in view under tilts
+        up to this (degrees; :func:`tilt_margin_deg`), enforced through its lower bound
+        :func:`peak_margins_deg` and penalised beyond any gain; 0: no constraint.
 
     Returns
     -------
@@ -697,6 +731,8 @@ def optimize_layout(
         g = leds @ leds.T
         np.fill_diagonal(g, -1.0)
         penalty += 2.0 * float(np.sum(g > cos_sep)) / 2
+        if min_tilt_margin_deg > 0:
+            penalty += 2.0 * float(np.sum(peak_margins_deg(optics, leds) < min_tilt_margin_deg))
         return -(float(wts @ np.array(goals.terms(leds))) - penalty)
 
     bounds = [(MIN_ELEVATION_DEG, 80.0), (0.0, 360.0)] * (n_leds - 1)
