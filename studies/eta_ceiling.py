@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from _tables import write_rows
 from reflecto import load_source, workflow
 from reflecto.colour import LUM
 from reflecto.evaluate.metrics import brdf_error, evaluate_on_grid, max_albedo, metric_grid
@@ -190,11 +191,7 @@ def main() -> None:
               f" ({sum(r['rise80'] < 1.0 for r in sharp)} below 1);"
               f" all: median {np.median([r['rise80'] for r in rows]):.2f}")
     if args.output:
-        args.output.parent.mkdir(parents=True, exist_ok=True)
-        with open(args.output, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(sorted(rows, key=lambda r: r["name"]))
+        write_rows(args.output, rows)
 
 
 if __name__ == "__main__":

@@ -21,13 +21,13 @@ per-material table.
 from __future__ import annotations
 
 import argparse
-import csv
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from _tables import write_rows
 from reflecto import load_source, workflow
 from reflecto.evaluate.metrics import brdf_error, evaluate_on_grid, max_albedo, metric_grid
 from reflecto.evaluate.split import half
@@ -91,11 +91,7 @@ def main() -> None:
                   f" tilted {np.median([r[f'{label}_tilted'] for r in sel]):.4f};"
                   f" tilted within 1.25× of the paper's untilted {within}/{len(sel)}")
     if args.output:
-        args.output.parent.mkdir(parents=True, exist_ok=True)
-        with open(args.output, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(sorted(rows, key=lambda r: r["name"]))
+        write_rows(args.output, rows)
 
 
 if __name__ == "__main__":

@@ -528,6 +528,18 @@ def objective_terms(optics: Optics, leds: ArrayLike, cube: Hemicube,
     return LayoutObjective(optics, cube, theta_max_deg).terms(leds)
 
 
+def _mirror_views_in_view(optics: Optics, leds: Array, normals: Array, occluder_deg: float) -> NDArray[np.bool_]:
+    """Whether each LED's mirror view ``o = 2(l·n)n − l`` about each normal lies in the view
+    cone (outside an occluder) and above the grazing limit of that normal, shape ``(M, L)``."""
+    ln = normals @ leds.T  # (M, L)
+    o = 2.0 * ln[..., None] * normals[:, None, :] - leds[None, :, :]
+    cos_axis = o @ optics.axis
+    ok = (cos_axis >= math.cos(math.radians(optics.cone_half_angle_deg))) & (ln > MIN_VIEW_COS)
+    if occluder_deg > 0:
+        ok &= cos_axis <= math.cos(math.radians(occluder_deg))
+    return ok
+
+
 def peak_theta_d(optics: Optics, leds: ArrayLike, occluder_deg: float = 0.0) -> Array:
     """θ_d (degrees, sorted) at which the slices see the half vector ``h = n``, shape ``(k,)``.
 
@@ -549,25 +561,9 @@ def peak_theta_d(optics: Optics, leds: ArrayLike, occluder_deg: float = 0.0) -> 
     ndarray, shape (k,)
         θ_d in degrees, ascending, for the ``k`` LEDs that see ``h = n``.
     """
-    leds = geometry.normalize(np.atleast_2d(leds))
-    o = leds * np.array([-1.0, -1.0, 1.0])
-    cos_axis = o @ optics.axis
-    ok = (cos_axis >= math.cos(math.radians(optics.cone_half_angle_deg))) & (o[:, 2] > MIN_VIEW_COS)
-    if occluder_deg > 0:
-        ok &= cos_axis <= math.cos(math.radians(occluder_deg))
-    return np.sort(np.degrees(np.arccos(np.clip(leds[ok, 2], -1.0, 1.0))))
-
-
-def _mirror_views_in_view(optics: Optics, leds: Array, normals: Array, occluder_deg: float) -> NDArray[np.bool_]:
-    """Whether each LED's mirror view ``o = 2(l·n)n − l`` about each normal lies in the view
-    cone (outside an occluder) and above the grazing limit of that normal, shape ``(M, L)``."""
-    ln = normals @ leds.T  # (M, L)
-    o = 2.0 * ln[..., None] * normals[:, None, :] - leds[None, :, :]
-    cos_axis = o @ optics.axis
-    ok = (cos_axis >= math.cos(math.radians(optics.cone_half_angle_deg))) & (ln > MIN_VIEW_COS)
-    if occluder_deg > 0:
-        ok &= cos_axis <= math.cos(math.radians(occluder_deg))
-    return ok
+    dirs = geometry.normalize(np.atleast_2d(np.asarray(leds, dtype=np.float64)))
+    ok = _mirror_views_in_view(optics, dirs, np.array([[0.0, 0.0, 1.0]]), occluder_deg)[0]
+    return np.sort(np.degrees(np.arccos(np.clip(dirs[ok, 2], -1.0, 1.0))))
 
 
 def peak_margins_deg(optics: Optics, leds: ArrayLike) -> Array:
