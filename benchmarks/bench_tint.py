@@ -1,9 +1,11 @@
-"""Benchmark of what the Fresnel tint adds to a reconstruction, on the 50 shared measured materials.
+"""Benchmark of what the Fresnel tint and the NDF per θ_d node add to a reconstruction, on the 50 shared
+measured materials.
 
 Each material is captured with the ideal device (the sweep's seed) and its luminance fit
 done once (:func:`reflecto.reconstruct.isotropic.fit_luminance`); then the channel scalars
 are timed both ways, :data:`REPEATS` rounds, one core, CPU time: the tint's fit
-(:func:`~reflecto.reconstruct.isotropic.tinted_scalars`: its nodes, the bounded least
+(:func:`~reflecto.reconstruct.isotropic.tinted_scalars`: its nodes, the NDF per node where
+there are two or more, :func:`~reflecto.reconstruct.isotropic.node_ndfs`, the bounded least
 squares per channel) and one scale per channel
 (:func:`~reflecto.reconstruct.isotropic.channel_scalars`). Prints the median and p90 of
 the difference (the issue's budget: 20 ms per capture) and, as the last line,
@@ -55,7 +57,7 @@ def main() -> None:
         plain = [_cpu_ms(isotropic.channel_scalars, lum, ceiling) for _ in range(REPEATS)]
         extra.append(statistics.median(tint) - statistics.median(plain))
     ms = np.array(extra)
-    print(f"Fresnel tint, {len(fits)} measured materials × {REPEATS}, ideal device, one core {_bench.cpus()}: "
+    print(f"Fresnel tint and NDF per node, {len(fits)} measured materials × {REPEATS}, ideal device, one core {_bench.cpus()}: "
           f"extra CPU time median {np.median(ms):.2f} ms, p90 {np.percentile(ms, 90):.2f} ms, max {ms.max():.2f} ms "
           "per capture (budget 20 ms)")
     print(f"ms_tint_extra: {np.median(ms):.2f}")

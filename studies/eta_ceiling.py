@@ -141,9 +141,10 @@ def run(path: str, device: str, out: str) -> dict[str, Any]:
     flat: dict[str, float] = {}
     for eta in (None, *ETAS):
         lum = isotropic.fit_luminance(bins, nodes, eta)
-        kd, ks, tint = isotropic.tinted_scalars(lum, ceiling)
+        kd, ks, tint, lobes = isotropic.tinted_scalars(lum, ceiling)
         ndf = (nodes, np.exp(lum.state.z - lum.state.z.max()))
-        model = IsotropicMicrofacetBRDF(ndf, kd, ks, lum.state.eta, tint=tint)
+        model = IsotropicMicrofacetBRDF(ndf, kd, ks, lum.state.eta, tint=tint,
+                                        lobes=None if lobes is None else (lobes.theta_d, lobes.values))
         err = brdf_error(src, model, stride=2, albedo_ref=albedo, reference_values=ref).normalized
         fits[eta] = (float(lum.state.eta), float(lum.cost), float(err))
         if eta is None:

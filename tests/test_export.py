@@ -157,7 +157,7 @@ def test_rgl_export_keeps_a_sharp_isotropic_lobe(alpha, limit, tmp_path):
     path = export_rgl(src, tmp_path / "sharp.bsdf")
     r = RGLBRDF(path)
     assert r.isotropic and len(r.phi_i) == 1
-    assert path.stat().st_size <= 3e6
+    assert path.stat().st_size <= 4e6
     assert brdf_error(src, r).normalized <= limit
 
 
@@ -180,19 +180,19 @@ def test_rgl_export_of_a_one_dimensional_ndf_model(chrome_steel, tmp_path):
     """A source with only the public interface and a tabulated D(θ_h) (the isotropic
     reconstruction's form) is written in the isotropic layout and reproduces itself.
 
-    Measured 0.66 % of eq. 10 for chrome-steel's NDF averaged around each ring, 2.2 MB.
+    Measured 0.66 % of eq. 10 for chrome-steel's NDF averaged around each ring, 3.3 MB.
     """
     src = TabulatedIsotropic.ring_mean_of(chrome_steel)
     assert not hasattr(src, "cube") and not hasattr(src, "ndf_values")
     path = export_rgl(src, tmp_path / "iso.bsdf")
     r = RGLBRDF(path)
-    assert r.isotropic and path.stat().st_size <= 3e6
+    assert r.isotropic and path.stat().st_size <= 4e6
     assert brdf_error(src, r).normalized <= 0.01
 
 
 def test_mitsuba_evaluates_the_export_as_the_model(chrome_steel, tmp_path):
     """The hardest case: Mitsuba's ``measured`` plugin on the exported file against
-    reflecto's model, eq. 10 (measured 1.15 %).
+    reflecto's model, eq. 10 (measured 0.73 %).
     """
     require_mitsuba()
     from reflecto.mitsuba_support import MitsubaMeasured

@@ -52,16 +52,17 @@ from .io import (
     sha256,
     zip_members,
 )
-from .polar import IsotropicNDF
+from .polar import IsotropicNDF, NodeNDFs
 from .shadowing import SigmaTable, sigma_table
 
 Array = NDArray[np.float64]
 
 #: Format identifier and version of reflecto model files.
 MODEL_FORMAT = "reflecto-model"
-#: The newest format version read; a model with a Fresnel tint is written as version 4
-#: (a reader of version 3 would ignore its arrays), any other as version 3.
-MODEL_VERSION = 4
+#: The newest format version read; an isotropic model with an NDF per θ_d node is
+#: written as version 5, one with a Fresnel tint as version 4 (a reader of an older
+#: version would ignore their arrays), any other as version 3.
+MODEL_VERSION = 5
 MODEL_SUFFIX = ".reflecto"
 
 __all__ = ["MicrofacetBRDF", "IsotropicMicrofacetBRDF", "load_model", "MODEL_SUFFIX"]
@@ -403,7 +404,7 @@ class MicrofacetBRDF(BRDFSource):
         path = Path(path)
         meta = {
             "format": MODEL_FORMAT,
-            "version": MODEL_VERSION if self.tint is not None else 3,
+            "version": 4 if self.tint is not None else 3,
             "ndf_kind": "hemicube",
             "resolution": self.cube.n,
             "kd": self.kd.tolist(),
@@ -495,6 +496,51 @@ def _tint_parameters(model) -> dict[str, Any]:
         return {}
     return {"fresnel_tint": {f"{math.degrees(t):.1f}°": np.round(v, 3).tolist()
                              for t, v in zip(model.tint.theta, model.tint.values)}}
+
+
+def _lobe_term(ndf: IsotropicNDF, theta_h: Array, ci: Array, co: Array, correlated: bool, keep: NDArray[np.bool_]
+               ) -> Array:
+    """``D(θ_h) / (4 σ(i) σ(o))`` (AR 1.6; the height-correlated form when ``correlated``), 0 off ``keep``."""
+    d = ndf.at_theta(theta_h)
+    si, so = ndf.projected_area(ci), ndf.projected_area(co)
+    if correlated:
+        denom = 4.0 * (si * np.maximum(co, 0) + so * np.maximum(ci, 0) - np.maximum(ci, 0) * np.maximum(co, 0))
+    else:
+        denom = 4.0 * si * so
+    return np.divide(d, denom, out=np.zeros_like(d), where=keep & (denom > 0))
+
+
+def _lobe_parameters(model) -> dict[str, Any]:
+    """``ndf_per_theta_d`` for ``reflecto info``: each θ_d node's lobe half width at half
+    maximum (degrees), when the model has an NDF per node."""
+    if getattr(model, "lobes", None) is None:
+        return {}
+    theta = np.radians(np.linspace(0.0, 90.0, 18001))
+    out = {}
+    for t, d in zip(model.lobes.theta_d, model.lobes.ndfs):
+        v = d.at_theta(theta)
+        out[f"{math.degrees(t):.1f}°"] = f"half width {math.degrees(theta[int(np.argmax(v < 0.5 * v[0]))]):.2f}°"
+    return {"ndf_per_theta_d": out}
+
+
+def _lobes_from_arrays(path: Path, arrays: dict[str, NDArray[Any]], ndf: IsotropicNDF) -> NodeNDFs | None:
+    """The NDF per θ_d node of a model file's arrays, checked (``None`` when it has none)."""
+    values, theta = arrays.get("lobes"), arrays.get("lobes_theta_d")
+    if values is None and theta is None:
+        return None
+    if values is None or theta is None or values.dtype != np.dtype("<f4") or theta.dtype != np.dtype("<f8") \
+            or theta.ndim != 1 or not 2 <= len(theta) <= MAX_TINT_NODES or values.shape != (len(theta), len(ndf.nodes)):
+        raise FileFormatError(path, f"an NDF per θ_d node needs 2 to {MAX_TINT_NODES} float64 nodes "
+                                    "(lobes_theta_d.npy) and as many float32 rows on the NDF's polar nodes (lobes.npy)")
+    try:
+        lobes = NodeNDFs(theta, [IsotropicNDF(ndf.nodes, r.astype(np.float64), normalize=False) for r in values])
+    except ParameterError as e:
+        raise FileFormatError(path, f"invalid NDF per θ_d node ({e})") from None
+    for t, d in zip(theta, lobes.ndfs):
+        if not abs(d.normalization - 1.0) <= NDF_NORM_TOLERANCE:
+            raise FileFormatError(path, f"the NDF of θ_d node {math.degrees(t):.1f}° is not normalized "
+                                        f"(∫ D cos θ dω = {d.normalization:.6g}, AR 1.2 needs 1)")
+    return lobes
 
 
 def _write_model_file(path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> None:
@@ -693,6 +739,13 @@ class IsotropicMicrofacetBRDF(BRDFSource):
     tint
         Per-channel Fresnel tint ``τ_c(θ_d)`` (:class:`~reflecto.fresnel.FresnelTint`, or
         ``(nodes, values)``): ``F_c = min(1, τ_c F(c; η_c))``; ``None``: eq. 4 alone.
+    lobes
+        The specular lobe's NDF per ``θ_d`` node (:class:`~reflecto.polar.NodeNDFs`, or
+        ``(theta_d, values)`` with ``values`` of shape ``(J, K)`` on ``ndf``'s polar
+        nodes, normalized here): the lobe term is then node ``j``'s microfacet lobe
+        ``D_j S_j S_j / (4 cos θ_i cos θ_o)`` (``S_j`` from ``D_j``, eq. 8) at its node's
+        ``θ_d``, interpolated between the nodes as the tint is; ``ndf`` stays the NDF of
+        :meth:`ndf`, :meth:`shadowing` and :meth:`to_hemicube`. ``None``: ``ndf`` everywhere.
     """
 
     #: Diffuse and specular albedos and the relative index, RGB, shape ``(3,)`` (set by the constructor).
@@ -701,6 +754,8 @@ class IsotropicMicrofacetBRDF(BRDFSource):
     eta: Array
     #: The per-channel Fresnel tint, or ``None`` (set by the constructor).
     tint: FresnelTint | None
+    #: The lobe's NDF per θ_d node, or ``None`` (set by the constructor).
+    lobes: NodeNDFs | None
     _fresnel_table: FresnelTable
     #: Height-correlated Smith shadowing (else separable), and free-form metadata.
     correlated: bool
@@ -712,7 +767,8 @@ class IsotropicMicrofacetBRDF(BRDFSource):
     def __init__(self, ndf: IsotropicNDF | tuple[ArrayLike, ArrayLike], kd: ArrayLike = 0.0, ks: ArrayLike = 1.0,
                  eta: ArrayLike = 1.5, *, normalize: bool = True, correlated: bool = False,
                  metadata: dict[str, Any] | None = None, path: Path | None = None,
-                 tint: FresnelTint | tuple[ArrayLike, ArrayLike] | None = None) -> None:
+                 tint: FresnelTint | tuple[ArrayLike, ArrayLike] | None = None,
+                 lobes: NodeNDFs | tuple[ArrayLike, ArrayLike] | None = None) -> None:
         if not isinstance(ndf, IsotropicNDF):
             nodes, values = ndf
             # stored as float32 in model files: round now so that save/load is exact
@@ -722,6 +778,18 @@ class IsotropicMicrofacetBRDF(BRDFSource):
             ndf = IsotropicNDF(np.asarray(nodes, np.float64), np.asarray(values, "<f4").astype(np.float64),
                                normalize=False)
         self.ndf_table = ndf
+        if lobes is not None and not isinstance(lobes, NodeNDFs):
+            theta_d, rows = lobes
+            rows = np.asarray(rows, dtype=np.float64)
+            if rows.ndim != 2:
+                raise ParameterError(f"NDF per θ_d node: values must be (nodes, {len(ndf.nodes)}), got {rows.shape}")
+            # stored as float32: normalize, round, and keep the rounded table (save/load is exact)
+            lobes = NodeNDFs(theta_d, [IsotropicNDF(ndf.nodes, np.asarray(
+                IsotropicNDF(ndf.nodes, r).values if normalize else r, "<f4").astype(np.float64), normalize=False)
+                for r in rows])
+        elif lobes is not None and not np.array_equal(lobes.ndfs[0].nodes, ndf.nodes):
+            raise ParameterError("NDF per θ_d node: the NDFs must share the model NDF's polar nodes")
+        self.lobes = lobes
         _common_scalars(self, kd, ks, eta, correlated, metadata, path, tint)
         self.isotropic = True
         self._hemicube: dict[int, MicrofacetBRDF] = {}
@@ -778,7 +846,8 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         return _tinted_fresnel(self, c)
 
     def eval(self, i: ArrayLike, o: ArrayLike) -> Array:
-        """The BRDF ``f = k_d/π + k_s D(θ_h) F(c; η) / (4 σ(i) σ(o))`` (eqs. 1–2, AR 1.6).
+        """The BRDF ``f = k_d/π + k_s D(θ_h) F(c; η) / (4 σ(i) σ(o))`` (eqs. 1–2, AR 1.6);
+        with :attr:`lobes`, ``Σ_j H_j(θ_d) D_j(θ_h) / (4 σ_j(i) σ_j(o))`` in place of the lobe.
 
         Parameters
         ----------
@@ -800,14 +869,15 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         norm = np.where(norm > 0, norm, 1.0)
         ch = hs[..., 2] / norm
         c = np.abs(np.einsum("...k,...k->...", i, hs)) / norm
-        d = self.ndf_table.at_theta(np.arccos(np.clip(ch, -1.0, 1.0)))
-        si = self.ndf_table.projected_area(ci)
-        so = self.ndf_table.projected_area(co)
-        if self.correlated:
-            denom = 4.0 * (si * np.maximum(co, 0) + so * np.maximum(ci, 0) - np.maximum(ci, 0) * np.maximum(co, 0))
-        else:
-            denom = 4.0 * si * so
-        spec = np.divide(d, denom, out=np.zeros_like(d), where=ok & (denom > 0) & (ch > 0))
+        theta_h = np.arccos(np.clip(ch, -1.0, 1.0))
+        keep = ok & (ch > 0)
+        if self.lobes is None:
+            spec = _lobe_term(self.ndf_table, theta_h, ci, co, self.correlated, keep)
+        else:  # the microfacet lobes of the θ_d nodes, each with its own S (eq. 8), mixed by θ_d
+            spec = np.zeros(theta_h.shape)
+            for w, ndf in zip(self.lobes.hats(np.arccos(np.clip(c, 0.0, 1.0))), self.lobes.ndfs):
+                if np.any(w > 0):
+                    spec += w * _lobe_term(ndf, theta_h, ci, co, self.correlated, keep & (w > 0))
         f = self._fresnel_table(c)
         f *= self.ks
         f *= spec[..., None]
@@ -850,6 +920,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
             "ks": self.ks.tolist(),
             **eta_to_json(self.eta),
             **_tint_parameters(self),
+            **_lobe_parameters(self),
             "shadowing": "height-correlated Smith" if self.correlated else "separable APS (eq. 8)",
             **({"metadata": self.metadata} if self.metadata else {}),
         }
@@ -873,7 +944,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         path = Path(path)
         meta = {
             "format": MODEL_FORMAT,
-            "version": MODEL_VERSION if self.tint is not None else 3,
+            "version": 5 if self.lobes is not None else 4 if self.tint is not None else 3,
             "ndf_kind": "isotropic",
             "resolution": self.resolution,
             "kd": self.kd.tolist(),
@@ -884,6 +955,9 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         }
         arrays = {"ndf": self.ndf_table.values.astype("<f4"), "ndf_theta": self.ndf_table.nodes.astype("<f8"),
                   **_tint_arrays(self)}
+        if self.lobes is not None:
+            arrays["lobes"] = self.lobes.values.astype("<f4")
+            arrays["lobes_theta_d"] = self.lobes.theta_d.astype("<f8")
         try:
             _check_model(path, self)
         except FileFormatError as e:
@@ -907,7 +981,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         try:
             ndf = IsotropicNDF(nodes, values.astype(np.float64), normalize=False)
             model = cls(ndf, kd, ks, eta, correlated=correlated, metadata=metadata, path=path,
-                        tint=_tint_from_arrays(path, arrays))
+                        tint=_tint_from_arrays(path, arrays), lobes=_lobes_from_arrays(path, arrays, ndf))
         except ParameterError as e:
             raise FileFormatError(path, f"invalid model parameters ({e})") from None
         _check_model(path, model)

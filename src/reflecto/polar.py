@@ -32,7 +32,7 @@ from .errors import ParameterError
 
 Array = NDArray[np.float64]
 
-__all__ = ["IsotropicNDF", "azimuthal_kernel", "polar_nodes", "interpolation_cells"]
+__all__ = ["IsotropicNDF", "NodeNDFs", "azimuthal_kernel", "polar_nodes", "interpolation_cells"]
 
 #: Node spacing at the pole (radians): 0.1°, half the camera's angular sampling of
 #: the half vector (a pixel moves h by ≈ 0.2°), so that the sharpest peaks it can
@@ -199,3 +199,63 @@ class IsotropicNDF:
         c = np.clip(np.asarray(cos_theta, dtype=np.float64), 0.0, 1.0)
         sig = self.projected_area(c)
         return np.divide(c, sig, out=np.zeros_like(c), where=sig > 0)
+
+
+class NodeNDFs:
+    """An isotropic NDF that changes with ``θ_d``: one normalized ``D_j(θ_h)`` per ``θ_d`` node.
+
+    ``D(θ_h; θ_d) = Σ_j H_j(θ_d) D_j(θ_h)`` with ``H_j`` the hat functions of the
+    nodes, constant beyond the first and the last (the Fresnel tint's interpolation,
+    :class:`reflecto.fresnel.FresnelTint`). Each ``D_j`` is normalized (AR 1.2) and the
+    weights sum to 1, so ``∫ D(h; θ_d) cos θ_h dω_h = 1`` at every ``θ_d``; ``D`` is
+    symmetric in ``i`` and ``o`` (``θ_h`` and ``θ_d`` are), so a BRDF built on it stays
+    reciprocal.
+
+    Parameters
+    ----------
+    theta_d
+        The nodes (radians), strictly increasing, in ``[0, π/2]``, shape ``(J,)``, ``J ≥ 2``.
+    ndfs
+        One :class:`IsotropicNDF` per node, all on the same polar nodes.
+    """
+
+    def __init__(self, theta_d: ArrayLike, ndfs: list[IsotropicNDF] | tuple[IsotropicNDF, ...]) -> None:
+        theta_d = np.ascontiguousarray(theta_d, dtype=np.float64)
+        if theta_d.ndim != 1 or len(theta_d) < 2 or len(ndfs) != len(theta_d):
+            raise ParameterError(f"NDF per θ_d node: need ≥ 2 nodes and one NDF each, got {theta_d.shape} "
+                                 f"and {len(ndfs)}")
+        if not (np.all(np.isfinite(theta_d)) and np.all(np.diff(theta_d) > 0) and theta_d[0] >= 0
+                and theta_d[-1] <= 0.5 * math.pi + 1e-12):
+            raise ParameterError("NDF per θ_d node: nodes must increase within [0, π/2]")
+        if any(not np.array_equal(d.nodes, ndfs[0].nodes) for d in ndfs):
+            raise ParameterError("NDF per θ_d node: the NDFs must share their polar nodes")
+        self.theta_d = theta_d
+        self.theta_d.setflags(write=False)
+        self.ndfs = tuple(ndfs)
+
+    @property
+    def values(self) -> Array:
+        """``D_j`` at the polar nodes (sr⁻¹), shape ``(J, K)``."""
+        return np.stack([d.values for d in self.ndfs])
+
+    def weights(self, theta_d: ArrayLike) -> tuple[NDArray[np.intp], Array]:
+        """The lower node ``j`` and the weight ``u`` of node ``j + 1`` at each ``θ_d`` (radians)."""
+        theta_d = np.asarray(theta_d, dtype=np.float64)
+        nodes = self.theta_d
+        j = np.clip(np.searchsorted(nodes, theta_d) - 1, 0, len(nodes) - 2)
+        u = np.clip((theta_d - nodes[j]) / (nodes[j + 1] - nodes[j]), 0.0, 1.0)
+        return j, u
+
+    def hats(self, theta_d: ArrayLike) -> list[Array]:
+        """Each node's weight ``H_j(θ_d)`` at ``θ_d`` (radians; the weights sum to 1), one array per node."""
+        j, u = self.weights(theta_d)
+        return [np.where(j == q, 1.0 - u, 0.0) + np.where(j + 1 == q, u, 0.0) for q in range(len(self.ndfs))]
+
+    def at(self, theta_h: ArrayLike, theta_d: ArrayLike) -> Array:
+        """``D(θ_h; θ_d)`` (sr⁻¹), broadcast over the two angle arrays (radians)."""
+        theta_h, theta_d = np.broadcast_arrays(np.asarray(theta_h, np.float64), np.asarray(theta_d, np.float64))
+        out = np.zeros(theta_h.shape)
+        for w, d in zip(self.hats(theta_d), self.ndfs):
+            if np.any(w > 0):
+                out += w * d.at_theta(theta_h)
+        return out

@@ -60,6 +60,7 @@ from ..colour import LUM
 from ..errors import FileFormatError
 from ..fresnel import fresnel, is_constant
 from ..io import atomic_path, atomic_write
+from ..polar import NodeNDFs
 from ..sources.rgl import MAGIC, RGLBRDF, Marginal2D
 
 Array = NDArray[np.float64]
@@ -75,7 +76,10 @@ class RGLGrid:
     ----------
     n_theta_i, n_theta_i_aniso
         Incident elevations of isotropic and anisotropic files, denser toward grazing
-        incidence by ``theta_i_grazing`` (see :func:`theta_i_nodes`).
+        incidence by ``theta_i_grazing`` (see :func:`theta_i_nodes`). A model's lobe
+        that changes with ``θ_d`` (an NDF per ``θ_d`` node) changes along ``θ_i`` too:
+        chrome-steel's reconstruction is read back by Mitsuba within 2.2 % (eq. 10) with
+        32 elevations, 0.73 % with 48, 0.49 % with 64 (3.3 MB per file at 48).
     n_phi_i
         Incident azimuths of anisotropic files, over ``[−π, π]``.
     ndf_iso, ndf
@@ -98,7 +102,7 @@ class RGLGrid:
         Divide Σ by the Fresnel factor at ``θ_d = θ_i`` (see :func:`_fresnel_ratio`).
     """
 
-    n_theta_i: int = 32
+    n_theta_i: int = 48
     n_theta_i_aniso: int = 24
     theta_i_grazing: float = 0.3
     n_phi_i: int = 37
@@ -219,11 +223,15 @@ def ndf_function(source: BRDFSource) -> tuple[NDFFunction, bool]:
     -------
     d_fn : callable
         ``D(m)`` for unit half vectors of shape ``(..., 3)``: the source's own ``ndf(h)``
-        (sr⁻¹) if it has one, else the back-scattering estimate ``f(m, m)·cos²θ_m``
-        (luminance, unnormalized).
+        (sr⁻¹) if it has one (for a model with an NDF per ``θ_d`` node, the nodes' mean,
+        so that the warp resolves the narrowest node's peak and the widest node's tail),
+        else the back-scattering estimate ``f(m, m)·cos²θ_m`` (luminance, unnormalized).
     is_model_ndf : bool
         Whether ``d_fn`` is the source's own NDF.
     """
+    lobes = getattr(source, "lobes", None)
+    if isinstance(lobes, NodeNDFs):
+        return (lambda m: np.mean([np.asarray(d(m), dtype=np.float64) for d in lobes.ndfs], axis=0)), True
     own = getattr(source, "ndf", None)
     if callable(own):
         return (lambda m: np.asarray(own(m), dtype=np.float64)), True

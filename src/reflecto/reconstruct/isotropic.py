@@ -42,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,7 +53,7 @@ from ..errors import ReflectoError
 from ..fresnel import CONSTANT, MAX_TINT, FresnelTint, fresnel
 from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF
-from ..polar import IsotropicNDF, _quadrature, cell_table, interpolation_cells, polar_nodes
+from ..polar import IsotropicNDF, NodeNDFs, _quadrature, cell_table, interpolation_cells, polar_nodes
 from . import _polar_kernels
 from .samples import kd_median_bound
 from .tuning import ISOTROPIC
@@ -75,6 +76,7 @@ ETA_MIN = ISOTROPIC.eta_min
 OUTER_ITERATIONS = ISOTROPIC.outer_iterations
 LM_TOLERANCE = ISOTROPIC.lm_tolerance
 LM_MAX_ITERATIONS = ISOTROPIC.lm_max_iterations
+NODE_ROUNDS = ISOTROPIC.node_rounds
 MIRROR_THETA_H = ISOTROPIC.mirror_theta_h
 
 
@@ -280,7 +282,8 @@ class LuminanceProblem:
         return c if math.isfinite(c) else math.inf
 
 
-def prior(problem: LuminanceProblem, s: LuminanceState) -> None:
+def prior(problem: LuminanceProblem, s: LuminanceState, tail: Array | None = None,
+          tail_from: int | None = None) -> None:
     """Set the problem's priors on ``log D`` (``H``, ``β``) for the weights in place.
 
     * Curvature: ``λ ∫ (∂²z/∂θ²)² dθ`` with ``λ = ρ ℓ⁴``, ``ρ`` the data's weight per
@@ -293,7 +296,9 @@ def prior(problem: LuminanceProblem, s: LuminanceState) -> None:
     * Tail: beyond the last ring a measured bin lies in, the first differences of
       ``z − L`` (``L`` the lobe of :func:`lobe_log`) are held at 0 with weight
       :data:`TAIL_WEIGHT` ``ρ Δθ``: the NDF continues as the lobe does, at the ratio it
-      has at the last measured ring.
+      has at the last measured ring. With ``tail`` (a ``log D`` at the nodes) that shape
+      instead of the lobe's, from node ``tail_from`` on where it is given (else from the
+      last measured ring): the NDF continues as ``tail`` does.
     """
     nodes = problem.nodes
     k = len(nodes)
@@ -307,8 +312,8 @@ def prior(problem: LuminanceProblem, s: LuminanceState) -> None:
     # the last ring measured: the lower node of the outermost cell a measured bin lies in
     # (the node above it is touched only through interpolation weights that vanish there)
     if me.any():
-        first = int(problem.j[me].max())
-        lobe = lobe_log(nodes, s.z, np.arange(k) <= first) if first < k - 1 else None
+        first = int(problem.j[me].max()) if tail_from is None else min(tail_from, int(problem.j[me].max()))
+        lobe = None if first >= k - 1 else tail if tail is not None else lobe_log(nodes, s.z, np.arange(k) <= first)
         if lobe is not None:
             rows = np.zeros((k - 1 - first, k))
             idx = np.arange(first, k - 1)
@@ -410,13 +415,13 @@ def normalization(nodes: Array, z: Array) -> tuple[float, Array]:
 
 
 def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
-          tie_ks: bool = False) -> tuple[LuminanceState, float]:
+          tie_ks: bool = False, fix_kd: bool = False) -> tuple[LuminanceState, float]:
     """Levenberg–Marquardt on ``(z, k_d, log g, log(η − 1))`` with ``S`` and the weights fixed.
 
     ``tie_ks`` holds ``k_s = g N(z) = 1`` (``log g = −log N(z)``: the ``log g`` column
     folds into the ``z`` columns through ``∂ log N / ∂z``). Bounds: ``k_d ≥ 0`` and
     ``η ∈ [ETA_MIN, ETA_MAX]`` (a parameter at a bound and pushed beyond it is held for
-    the step). Returns the state and its cost.
+    the step); ``fix_eta`` and ``fix_kd`` hold those. Returns the state and its cost.
     """
     k = len(problem.nodes)
     if tie_ks:  # k_s = 1 with the NDF normalized
@@ -431,7 +436,7 @@ def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
         frozen = [k + 2] if fix_eta else []
         if (s.eta >= ETA_MAX and grad[k + 2] < 0) or (s.eta <= ETA_MIN and grad[k + 2] > 0):
             frozen.append(k + 2)
-        if s.kd <= 0.0 and grad[k] > 0:
+        if fix_kd or (s.kd <= 0.0 and grad[k] > 0):
             frozen.append(k)
         if tie_ks:
             frozen.append(k + 1)
@@ -722,7 +727,13 @@ def tint_nodes(theta_d: Array, theta_h: Array, information: Array, led: NDArray[
     Returns the nodes (radians, increasing; one node, or none where no slice holds the
     mirror direction: the tint is constant).
     """
-    clusters = []
+    return np.array([mean for mean, _ in tint_clusters(theta_d, theta_h, information, led)])
+
+
+def tint_clusters(theta_d: Array, theta_h: Array, information: Array,
+                  led: NDArray[np.intp]) -> list[tuple[float, tuple[int, ...]]]:
+    """:func:`tint_nodes` with the LEDs of each node: ``(θ_d node (radians), LEDs)``, increasing."""
+    clusters: list[tuple[float, float, float, tuple[int, ...]]] = []  # weight, mean, mean square, LEDs
     for k in np.unique(led):
         sel = led == k
         if theta_h[sel].min() > MIRROR_THETA_H:
@@ -732,7 +743,7 @@ def tint_nodes(theta_d: Array, theta_h: Array, information: Array, led: NDArray[
         if not total > 0 or not math.isfinite(total):
             continue
         mu = float(w @ theta_d[sel]) / total
-        clusters.append([total, mu, float(w @ theta_d[sel] ** 2) / total])  # weight, mean, mean square
+        clusters.append((total, mu, float(w @ theta_d[sel] ** 2) / total, (int(k),)))
     clusters.sort(key=lambda c: c[1])
     while len(clusters) > 1:
         spread = [math.sqrt(max(c[2] - c[1] ** 2, 0.0)) for c in clusters]
@@ -741,17 +752,64 @@ def tint_nodes(theta_d: Array, theta_h: Array, information: Array, led: NDArray[
         if gaps[i] > 0:
             break
         a, b = clusters[i], clusters[i + 1]
-        w = a[0] + b[0]
-        clusters[i:i + 2] = [[w, (a[0] * a[1] + b[0] * b[1]) / w, (a[0] * a[2] + b[0] * b[2]) / w]]
-    return np.array([c[1] for c in clusters])
+        total = a[0] + b[0]
+        clusters[i:i + 2] = [(total, (a[0] * a[1] + b[0] * b[1]) / total, (a[0] * a[2] + b[0] * b[2]) / total,
+                              a[3] + b[3])]
+    return [(c[1], c[3]) for c in clusters]
 
 
-def unit_specular(fit: LuminanceFit) -> Array:
+def node_ndfs(fit: LuminanceFit, nodes: Array, leds: list[tuple[int, ...]]) -> NodeNDFs:
+    """The lobe's NDF at each ``θ_d`` node, from the slices of the node's LEDs.
+
+    A sharp lobe's shape changes with ``θ_d`` (chrome-steel's falls to 0.040 of its
+    peak at ``θ_h`` = 0.5° at ``θ_d`` = 26° and to 0.089 at 65°), and the one ``D`` of
+    the luminance fit is the compromise its weights make between the nodes. Near the
+    peak only the nodes' slices see ``D`` (the other LEDs' half vectors stay 16–29° from
+    the normal on the paper's layout); there the data tell one node's lobe from
+    another's. So at each node ``log D`` is refitted to the bins of the LEDs that set
+    the node (the slices that hold the mirror direction there), from the luminance
+    fit's state with its ``k_d`` and ``η`` held, its priors (:func:`prior`) and ``S``
+    from the node's own ``D`` (eq. 8), renewed each of :data:`NODE_ROUNDS` rounds as the
+    luminance fit renews it; from the first ring that another LED's measured bins reach,
+    every LED sees the lobe and the node's ``D`` continues as the luminance fit's does
+    (its tail, a fraction of a percent of a diffuse sample's value, is no one slice's to
+    tell). Each node's ``D`` is normalized; the specular level and colour per node are
+    the tint's (:func:`tinted_scalars`).
+    """
+    p, base = fit.problem, fit.state
+    me = p.measured
+    others = me & ~np.isin(p.bins.led, [k for members in leds for k in members])
+    shared_from = int(p.j[others].min()) if others.any() else None
+    out = []
+    for members in leds:
+        sel = np.isin(p.bins.led, members)
+        sub = LuminanceProblem(PolarBins(*(getattr(p.bins, f.name)[sel] for f in dataclasses.fields(PolarBins))),
+                               p.nodes)
+        set_weights(sub)
+        s = base.copy()
+        update_shadowing(sub, s)
+        for _ in range(NODE_ROUNDS):
+            prior(sub, s, tail=base.z, tail_from=shared_from)
+            s, _ = solve(sub, s, fix_eta=True, fix_kd=True)
+            update_shadowing(sub, s)
+        out.append(IsotropicNDF(p.nodes, np.exp(s.z - s.z.max())))
+    return NodeNDFs(nodes, out)
+
+
+def unit_specular(fit: LuminanceFit, lobes: NodeNDFs | None = None) -> Array:
     """The specular term of every bin with ``k_s = 1``: ``F(θ_d; η) D(θ_h) S(θ_i) S(θ_o) /
-    (4 cos θ_i cos θ_o)`` (sr⁻¹, shape ``(B,)``), with the fitted ``D``, ``S`` and ``η``."""
+    (4 cos θ_i cos θ_o)`` (sr⁻¹, shape ``(B,)``), with the fitted ``D``, ``S`` and ``η``; with
+    ``lobes``, ``Σ_j H_j(θ_d) D_j S_j S_j`` of the nodes' lobes in place of ``D S S``
+    (:class:`reflecto.model.IsotropicMicrofacetBRDF`'s ``lobes``)."""
     p, s = fit.problem, fit.state
-    n = ndf_integral(p.nodes, s.z)
-    return p.specular(LuminanceState(s.z, 0.0, 1.0 / n, s.eta))[0]
+    if lobes is None:
+        n = ndf_integral(p.nodes, s.z)
+        return p.specular(LuminanceState(s.z, 0.0, 1.0 / n, s.eta))[0]
+    b = p.bins
+    lobe = np.zeros(len(b))
+    for w, ndf in zip(lobes.hats(np.arccos(np.clip(b.cos_d, 0.0, 1.0))), lobes.ndfs):
+        lobe += w * ndf.at_theta(b.theta_h) * ndf.shadowing(b.cos_i) * ndf.shadowing(b.cos_o)
+    return fresnel(b.cos_d, s.eta) * lobe * p.geometry
 
 
 def _tint_design(base: Array, theta_d: Array, nodes: Array) -> Array:
@@ -791,7 +849,8 @@ def _scale_bound(nodes: Array, eta: float) -> Array:
     return 1.0 / np.maximum(fresnel(np.cos(nodes), eta), 1e-300)
 
 
-def tinted_scalars(fit: LuminanceFit, kd_max: Array | None = None) -> tuple[Array, Array, FresnelTint | None]:
+def tinted_scalars(fit: LuminanceFit, kd_max: Array | None = None, per_node: bool = True
+                   ) -> tuple[Array, Array, FresnelTint | None, NodeNDFs | None]:
     """``k_d``, ``k_s`` and the Fresnel tint per channel with the fitted ``D``, ``S`` and ``η``.
 
     The specular scale becomes a function of ``θ_d``, piecewise linear between the
@@ -806,16 +865,25 @@ def tinted_scalars(fit: LuminanceFit, kd_max: Array | None = None) -> tuple[Arra
     and ``0 ≤ k_d ≤ k_d,max`` (:func:`channel_scalars`). Past the largest measured
     ``θ_d`` the Fresnel curve keeps η's shape (eq. 4).
 
-    Returns ``k_d`` (3,), ``k_s = min(1, max_j g_{c,j})`` (3,) and the tint ``τ = g / k_s``
+    Where there are two nodes or more (and ``per_node``), ``D`` is the lobe's per node
+    (:func:`node_ndfs`) and interpolated between them as the tint is.
+
+    Returns ``k_d`` (3,), ``k_s = min(1, max_j g_{c,j})`` (3,), the tint ``τ = g / k_s``
     (so ``F_c = τ F ≤ 1`` at the nodes; the model clips it at 1 between them), or ``None``
-    where the data hold one node (then ``g`` is one number per channel: ``k_s``).
+    where the data hold one node (then ``g`` is one number per channel: ``k_s``), and the
+    NDF per node (or ``None``).
     """
     p = fit.problem
     me = p.measured
     base = unit_specular(fit)[me]
     td = np.arccos(np.clip(p.bins.cos_d[me], 0.0, 1.0))
     w = p.w[me]
-    nodes = tint_nodes(td, p.bins.theta_h[me], w * base ** 2, p.bins.led[me])
+    clusters = tint_clusters(td, p.bins.theta_h[me], w * base ** 2, p.bins.led[me])
+    nodes = np.array([c[0] for c in clusters])
+    lobes = None
+    if len(nodes) > 1 and per_node:
+        lobes = node_ndfs(fit, nodes, [c[1] for c in clusters])
+        base = unit_specular(fit, lobes)[me]
     if len(nodes) == 0:  # no slice holds the mirror direction: one scale per channel
         nodes = np.zeros(1)
     upper = np.full(3, np.inf) if kd_max is None else np.asarray(kd_max, dtype=np.float64)
@@ -824,9 +892,9 @@ def tinted_scalars(fit: LuminanceFit, kd_max: Array | None = None) -> tuple[Arra
     kd, g = x[0], x[1:]
     ks = np.minimum(g.max(axis=0), 1.0)
     if len(nodes) < 2:
-        return kd, ks, None
+        return kd, ks, None, None
     tau = np.divide(g, ks, out=np.ones_like(g), where=ks > 0)
-    return kd, ks, FresnelTint(nodes, np.clip(tau, 0.0, MAX_TINT))
+    return kd, ks, FresnelTint(nodes, np.clip(tau, 0.0, MAX_TINT)), lobes
 
 
 def _box_least_squares(m: Array, v: Array, xb: tuple[float, float], yb: tuple[float, float]) -> tuple[float, float]:
@@ -858,7 +926,10 @@ class IsotropicFit:
     Attributes
     ----------
     model
-        The reconstructed BRDF.
+        The reconstructed BRDF, built on first use: the per-channel scalars under the
+        ``k_d`` ceiling, the Fresnel tint and the NDF per ``θ_d`` node
+        (:func:`tinted_scalars`), which a fit used only for its ``ε`` (the device frame's
+        check, :mod:`.pipeline`) never needs.
     eta
         The relative index (one for R, G, B).
     model_error
@@ -874,12 +945,23 @@ class IsotropicFit:
         them with (its thresholds are set on it). ``model`` is the one to use.
     """
 
-    model: IsotropicMicrofacetBRDF
     eta: float
     model_error: float
     ks_at_bound: bool
     bins: tuple[int, int]
-    least_squares: IsotropicMicrofacetBRDF | None = None
+    least_squares: IsotropicMicrofacetBRDF
+    luminance: LuminanceFit
+    #: ``k_d``'s ceiling per channel (:func:`.samples.kd_median_bound`), computed with the model.
+    ceiling: Callable[[], Array]
+
+    @functools.cached_property
+    def model(self) -> IsotropicMicrofacetBRDF:
+        """The reconstructed BRDF (see the class docstring)."""
+        lum = self.luminance
+        kd, ks, tint, lobes = tinted_scalars(lum, self.ceiling())
+        d = np.exp(lum.state.z - lum.state.z.max())
+        return IsotropicMicrofacetBRDF((lum.problem.nodes, d), kd, ks, lum.state.eta, tint=tint,
+                                       lobes=None if lobes is None else (lobes.theta_d, lobes.values))
 
 
 def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | None = None,
@@ -890,11 +972,9 @@ def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | N
     nodes = polar_nodes()
     bins = bin_polar(slices, nodes, valid)
     lum = fit_luminance(bins, nodes, fixed_eta)
-    ceiling = kd_median_bound(slices.light, slices.view, slices.values, valid, kd_bound_max_deg)
     ((kd_ls, ks_ls),) = scalars_under_ceilings(lum, [None])
-    kd, ks, tint = tinted_scalars(lum, ceiling)
     d = np.exp(lum.state.z - lum.state.z.max())
-    model = IsotropicMicrofacetBRDF((nodes, d), kd, ks, lum.state.eta, tint=tint)
     ls = IsotropicMicrofacetBRDF((nodes, d), kd_ls, ks_ls, lum.state.eta)
-    return IsotropicFit(model, lum.state.eta, lum.eps, lum.ks_bound,
-                        (int(np.count_nonzero(~bins.censored)), int(np.count_nonzero(bins.censored))), ls)
+    return IsotropicFit(lum.state.eta, lum.eps, lum.ks_bound,
+                        (int(np.count_nonzero(~bins.censored)), int(np.count_nonzero(bins.censored))), ls, lum,
+                        lambda: kd_median_bound(slices.light, slices.view, slices.values, valid, kd_bound_max_deg))
