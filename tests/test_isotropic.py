@@ -370,3 +370,36 @@ def test_reconstruction_recovers_a_lobe_that_changes_with_theta_d():
     assert half_width(model.ndf_table) < 0.5 * truth[1]  # the one NDF: the narrow node's, for every θ_d
     # 0.20 against 0.24: the error lies at grazing θ_d, where the node's lobe is the narrower above
     assert brdf_error(src, model, stride=3).normalized < 0.88 * brdf_error(src, one_ndf, stride=3).normalized
+
+
+def test_a_model_file_with_a_damaged_array_table_or_sample_normal_is_refused_by_name(tmp_path):
+    import json
+    import zipfile
+
+    from reflecto.io import content_digest
+
+    m = _changing_lobe()
+    m.metadata.update({"normal": [0.0, 0.0, 1.0], "normal_tilt_deg": 0.0, "normal_uncertainty_deg": None,
+                       "normal_source": "device"})
+    good = m.save(tmp_path / "m.reflecto")
+    assert load_model(good).metadata["normal_tilt_deg"] == 0.0
+    with zipfile.ZipFile(good) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+
+    def damaged(edit):
+        meta = json.loads(members["meta.json"])
+        edit(meta)
+        meta.pop("sha256")
+        meta["sha256"] = content_digest(meta)
+        out = tmp_path / "bad.reflecto"
+        with zipfile.ZipFile(out, "w") as z:
+            for name, data in {**members, "meta.json": json.dumps(meta).encode()}.items():
+                z.writestr(name, data)
+        return out
+
+    with pytest.raises(FileFormatError, match="member name must be a string"):
+        load_model(damaged(lambda meta: meta["arrays"]["ndf"].update(file=["ndf.npy"])))
+    for key, value in (("normal_tilt_deg", "abc"), ("normal_tilt_deg", float("nan")), ("normal", [0, 0, 2]),
+                       ("normal_uncertainty_deg", [1])):
+        with pytest.raises(FileFormatError, match=f"metadata '{key}' is not a valid sample normal entry"):
+            load_model(damaged(lambda meta: meta["metadata"].update({key: value})))

@@ -591,7 +591,11 @@ def _checked_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes])
     spec = meta.get("arrays")
     if not isinstance(spec, dict) or not all(isinstance(v, dict) for v in spec.values()):
         raise FileFormatError(path, "metadata lacks a valid 'arrays' table")
-    files = {v.get("file") for v in spec.values()}
+    for name, v in spec.items():
+        if not isinstance(v.get("file"), str):
+            raise FileFormatError(path, f"array {short_repr(name)}: its member name must be a string, "
+                                        f"got {short_repr(v.get('file'))}")
+    files = {v["file"] for v in spec.values()}
     extra = sorted(set(members) - files - {"meta.json"})
     if extra or len(files) != len(spec):
         raise FileFormatError(path, f"archive members {extra or sorted(map(str, files))} do not match the metadata")
@@ -656,6 +660,24 @@ def _model_parameters(path: Path, meta: dict[str, Any]) -> tuple[Array, Array, A
     return kd, ks, eta, correlated, metadata
 
 
+def _check_normal_metadata(path: Path, metadata: dict[str, Any]) -> None:
+    """The sample normal a reconstruction records (``reflecto info`` shows it): a unit-length
+    3-vector, angles in [0°, 90°] (the uncertainty may be ``null``: not finite), a source
+    name; anything else is a damaged file."""
+    def angle(v: Any) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0.0 <= v <= 90.0
+
+    checks = {"normal_tilt_deg": angle, "normal_uncertainty_deg": lambda v: v is None or angle(v),
+              "normal_source": lambda v: isinstance(v, str) and len(v) <= 64,
+              "normal": lambda v: isinstance(v, list) and len(v) == 3 and all(
+                  isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+              and abs(math.hypot(*v) - 1.0) < 1e-3}
+    for key, ok in checks.items():
+        if key in metadata and not ok(metadata[key]):
+            raise FileFormatError(path, f"metadata {key!r} is not a valid sample normal entry: "
+                                        f"{short_repr(metadata[key])}")
+
+
 def _local_metadata(path: Path, metadata: dict[str, Any]) -> dict[str, Any]:
     """``metadata`` with its ``capture`` folder and ``calibration`` file resolved against the model's folder.
 
@@ -665,6 +687,7 @@ def _local_metadata(path: Path, metadata: dict[str, Any]) -> dict[str, Any]:
     """
 
     out = dict(metadata)
+    _check_normal_metadata(path, out)
     for key, is_kind in (("capture", os.path.isdir), ("calibration", os.path.isfile)):
         name = out.pop(key, None)
         if name is None:
