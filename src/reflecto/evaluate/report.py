@@ -140,12 +140,20 @@ def ndf_figures(model: HasNDF, out: Path) -> list[tuple[str, str]]:
     ax.fill_between(np.degrees(th), np.maximum(ring.min(axis=1), floor), np.maximum(ring.max(axis=1), floor),
                     color="0.8", label="min–max over φ_h")
     ax.semilogy(np.degrees(th), np.maximum(ring.mean(axis=1), floor), "k-", lw=1, label="mean over φ_h")
+    lobes = getattr(model, "lobes", None)
+    caption = "NDF against θ_h (log scale): mean, min and max over φ_h."
+    if lobes is not None:  # the lobe at each θ_d node (docs/design/reconstruction.md)
+        for t, d in zip(lobes.theta_d, lobes.ndfs):
+            ax.semilogy(np.degrees(th), np.maximum(d.at_theta(th), floor), lw=1, ls="--",
+                        label=f"lobe at θ_d = {math.degrees(t):.0f}°")
+        caption = ("NDF against θ_h (log scale): the fit's one D (black; S of the plots, the export's sampling) "
+                   "and the lobe the model uses at each θ_d node (dashed), mixed between the nodes.")
     ax.set_xlabel("θ_h (deg)")
     ax.set_ylabel("D (sr⁻¹)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    items.append((_save_png(fig, out / "ndf_profile.png"), "NDF against θ_h (log scale): mean, min and max over φ_h."))
+    items.append((_save_png(fig, out / "ndf_profile.png"), caption))
     return items
 
 
