@@ -116,7 +116,7 @@ def test_bad_inputs_clear_errors_and_no_output(tmp_path, capsys):
     # unknown scene: argparse refuses
     with pytest.raises(SystemExit) as e:
         main(["render", str(good), "--scene", "moon", "-o", str(tmp_path / "r.png")])
-    assert e.value.code == 2
+    assert e.value.code == 1  # one line, status 1, as every error (cli._Parser.error)
     # unreadable environment map
     bad = tmp_path / "bad.hdr"
     bad.write_bytes(b"#?RADIANCE\nnot really\n")

@@ -15,14 +15,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shutil
 import sys
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import imageio.v3 as iio
 import numpy as np
@@ -42,17 +43,18 @@ from .export.rgl import export_rgl
 from .fresnel import eta_from_json, format_eta
 from .instrument import layout
 from .instrument.calibrate import calibrate
-from .instrument.capture import write_capture
+from .instrument.capture import CALIBRATION_MANIFEST, MANIFEST, write_capture
 from .instrument.device import BUILTINS as DEVICE_BUILTINS
 from .instrument.device import load_device
 from .instrument.plots import plot_coverage
 from .instrument.simulate import simulate_calibration, simulate_capture
-from .io import atomic_path, check_output, make_parents, read_json
+from .io import PAGE_MARKER, atomic_path, check_output, make_parents, read_json
 from .load import load_source
 from .reconstruct import Options
 from .reconstruct.asymmetric import MIN_CAPTURES
 from .reconstruct.eq3 import SymmetryTest
 from .render.mitsuba import DEFAULT_SPP, SCENES, compare, comparison_image, render, save_image, titled, to_srgb8
+from .render.mitsuba import MAX_SEED as RENDER_MAX_SEED
 from .sources import merl
 from .watch import Watcher, default_reconstructor
 
@@ -177,6 +179,8 @@ def check_inputs(args: argparse.Namespace) -> None:
                 continue
             label = command if name in ("source", "model", "captures", "calib_dir", "materials", "folders",
                                         "reference", "test") else f"{command} --{name.replace('_', '-')}"
+            if not str(v).strip():  # Path("") is ".": the message would name the current folder
+                raise ReflectoError(f"{label}: the argument is empty; expected {need}")
             kinds.require(v, label, accept, need)
     spec = _OUTPUTS.get(command)
     if spec is None:
@@ -185,6 +189,9 @@ def check_inputs(args: argparse.Namespace) -> None:
     out = getattr(args, name, None)
     if out is None:
         return
+    if not str(out).strip():
+        raise ReflectoError(f"{command} {'--plot' if name == 'plot' else '-o'}: the argument is empty; "
+                            f"expected {what}")
     if command == "render" and getattr(args, "compare", None):
         suffixes, what = (".png",), "a comparison image (.png)"
     if suffixes is not None:
@@ -192,6 +199,31 @@ def check_inputs(args: argparse.Namespace) -> None:
     elif Path(out).suffix.lower() in _FILE_SUFFIXES and not Path(out).is_dir():
         raise kinds.KindError(out, f"a {Path(out).suffix} file name", command, what,
                               f"use -o {Path(out).with_suffix('')}", verb="writes")
+
+
+def _within(path: str | Path, folder: str | Path) -> bool:
+    """Whether ``path`` is ``folder`` or lies inside it (links followed; ``path`` need not exist)."""
+    try:
+        p, f = Path(path).resolve(), Path(folder).resolve()
+    except (OSError, RuntimeError):  # RuntimeError: a link loop, which the readers name
+        return False
+    return p == f or f in p.parents
+
+
+def _refuse_inside(output: str | Path, inputs: Sequence[str | Path], what: str) -> None:
+    """Refuse an output in an input folder: it would change the input (and be read as part of it later)."""
+    for folder in inputs:
+        if _within(output, folder):
+            raise OutputError(output, f"is or lies in the {what} {folder}, an input of this command; "
+                                      "write the output outside it")
+
+
+def _refuse_holding(output: str | Path, inputs: Sequence[str | Path | None]) -> None:
+    """Refuse an output folder that holds an input file: replacing the folder would delete the input."""
+    for f in inputs:
+        if f is not None and str(f) not in DEVICE_BUILTINS and _within(f, output):
+            raise OutputError(output, f"holds the input {f}; writing the output there would delete it: "
+                                      "choose another folder")
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -279,7 +311,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     (tilt, rotation, shake, camera noise).
     """
 
-    check_output(args.output, folder=True)
+    check_output(args.output, folder=True, marker=MANIFEST)
+    _refuse_holding(args.output, [args.source, args.device])
     src = load_source(args.source)
     dev = load_device(args.device)
     cap = simulate_capture(src, dev, tilt_deg=args.tilt, tilt_azimuth_deg=args.tilt_azimuth,
@@ -299,7 +332,8 @@ def cmd_simulate_calibration(args: argparse.Namespace) -> int:
     pinhole grid, mirror) of a device.
     """
 
-    check_output(args.output, folder=True)
+    check_output(args.output, folder=True, marker=CALIBRATION_MANIFEST)
+    _refuse_holding(args.output, [args.device])
     dev = load_device(args.device)
     out = simulate_calibration(dev, args.output, seed=args.seed)
     files = sorted(str(p.relative_to(out)) for p in Path(out).rglob("*") if p.is_file())
@@ -313,6 +347,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     """
 
     check_output(args.output)
+    _refuse_inside(args.output, [args.calib_dir], "calibration folder")
     cal = calibrate(args.calib_dir)
     cal.save(args.output)
     r = cal.report
@@ -338,6 +373,35 @@ def _normal_arg(text: str) -> str | tuple[float, ...]:
     return v
 
 
+def _checked(convert: Callable[[str], Any], ok: Callable[[Any], bool], expect: str) -> Callable[[str], Any]:
+    """An argparse ``type``: the word ``convert``-ed, refused unless ``ok`` (``argument --X: must be EXPECT``)."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {expect}, got {text!r}") from None
+        if not ok(value):
+            raise argparse.ArgumentTypeError(f"must be {expect}, got {text}")
+        return value
+
+    return parse
+
+
+#: The checked number options: what numpy, scipy and Mitsuba would refuse with a
+#: traceback, or take silently (NaN angles, negative counts), is one line naming the option.
+_SEED = _checked(int, lambda v: v >= 0, "an integer >= 0")
+_LAYOUT_SEED = _checked(int, lambda v: 0 <= v <= layout.MAX_SEED, f"an integer in [0, {layout.MAX_SEED}]")
+_RENDER_SEED = _checked(int, lambda v: 0 <= v <= RENDER_MAX_SEED, f"an integer in [0, {RENDER_MAX_SEED}] "
+                        "(the reference renders use the seed + 1 and + 2)")
+#: The gallery renders the reference again with the seed + 3.
+_GALLERY_SEED = _checked(int, lambda v: 0 <= v <= RENDER_MAX_SEED - 3, f"an integer in [0, {RENDER_MAX_SEED - 3}]")
+_JOBS = _checked(int, lambda v: v >= 0, "0 (one per core) or a positive number of processes")
+_SECONDS = _checked(float, lambda v: math.isfinite(v) and v >= 0, "a finite number of seconds >= 0")
+_ANGLE = _checked(float, math.isfinite, "a finite angle in degrees")
+_CAP_ANGLE = _checked(float, lambda v: 0 < v <= 90, "an angle in (0, 90] degrees")
+
+
 def _options(args: argparse.Namespace) -> Options:
     """The reconstruction settings of ``reconstruct``'s (and ``watch``'s) flags."""
     return Options(normal=args.normal, fixed_eta=args.eta, isotropic=args.isotropic)
@@ -360,6 +424,7 @@ def _reconstruct_asymmetric(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".reflecto":
         raise OutputError(out, "with --asymmetric the captures make one model: -o must name a .reflecto file")
     check_output(out)
+    _refuse_inside(out, caps, "capture folder")
     res = workflow.rotations_to_model(caps, args.calibration, _options(args), missing=_missing(args))
     note = "nominal (--nominal)" if args.calibration is None and args.nominal else None
     summary = workflow.save_rotations_model(res, out, caps, note)
@@ -393,7 +458,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     caps = list(args.captures)
     if len(caps) > 1 and not Path(args.output).suffix == "":
         raise OutputError(args.output, "with several captures, -o must be a folder")
-    if len(caps) == 1 and Path(args.output).suffix:
+    folder = not (len(caps) == 1 and Path(args.output).suffix)  # -o names a folder of models
+    if not folder:
         kinds.require_output_suffix(args.output, "reconstruct", (".reflecto",), "a model file (.reflecto)")
         check_output(args.output)
         outs = [args.output]
@@ -405,6 +471,9 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
                 raise OutputError(o, f"captures {seen[o]} and {c} have the same name; "
                                      "their models would overwrite each other")
             seen[o] = c
+    for o in outs:  # before any folder is made: nothing goes into a capture
+        _refuse_inside(o, caps, "capture folder")
+    if folder:
         make_parents(Path(args.output))
     options, missing = _options(args), _missing(args)
     jobs = [(c, o, args.calibration, options, missing) for c, o in zip(caps, outs)]
@@ -459,6 +528,8 @@ def cmd_watch(args: argparse.Namespace) -> int:
     if not Path(args.root).is_dir():
         raise ReflectoError(f"{args.root}: no such folder to watch")
     check_output(args.output, folder=True)
+    # the watcher would take its own output folder (or a capture's) for a capture landing in ROOT
+    _refuse_inside(args.output, [args.root], "watched folder")
     recon = default_reconstructor(args.calibration, _options(args), _missing(args))
     watcher = Watcher(args.root, args.output, recon, settle_s=args.settle)
     watcher.run(once=args.once)
@@ -702,11 +773,16 @@ class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 
 class _Parser(argparse.ArgumentParser):
-    """The parser of reflecto and of each subcommand: defaults shown in ``--help``."""
+    """The parser of reflecto and of each subcommand: defaults shown in ``--help``, errors in one line."""
 
     def __init__(self, *args, **kwargs) -> None:
         kwargs.setdefault("formatter_class", _HelpFormatter)
         super().__init__(*args, **kwargs)
+
+    def error(self, message: str) -> NoReturn:
+        """A command-line mistake is an error like any other: one line, exit status 1 (argparse's
+        own is the usage text and status 2); ``--help`` still shows the usage."""
+        self.exit(1, f"reflecto: error: {one_line(message)} (see {self.prog} --help)\n")
 
 
 _JSON_HELP = "print one JSON document on stdout instead of text"
@@ -751,10 +827,10 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--device", default="ideal", help=_DEVICE_HELP)
     q.add_argument("--optimize", action="store_true",
                    help="run the layout optimizer instead of using the device's LEDs")
-    q.add_argument("--seed", type=int, default=0, help="random seed of the layout optimizer")
+    q.add_argument("--seed", type=_LAYOUT_SEED, default=0, help="random seed of the layout optimizer")
     q.add_argument("--resolution", type=int, default=64, help="hemicube resolution of the analysis: cells along "
                    "each edge of a hemicube face (the NDF's texels; the plot uses at least 128)")
-    q.add_argument("--theta-max", type=float, default=80.0, help="NDF cap θ_h ≤ this (degrees)")
+    q.add_argument("--theta-max", type=_CAP_ANGLE, default=80.0, help="NDF cap θ_h ≤ this (degrees)")
     q.add_argument("--plot", type=Path, help="write the Fig. 2(c)(d) analogue to this PNG (default: no plot)")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_layout)
@@ -763,11 +839,11 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("source", help="BRDF file")
     q.add_argument("--device", default="ideal", help=_DEVICE_HELP)
     q.add_argument("--tilt", type=float, default=0.0, help="hand tilt of the sample normal, degrees (≤ 30)")
-    q.add_argument("--tilt-azimuth", type=float, default=None,
+    q.add_argument("--tilt-azimuth", type=_ANGLE, default=None,
                    help="azimuth of the tilt, degrees (default: from the seed)")
-    q.add_argument("--rotation", type=float, default=0.0, help="rotation of the sample about its normal, degrees")
+    q.add_argument("--rotation", type=_ANGLE, default=0.0, help="rotation of the sample about its normal, degrees")
     q.add_argument("--shake", action="store_true", help="move the sample between two LEDs' frames")
-    q.add_argument("--seed", type=int, default=0, help="random seed of the camera noise, tilt azimuth and shake")
+    q.add_argument("--seed", type=_SEED, default=0, help="random seed of the camera noise, tilt azimuth and shake")
     q.add_argument("-o", "--output", required=True, help="capture folder to write")
     q.add_argument("-q", "--quiet", action="store_true", help="no summary line")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
@@ -775,7 +851,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     q = sub.add_parser("simulate-calibration", help="virtual calibration captures (white target, pinhole grid, mirror)")
     q.add_argument("--device", default="as-built", help=_DEVICE_HELP)
-    q.add_argument("--seed", type=int, default=0, help="random seed of the camera noise")
+    q.add_argument("--seed", type=_SEED, default=0, help="random seed of the camera noise")
     q.add_argument("-o", "--output", required=True, help="calibration folder to write")
     q.add_argument("-q", "--quiet", action="store_true", help="no summary line")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
@@ -809,7 +885,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the captures are of one point at several rotations (their manifests' rotation_deg): "
                         "reconstruct one model without the symmetry of eq. 3, completed by microfacet synthesis "
                         "(paper §5.5); -o names the model file")
-    q.add_argument("--jobs", type=int, default=0, help="worker processes for several captures (0: all cores)")
+    q.add_argument("--jobs", type=_JOBS, default=0, help="worker processes for several captures (0: all cores)")
     q.add_argument("--progress", action="store_true",
                    help="show progress also for one capture (several captures show it unless -q): "
                         "a bar on a terminal, plain lines on stderr otherwise or under CI=true")
@@ -827,7 +903,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the sample normal (§5.4), as for reconstruct (default: auto, estimated)")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto", help="as for reconstruct")
-    q.add_argument("--settle", type=float, default=5.0,
+    q.add_argument("--settle", type=_SECONDS, default=5.0,
                    help="seconds an incomplete capture folder may stay unchanged before it is reported and skipped")
     q.add_argument("--once", action="store_true", help="process the capture folders there now and exit")
     q.set_defaults(func=cmd_watch)
@@ -861,7 +937,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--spp", type=int, help="samples per pixel (default: per scene, "
                    + ", ".join(f"{k} {v}" for k, v in DEFAULT_SPP.items()) + ")")
     q.add_argument("--resolution", type=int, default=256, help="image width and height in pixels")
-    q.add_argument("--seed", type=int, default=0, help="seed of the source's render (the reference's: +1, +2)")
+    q.add_argument("--seed", type=_RENDER_SEED, default=0,
+                   help="seed of the source's render (the reference's: +1, +2)")
     q.add_argument("--compare", metavar="REFERENCE",
                    help="also render REFERENCE; write reference | source | difference")
     q.add_argument("--title", help="write this title above the image (.png only; default: no title)")
@@ -905,7 +982,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rotations of the §5.5 captures, degrees" + _LIST_HELP)
     q.add_argument("--spp", type=int, default=64, help="samples per pixel of the renders")
     q.add_argument("--resolution", type=int, default=256, help="image width and height of the renders, pixels")
-    q.add_argument("--seed", type=int, default=1, help="seed of the first capture and render")
+    q.add_argument("--seed", type=_GALLERY_SEED, default=1, help="seed of the first capture and render")
     q.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_gallery)
@@ -939,7 +1016,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _batch_options(q: argparse.ArgumentParser) -> None:
     """The options of the batch commands (``sweep``, ``design``): workers, scheduler, quiet, JSON."""
-    q.add_argument("--jobs", type=int, default=0, help="worker processes (0: all cores)")
+    q.add_argument("--jobs", type=_JOBS, default=0, help="worker processes (0: all cores)")
     q.add_argument("--scheduler", metavar="ADDRESS", help=_SCHEDULER_HELP)
     q.add_argument("-q", "--quiet", action="store_true",
                    help="no progress (else a bar on a terminal, plain lines on stderr otherwise or under CI=true) "
@@ -951,7 +1028,8 @@ def cmd_gallery(args: argparse.Namespace) -> int:
     """``reflecto gallery SOURCE... -o DIR``: teapots of reference, symmetric path and §5.5 path
     (:func:`reflecto.evaluate.gallery.gallery`, the paper's Fig. 6); returns exit status 0."""
 
-    check_output(args.output, folder=True)
+    check_output(args.output, folder=True, marker=PAGE_MARKER)
+    _refuse_holding(args.output, [*args.materials, args.device, args.calibration])
     rotations = tuple(args.rotations)
     settings = GallerySettings(args.device, args.calibration, rotations, args.spp, args.resolution, args.seed)
 
@@ -1048,6 +1126,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"reflecto: error: {where}{one_line(e.strerror or e)}", file=sys.stderr)
         except MemoryError:
             print("reflecto: error: out of memory (see docs/limits.md for the input limits)", file=sys.stderr)
+        except OverflowError as e:  # a number beyond a float's range that no check caught: still one line
+            print(f"reflecto: error: a number is out of range ({one_line(e)})", file=sys.stderr)
         except KeyboardInterrupt:
             print("reflecto: interrupted", file=sys.stderr)
             rc = 130

@@ -29,6 +29,7 @@ import math
 import os
 import shutil
 import stat
+import sys
 import tempfile
 import tomllib
 import zipfile
@@ -206,11 +207,52 @@ def _depth_at_most(obj: Any, limit: int) -> bool:
     return True
 
 
+class _HugeInt(Exception):
+    """An integer literal beyond the range of a float (raised out of the JSON parser)."""
+
+
+def _float_range_int(text: str) -> int:
+    """``int(text)`` for the JSON parser, refusing integers no float can hold.
+
+    Every reader converts numbers to floats; ``float(10**400)`` raises OverflowError
+    deep inside it, so such a number is refused here, where the file is known.
+    """
+    if len(text.lstrip("-")) > _MAX_INT_DIGITS:  # cheap: no int() of thousands of digits
+        raise _HugeInt(text)
+    n = int(text)
+    if abs(n) > sys.float_info.max:  # int/float comparison is exact, never overflows
+        raise _HugeInt(text)
+    return n
+
+
+#: Digits of the largest integer a float holds (≈ 1.8·10³⁰⁸).
+_MAX_INT_DIGITS = 309
+
+
+def _huge_int(obj: Any) -> int | None:
+    """The first integer in ``obj`` beyond the range of a float, or None (iterative; for TOML)."""
+    stack = [obj]
+    while stack:
+        o = stack.pop()
+        if isinstance(o, dict):
+            stack.extend(o.values())
+        elif isinstance(o, list):
+            stack.extend(o)
+        elif isinstance(o, int) and not isinstance(o, bool) and abs(o) > sys.float_info.max:
+            return o
+    return None
+
+
+def _huge_int_problem(text: str) -> str:
+    digits = len(text.lstrip("-"))
+    return f"the integer {text[:12]}… ({digits} digits) is out of range: numbers must be within ±1.8e308"
+
+
 def parse_json(raw: bytes | str, path: str | Path, kind: str = "JSON") -> Any:
     """Parse JSON (or TOML with ``kind="TOML"``) text read from ``path``.
 
-    Refuses invalid UTF-8 and syntax, numbers Python will not convert (integers of
-    more than 4300 digits) and nesting deeper than :data:`MAX_JSON_DEPTH`.
+    Refuses invalid UTF-8 and syntax, integers beyond the range of a float (no reader
+    could use them) and nesting deeper than :data:`MAX_JSON_DEPTH`.
 
     Parameters
     ----------
@@ -236,16 +278,21 @@ def parse_json(raw: bytes | str, path: str | Path, kind: str = "JSON") -> Any:
 
     try:
         text = raw.decode("utf-8") if isinstance(raw, bytes) else raw
-        d = tomllib.loads(text) if kind == "TOML" else json.loads(text)
+        d = tomllib.loads(text) if kind == "TOML" else json.loads(text, parse_int=_float_range_int)
     except RecursionError:
         d = None
         deep = True
+    except _HugeInt as e:
+        raise FileFormatError(path, _huge_int_problem(str(e))) from None
     except (UnicodeDecodeError, ValueError, tomllib.TOMLDecodeError) as e:  # JSONDecodeError is a ValueError
         raise FileFormatError(path, f"not valid {kind}: {e}") from None
     else:
         deep = not _depth_at_most(d, MAX_JSON_DEPTH)
     if deep:
         raise LimitError(path, f"{kind} nested deeper than {MAX_JSON_DEPTH} levels (docs/limits.md)")
+    huge = _huge_int(d) if kind == "TOML" else None  # tomllib has no integer hook: look afterwards
+    if huge is not None:
+        raise FileFormatError(path, _huge_int_problem(str(huge)))
     return d
 
 
@@ -663,7 +710,38 @@ def _replaceable(path: Path, folder: bool = False) -> None:
     raise OutputError(path, "is a device, FIFO or socket; refusing to replace it with an output")
 
 
-def check_output(path: str | Path, folder: bool = False) -> None:
+#: The file that marks a folder as an earlier page-and-images output (a gallery's):
+#: :func:`atomic_folder` replaces such a folder, not one of unrelated files.
+PAGE_MARKER = "index.html"
+
+
+def _replaceable_folder(path: Path, marker: str) -> None:
+    """Refuse to replace ``path`` as a whole unless that loses nothing of the user's.
+
+    The current folder and its parents cannot be renamed away (and hold the user's
+    work); an existing folder may be replaced only when it is empty or holds
+    ``marker``, the file every output of this kind has (a capture's ``manifest.json``):
+    a folder of other files is the user's, not an earlier output.
+    """
+    try:
+        real, cwd = path.resolve(), Path.cwd().resolve()
+    except (OSError, RuntimeError) as e:  # RuntimeError: a symbolic-link loop
+        raise OutputError(path, f"cannot write: {e}") from None
+    if real == cwd or real in cwd.parents:
+        raise OutputError(path, "is the current folder or one of its parents; name a new folder for the output")
+    if path.is_symlink() or not path.is_dir():
+        return  # nothing there, or a link or file that _replaceable and the rename refuse
+    try:
+        with os.scandir(path) as it:
+            empty = next(it, None) is None
+    except OSError as e:
+        raise OutputError(path, f"cannot write: {e.strerror or e}") from None
+    if not empty and not (path / marker).is_file():
+        raise OutputError(path, f"is a folder of other files (no {marker}), not an earlier output of this "
+                                "kind; refusing to replace it: name a new or empty folder")
+
+
+def check_output(path: str | Path, folder: bool = False, marker: str | None = None) -> None:
     """Refuse at once an output that cannot be written (before the work that makes it).
 
     The path must not hold something a rename must not replace, nor a file where a
@@ -676,6 +754,10 @@ def check_output(path: str | Path, folder: bool = False) -> None:
         The output's path.
     folder
         Whether the output is a folder (else a file).
+    marker
+        For a folder that the output replaces as a whole (:func:`atomic_folder`): the
+        file that marks an earlier output of its kind; the checks of
+        :func:`atomic_folder` are made now. ``None``: a folder written into.
 
     Raises
     ------
@@ -684,6 +766,8 @@ def check_output(path: str | Path, folder: bool = False) -> None:
     """
     path = Path(path)
     _replaceable(path, folder)
+    if folder and marker is not None:
+        _replaceable_folder(path, marker)
     p = path.parent
     while not p.exists() and not p.is_symlink() and p != p.parent:
         p = p.parent
@@ -792,16 +876,20 @@ def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
 
 
 @contextlib.contextmanager
-def atomic_folder(path: str | Path) -> Iterator[Path]:
+def atomic_folder(path: str | Path, marker: str = PAGE_MARKER) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; it replaces ``path`` on success.
 
     The folder gets mode ``0o777 & ~umask``; on failure it is removed, with any
-    parent created for it.
+    parent created for it. Only an empty folder or an earlier output of the same kind
+    (one holding ``marker``) is replaced, never the current folder or a parent of it.
 
     Parameters
     ----------
     path
         The folder to write; an existing folder there is replaced as a whole.
+    marker
+        The file every output of this kind holds (a capture's ``manifest.json``, a
+        calibration folder's ``calibration.json``; default :data:`PAGE_MARKER`).
 
     Yields
     ------
@@ -811,10 +899,12 @@ def atomic_folder(path: str | Path) -> Iterator[Path]:
     Raises
     ------
     OutputError
-        A file (or a link) is in the way, or ``path`` cannot be written.
+        A file (or a link) is in the way, ``path`` is a folder of other files, the
+        current folder or a parent of it, or it cannot be written.
     """
     path = Path(path)
     _replaceable(path, folder=True)
+    _replaceable_folder(path, marker)
     created = make_parents(path.parent)
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent))
@@ -827,10 +917,19 @@ def atomic_folder(path: str | Path) -> Iterator[Path]:
         if path.is_symlink() or (path.exists() and not path.is_dir()):
             raise OutputError(path, "a file of that name is in the way")
         if path.exists():
-            old = path.with_name(f".{path.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(path, old)
-            os.replace(tmp, path)
+            _replaceable_folder(path, marker)  # again: it may have changed during the work
+            # a fresh name for the old folder: a fixed one could be a folder of the user's
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+            try:
+                os.replace(path, old)  # onto the empty folder just made: POSIX allows it
+            except OSError:
+                old.rmdir()
+                raise
+            try:
+                os.replace(tmp, path)
+            except OSError:
+                os.replace(old, path)  # put the earlier output back
+                raise
             shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, path)

@@ -50,7 +50,7 @@ from .brdf import BRDFSource
 from .errors import ReflectoError, one_line
 from .fresnel import eta_from_json, format_eta
 from .instrument.capture import MANIFEST
-from .io import atomic_write, make_parents
+from .io import atomic_write, make_parents, read_json
 from .model import load_model
 from .reconstruct import Options
 from .render.sphere import composite, render_sphere, sphere_coverage
@@ -327,11 +327,12 @@ class Watcher:
 
     def _adopt(self, name: str) -> None:
         """A model made before this watcher started: listed on the page, not redone."""
-        try:
-            summary = json.loads((self.models / f"{name}.json").read_text())
-        except (OSError, ValueError):
+        try:  # the checking reader: a damaged summary (huge numbers, not an object) is not listed, nor fatal
+            summary = read_json(self.models / f"{name}.json")
+        except ReflectoError:
             return
-        self.entries[name] = self._entry(name, summary)
+        if isinstance(summary, dict):
+            self.entries[name] = self._entry(name, summary)
 
     def _entry(self, name: str, summary: dict[str, Any]) -> Entry:
         eta = eta_from_json(summary)

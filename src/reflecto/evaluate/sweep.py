@@ -333,7 +333,8 @@ def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ide
     Raises
     ------
     ReflectoError
-        No material file in ``folders``.
+        No material file in ``folders``, or a device that does not load (before any
+        folder is made).
     BatchError
         After writing the results of the others, if some materials failed; its
         ``failures`` list ``(file, message)``, its ``records`` the finished records.
@@ -342,6 +343,7 @@ def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ide
     mats = find_materials(folders)
     if not mats:
         raise ReflectoError(f"no material files in {', '.join(map(str, folders))}")
+    load_device(device)  # a bad device is refused before any folder is made for the results
     make_parents(out / "materials")
     cal = workflow.calibration_file(device, out)
     failures: list[tuple[str, str]] = []

@@ -249,6 +249,9 @@ class Calibration:
             response = npy_array(members["response.npy"], path, "response.npy", dtype="<f8", shape=(256, 3))
             if not np.all(np.isfinite(response)):
                 raise FileFormatError(path, "response curve contains NaN or infinity")
+        too_bright = _implausible_scale(device, scale, response)
+        if too_bright is not None:
+            raise FileFormatError(path, too_bright)
         extra = sorted(set(members) - {"meta.npy", "scale.npy", "response.npy"})
         if extra:
             raise FileFormatError(path, f"unexpected archive members {extra}")
@@ -262,6 +265,43 @@ class Calibration:
 #: (degrees): the as-built device's errors are ±0.5°; more means a wrong mirror normal
 #: or spot. docs/limits.md.
 MAX_LED_OFFSET_DEG = 5.0
+
+
+#: Largest ratio of a calibrated radiometric scale to its reference value (below). The
+#: scale is the nominal one times the LED's intensity factor and the optics' transmission
+#: (≤ 1): the as-built devices read at most 1.12× nominal (LEDs within ±15 %). Two orders
+#: of magnitude leave room for a device file whose camera sensitivity is only roughly
+#: known, and still refuse a scale that would make every measured BRDF a hundred times
+#: (or, for a damaged file's 3e38, 10³⁶ times) too dark: an all-black model.
+MAX_SCALE_RATIO = 100.0
+
+
+def _reference_scale(device: Device, response: Array | None) -> Array:
+    """Per LED, the scale (DN/ms per sr⁻¹) a calibration of ``device`` cannot far exceed.
+
+    Linear camera: the nominal scale ``sensitivity/gain · E_l cos θ_l``
+    (:func:`nominal_calibration`). Gamma camera: the scale is in the response curve's
+    relative units, so its reference is the brightest level the camera records
+    (``max(response)`` per ms of the shortest exposure), read as a white standard of
+    albedo 1 (``· π``).
+    """
+    cam = device.camera
+    if cam.response == "gamma" and response is not None:
+        top = float(np.max(response)) / min(cam.exposures_ms) * math.pi
+        return np.full(device.n_leds, top)
+    return cam.sensitivity / cam.gain * np.maximum(device.leds[:, 2], 0.0) * device.led_irradiance
+
+
+def _implausible_scale(device: Device, scale: NDArray[np.float32], response: Array | None) -> str | None:
+    """Why the scale field is too large to be a calibration of ``device`` (None if it is not)."""
+    ref = _reference_scale(device, response)
+    peak = scale.reshape(len(scale), -1).max(axis=1)
+    bad = np.flatnonzero(peak > MAX_SCALE_RATIO * ref)
+    if not len(bad):
+        return None
+    k = int(bad[0])
+    return (f"LED {k}: the scale field reaches {float(peak[k]):.3g} DN/ms per sr⁻¹, more than {MAX_SCALE_RATIO:g}× "
+            f"the device's reference {float(ref[k]):.3g}; every BRDF read with it would be far too dark")
 
 
 def _dark_led(device: Device, optics: Optics, scale: NDArray[np.float32]) -> tuple[int, float] | None:
@@ -651,7 +691,7 @@ def read_calibration_manifest(calib_dir: Path) -> tuple[dict[str, Any], Device]:
     if "device" not in meta:
         raise FileFormatError(mpath, "invalid calibration manifest (missing 'device')")
     try:
-        device = Device.from_dict(meta["device"], where=f"{mpath}: device")
+        device = Device.from_dict(meta["device"], where="device")  # the FileFormatError below names the file
     except (ParameterError, TypeError, ValueError) as e:
         raise FileFormatError(mpath, str(e)) from None
     grid = _entries(meta, "grid", mpath, 1, MAX_GRID_IMAGES)
@@ -673,7 +713,10 @@ def read_calibration_manifest(calib_dir: Path) -> tuple[dict[str, Any], Device]:
             raise FileFormatError(mpath, "a gamma camera needs an exposure sweep ('response', >= 3 frames)")
         for f in _entries(meta, "response", mpath, 3, MAX_RESPONSE_FRAMES):
             f["_path"] = inside(calib_dir, f.get("file"), mpath, "response frame")
-    inside(calib_dir, "white", mpath, "white capture folder")
+    white = inside(calib_dir, "white", mpath, "white capture folder")
+    if (white.exists() or white.is_symlink()) and not white.is_dir():
+        raise CaptureError(white, "the white capture must be a folder (a capture of the white standard), "
+                                  "not a file")
     return meta, device
 
 
@@ -764,6 +807,9 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
         k, lit = dark if dark is not None else (0, 0.0)
         raise CaptureError(calib_dir / "white", f"LED {k}: the white standard reads a signal on only "
                            f"{100 * lit:.0f} % of the view disc; no radiometric calibration")
+    too_bright = _implausible_scale(device, scale, response)  # what Calibration.load would refuse
+    if too_bright is not None:
+        raise CaptureError(calib_dir / "white", too_bright)
     led_err = np.degrees(np.arccos(np.clip(np.sum(leds * device.leds, axis=1), -1, 1)))
     report = {"kind": "measured", **geo_report, "led_offset_from_nominal_deg": np.round(led_err, 3).tolist(),
               "white_albedo": albedo}

@@ -27,11 +27,15 @@ no frame saturated everywhere.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
+import os
 import struct
+import sys
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +62,8 @@ except ImportError:  # pragma: no cover - a platform without its wheels keeps zl
 CAPTURE_FORMAT = "reflecto-capture"
 CAPTURE_VERSION = 1
 MANIFEST = "manifest.json"
+#: The manifest of a calibration folder (:mod:`reflecto.instrument.calibrate`).
+CALIBRATION_MANIFEST = "calibration.json"
 #: Largest |rotation_deg| a manifest may state (a few turns; beyond it the number is noise).
 MAX_ROTATION_DEG = 3600.0
 
@@ -224,17 +230,46 @@ def _decode_png(data: bytes, path: Path, shape: tuple[int, int], depth_bits: int
     return out.view(">u2").reshape(height, width, 3).astype(np.uint16)
 
 
-def _decode_quietly(data: bytes) -> NDArray[Any] | None:
-    """``cv2.imdecode`` without OpenCV's own warnings on stderr (a damaged file is our error to report)."""
-    cv_log = getattr(getattr(cv2, "utils", None), "logging", None)
-    if cv_log is None:  # older OpenCV builds
-        return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    level = cv_log.getLogLevel()
-    cv_log.setLogLevel(cv_log.LOG_LEVEL_SILENT)
+@contextlib.contextmanager
+def _fd2_silenced() -> Iterator[None]:
+    """Send file descriptor 2 to the null device for the block, and restore it after.
+
+    libpng prints ``libpng error: …`` straight to fd 2, past OpenCV's log level and
+    Python's ``sys.stderr``; the damaged frame is reflecto's to report, in one line.
+    """
     try:
-        return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        sys.stderr.flush()
+        saved: int | None = os.dup(2)
+    except (AttributeError, OSError, ValueError):  # no fd 2 to silence (no, a closed or a replaced stderr)
+        saved = None
+    if saved is None:
+        yield
+        return
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, 2)
+        finally:
+            os.close(null)
+        yield
     finally:
-        cv_log.setLogLevel(level)
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _decode_quietly(data: bytes) -> NDArray[Any] | None:
+    """``cv2.imdecode`` without OpenCV's or libpng's own messages on stderr (a damaged file
+    is our error to report)."""
+    cv_log = getattr(getattr(cv2, "utils", None), "logging", None)
+    level = None if cv_log is None else cv_log.getLogLevel()  # None: older OpenCV builds
+    if cv_log is not None:
+        cv_log.setLogLevel(cv_log.LOG_LEVEL_SILENT)
+    try:
+        with _fd2_silenced():
+            return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    finally:
+        if cv_log is not None:
+            cv_log.setLogLevel(level)
 
 
 def read_image(path: Path, shape: tuple[int, int], dtype: type) -> NDArray[np.integer]:
@@ -286,15 +321,19 @@ def read_image(path: Path, shape: tuple[int, int], dtype: type) -> NDArray[np.in
     return img[..., ::-1]
 
 
-def atomic_dir(path: str | Path):
+def atomic_dir(path: str | Path, marker: str = MANIFEST):
     """Yield a temporary folder beside ``path``; it replaces ``path`` on success.
 
-    See :func:`reflecto.io.atomic_folder`: umask permissions, no folder left on failure.
+    See :func:`reflecto.io.atomic_folder`: umask permissions, no folder left on failure,
+    and only an empty folder or an earlier output holding ``marker`` is replaced.
 
     Parameters
     ----------
     path
         The folder to create or replace.
+    marker
+        The file of an earlier output of the same kind: :data:`MANIFEST` (a capture) or
+        :data:`CALIBRATION_MANIFEST` (a calibration folder).
 
     Returns
     -------
@@ -302,7 +341,7 @@ def atomic_dir(path: str | Path):
         Entered, it gives the temporary folder's path.
     """
 
-    return atomic_folder(path)
+    return atomic_folder(path, marker)
 
 
 def write_capture(capture: Capture, out_dir: str | Path) -> Path:
@@ -383,7 +422,9 @@ def read_manifest(cap_dir: Path) -> dict[str, Any]:
 
     mpath = cap_dir / MANIFEST
     if not cap_dir.is_dir():
-        raise CaptureError(cap_dir, "not a capture folder (no such directory)")
+        there = cap_dir.exists() or cap_dir.is_symlink()
+        raise CaptureError(cap_dir, "not a capture folder (" + ("a file, not a folder" if there
+                                                                else "no such directory") + ")")
     if not mpath.exists() and not mpath.is_symlink():
         raise CaptureError(mpath, "manifest is missing")
     m = read_json(inside(cap_dir, MANIFEST, cap_dir, "manifest"), missing="manifest is missing")
@@ -394,6 +435,11 @@ def read_manifest(cap_dir: Path) -> dict[str, Any]:
         raise FileFormatError(mpath, f"capture format version {short_repr(v)} is not supported "
                                      f"(1 to {CAPTURE_VERSION})")
     return m
+
+
+def _numbers(values: Any) -> str:
+    """Numbers for a message, as a user writes them: ``[1, 8]``, not numpy's reprs."""
+    return "[" + ", ".join(f"{float(v):g}" for v in values) + "]"
 
 
 def _frame_key(f: Any, mpath: Path) -> tuple[tuple[int, float, bool], str]:
@@ -435,7 +481,7 @@ def read_capture(cap_dir: str | Path) -> Capture:
     m = read_manifest(cap_dir)
     mpath = cap_dir / MANIFEST
     try:
-        device = Device.from_dict(m["device"], where=f"{mpath}: device")
+        device = Device.from_dict(m["device"], where="device")  # the message below names the file
         img = m["image"]
         if not isinstance(img, dict):
             raise TypeError("'image' must be an object")
@@ -464,7 +510,8 @@ def read_capture(cap_dir: str | Path) -> Capture:
         # the capture's own times (auto-exposure), as many as the camera takes
         own = sorted({t for (_, t, _), _ in entries})
         if len(own) != len(times) or any(not (0 < t <= MAX_EXPOSURE_MS) for t in own):
-            raise CaptureError(mpath, f"expected {len(times)} positive exposure times per LED, found {own[:10]}")
+            raise CaptureError(mpath, f"expected {len(times)} positive exposure times per LED, "
+                               f"found {_numbers(own[:10])}")
         times = np.array(own)
     rotation = m.get("rotation_deg", 0.0)
     if (not isinstance(rotation, (int, float)) or isinstance(rotation, bool) or not math.isfinite(rotation)
@@ -482,7 +529,8 @@ def read_capture(cap_dir: str | Path) -> Capture:
         what = f"{'check frame' if key[2] else 'frame'} for LED {key[0]} at {key[1]:g} ms"
         if key not in expected:
             raise CaptureError(mpath, f"{short_repr(name)}: {what} is not part of the device "
-                               f"({device.n_leds} LEDs × exposures {list(times)}, check LEDs {list(check_leds)})")
+                               f"({device.n_leds} LEDs × exposures {_numbers(times)} ms, "
+                               f"check LEDs {list(check_leds)})")
         if key in got:
             raise CaptureError(mpath, f"{what} listed twice")
         if Path(name).name != name or name in ("", ".", ".."):

@@ -722,13 +722,17 @@ def load_device(spec: str | Path) -> Device:
     ------
     FileFormatError
         For a missing or invalid device file.
+    ParameterError
+        For an empty ``spec``.
     """
     if str(spec) in BUILTINS:
         return Device.builtin(str(spec))
+    if not str(spec).strip():  # Path("") is "." (the current folder): name the empty argument instead
+        raise ParameterError(f"the device is empty; give one of {', '.join(BUILTINS)} or a device file")
     path = Path(spec)
     d = read_description(path, missing=f"no such device file (built-ins: {', '.join(BUILTINS)})")
     try:
-        return Device.from_dict(d, where=str(path))
+        return Device.from_dict(d, where="device")  # the FileFormatError below names the file
     except (ParameterError, TypeError, ValueError) as e:
         raise FileFormatError(path, str(e)) from None
 

@@ -31,6 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import differential_evolution
 
 from .. import geometry
+from ..errors import ParameterError
 from ..hemicube import Hemicube, hemicube
 from .optics import Optics
 
@@ -291,6 +292,17 @@ def _reachable(key: tuple[float, float, float, float], n: int, n_views: int) -> 
     return out
 
 
+#: Largest seed of the layout optimizer (scipy's differential evolution takes 32-bit seeds).
+MAX_SEED = 2**32 - 1
+
+
+def _check_theta_max(theta_max_deg: float) -> None:
+    """Refuse an NDF cap that is empty (θ_max ≤ 0: every fraction would be 0/0) or not a cap of the
+    hemisphere (beyond 90°, or NaN, which would print ``nan %``)."""
+    if not 0.0 < theta_max_deg <= 90.0:  # NaN compares false: refused too
+        raise ParameterError(f"theta_max must be in (0°, 90°], got {theta_max_deg}")
+
+
 def coverage(optics: Optics, leds: ArrayLike, resolution: int = 64, theta_max_deg: float = 80.0) -> Coverage:
     """Coverage analysis of a layout on a ``resolution`` hemicube (§4.1, Figure 2c–d).
 
@@ -310,7 +322,13 @@ def coverage(optics: Optics, leds: ArrayLike, resolution: int = 64, theta_max_de
     Coverage
         Per-LED, union, after-τ (eq. 3) and after-mirrors fractions, the pairwise
         overlaps and θ_d spreads, the reachable upper bound and the masks.
+
+    Raises
+    ------
+    ParameterError
+        For ``theta_max_deg`` outside (0°, 90°].
     """
+    _check_theta_max(theta_max_deg)
     cube = hemicube(resolution)
     leds = geometry.normalize(np.atleast_2d(leds))
     masks = coverage_masks(optics, leds, cube)
@@ -708,10 +726,15 @@ def optimize_layout(
     ------
     ValueError
         For a ``weights`` of another length.
+    ParameterError
+        For ``theta_max_deg`` outside (0°, 90°] or a seed outside [0, :data:`MAX_SEED`].
     """
 
     if not 3 <= len(weights) <= 4:
         raise ValueError("optimize_layout: weights must list 3 or 4 numbers")
+    _check_theta_max(theta_max_deg)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
+        raise ParameterError(f"seed must be an integer in [0, {MAX_SEED}], got {seed}")
     wts = np.zeros(4)
     wts[: len(weights)] = weights
     goals = LayoutObjective(optics, hemicube(resolution), theta_max_deg)

@@ -37,7 +37,7 @@ from .. import _kernels, geometry
 from ..brdf import BRDFSource
 from ..errors import ParameterError
 from ..sources.analytic import AnalyticBRDF
-from .capture import Capture, _write_png, atomic_dir, write_capture
+from .capture import CALIBRATION_MANIFEST, MAX_ROTATION_DEG, Capture, _write_png, atomic_dir, write_capture
 from .device import Camera, Device
 from .optics import Optics
 
@@ -203,6 +203,20 @@ def _truth(device: Device) -> tuple[Optics, Array, Array, Array]:
     return t.optics, t.leds, np.asarray(t.led_intensity), t.transmission_field()
 
 
+def _check_angle(what: str, deg: float) -> None:
+    """Refuse an angle that is not finite or beyond a few turns (its sine and cosine would be noise,
+    and NaN would reach the manifest and the frames)."""
+    if not (math.isfinite(deg) and abs(deg) <= MAX_ROTATION_DEG):
+        raise ParameterError(f"{what} must be a finite angle of at most {MAX_ROTATION_DEG:g}° in magnitude, "
+                             f"got {deg:g}")
+
+
+def _check_seed(seed: int) -> None:
+    """Refuse a seed numpy's generator does not take (it needs an integer >= 0)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ParameterError(f"seed must be an integer >= 0, got {seed}")
+
+
 def simulate_capture(
     source: BRDFSource,
     device: Device,
@@ -248,10 +262,15 @@ def simulate_capture(
     Raises
     ------
     ParameterError
-        For a tilt outside [0°, :data:`MAX_TILT_DEG`].
+        For a tilt outside [0°, :data:`MAX_TILT_DEG`], a tilt azimuth or rotation that is
+        not a finite angle of at most :data:`MAX_ROTATION_DEG`, or a negative seed.
     """
     if not (math.isfinite(tilt_deg) and 0.0 <= tilt_deg <= MAX_TILT_DEG):
         raise ParameterError(f"tilt must be in [0°, {MAX_TILT_DEG}°], got {tilt_deg}")
+    _check_angle("rotation", rotation_deg)
+    if tilt_azimuth_deg is not None:
+        _check_angle("tilt azimuth", tilt_azimuth_deg)
+    _check_seed(seed)
     rng = np.random.default_rng(seed)
     optics, leds, intensity, trans = _truth(device)
     cam = device.camera
@@ -407,8 +426,13 @@ def simulate_calibration(device: Device, out_dir: str | Path, seed: int = 0, whi
     -------
     Path
         ``out_dir``, ready for :func:`reflecto.instrument.calibrate`.
-    """
 
+    Raises
+    ------
+    ParameterError
+        For a negative seed.
+    """
+    _check_seed(seed)
     rng = np.random.default_rng(seed)
     optics, leds, intensity, trans = _truth(device)
     cam = device.camera
@@ -423,7 +447,7 @@ def simulate_calibration(device: Device, out_dir: str | Path, seed: int = 0, whi
     nominal = device.optics
     meta: dict[str, Any] = {"format": "reflecto-calibration-capture", "version": 1,
                             "device": device.nominal().to_dict(), "grid": [], "mirror": []}
-    with atomic_dir(out_dir) as tmp:
+    with atomic_dir(out_dir, CALIBRATION_MANIFEST) as tmp:
         write_capture(white, tmp / "white")
         for k, off in enumerate(GRID_OFFSETS):
             d = grid_directions(nominal, off)
@@ -449,5 +473,5 @@ def simulate_calibration(device: Device, out_dir: str | Path, seed: int = 0, whi
                 name = f"response_t{t:g}ms.png"
                 _write_png(tmp / name, expose(rate, t, cam, rng))
                 meta["response"].append({"file": name, "exposure_ms": t})
-        (tmp / "calibration.json").write_text(json.dumps(meta, indent=1))
+        (tmp / CALIBRATION_MANIFEST).write_text(json.dumps(meta, indent=1))
     return Path(out_dir)

@@ -336,8 +336,17 @@ def sample_count(spp: int) -> int:
     return n
 
 
-def _check(scene: str, resolution: int, spp: int | None) -> int:
+#: Largest seed Mitsuba's samplers take (32-bit).
+SAMPLER_MAX_SEED = 2**32 - 1
+#: Largest seed of :func:`render` and :func:`compare`: the reference renders of a
+#: comparison use ``seed + 1`` and ``seed + 2``, which must still be sampler seeds.
+MAX_SEED = SAMPLER_MAX_SEED - 2
+
+
+def _check(scene: str, resolution: int, spp: int | None, seed: int = 0, max_seed: int = MAX_SEED) -> int:
     """Validated arguments; returns the sample count to render with."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= max_seed:
+        raise ParameterError(f"seed must be an integer in [0, {max_seed}], got {seed}")
     if resolution < 8 or resolution > 4096:
         raise ParameterError(f"resolution must be in [8, 4096], got {resolution}")
     if scene not in SCENES:
@@ -380,11 +389,12 @@ def render_file(bsdf_path: Path, scene: str = "sphere-env", envmap: str | Path |
     Raises
     ------
     ParameterError
-        An unknown scene, a resolution outside [8, 4096] or ``spp < 1``.
+        An unknown scene, a resolution outside [8, 4096], ``spp < 1`` or a seed outside
+        [0, :data:`SAMPLER_MAX_SEED`].
     FileFormatError
         A missing or unreadable environment map.
     """
-    spp = _check(scene, resolution, spp)
+    spp = _check(scene, resolution, spp, seed, SAMPLER_MAX_SEED)
     if envmap is not None:
         check_envmap(envmap)
 
@@ -435,9 +445,10 @@ def render(source: BRDFSource, scene: str = "sphere-env", envmap: str | Path | N
     Raises
     ------
     ParameterError
-        An unknown scene, a resolution outside [8, 4096] or ``spp < 1``.
+        An unknown scene, a resolution outside [8, 4096], ``spp < 1`` or a seed outside
+        [0, :data:`MAX_SEED`].
     """
-    _check(scene, resolution, spp)
+    _check(scene, resolution, spp, seed)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="reflecto-render-") as tmp:
         r = render_file(bsdf_file(source, Path(tmp)), scene, envmap, resolution, spp, seed)
@@ -599,8 +610,13 @@ def compare(reference: BRDFSource, test: BRDFSource, scene: str = "sphere-env", 
     -------
     Comparison
         The mean image difference, its noise floor and the three renders.
+
+    Raises
+    ------
+    ParameterError
+        As :func:`render` (the seed at most :data:`MAX_SEED`, so that ``seed + 2`` is a sampler seed).
     """
-    _check(scene, resolution, spp)
+    _check(scene, resolution, spp, seed)
     with tempfile.TemporaryDirectory(prefix="reflecto-compare-") as tmp:
         folder = Path(tmp)
         (folder / "t").mkdir()

@@ -122,21 +122,22 @@ class AnalyticBRDF(BRDFSource):
         if np.any(self.kd < 0) or np.any(self.ks < 0):
             raise ParameterError("kd and ks must be >= 0")
         if np.any(self.kd + self.ks > 1.0 + 1e-12):
-            raise ParameterError(f"kd + ks must be <= 1 per channel (energy conservation), got {self.kd + self.ks}")
+            raise ParameterError("kd + ks must be <= 1 per channel (energy conservation), "
+                                 f"got {_plain(self.kd + self.ks)}")
         if np.any(self.eta < 1.0) or np.any(self.eta > 100.0):
-            raise ParameterError(f"eta must lie in [1, 100], got {self.eta}")
+            raise ParameterError(f"eta must lie in [1, 100], got {_plain(self.eta)}")
         if self.asymmetry is None:
             self.lobes = (Lobe(1.0),)
         else:
             sx, sy, w = (float(v) for v in self.asymmetry)
             if not (0.0 < w < 1.0) or not (math.isfinite(sx) and math.isfinite(sy)):
-                raise ParameterError(f"asymmetry must be (shift_x, shift_y, weight) with 0 < weight < 1, "
-                                     f"got {self.asymmetry!r}")
+                raise ParameterError(f"asymmetry needs a finite shift and a weight in (0, 1), got shift "
+                                     f"{[sx, sy]}, weight {w:g}")
             r = w / (1.0 - w)
             tilt = math.degrees(math.atan(max(math.hypot(sx, sy), math.hypot(sx, sy) * r)))
             if tilt > ASYMMETRY_MAX_TILT_DEG:
-                raise ParameterError(f"asymmetry shift {[sx, sy]} with weight {w:g} centres a lobe at a facet tilt of "
-                                     f"{tilt:.3g}°, more than {ASYMMETRY_MAX_TILT_DEG:g}° (the shift and "
+                raise ParameterError(f"asymmetry shift {[sx, sy]} with weight {w:g} centres a lobe at a "
+                                     f"facet tilt of {tilt:.3g}°, more than {ASYMMETRY_MAX_TILT_DEG:g}° (the shift and "
                                      "shift·weight/(1 − weight) must be slopes of at most "
                                      f"tan {ASYMMETRY_MAX_TILT_DEG:g}° = "
                                      f"{math.tan(math.radians(ASYMMETRY_MAX_TILT_DEG)):.3g})")
@@ -311,6 +312,11 @@ class AnalyticBRDF(BRDFSource):
 _KEYS = {"type", "distribution", "alpha", "rotation_deg", "kd", "ks", "eta", "asymmetry", "name"}
 
 
+def _plain(values: Any) -> str:
+    """Numbers for a message as a user writes them, ``[101, 101, 101]``, not numpy's ``[101. 101. 101.]``."""
+    return "[" + ", ".join(f"{float(v):g}" for v in np.ravel(values)) + "]"
+
+
 def _numbers(value: Any, key: str, counts: tuple[int, ...], where: str) -> Any:
     """``value`` if it is a finite number (count 1 allowed) or a list of ``counts`` finite numbers."""
     def number(v: Any) -> bool:
@@ -335,6 +341,9 @@ def _asymmetry(value: Any, where: str) -> tuple[float, float, float] | None:
         shift = _numbers(value.get("shift", [0.0, 0.0]), "asymmetry.shift", (2,), where)
         weight = _numbers(value.get("weight", 0.5), "asymmetry.weight", (1,), where)
         return float(shift[0]), float(shift[1]), float(weight)
+    if not (isinstance(value, list) and len(value) == 3):  # name the documented table form, not only the list
+        raise FileFormatError(where, "'asymmetry' must be a table {\"shift\": [x, y], \"weight\": w} "
+                                     f"(or a list [shift_x, shift_y, weight]), got {short_repr(value)}")
     sx, sy, w = _numbers(value, "asymmetry", (3,), where)
     return float(sx), float(sy), float(w)
 

@@ -1,0 +1,423 @@
+"""Bad command-line input is one line naming the file or the argument, exit status 1,
+no traceback and no output left behind — one test per defect of the fuzz campaign
+(outputs that replace the user's folders, huge integers, unchecked angles, seeds and
+counts, outputs inside inputs, argparse's usage text, libpng's own stderr line, an
+implausible calibration scale, untidy messages)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import struct
+import zipfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reflecto import io as rio
+from reflecto.cli import main
+from reflecto.errors import FileFormatError, OutputError, ParameterError
+from reflecto.instrument import layout
+from reflecto.instrument.calibrate import Calibration, calibrate
+from reflecto.instrument.device import Device
+from reflecto.instrument.simulate import simulate_calibration, simulate_capture
+from reflecto.render import mitsuba
+from reflecto.sources.analytic import AnalyticBRDF
+
+ROOT = Path(__file__).resolve().parents[1]
+PLASTIC = ROOT / "examples" / "ggx-plastic.json"
+HUGE = "1" + "0" * 400  # 10**400: a valid JSON/TOML integer that no float holds
+
+
+def _run(argv: list[str], capsys) -> tuple[int, str]:
+    """Exit status and the one stderr line of a failed command (argparse's errors exit by SystemExit)."""
+    try:
+        rc = main(argv)
+    except SystemExit as e:
+        rc = e.code if isinstance(e.code, int) else 1
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert rc == 1, (rc, lines)
+    assert len(lines) == 1 and lines[0].startswith("reflecto: error: "), lines
+    assert "Traceback" not in lines[0]
+    return rc, lines[0]
+
+
+@pytest.fixture(scope="module")
+def cap(tmp_path_factory) -> Path:
+    """A capture of the ideal device (≈ 1 s)."""
+    out = tmp_path_factory.mktemp("cap") / "cap"
+    assert main(["simulate", str(PLASTIC), "-o", str(out), "-q"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def model(cap, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("model") / "m.reflecto"
+    assert main(["reconstruct", str(cap), "-o", str(out), "-q"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def calib(tmp_path_factory) -> tuple[Path, Path, Path]:
+    """A calibration folder of the as-built device, its calibration file and a capture it reads."""
+    d = tmp_path_factory.mktemp("calib")
+    simulate_calibration(Device.builtin("as-built"), d / "calib", seed=3, white_repeats=1)
+    cal = calibrate(d / "calib").save(d / "cal.npz")
+    assert main(["simulate", str(PLASTIC), "--device", "as-built", "-o", str(d / "capab"), "-q"]) == 0
+    return d / "calib", cal, d / "capab"
+
+
+def _copy(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+def _edit_json(path: Path, fn) -> None:
+    d = json.loads(path.read_text())
+    fn(d)
+    path.write_text(json.dumps(d))
+
+
+# ------------------------------------------------------------ D1: replacing folders
+@pytest.mark.parametrize("command", [["simulate", str(PLASTIC)], ["simulate-calibration", "--device", "ideal"]])
+def test_a_folder_of_other_files_is_not_replaced(tmp_path, capsys, command):
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / "thesis.txt").write_text("years of work")
+    _, line = _run([*command, "-o", str(victim), "-q"], capsys)
+    assert str(victim) in line and "refusing to replace" in line
+    assert sorted(p.name for p in victim.iterdir()) == ["thesis.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["victim"]  # no temporary folder left
+
+
+def test_an_earlier_output_of_the_same_kind_and_an_empty_folder_are_replaced(tmp_path, cap, capsys):
+    again = _copy(cap, tmp_path / "again")
+    (again / "stale.png").write_bytes(b"x")  # an earlier capture: replaced as a whole
+    assert main(["simulate", str(PLASTIC), "-o", str(again), "-q"]) == 0
+    assert (again / "manifest.json").is_file() and not (again / "stale.png").exists()
+    (tmp_path / "empty").mkdir()
+    assert main(["simulate", str(PLASTIC), "-o", str(tmp_path / "empty"), "-q"]) == 0
+    # a capture folder is not a calibration folder: not replaced by one
+    _, line = _run(["simulate-calibration", "--device", "ideal", "-o", str(again), "-q"], capsys)
+    assert "no calibration.json" in line and (again / "manifest.json").is_file()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+@pytest.mark.parametrize("output", [".", ".."])
+def test_the_current_folder_and_its_parent_are_refused(tmp_path, capsys, monkeypatch, output):
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "notes.txt").write_text("keep")
+    monkeypatch.chdir(work)
+    _, line = _run(["simulate", str(PLASTIC), "-o", output, "-q"], capsys)
+    assert "current folder or one of its parents" in line
+    assert sorted(p.name for p in work.iterdir()) == ["notes.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["work"]
+
+
+def test_atomic_folder_refuses_before_and_leaves_the_folder_as_it_was(tmp_path):
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / "a.txt").write_text("a")
+    with pytest.raises(OutputError, match="no manifest.json"), rio.atomic_folder(victim, "manifest.json") as tmp:
+        (tmp / "manifest.json").write_text("{}")
+    with pytest.raises(OutputError, match="no manifest.json"):
+        rio.check_output(victim, folder=True, marker="manifest.json")
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a.txt", "victim"]
+
+
+# ------------------------------------------------------------ D2: huge integers
+def test_parse_json_refuses_integers_beyond_a_float_and_keeps_large_ones(tmp_path):
+    for text, kind in ((f'{{"a": {HUGE}}}', "JSON"), (f'{{"a": [-{HUGE}]}}', "JSON"), (f"a = {HUGE}\n", "TOML"),
+                       (f"[t]\na = [1, -{HUGE}]\n", "TOML")):
+        with pytest.raises(FileFormatError, match=r"f\.x: the integer .* out of range"):
+            rio.parse_json(text, tmp_path / "f.x", kind)
+    assert rio.parse_json(f'{{"a": {10**300}, "b": {2**64}}}', "f.json") == {"a": 10**300, "b": 2**64}
+    assert rio.parse_json(f"a = {2**63 - 1}\n", "f.toml", "TOML") == {"a": 2**63 - 1}
+
+
+def _huge_model(model: Path, out: Path) -> Path:
+    with zipfile.ZipFile(model) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    members["meta.json"] = members["meta.json"].replace(b"{", b'{"huge": ' + HUGE.encode() + b",", 1)
+    with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_DEFLATED) as z:
+        for n, d in members.items():
+            z.writestr(n, d)
+    return out
+
+
+def _huge_calibration(cal: Path, out: Path) -> Path:
+    with zipfile.ZipFile(cal) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    meta = rio.npy_array(members["meta.npy"], cal, "meta.npy").tobytes()
+    meta = meta.replace(b"{", b'{"huge": ' + HUGE.encode() + b",", 1)
+    members["meta.npy"] = rio.npy_bytes(np.frombuffer(meta, np.uint8))
+    with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_DEFLATED) as z:
+        for n, d in members.items():
+            z.writestr(n, d)
+    return out
+
+
+def test_huge_integers_in_every_description_are_one_line_naming_the_file(tmp_path, cap, model, calib, capsys):
+    calib_dir, cal, capab = calib
+    (tmp_path / "a.json").write_text(f'{{"type": "analytic", "alpha": 0.2, "kd": {HUGE}}}')
+    (tmp_path / "a.toml").write_text(f'type = "analytic"\nalpha = 0.2\nks = {HUGE}\n')
+    (tmp_path / "dev.json").write_text(f'{{"name": "d", "occluder_deg": {HUGE}}}')
+    capbig = _copy(cap, tmp_path / "capbig")
+    (capbig / "manifest.json").write_text((cap / "manifest.json").read_text().replace(
+        '"rotation_deg": 0.0', f'"rotation_deg": {HUGE}'))
+    calbig = _copy(calib_dir, tmp_path / "calbig")
+    _edit_json(calbig / "calibration.json", lambda m: m.update(version="HUGE"))
+    (calbig / "calibration.json").write_text((calbig / "calibration.json").read_text().replace('"HUGE"', HUGE))
+    cases = [
+        (["info", str(tmp_path / "a.json")], tmp_path / "a.json"),
+        (["info", str(tmp_path / "a.toml")], tmp_path / "a.toml"),
+        (["layout", "--device", str(tmp_path / "dev.json"), "--resolution", "8"], tmp_path / "dev.json"),
+        (["reconstruct", str(capbig), "-o", str(tmp_path / "x.reflecto")], capbig / "manifest.json"),
+        (["info", str(_huge_model(model, tmp_path / "h.reflecto"))], tmp_path / "h.reflecto"),
+        (["calibrate", str(calbig), "-o", str(tmp_path / "c.npz")], calbig / "calibration.json"),
+        (["reconstruct", str(capab), "--calibration", str(_huge_calibration(cal, tmp_path / "h.npz")),
+          "-o", str(tmp_path / "y.reflecto")], tmp_path / "h.npz"),
+    ]
+    for argv, named in cases:
+        _, line = _run(argv, capsys)
+        assert line.startswith(f"reflecto: error: {named}: the integer 1000"), (argv, line)
+        assert "out of range" in line
+    assert not (tmp_path / "c.npz").exists() and not (tmp_path / "x.reflecto").exists()
+
+
+def test_sweep_and_watch_name_the_huge_integer_not_an_internal_error(tmp_path, cap, capsys):
+    (tmp_path / "huge.json").write_text(f'{{"type": "analytic", "alpha": 0.2, "kd": {HUGE}}}')
+    assert main(["sweep", str(tmp_path / "huge.json"), "-o", str(tmp_path / "sw"), "-q", "--jobs", "1"]) == 1
+    err = capsys.readouterr().err
+    assert "out of range" in err and "internal error" not in err and "OverflowError" not in err
+    root = tmp_path / "root"
+    root.mkdir()
+    capbig = _copy(cap, root / "capbig")
+    (capbig / "manifest.json").write_text((cap / "manifest.json").read_text().replace(
+        '"rotation_deg": 0.0', f'"rotation_deg": {HUGE}'))
+    assert main(["watch", str(root), "-o", str(tmp_path / "models"), "--once"]) == 1
+    err = capsys.readouterr().err
+    assert "out of range" in err and "reconstruction failed" not in err and "OverflowError" not in err
+
+
+def test_an_overflow_no_check_caught_is_still_one_line(tmp_path, capsys, monkeypatch):
+    import reflecto.cli as cli
+
+    def overflow(_):
+        raise OverflowError("int too large to convert to float")
+
+    monkeypatch.setattr(cli, "load_source", overflow)
+    _, line = _run(["info", str(PLASTIC)], capsys)
+    assert "out of range" in line and "int too large" in line
+
+
+# ------------------------------------------------------------ D5–D7, D13: numbers on the command line
+@pytest.mark.parametrize("argv, option", [
+    (["simulate", str(PLASTIC), "--rotation", "inf"], "--rotation"),
+    (["simulate", str(PLASTIC), "--rotation", "nan"], "--rotation"),
+    (["simulate", str(PLASTIC), "--tilt", "3", "--tilt-azimuth", "inf"], "--tilt-azimuth"),
+    (["simulate", str(PLASTIC), "--tilt", "3", "--tilt-azimuth", "nan"], "--tilt-azimuth"),
+    (["simulate", str(PLASTIC), "--seed", "-1"], "--seed"),
+    (["simulate-calibration", "--seed", "-1"], "--seed"),
+    (["reconstruct", "CAP", "CAP2", "--jobs", "-1"], "--jobs"),
+    (["design", "MATS", "--jobs", "-2"], "--jobs"),
+    (["gallery", str(PLASTIC), "--seed", "-1"], "--seed"),
+])
+def test_impossible_numbers_are_refused_naming_the_option(tmp_path, capsys, argv, option):
+    out = tmp_path / "out"
+    _, line = _run([*argv, "-o", str(out)], capsys)
+    assert f"argument {option}" in line and "must be" in line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["layout", "--theta-max", "nan"], "--theta-max"),
+    (["layout", "--theta-max", "-10"], "--theta-max"),
+    (["layout", "--theta-max", "100"], "--theta-max"),
+    (["layout", "--theta-max", "inf"], "--theta-max"),
+    (["layout", "--optimize", "--seed", "-1"], "--seed"),
+    (["watch", "ROOT", "-o", "MODELS", "--settle", "-5"], "--settle"),
+    (["render", str(PLASTIC), "--seed", "-1", "-o", "r.png"], "--seed"),
+    (["render", str(PLASTIC), "--seed", str(2**32 - 2), "-o", "r.png"], "--seed"),
+])
+def test_layout_watch_and_render_numbers_are_checked(capsys, argv, option):
+    _, line = _run(argv, capsys)
+    assert f"argument {option}" in line and "must be" in line
+
+
+def test_the_library_checks_the_same_numbers(tmp_path):
+    src, dev = AnalyticBRDF(), Device.builtin("ideal")
+    for kw in (dict(rotation_deg=float("nan")), dict(rotation_deg=float("inf")),
+               dict(tilt_deg=3.0, tilt_azimuth_deg=float("nan")), dict(tilt_deg=3.0, tilt_azimuth_deg=float("inf")),
+               dict(seed=-1)):
+        with pytest.raises(ParameterError):
+            simulate_capture(src, dev, **kw)
+    with pytest.raises(ParameterError, match="seed"):
+        simulate_calibration(dev, tmp_path / "c", seed=-1)
+    assert not (tmp_path / "c").exists()
+    for theta in (float("nan"), 0.0, -10.0, 100.0, float("inf")):
+        with pytest.raises(ParameterError, match="theta_max"):
+            layout.coverage(dev.optics, dev.leds, resolution=8, theta_max_deg=theta)
+    with pytest.raises(ParameterError, match="seed"):
+        layout.optimize_layout(dev.optics, seed=-1)
+    for seed in (-1, mitsuba.MAX_SEED + 1):  # compare renders the reference with seed + 1 and + 2
+        with pytest.raises(ParameterError, match="seed"):
+            mitsuba.compare(src, src, seed=seed)
+        with pytest.raises(ParameterError, match="seed"):
+            mitsuba.render(src, seed=seed)
+
+
+# ------------------------------------------------------------ D8: libpng's own message
+def test_a_damaged_interlaced_frame_is_reflectos_one_line_only(tmp_path, cap, capfd):
+    bad = _copy(cap, tmp_path / "cap_il")
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    ihdr = struct.pack(">IIBBBBB", 320, 240, 16, 2, 0, 0, 1)  # 16-bit RGB, Adam7-interlaced
+    (bad / "led2_t8ms.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
+                                        + chunk(b"IDAT", zlib.compress(bytes(100))) + chunk(b"IEND", b""))
+    assert main(["reconstruct", str(bad), "-o", str(tmp_path / "il.reflecto")]) == 1
+    lines = [line for line in capfd.readouterr().err.splitlines() if line.strip()]  # fd 2, not only sys.stderr
+    assert lines == [f"reflecto: error: {bad / 'led2_t8ms.png'}: not a readable image (damaged PNG)"], lines
+    assert not (tmp_path / "il.reflecto").exists()
+    os.write(2, b"after\n")  # fd 2 is restored after the decode
+    assert "after" in capfd.readouterr().err
+
+
+# ------------------------------------------------------------ D9: calibration scale
+def test_a_calibration_scale_of_3e38_is_refused_naming_the_file(tmp_path, calib, capsys):
+    _, cal, capab = calib
+    with zipfile.ZipFile(cal) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    meta = json.loads(rio.npy_array(members["meta.npy"], cal, "meta.npy").tobytes())
+    scale = rio.npy_array(members["scale.npy"], cal, "scale.npy")
+    members["scale.npy"] = rio.npy_bytes(np.full_like(scale, 3e38))
+    meta["arrays"]["scale"]["sha256"] = rio.sha256(members["scale.npy"])
+    meta["sha256"] = rio.content_digest(meta)  # checksums right: only the values are wrong
+    members["meta.npy"] = rio.npy_bytes(np.frombuffer(json.dumps(meta).encode(), np.uint8))
+    bright = tmp_path / "bright.npz"
+    with zipfile.ZipFile(bright, "w", compression=zipfile.ZIP_DEFLATED) as z:
+        for n, d in members.items():
+            z.writestr(n, d)
+    with pytest.raises(FileFormatError, match="scale field reaches 3e"):
+        Calibration.load(bright)
+    out = tmp_path / "m.reflecto"
+    _, line = _run(["reconstruct", str(capab), "--calibration", str(bright), "-o", str(out)], capsys)
+    assert line.startswith(f"reflecto: error: {bright}: LED 0: the scale field") and not out.exists()
+    Calibration.load(cal)  # the genuine one is far inside the bound
+
+
+# ------------------------------------------------------------ D10–D12: outputs and inputs
+def test_sweep_with_a_bad_device_leaves_no_folder(tmp_path, capsys):
+    out = tmp_path / "sw"
+    _, line = _run(["sweep", str(PLASTIC), "-o", str(out), "--device", "junk", "-q"], capsys)
+    assert "junk" in line and not out.exists()
+
+
+def test_watch_output_inside_the_watched_folder_is_refused(tmp_path, cap, capsys):
+    root = tmp_path / "root"
+    root.mkdir()
+    _copy(cap, root / "cap")
+    for models in (root, root / "models", root / "cap" / "models"):
+        _, line = _run(["watch", str(root), "-o", str(models), "--once"], capsys)
+        assert f"watched folder {root}" in line
+    assert sorted(p.name for p in root.iterdir()) == ["cap"] and not (root / "cap" / "models").exists()
+
+
+def test_outputs_inside_an_input_folder_are_refused(tmp_path, cap, calib, capsys):
+    calib_dir = calib[0]
+    mine = _copy(cap, tmp_path / "mine")
+    before = sorted(p.name for p in mine.iterdir())
+    for out in (mine, mine / "m.reflecto"):
+        _, line = _run(["reconstruct", str(mine), "-o", str(out)], capsys)
+        assert f"capture folder {mine}" in line
+    _, line = _run(["reconstruct", str(mine), str(cap), "-o", str(mine)], capsys)
+    assert f"capture folder {mine}" in line
+    assert sorted(p.name for p in mine.iterdir()) == before
+    cal_copy = _copy(calib_dir, tmp_path / "calib")
+    _, line = _run(["calibrate", str(cal_copy), "-o", str(cal_copy / "c.npz")], capsys)
+    assert f"calibration folder {cal_copy}" in line and not (cal_copy / "c.npz").exists()
+    # an output folder that would be replaced must not hold an input
+    src = mine / "plastic.json"
+    src.write_text(PLASTIC.read_text())
+    _, line = _run(["simulate", str(src), "-o", str(mine), "-q"], capsys)
+    assert "holds the input" in line and src.is_file()
+
+
+# ------------------------------------------------------------ D14: argparse
+@pytest.mark.parametrize("argv, words", [
+    (["reconstruct", "cap", "--normal", "0,0,1,1", "-o", "m.reflecto"], "argument --normal"),
+    (["reconstruct", "cap", "-o"], "argument -o/--output: expected one argument"),
+    (["simulate"], "required"),
+    ([], "required: COMMAND"),
+    (["nosuchcommand"], "invalid choice"),
+])
+def test_argparse_errors_are_one_line_and_status_1(capsys, argv, words):
+    _, line = _run(argv, capsys)
+    assert words in line and "usage:" not in line and "--help" in line
+
+
+def test_help_still_shows_the_usage(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["simulate", "--help"])
+    assert e.value.code == 0 and "usage: reflecto simulate" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------ D15: tidy messages
+def test_an_empty_argument_is_named_not_the_current_folder(tmp_path, capsys):
+    for argv, words in ((["simulate", str(PLASTIC), "--device", "", "-o", str(tmp_path / "c")], "simulate --device"),
+                        (["layout", "--device", ""], "layout --device"),
+                        (["simulate", str(PLASTIC), "-o", ""], "simulate -o"),
+                        (["info", ""], "info")):
+        _, line = _run(argv, capsys)
+        assert line.startswith(f"reflecto: error: {words}: the argument is empty"), line
+    assert not (tmp_path / "c").exists()
+
+
+def test_messages_show_plain_numbers_and_each_path_once(tmp_path, cap, calib, capsys):
+    bad = _copy(cap, tmp_path / "led9")
+    _edit_json(bad / "manifest.json", lambda m: m["frames"][0].update(led=9))
+    _, line = _run(["reconstruct", str(bad), "-o", str(tmp_path / "a.reflecto")], capsys)
+    assert "exposures [1, 8] ms" in line and "np." not in line
+    (tmp_path / "eta.json").write_text('{"type": "analytic", "eta": 101}')
+    _, line = _run(["info", str(tmp_path / "eta.json")], capsys)
+    assert line.endswith("eta must lie in [1, 100], got [101, 101, 101]")
+    bits = _copy(cap, tmp_path / "bits")
+    _edit_json(bits / "manifest.json", lambda m: m["device"]["camera"].update(bits=99))
+    _, line = _run(["reconstruct", str(bits), "-o", str(tmp_path / "b.reflecto")], capsys)
+    assert line.count("manifest.json") == 1 and "device.camera.bits" in line
+    cal_bits = _copy(calib[0], tmp_path / "calbits")
+    _edit_json(cal_bits / "calibration.json", lambda m: m["device"]["camera"].update(bits=99))
+    _, line = _run(["calibrate", str(cal_bits), "-o", str(tmp_path / "c.npz")], capsys)
+    assert line.count("calibration.json") == 1 and "device.camera.bits" in line
+    (tmp_path / "dev.toml").write_text('name = "d"\n[camera]\nbits = 99\n')
+    _, line = _run(["layout", "--device", str(tmp_path / "dev.toml")], capsys)
+    assert line.count("dev.toml") == 1 and "device.camera.bits" in line
+
+
+def test_a_white_capture_that_is_a_file_and_a_list_asymmetry_are_described_as_they_are(tmp_path, calib, capsys):
+    white = _copy(calib[0], tmp_path / "calib")
+    shutil.rmtree(white / "white")
+    (white / "white").write_text("not a capture")
+    _, line = _run(["calibrate", str(white), "-o", str(tmp_path / "c.npz")], capsys)
+    assert "must be a folder" in line and "no such directory" not in line
+    (tmp_path / "asym.json").write_text('{"type": "analytic", "asymmetry": [0.25, 0.0]}')
+    _, line = _run(["info", str(tmp_path / "asym.json")], capsys)
+    assert '{"shift": [x, y], "weight": w}' in line
+
+
+def test_watch_skips_a_damaged_summary_of_an_earlier_model(tmp_path, cap, capsys):
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    models.mkdir()
+    for name, summary in (("a", "[]"), ("b", f'{{"normal_tilt_deg": {HUGE}}}')):
+        _copy(cap, root / name)
+        (models / f"{name}.json").write_text(summary)  # a model "done" before, its summary damaged
+        (models / f"{name}.reflecto").write_bytes(b"")
+    assert main(["watch", str(root), "-o", str(models), "--once"]) == 0
+    assert capsys.readouterr().err == ""
