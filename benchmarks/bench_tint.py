@@ -57,7 +57,8 @@ def main() -> None:
         plain = [_cpu_ms(isotropic.channel_scalars, lum, ceiling) for _ in range(REPEATS)]
         extra.append(statistics.median(tint) - statistics.median(plain))
     ms = np.array(extra)
-    print(f"Fresnel tint and NDF per node, {len(fits)} measured materials × {REPEATS}, ideal device, one core {_bench.cpus()}: "
+    print(f"Fresnel tint and NDF per node, {len(fits)} measured materials × {REPEATS}, ideal device, "
+          f"one core {_bench.cpus()}: "
           f"extra CPU time median {np.median(ms):.2f} ms, p90 {np.percentile(ms, 90):.2f} ms, max {ms.max():.2f} ms "
           "per capture (budget 20 ms)")
     print(f"ms_tint_extra: {np.median(ms):.2f}")

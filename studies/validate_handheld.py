@@ -54,8 +54,9 @@ from reflecto.evaluate.split import half
 from reflecto.evaluate.sweep import find_materials, material_seed
 from reflecto.instrument.device import load_device
 from reflecto.instrument.simulate import simulate_capture
+from reflecto.polar import lobe_half_width_deg
 from reflecto.reconstruct import Options, reconstruct
-from reflecto.reconstruct.normal import half_vector_pitch_deg, lobe_half_width_deg
+from reflecto.reconstruct.normal import half_vector_pitch_deg
 from reflecto.reconstruct.pipeline import usable_samples
 
 ROOT = Path(__file__).resolve().parents[1]

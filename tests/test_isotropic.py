@@ -402,4 +402,4 @@ def test_a_model_file_with_a_damaged_array_table_or_sample_normal_is_refused_by_
     for key, value in (("normal_tilt_deg", "abc"), ("normal_tilt_deg", float("nan")), ("normal", [0, 0, 2]),
                        ("normal_uncertainty_deg", [1])):
         with pytest.raises(FileFormatError, match=f"metadata '{key}' is not a valid sample normal entry"):
-            load_model(damaged(lambda meta: meta["metadata"].update({key: value})))
+            load_model(damaged(lambda meta, key=key, value=value: meta["metadata"].update({key: value})))

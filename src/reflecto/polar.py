@@ -128,6 +128,15 @@ def _quadrature(nodes_key: bytes) -> _Quadrature:
     return q
 
 
+def lobe_half_width_deg(nodes: Array, values: Array) -> float:
+    """Half width at half maximum (degrees) of a tabulated isotropic NDF ``D(θ_h)``
+    (``nodes`` in radians), linear between the nodes; 90 where it never halves."""
+    theta = np.linspace(0.0, float(nodes[-1]), 9001)
+    d = np.interp(theta, nodes, values)
+    below = np.flatnonzero(d < 0.5 * d[0])
+    return math.degrees(float(theta[below[0]])) if len(below) else 90.0
+
+
 class IsotropicNDF:
     """A normalized isotropic NDF ``D(θ_h)`` on polar nodes, with its σ (eq. 8).
 

@@ -53,7 +53,7 @@ from ..errors import ReflectoError
 from ..hemicube import hemicube
 from ..instrument.slices import MIN_LIGHT_COS, Slices
 from ..model import IsotropicMicrofacetBRDF
-from ..polar import cell_table, interpolation_cells, polar_nodes
+from ..polar import cell_table, interpolation_cells, lobe_half_width_deg, polar_nodes
 from . import _normal_kernels, _polar_kernels, isotropic
 from .fresnel_fit import fit_fresnel, overlap_pairs
 from .samples import bin_samples, kd_bound
@@ -750,15 +750,6 @@ class HiddenPeak:
     theta_d_deg: float
     nearest_deg: float
     half_width_deg: float
-
-
-def lobe_half_width_deg(nodes: Array, values: Array) -> float:
-    """Half width at half maximum (degrees) of a tabulated isotropic NDF ``D(θ_h)``
-    (``nodes`` in radians), linear between the nodes; 90 where it never halves."""
-    theta = np.linspace(0.0, float(nodes[-1]), 9001)
-    d = np.interp(theta, nodes, values)
-    below = np.flatnonzero(d < 0.5 * d[0])
-    return math.degrees(float(theta[below[0]])) if len(below) else 90.0
 
 
 def hidden_peaks(slices: Slices, valid: NDArray[np.bool_], normal: Array, nodes: Array, values: Array,
