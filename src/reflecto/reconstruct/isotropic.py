@@ -62,7 +62,6 @@ from ..polar import (
     _quadrature,
     cell_table,
     interpolation_cells,
-    lobe_half_width_deg,
     polar_nodes,
 )
 from . import _polar_kernels
@@ -785,23 +784,15 @@ def node_ndfs(fit: LuminanceFit, nodes: Array, leds: list[tuple[int, ...]]) -> N
     every LED sees the lobe and the node's ``D`` continues as the luminance fit's does
     (its tail, a fraction of a percent of a diffuse sample's value, is no one slice's to
     tell). Each node's ``D`` is normalized; the specular level and colour per node are
-    the tint's (:func:`tinted_scalars`). A node whose slices come no closer to the
-    normal than the luminance fit's half width at half maximum sees the lobe's flank, not
-    its peak (on `wide` the LEDs whose mirror views lie at the cone's rim, 0.26–0.29° from
-    the normal against a 0.2° half width): it keeps the luminance fit's ``D``.
+    the tint's (:func:`tinted_scalars`).
     """
     p, base = fit.problem, fit.state
     me = p.measured
     others = me & ~np.isin(p.bins.led, [k for members in leds for k in members])
     shared_from = int(p.j[others].min()) if others.any() else None
-    d_base = np.exp(base.z - base.z.max())
-    half_width = math.radians(lobe_half_width_deg(p.nodes, d_base))
     out = []
     for members in leds:
         sel = np.isin(p.bins.led, members)
-        if not np.any(me & sel & (p.bins.theta_h <= half_width)):
-            out.append(IsotropicNDF(p.nodes, d_base))
-            continue
         sub = LuminanceProblem(PolarBins(*(getattr(p.bins, f.name)[sel] for f in dataclasses.fields(PolarBins))),
                                p.nodes)
         set_weights(sub)
