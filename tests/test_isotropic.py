@@ -403,3 +403,18 @@ def test_a_model_file_with_a_damaged_array_table_or_sample_normal_is_refused_by_
                        ("normal_uncertainty_deg", [1])):
         with pytest.raises(FileFormatError, match=f"metadata '{key}' is not a valid sample normal entry"):
             load_model(damaged(lambda meta, key=key, value=value: meta["metadata"].update({key: value})))
+
+
+def test_saving_refuses_unnormalized_node_lobes_and_info_reports_a_lobe_that_never_halves(tmp_path):
+    th = polar_nodes()
+    lobe = IsotropicNDF(th, _ggx_lobe(0.1)).values
+    bad = IsotropicMicrofacetBRDF((th, lobe), kd=0.05, ks=0.8, eta=1.5, normalize=False,
+                                  lobes=(np.radians([38.0, 67.0]), [lobe, 3.0 * lobe]))
+    with pytest.raises(ParameterError, match="not saved.*NDF of θ_d node 67.0° is not normalized"):
+        bad.save(tmp_path / "bad.reflecto")
+    assert not (tmp_path / "bad.reflecto").exists()
+    flat = IsotropicMicrofacetBRDF((th, lobe), kd=0.05, ks=0.8, eta=1.5, lobes=(np.radians([38.0, 67.0]),
+                                                                                 [lobe, np.ones_like(lobe)]))
+    widths = flat.parameters()["ndf_per_theta_d"]
+    assert widths["67.0°"] == "half width 90.00°"
+    assert 1.0 < float(widths["38.0°"].split()[-1].rstrip("°")) < 10.0

@@ -519,7 +519,9 @@ def _lobe_parameters(model) -> dict[str, Any]:
     out = {}
     for t, d in zip(model.lobes.theta_d, model.lobes.ndfs):
         v = d.at_theta(theta)
-        out[f"{math.degrees(t):.1f}°"] = f"half width {math.degrees(theta[int(np.argmax(v < 0.5 * v[0]))]):.2f}°"
+        below = np.flatnonzero(v < 0.5 * v[0])  # a lobe that never halves: 90°
+        half = theta[below[0]] if len(below) else 0.5 * math.pi
+        out[f"{math.degrees(t):.1f}°"] = f"half width {math.degrees(half):.2f}°"
     return {"ndf_per_theta_d": out}
 
 
@@ -718,6 +720,11 @@ def _check_model(path: Path, model: MicrofacetBRDF | IsotropicMicrofacetBRDF) ->
         total = float(model.ndf_values @ model.cube.projected_solid_angles)
     if not abs(total - 1.0) <= NDF_NORM_TOLERANCE:
         raise FileFormatError(path, f"the NDF is not normalized (∫ D cos θ dω = {total:.6g}, AR 1.2 needs 1)")
+    for t, d in zip(*((model.lobes.theta_d, model.lobes.ndfs) if getattr(model, "lobes", None) is not None
+                      else ((), ()))):
+        if not abs(d.normalization - 1.0) <= NDF_NORM_TOLERANCE:
+            raise FileFormatError(path, f"the NDF of θ_d node {math.degrees(t):.1f}° is not normalized "
+                                        f"(∫ D cos θ dω = {d.normalization:.6g}, AR 1.2 needs 1)")
     check_plausible(model, path, albedo_range=(0.0, MODEL_ALBEDO_MAX))
 
 
@@ -909,7 +916,9 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         return f
 
     def to_hemicube(self, resolution: int = 128) -> MicrofacetBRDF:
-        """The same BRDF with its NDF tabulated on a hemicube (for plots and the §5.5 merge).
+        """The BRDF with its NDF tabulated on a hemicube (for plots and the §5.5 merge). One
+        hemicube NDF holds :meth:`ndf`: a model with an NDF per θ_d node (:attr:`lobes`)
+        becomes the one-NDF model of the same ``ndf``, not the same BRDF.
 
         Parameters
         ----------

@@ -146,8 +146,9 @@ def ndf_figures(model: HasNDF, out: Path) -> list[tuple[str, str]]:
         for t, d in zip(lobes.theta_d, lobes.ndfs):
             ax.semilogy(np.degrees(th), np.maximum(d.at_theta(th), floor), lw=1, ls="--",
                         label=f"lobe at θ_d = {math.degrees(t):.0f}°")
-        caption = ("NDF against θ_h (log scale): the fit's one D (black; S of the plots, the export's sampling) "
-                   "and the lobe the model uses at each θ_d node (dashed), mixed between the nodes.")
+        caption = ("NDF against θ_h (log scale): the fit's one D (black; S of the plots) "
+                   "and the lobe the model uses at each θ_d node (dashed), mixed between the nodes; the "
+                   "export samples by the nodes' mean.")
     ax.set_xlabel("θ_h (deg)")
     ax.set_ylabel("D (sr⁻¹)")
     ax.grid(True, which="both", alpha=0.3)

@@ -476,7 +476,7 @@ def _notes(model, isotropic: bool, ks_at_bound: bool, eta: float, symmetry: Symm
 def _set_normal(captures: Sequence[RotatedCapture], valids: list[NDArray[np.bool_]], max_tilt_deg: float) -> Array:
     """The set's device-frame normal (module docstring), S from an isotropic fit in the device frame."""
     stacked, ok = stack_isotropic([c.slices for c in captures], valids)
-    shadow = fit_isotropic(stacked, ok).model.shadowing
+    shadow = fit_isotropic(stacked, ok).least_squares.shadowing
     coarse = SetDistance(captures, valids, shadow, n=32, stride=3)
     fine = SetDistance(captures, valids, shadow, n=64, stride=1)
     normal, _ = estimate_normal_consistency(coarse, fine, max_tilt_deg)

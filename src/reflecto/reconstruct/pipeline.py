@@ -309,13 +309,13 @@ def estimate_frame(slices: Slices, valid: NDArray[np.bool_], max_tilt_deg: float
         coarse, fine = IsotropicDistance(slices, valid, stride=3), IsotropicDistance(slices, valid, stride=1)
         normal, _ = estimate_normal_consistency(coarse, fine, max_tilt_deg)
         return geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
-    shadow = fit_isotropic(slices, valid).model.shadowing
+    shadow = fit_isotropic(slices, valid).least_squares.shadowing
     coarse = ConsistencyDistance(slices, valid, shadow, n=32, stride=3)
     fine = ConsistencyDistance(slices, valid, shadow, n=64, stride=1)
     normal, _ = estimate_normal_consistency(coarse, fine, max_tilt_deg)
     frame = geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
     turned = slices.reframe(frame)
-    shadow = fit_isotropic(turned, valid & turned.valid).model.shadowing
+    shadow = fit_isotropic(turned, valid & turned.valid).least_squares.shadowing
     normal, _ = refine_normal(ConsistencyDistance(slices, valid, shadow, n=64, stride=1), normal, 0.5, maxfev=50,
                               probe_deg=1.5)
     return geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
