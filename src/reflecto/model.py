@@ -720,11 +720,12 @@ def _check_model(path: Path, model: MicrofacetBRDF | IsotropicMicrofacetBRDF) ->
         total = float(model.ndf_values @ model.cube.projected_solid_angles)
     if not abs(total - 1.0) <= NDF_NORM_TOLERANCE:
         raise FileFormatError(path, f"the NDF is not normalized (∫ D cos θ dω = {total:.6g}, AR 1.2 needs 1)")
-    for t, d in zip(*((model.lobes.theta_d, model.lobes.ndfs) if getattr(model, "lobes", None) is not None
-                      else ((), ()))):
-        if not abs(d.normalization - 1.0) <= NDF_NORM_TOLERANCE:
-            raise FileFormatError(path, f"the NDF of θ_d node {math.degrees(t):.1f}° is not normalized "
-                                        f"(∫ D cos θ dω = {d.normalization:.6g}, AR 1.2 needs 1)")
+    lobes = model.lobes if isinstance(model, IsotropicMicrofacetBRDF) else None
+    if lobes is not None:
+        for t, d in zip(lobes.theta_d, lobes.ndfs):
+            if not abs(d.normalization - 1.0) <= NDF_NORM_TOLERANCE:
+                raise FileFormatError(path, f"the NDF of θ_d node {math.degrees(t):.1f}° is not normalized "
+                                            f"(∫ D cos θ dω = {d.normalization:.6g}, AR 1.2 needs 1)")
     check_plausible(model, path, albedo_range=(0.0, MODEL_ALBEDO_MAX))
 
 
