@@ -403,6 +403,8 @@ def test_a_model_file_with_a_damaged_array_table_or_sample_normal_is_refused_by_
                        ("normal_uncertainty_deg", [1])):
         with pytest.raises(FileFormatError, match=f"metadata '{key}' is not a valid sample normal entry"):
             load_model(damaged(lambda meta, key=key, value=value: meta["metadata"].update({key: value})))
+    with pytest.raises(FileFormatError, match="lobes.npy. needs model format version 5, the file says 4"):
+        load_model(damaged(lambda meta: meta.update(version=4)))
 
 
 def test_saving_refuses_unnormalized_node_lobes_and_info_reports_a_lobe_that_never_halves(tmp_path):

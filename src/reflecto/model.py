@@ -1011,6 +1011,9 @@ class IsotropicMicrofacetBRDF(BRDFSource):
             raise FileFormatError(path, f"isotropic NDF arrays must be 3 to {MAX_POLAR_NODES} float32 values on as "
                                   "many float64 nodes, as the resolution says")
         kd, ks, eta, correlated, metadata = params
+        if meta.get("version", 0) < 5 and ("lobes" in arrays or "lobes_theta_d" in arrays):
+            raise FileFormatError(path, f"an NDF per θ_d node (lobes.npy) needs model format version 5, "
+                                        f"the file says {meta.get('version')}")
         try:
             ndf = IsotropicNDF(nodes, values.astype(np.float64), normalize=False)
             model = cls(ndf, kd, ks, eta, correlated=correlated, metadata=metadata, path=path,
