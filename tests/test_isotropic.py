@@ -173,8 +173,6 @@ def test_fresnel_tint_interpolates_holds_and_refuses_impossible_tables():
 
 
 def test_tinted_model_evaluates_file_round_trips_and_refuses_a_damaged_tint(tmp_path):
-    import json
-    import zipfile
 
     from reflecto.fresnel import fresnel
 
@@ -197,22 +195,9 @@ def test_tinted_model_evaluates_file_round_trips_and_refuses_a_damaged_tint(tmp_
     assert "fresnel_tint" in back.parameters()
     assert np.allclose(back.to_hemicube(32).fresnel(np.cos(td)), m.fresnel(np.cos(td)))
     # a negative tint, with consistent checksums, is refused by name
-    with zipfile.ZipFile(tmp_path / "m.reflecto") as z:
-        members = {n: z.read(n) for n in z.namelist()}
-    from reflecto.io import content_digest, npy_bytes, sha256
-
-    meta = json.loads(members["meta.json"])
-    bad = npy_bytes(np.array([[1.0, 1.0, 1.0], [1.0, 1.0, -2.0]], "<f8"))
-    members["tint.npy"] = bad
-    meta["arrays"]["tint"]["sha256"] = sha256(bad)
-    meta.pop("sha256")
-    meta["sha256"] = content_digest(meta)
-    members["meta.json"] = json.dumps(meta).encode()
-    with zipfile.ZipFile(tmp_path / "bad.reflecto", "w") as z:
-        for name, data in members.items():
-            z.writestr(name, data)
+    bad = np.array([[1.0, 1.0, 1.0], [1.0, 1.0, -2.0]], "<f8")
     with pytest.raises(FileFormatError, match="Fresnel tint"):
-        load_model(tmp_path / "bad.reflecto")
+        load_model(_with_array(tmp_path / "m.reflecto", "tint", bad, tmp_path / "bad.reflecto"))
 
 
 def test_reconstruction_recovers_a_colour_that_changes_with_angle():
@@ -286,10 +271,7 @@ def _changing_lobe(alphas=(0.05, 0.15), at_deg=(38.0, 67.0), **kw):
 
 
 def test_an_ndf_per_theta_d_node_interpolates_stays_normalized_reciprocal_and_round_trips(tmp_path):
-    import json
-    import zipfile
 
-    from reflecto.io import content_digest, npy_bytes, sha256
     from reflecto.polar import NodeNDFs
 
     m = _changing_lobe()
@@ -325,20 +307,9 @@ def test_an_ndf_per_theta_d_node_interpolates_stays_normalized_reciprocal_and_ro
     with pytest.raises(ParameterError, match="one NDF each"):
         NodeNDFs(np.radians([38.0, 50.0, 67.0]), [narrow, wide])
     # an unnormalized node table, with consistent checksums, is refused by name
-    with zipfile.ZipFile(tmp_path / "m.reflecto") as z:
-        members = {n: z.read(n) for n in z.namelist()}
-    meta = json.loads(members["meta.json"])
-    bad = npy_bytes((back.lobes.values * np.array([[1.0], [3.0]])).astype("<f4"))
-    members["lobes.npy"] = bad
-    meta["arrays"]["lobes"]["sha256"] = sha256(bad)
-    meta.pop("sha256")
-    meta["sha256"] = content_digest(meta)
-    members["meta.json"] = json.dumps(meta).encode()
-    with zipfile.ZipFile(tmp_path / "bad.reflecto", "w") as z:
-        for name, data in members.items():
-            z.writestr(name, data)
+    bad = (back.lobes.values * np.array([[1.0], [3.0]])).astype("<f4")
     with pytest.raises(FileFormatError, match="θ_d node 67.0° is not normalized"):
-        load_model(tmp_path / "bad.reflecto")
+        load_model(_with_array(tmp_path / "m.reflecto", "lobes", bad, tmp_path / "bad.reflecto"))
 
 
 def test_reconstruction_recovers_a_lobe_that_changes_with_theta_d():
@@ -420,3 +391,25 @@ def test_saving_refuses_unnormalized_node_lobes_and_info_reports_a_lobe_that_nev
     widths = flat.parameters()["ndf_per_theta_d"]
     assert widths["67.0°"] == "half width 90.00°"
     assert 1.0 < float(widths["38.0°"].split()[-1].rstrip("°")) < 10.0
+
+
+def _with_array(path, name, array, out):
+    """A copy of the model file ``path`` with array ``name`` replaced and every checksum
+    consistent: what the loader must refuse by its content, not by a checksum."""
+    import json
+    import zipfile
+
+    from reflecto.io import content_digest, npy_bytes, sha256
+
+    with zipfile.ZipFile(path) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    meta = json.loads(members["meta.json"])
+    members[f"{name}.npy"] = npy_bytes(array)
+    meta["arrays"][name]["sha256"] = sha256(members[f"{name}.npy"])
+    meta.pop("sha256")
+    meta["sha256"] = content_digest(meta)
+    members["meta.json"] = json.dumps(meta).encode()
+    with zipfile.ZipFile(out, "w") as z:
+        for n, data in members.items():
+            z.writestr(n, data)
+    return out
