@@ -160,9 +160,7 @@ class IsotropicFitTuning:
                "tint interpolated between measured peaks. Measurement: validate_handheld (as-built): steel's "
                "tilted capture (its grazing LED 0.49–0.52° off) set its node or not as the normal moved by 0.01° "
                "(eq. 10 4.0 or 12.6); a node from every LED within 1° hurt the wide design, where an LED 0.5–1° off "
-               "added one between two peak-seeing nodes (white-marble 0.097 → 0.185, natural-209 0.042 → 0.075); "
-               "1° and 2° gave identical hand-held records (steel is in the tuning half; the validation half moved "
-               "22 → 23 of 25 within 1.1× of the true normal), the smaller is kept")
+               "added one between two peak-seeing nodes (white-marble 0.097 → 0.185, natural-209 0.042 → 0.075)")
     outer_iterations: int = tuned(
         5, name="OUTER_ITERATIONS", units="iterations",
         what="outer iterations of fit_luminance (S from D, ε from the residuals)",
