@@ -88,7 +88,6 @@ LM_TOLERANCE = ISOTROPIC.lm_tolerance
 LM_MAX_ITERATIONS = ISOTROPIC.lm_max_iterations
 NODE_ROUNDS = ISOTROPIC.node_rounds
 MIRROR_THETA_H = ISOTROPIC.mirror_theta_h
-FLANK_THETA_H = ISOTROPIC.flank_theta_h
 
 
 @dataclasses.dataclass
@@ -128,7 +127,7 @@ class PolarBins:
         return self.f @ LUM
 
 
-def bin_polar(slices: Slices, nodes: Array, valid: NDArray[np.bool_], td_step: float = TD_STEP) -> PolarBins:
+def bin_polar(slices: Slices, nodes: Array, valid: NDArray[np.bool_]) -> PolarBins:
     """Average the ``valid`` samples of the slices per (LED, θ_h cell, θ_d cell).
 
     The θ_h cells halve the node intervals (:data:`CELLS_PER_INTERVAL`): a bin's mean
@@ -142,8 +141,7 @@ def bin_polar(slices: Slices, nodes: Array, valid: NDArray[np.bool_], td_step: f
     censored = valid & slices.censored if slices.censored is not None else np.zeros_like(valid)
     edges = np.interp(np.arange((len(nodes) - 1) * CELLS_PER_INTERVAL + 1) / CELLS_PER_INTERVAL,
                       np.arange(len(nodes)), nodes)
-    parts = [_bin_group(slices, edges, valid & ~censored, False, td_step),
-             _bin_group(slices, edges, censored, True, td_step)]
+    parts = [_bin_group(slices, edges, valid & ~censored, False), _bin_group(slices, edges, censored, True)]
     parts = [p for p in parts if p is not None]
     if not parts:
         raise ReflectoError("capture: no valid samples")
@@ -151,8 +149,7 @@ def bin_polar(slices: Slices, nodes: Array, valid: NDArray[np.bool_], td_step: f
                        for f in dataclasses.fields(PolarBins)))
 
 
-def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: bool,
-               td_step: float) -> PolarBins | None:
+def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: bool) -> PolarBins | None:
     if not mask.any():
         return None
     zeros = np.zeros(mask.shape)
@@ -161,7 +158,7 @@ def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: 
     if is_bound:
         bound = slices.limit if slices.limit is not None else slices.values @ LUM
         bound = np.ascontiguousarray(bound, dtype=np.float64)
-    n_td = int(math.ceil(0.5 * math.pi / td_step)) + 1
+    n_td = int(math.ceil(0.5 * math.pi / TD_STEP)) + 1
     n_keys = slices.n_leds * (len(edges) - 1) * n_td
     count = np.zeros(n_keys)
     sums = np.zeros((n_keys, 5))
@@ -169,7 +166,7 @@ def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: 
     _polar_kernels.bin_polar(np.ascontiguousarray(mask), np.ascontiguousarray(slices.light, dtype=np.float64),
                              np.ascontiguousarray(slices.view, dtype=np.float64),
                              np.ascontiguousarray(slices.values, dtype=np.float64), noise, bound, edges,
-                             cell_table(edges.tobytes()), td_step, n_td, *theta_d_tables(n_td, td_step),
+                             cell_table(edges.tobytes()), TD_STEP, n_td, *theta_d_tables(n_td),
                              count, sums, fsum)
     used = np.flatnonzero(count)
     n = count[used]
@@ -182,7 +179,7 @@ def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: 
 
 
 @functools.cache
-def theta_d_tables(n_td: int, td_step: float = TD_STEP) -> tuple[Array, NDArray[np.intp]]:
+def theta_d_tables(n_td: int) -> tuple[Array, NDArray[np.intp]]:
     """The θ_d cells' edges in ``c = cos θ_d`` and a table of the cell of ``c = i / m``
     (read-only), with which the binning finds a sample's θ_d cell
     (:func:`._polar_kernels._theta_d_cell`) without an arccos.
@@ -191,8 +188,8 @@ def theta_d_tables(n_td: int, td_step: float = TD_STEP) -> tuple[Array, NDArray[
     ``td_cos[j + 1] < c ≤ td_cos[j]``. ``m`` makes the table's step half the narrowest
     cell (``1 − cos TD_STEP``), so a sample's cell is its table entry's or the one below.
     """
-    td_cos = np.cos(np.arange(n_td + 1) * td_step)
-    m = int(math.ceil(2.0 / (1.0 - math.cos(td_step))))
+    td_cos = np.cos(np.arange(n_td + 1) * TD_STEP)
+    m = int(math.ceil(2.0 / (1.0 - math.cos(TD_STEP))))
     c = np.arange(m) / m
     table = (np.searchsorted(-td_cos, -c, side="right") - 1).astype(np.intp)
     td_cos.setflags(write=False)
@@ -730,14 +727,10 @@ def tint_nodes(theta_d: Array, theta_h: Array, information: Array, led: NDArray[
     information-weighted mean of its bins' ``θ_d`` (``information`` = the weight times the
     squared derivative of the model by the scale, per bin), with the weighted spread
     ``σ``. At the peak of a sharp lobe that is the LED's incidence angle, ``σ`` a
-    fraction of a degree; a broad lobe spreads it over tens of degrees. A hand-held
-    tilt moves a near-rim LED's nearest half vector a few tenths of a degree off the
-    normal: a slice within :data:`FLANK_THETA_H` still sees the lobe's upper flank and
-    sets a node where it extends the ``θ_d`` range of the peak-seeing LEDs' nodes (the
-    alternative there is η's extrapolation; within it, the tint interpolated between
-    measured peaks). An LED whose slice stays farther from the normal sees only the
-    lobe's tail, which the fit extrapolates, and sets no node (its bins still enter the
-    fit). Clusters whose means lie closer than the sum of their spreads measure the same part of the
+    fraction of a degree; a broad lobe spreads it over tens of degrees. An LED that
+    sees only the lobe's flank measures the scale times a part of ``D`` the fit
+    extrapolates, and sets no node (its bins still enter the fit). Clusters whose
+    means lie closer than the sum of their spreads measure the same part of the
     Fresnel curve and are pooled (closest first), so nodes stand only where the data
     tell the scale at one ``θ_d`` from the scale at another.
 
@@ -751,24 +744,16 @@ def tint_clusters(theta_d: Array, theta_h: Array, information: Array,
                   led: NDArray[np.intp]) -> list[tuple[float, tuple[int, ...]]]:
     """:func:`tint_nodes` with the LEDs of each node: ``(θ_d node (radians), LEDs)``, increasing."""
     clusters: list[tuple[float, float, float, tuple[int, ...]]] = []  # weight, mean, mean square, LEDs
-    flank: list[tuple[float, float, float, tuple[int, ...]]] = []
     for k in np.unique(led):
         sel = led == k
-        nearest = theta_h[sel].min()
-        if nearest > FLANK_THETA_H:
+        if theta_h[sel].min() > MIRROR_THETA_H:
             continue
         w = information[sel]
         total = float(w.sum())
         if not total > 0 or not math.isfinite(total):
             continue
         mu = float(w @ theta_d[sel]) / total
-        (clusters if nearest <= MIRROR_THETA_H else flank).append(
-            (total, mu, float(w @ theta_d[sel] ** 2) / total, (int(k),)))
-    # a slice that sees only the upper flank (its peak out of view) extends the θ_d range the
-    # peak-seeing slices span; within it the tint interpolates between measured peaks
-    lo = min((c[1] for c in clusters), default=math.inf)
-    hi = max((c[1] for c in clusters), default=-math.inf)
-    clusters += [c for c in flank if not lo <= c[1] <= hi]
+        clusters.append((total, mu, float(w @ theta_d[sel] ** 2) / total, (int(k),)))
     clusters.sort(key=lambda c: c[1])
     while len(clusters) > 1:
         spread = [math.sqrt(max(c[2] - c[1] ** 2, 0.0)) for c in clusters]

@@ -150,17 +150,6 @@ class IsotropicFitTuning:
         source="mechanism: a camera pixel moves h by ≈ 0.2°, so a slice that holds the mirror direction has a "
                "sample within a pixel or two of it; on the paper's layout those LEDs reach 0.1° and the others "
                "16–29° (ideal device, red-metallic-paint)")
-    flank_theta_h: float = tuned(
-        math.radians(1.0), name="FLANK_THETA_H", units="rad (1°)",
-        what="an LED whose nearest bin lies beyond MIRROR_THETA_H but within this of θ_h = 0 sees the lobe's "
-             "upper flank; it sets a node of the Fresnel tint only beyond the θ_d range of the nodes set where "
-             "the peak is seen",
-        source="mechanism: a hand-held tilt moves a near-rim LED's nearest half vector a few tenths of a degree "
-               "off the normal; beyond the peak-seeing nodes the alternative is η's extrapolation, within them the "
-               "tint interpolated between measured peaks. Measurement: validate_handheld (as-built): steel's "
-               "tilted capture (its grazing LED 0.49–0.52° off) set its node or not as the normal moved by 0.01° "
-               "(eq. 10 4.0 or 12.6); a node from every LED within 1° hurt the wide design, where an LED 0.5–1° off "
-               "added one between two peak-seeing nodes (white-marble 0.097 → 0.185, natural-209 0.042 → 0.075)")
     outer_iterations: int = tuned(
         5, name="OUTER_ITERATIONS", units="iterations",
         what="outer iterations of fit_luminance (S from D, ε from the residuals)",
