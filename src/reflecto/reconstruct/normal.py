@@ -54,7 +54,7 @@ from ..hemicube import hemicube
 from ..instrument.slices import MIN_LIGHT_COS, Slices
 from ..model import IsotropicMicrofacetBRDF
 from ..polar import cell_table, interpolation_cells, lobe_half_width_deg, polar_nodes
-from . import _normal_kernels, _polar_kernels, isotropic
+from . import _normal_kernels, _polar_kernels, isotropic, symmetry
 from .fresnel_fit import fit_fresnel, overlap_pairs
 from .samples import bin_samples, kd_bound
 from .tuning import NORMAL
@@ -347,12 +347,16 @@ class NormalEstimate:
         The estimated tilt before the decision for the device axis (degrees; NaN when
         nothing was estimated).
     alternative
-        Where the device axis was kept over an estimate (one within two uncertainties of
-        it, or one that fitted no better): that estimate, shape ``(3,)``, a normal the
-        data allow as well (the eq. 3 test looks in its frame too); else ``None``.
+        A normal the data allow as well, shape ``(3,)`` (the eq. 3 test looks in its frame
+        too), else ``None``: where the device axis was kept over an estimate (one within
+        two uncertainties of it, or one that fitted no better), that estimate; where the
+        symmetry planes moved the fit's normal (``planes`` > 0), the fit's normal.
     half_vector_pitch_deg
         The camera's sampling of the half vector (:func:`half_vector_pitch_deg`) where the
         estimate measured it (the floor of its uncertainty); else NaN.
+    planes
+        The slices' symmetry planes that entered the estimate (:func:`with_symmetry_planes`;
+        0 where they gave none).
     """
 
     normal: Array
@@ -362,6 +366,7 @@ class NormalEstimate:
     tilt_estimate_deg: float = math.nan
     alternative: Array | None = None
     half_vector_pitch_deg: float = math.nan
+    planes: int = 0
 
     @property
     def tilt_deg(self) -> float:
@@ -854,9 +859,53 @@ def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0
     if refits and math.isfinite(sd) and np.all(np.isfinite(new)):
         # an estimate still moving after MAX_REFITS is not known better than its last move
         sd = math.hypot(sd, weighting_shift_deg(problem, model, new), moving)
+    planes, fitted = 0, None
+    if refits and symmetry.resolves_lobe(lobe_half_width_deg(lum.problem.nodes, np.exp(lum.state.z))):
+        # not on a sharp lobe: there the fit's peak places the normal, the planes cannot (MIN_LOBE_TEXELS)
+        fitted = normal
+        normal, sd, planes = with_symmetry_planes(slices, valid, normal, sd, limit)
     pitch = half_vector_pitch_deg(slices)
     sd = max(sd, pitch)
-    return NormalEstimate(normal, sd, "estimated", refits, _angle_deg(normal, z), half_vector_pitch_deg=pitch)
+    return NormalEstimate(normal, sd, "estimated", refits, _angle_deg(normal, z), half_vector_pitch_deg=pitch,
+                          planes=planes, alternative=fitted if planes else None)
+
+
+def with_symmetry_planes(slices: Slices, valid: NDArray[np.bool_], normal: Array, sd_deg: float,
+                         limit: float = math.inf) -> tuple[Array, float, int]:
+    """The fit's normal combined with the one the slices' symmetry planes share.
+
+    The fit's estimate assumes the 1-D microfacet model; where the model misfits (felts,
+    fabrics, matte plastics) the misfit biases it. The symmetry planes
+    (:func:`.symmetry.plane_normal`) assume only isotropy. Measured about ``normal``,
+    their estimate ``δ_p`` (covariance ``C_p``) and the fit's (``0``, ``σ² I`` with
+    ``σ`` = ``sd_deg``) are combined by their precisions,
+    ``δ = (I/σ² + C_p⁻¹)⁻¹ C_p⁻¹ δ_p``, with the combined uncertainty the larger principal
+    standard deviation of ``(I/σ² + C_p⁻¹)⁻¹``. :func:`estimate_normal` asks for it only
+    where the view hemicube resolves the fitted lobe (:func:`.symmetry.resolves_lobe`):
+    on a sharp lobe the fit's peak places the normal to hundredths of a degree, which
+    the planes cannot. Returns the normal (device frame), its uncertainty
+    (degrees) and how many planes entered (0: the planes gave no estimate).
+    ``slices`` and ``normal`` in the device frame, ``valid`` (L, P); the tangent offset
+    is held within ``limit`` (the tangent of the largest tilt searched).
+    """
+    frame = geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
+    turned = slices.reframe(frame)
+    planes = symmetry.plane_normal(turned.light, turned.view, turned.values, valid & turned.valid)
+    if planes is None or not (sd_deg > 0.0):
+        return normal, sd_deg, 0
+    cue = np.linalg.inv(planes.covariance)
+    info = cue + (np.eye(2) / math.radians(sd_deg) ** 2 if math.isfinite(sd_deg) else 0.0)
+    cov = np.linalg.inv(info)
+    d = cov @ cue @ planes.offset
+    moved = normal + d[0] * frame[0] + d[1] * frame[1]
+    moved /= np.linalg.norm(moved)
+    xy = moved[:2] / moved[2]
+    if not (moved[2] > 0 and np.all(np.isfinite(moved))):
+        return normal, sd_deg, 0
+    if float(np.hypot(*xy)) > limit:
+        xy = xy * limit / float(np.hypot(*xy))
+        moved = tilt_frame(*xy)[2]
+    return moved, math.degrees(math.sqrt(float(np.linalg.eigvalsh(cov).max()))), planes.planes
 
 
 def weighting_shift_deg(problem: TiltProblem, model, normal: Array) -> float:

@@ -519,7 +519,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             # the device axis fits as well as the estimated tilt: the data tell the normal only to
             # within the two, so that is its uncertainty (the motion cues must not read it as a turn)
             est = NormalEstimate(np.array([0.0, 0.0, 1.0]), max(est.uncertainty_deg, est.tilt_deg), "device",
-                                 est.refits, est.tilt_estimate_deg, alternative=est.normal)
+                                 est.refits, est.tilt_estimate_deg, alternative=est.normal, planes=est.planes)
             frame, sl = est.frame, slices
             ok = valid & sl.valid
             iso = device_fit
@@ -565,8 +565,9 @@ def _normal_notes(est: NormalEstimate, opt: Options, isotropic: bool) -> list[st
     if not (isinstance(opt.normal, str) and opt.normal == "auto"):
         return []
     if est.source == "estimated":
+        how = f"estimated with {est.planes} symmetry planes" if est.planes else "estimated"
         return [f"sample normal tilted {est.tilt_deg:.2f}° from the device axis (±{est.uncertainty_deg:.2f}°, "
-                "estimated, §5.4)"]
+                f"{how}, §5.4)"]
     if not isotropic or opt.isotropic == "no":
         return ["sample normal: the device axis (the tilt estimate assumes an isotropic lobe; give a known "
                 "normal for a tilted capture of an anisotropic material)"]

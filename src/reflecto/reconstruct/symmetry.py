@@ -21,6 +21,7 @@ the planes are measured against the estimated normal.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -44,6 +45,11 @@ STEP_DEG = SYMMETRY.step_deg
 MIN_CURVATURE = SYMMETRY.min_curvature
 PLANE_THRESHOLD_DEG = SYMMETRY.plane_threshold_deg
 CUBE_N = SYMMETRY.cube_n
+MIN_PLANES = SYMMETRY.min_planes
+HUBER_K = SYMMETRY.huber_k
+MIN_LOBE_TEXELS = SYMMETRY.min_lobe_texels
+PLANE_FLOOR_DEG = SYMMETRY.plane_floor_deg
+MIN_PIXELS = SYMMETRY.min_pixels
 
 
 def plane_offset(light: Array, view: Array, values: Array, weights: Array | None = None) -> tuple[float, float] | None:
@@ -102,9 +108,100 @@ def plane_offsets(light: Array, view: Array, values: Array, valid: NDArray[np.bo
     min_z = math.sin(math.radians(MIN_ELEVATION_DEG))
     for k in range(light.shape[0]):
         ok = valid[k]
-        if light[k, 2] < min_z or np.count_nonzero(ok) < 1000:
+        if light[k, 2] < min_z or np.count_nonzero(ok) < MIN_PIXELS:
             out.append(None)
             continue
         r = plane_offset(light[k], view, values[k] @ LUM, ok.astype(np.float64))
         out.append(None if r is None or r[1] < MIN_CURVATURE else r[0])
     return out
+
+
+@dataclasses.dataclass(frozen=True)
+class PlaneNormal:
+    """The normal that the slices' symmetry planes share (:func:`plane_normal`).
+
+    ``offset`` ``(2,)`` are its tangent coordinates ``(δ_t, δ_b)`` in the frame it was
+    measured in (the normal ``∝ n + δ_t t + δ_b b``), ``covariance`` ``(2, 2)`` their
+    covariance (rad²), ``planes`` the LEDs that located a plane and ``inliers`` those
+    that kept their full weight."""
+
+    offset: Array
+    covariance: Array
+    planes: int
+    inliers: int
+
+
+def resolves_lobe(half_width_deg: float) -> bool:
+    """Whether the view hemicube's texels (``90°/CUBE_N`` each) resolve a lobe of this
+    half width at half maximum (degrees) well enough to place its symmetry planes:
+    at least :data:`MIN_LOBE_TEXELS` texels."""
+    return half_width_deg >= MIN_LOBE_TEXELS * 90.0 / CUBE_N
+
+
+def plane_normal(light: Array, view: Array, values: Array, valid: NDArray[np.bool_]) -> PlaneNormal | None:
+    """The normal through which every LED's symmetry plane passes, from the planes alone.
+
+    For an isotropic BRDF LED ``l``'s slice is mirror-symmetric about the plane through
+    ``l`` and the true normal ``n*`` (module docstring), whatever the BRDF's shape: a cue
+    to the normal that needs no model. Measured about the current normal ``z`` of the
+    frame (:func:`plane_offset`), the plane through ``l`` turned by ``ψ`` has the normal
+    ``m = cos ψ e₂ + sin ψ e₁`` and holds ``n*``: ``m · (δ_t, δ_b, 1) = 0``, one linear
+    equation per LED in the two tangent coordinates of ``n*``. They are solved by least
+    squares weighted by each plane's precision, the symmetry distance's curvature ``c``
+    over ``sin² ∠(l, z)`` (a turn ``ψ`` of the plane moves it by ``ψ sin ∠(l, z)`` at the
+    normal), with Huber's weights (:data:`HUBER_K`) iterated against planes that a cut
+    or a rim biases. The covariance is ``s² (Aᵀ W A)⁻¹`` with ``s²`` the weighted
+    residual variance on ``n − 2`` degrees of freedom (the planes' own scatter, so a cue
+    whose planes disagree says so) plus :data:`PLANE_FLOOR_DEG`² per axis, the bias all
+    planes share from the texel grid they are located on.
+
+    ``light`` (L, 3) and ``view`` (P, 3) in the frame of the current normal, ``values``
+    (L, P, 3) in sr⁻¹, ``valid`` (L, P). Every LED enters (grazing ones too: their planes
+    constrain the normal most). ``None`` when fewer than :data:`MIN_PLANES` planes are
+    located or keep their weight.
+    """
+    rows, prec = [], []
+    z = np.array([0.0, 0.0, 1.0])
+    y = values @ LUM
+    for k in range(light.shape[0]):
+        ok = valid[k]
+        if np.count_nonzero(ok) < MIN_PIXELS:
+            continue
+        l = light[k]
+        r = plane_offset(l, view, y[k], ok.astype(np.float64))
+        sin2 = 1.0 - float(l[2]) ** 2
+        if r is None or r[1] <= 0.0 or sin2 < 1e-6:
+            continue
+        e1 = z - l[2] * l
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(l, e1)
+        psi = math.radians(r[0])
+        rows.append(math.cos(psi) * e2 + math.sin(psi) * e1)
+        prec.append(r[1] / sin2)
+    if len(rows) < MIN_PLANES:
+        return None
+    m = np.array(rows)
+    a, b = m[:, :2], -m[:, 2]
+    c = np.array(prec) / float(np.mean(prec))
+    w = c.copy()
+    for _ in range(50):
+        offset = _weighted_lstsq(a, b, w)
+        res = a @ offset - b
+        inliers = w > 0.5 * c
+        scale = math.sqrt(float(np.sum(w * res**2)) / max(int(np.count_nonzero(inliers)) - 2, 1))
+        new = c * np.minimum(1.0, HUBER_K * max(scale, 1e-9) / np.maximum(np.abs(res) * np.sqrt(c), 1e-300))
+        if np.allclose(new, w, rtol=1e-9, atol=0.0):
+            break
+        w = new
+    inliers = w > 0.5 * c
+    n_in = int(np.count_nonzero(inliers))
+    if n_in < MIN_PLANES:
+        return None
+    var = float(np.sum(w * res**2)) / (n_in - 2)
+    cov = var * np.linalg.inv((a * w[:, None]).T @ a) + math.radians(PLANE_FLOOR_DEG) ** 2 * np.eye(2)
+    return PlaneNormal(offset, cov, len(rows), n_in)
+
+
+def _weighted_lstsq(a: Array, b: Array, w: Array) -> Array:
+    sw = np.sqrt(w)
+    return np.asarray(np.linalg.lstsq(a * sw[:, None], b * sw, rcond=None)[0], dtype=np.float64)

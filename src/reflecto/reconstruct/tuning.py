@@ -493,6 +493,46 @@ class SymmetryTuning:
         what="a located plane further than this from the frame's normal flags a shake",
         source="measurement: clean captures of the 50 shared materials reach 1.2° (brass; ideal and as-built); "
                "1.5° is about the 64² view hemicube's texel (1.4°), a plane located to a texel")
+    min_pixels: int = tuned(
+        1000, name="MIN_PIXELS", units="pixels",
+        what="a slice with fewer usable pixels than this locates no plane",
+        source="mechanism: at CUBE_N = 64 a texel averages a median of 8 view pixels, so 1000 pixels fill ≈ 125 "
+               "texels, a margin above the 50 mirrored texels the symmetry distance needs (mirror_distances); "
+               "not swept")
+    min_planes: int = tuned(
+        5, name="MIN_PLANES", units="planes",
+        what="the symmetry planes give a normal (plane_normal) only where at least this many locate a plane and "
+             "keep their full weight in the robust fit",
+        source="mechanism: two unknowns (the normal's two angles) leave n − 2 residuals to estimate the planes' "
+               "scatter and to see an outlier; with 3 or 4 planes one biased plane (a grazing slice cut by the "
+               "view cone's rim) is fitted, not seen (measurement: the 100 steady as-built hand-held captures, "
+               "3 planes put pink-felt's tilted normal 9.8° off with residuals ≤ 0.35°)")
+    plane_floor_deg: float = tuned(
+        0.07, name="PLANE_FLOOR_DEG", units="deg",
+        what="standard uncertainty added in quadrature, per tangent axis, to the planes' normal: what their "
+             "scatter cannot show (every plane located on the same texel grid shares its bias)",
+        source="measurement: on analytic lobes, where the BRDF is exactly isotropic (not the shared materials), "
+               "GGX and Beckmann α 0.1–0.5, k_d 0 and 0.2, untilted and tilted 4°, ideal device, planes measured "
+               "about the true normal: offsets 0.006–0.48° (median 0.039°), RMS 0.073° per axis, while the "
+               "planes' scatter claimed 0.004–0.14°; without it the README's GGX α 0.2 tilted 5° took the planes' "
+               "0.045° over the fit's 0.011° and η missed by 0.014")
+    min_lobe_texels: float = tuned(
+        2.0, name="MIN_LOBE_TEXELS", units="texels of the view hemicube",
+        what="the planes' normal enters the estimate only for a lobe whose half width at half maximum spans at "
+             "least this many texels (90°/CUBE_N each): a narrower lobe is averaged within the splat's texels, "
+             "and its planes are placed by the texel grid, not by the lobe",
+        source="mechanism: bilinear lookups place a symmetry to a fraction of a texel only where the lobe's "
+               "flank, peak to half maximum, spans two texel samples; measurement (100 steady as-built "
+               "hand-held captures): ungated, specular-maroon-phenolic (half width 0.3°) moved 0.01° → 0.15° "
+               "off and its eq. 10 error rose 12×; one texel would also admit aurora_white (2.2°: 0.34° → "
+               "0.53° off) and delrin (2.5°: 0.75° → 0.56°); the gains are on lobes of 3.5° and wider")
+    huber_k: float = tuned(
+        2.0, name="HUBER_K", units="standard deviations",
+        what="a plane whose residual exceeds this many of the fit's scale is down-weighted (Huber's weights, "
+             "iterated)",
+        source="mechanism: Huber's k between 1.345 (95 % efficiency on Gaussian errors) and 2; the grazing "
+               "slices of metals and coated paints put their planes 2–10° off (symmetry module docstring), "
+               "so a biased plane lies far out and any k in that range sets it aside")
     cube_n: int = tuned(
         64, name="CUBE_N", units="texels per face side",
         what="resolution of the view hemicube on which a slice is mirrored",
