@@ -270,6 +270,24 @@ def test_the_fit_and_the_planes_combine_by_their_precisions(monkeypatch):
 
 
 
+def test_the_fit_frame_decides_the_device_check_where_the_planes_moved_the_normal():
+    """Where the symmetry planes moved the fit's normal, the device frame's check can ask
+    the fit's own frame: on GGX α 0.1 tilted 4° (five planes) it explains the data better
+    than the device axis; without planes there is no such frame to ask."""
+    import dataclasses
+
+    from reflecto.reconstruct import pipeline
+
+    sl, truth = _capture(AnalyticBRDF(distribution="ggx", alpha=0.1, kd=0.1, ks=0.8, eta=1.5), 4.0)
+    valid = usable_samples(sl)
+    est = estimate_normal(sl, valid)
+    assert est.planes >= 5 and est.alternative is not None and _off(est.alternative, truth) < 0.1
+    opt = pipeline.Options()
+    device = pipeline._device_frame_fit(sl, valid, opt)
+    assert pipeline._fit_frame_explains(sl, valid, opt, est, device)
+    assert not pipeline._fit_frame_explains(sl, valid, opt, dataclasses.replace(est, planes=0), device)
+
+
 def test_the_device_frame_is_fitted_once_where_it_is_used(monkeypatch):
     """The device frame's full fit is made once: it checks an estimated tilt (1° and 7°),
     and it is the model where the device axis is kept (untilted) or where the estimated

@@ -384,6 +384,23 @@ def _tilt_explains_nothing(device_fit: IsotropicFit, estimated: IsotropicFit) ->
     return estimated.model_error >= device_fit.model_error
 
 
+def _fit_frame_explains(slices: Slices, valid: NDArray[np.bool_], opt: Options, est: NormalEstimate,
+                        device_fit: IsotropicFit) -> bool:
+    """Where the symmetry planes moved the fit's normal (:func:`.normal.with_symmetry_planes`)
+    and the moved frame fits no better than the device axis: whether the fit's own frame
+    (:attr:`NormalEstimate.alternative`) does. The device frame's check asks the 1-D model
+    whether a tilt explains the data, and the model answers best in its own optimum: off
+    it, on a material it misfits, ε can read lower in the device frame (`wide`,
+    green-fabric tilted 5.2°: the device axis kept, 5.2° off). A tilt the model confirms
+    in its own frame is kept, in the direction the planes refined. One more fit, only
+    where the check would otherwise reject the tilt."""
+    if not est.planes or est.alternative is None:
+        return False
+    own = slices.reframe(geometry.frame_from_normal(est.alternative, np.array([1.0, 0.0, 0.0])))
+    fit = fit_isotropic(own, valid & own.valid, opt.fixed_eta, opt.kd_bound_max_deg)
+    return not _tilt_explains_nothing(device_fit, fit)
+
+
 def limit_energy(model: IsotropicMicrofacetBRDF | MicrofacetBRDF, clamp: bool = True
                  ) -> tuple[IsotropicMicrofacetBRDF | MicrofacetBRDF, float, float]:
     """Scale ``k_d, k_s`` so that the directional albedo is ≤ 1 at :data:`ALBEDO_ANGLES`
@@ -515,10 +532,14 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
         if _needs_device_check(opt):
             device_fit = _device_frame_fit(slices, valid, opt)
-        if device_fit is not None and _tilt_explains_nothing(device_fit, iso):
+        if (device_fit is not None and _tilt_explains_nothing(device_fit, iso)
+                and not _fit_frame_explains(slices, valid, opt, est, device_fit)):
             # the device axis fits as well as the estimated tilt: the data tell the normal only to
-            # within the two, so that is its uncertainty (the motion cues must not read it as a turn)
-            est = NormalEstimate(np.array([0.0, 0.0, 1.0]), max(est.uncertainty_deg, est.tilt_deg), "device",
+            # within the candidates (the fit's own normal too, where the planes moved it), so that is
+            # its uncertainty (the motion cues must not read it as a turn)
+            spread = max(est.tilt_deg, 0.0 if est.alternative is None
+                         else math.degrees(math.acos(min(1.0, float(est.alternative[2])))))
+            est = NormalEstimate(np.array([0.0, 0.0, 1.0]), max(est.uncertainty_deg, spread), "device",
                                  est.refits, est.tilt_estimate_deg, alternative=est.normal, planes=est.planes)
             frame, sl = est.frame, slices
             ok = valid & sl.valid
