@@ -158,7 +158,7 @@ def plane_normal(light: Array, view: Array, values: Array, valid: NDArray[np.boo
     ``light`` (L, 3) and ``view`` (P, 3) in the frame of the current normal, ``values``
     (L, P, 3) in sr⁻¹, ``valid`` (L, P). Every LED enters (grazing ones too: their planes
     constrain the normal most). ``None`` when fewer than :data:`MIN_PLANES` planes are
-    located or keep their weight.
+    located or keep their weight, or when those that do fix only one of the two angles.
     """
     rows, prec = [], []
     z = np.array([0.0, 0.0, 1.0])
@@ -197,8 +197,11 @@ def plane_normal(light: Array, view: Array, values: Array, valid: NDArray[np.boo
     n_in = int(np.count_nonzero(inliers))
     if n_in < MIN_PLANES:
         return None
+    normal_matrix = (a * w[:, None]).T @ a
+    if not np.all(np.isfinite(normal_matrix)) or np.linalg.cond(normal_matrix) > 1e10:
+        return None  # the weighted planes are (nearly) parallel: they fix one of the two angles only
     var = float(np.sum(w * res**2)) / (n_in - 2)
-    cov = var * np.linalg.inv((a * w[:, None]).T @ a) + math.radians(PLANE_FLOOR_DEG) ** 2 * np.eye(2)
+    cov = var * np.linalg.inv(normal_matrix) + math.radians(PLANE_FLOOR_DEG) ** 2 * np.eye(2)
     return PlaneNormal(offset, cov, len(rows), n_in)
 
 
