@@ -65,6 +65,9 @@ INLINED_INTO = {
     "reflecto.reconstruct._polar_kernels._zero": ("normal_equations", "pass_normal_equations"),
     "reflecto.reconstruct._polar_kernels._theta_d_cell": ("bin_polar",),
     "reflecto.reconstruct._polar_kernels._mirror_dense": ("normal_equations", "pass_normal_equations"),
+    "reflecto.reconstruct._polar_kernels._ndf_integral": ("luminance_lm",),
+    "reflecto.reconstruct._polar_kernels._lm_cost": ("luminance_lm",),
+    "reflecto.reconstruct._polar_kernels._lm_system": ("luminance_lm",),
     "reflecto.reconstruct._normal_kernels._projected_area": ("_cosines",),
     "reflecto.reconstruct._normal_kernels._cosines": ("tilt_pass",),
 }
@@ -1027,3 +1030,51 @@ def test_tilt_pass_matches_its_numpy_reference_and_finite_differences():
         close = np.abs(ev.dr[smooth, q] - fd[smooth]) <= 1e-4 * np.abs(fd[smooth]) + 1e-6 * scale
         # all but the few samples on a kink of σ's table (a node of its θ grid, or where σ meets cos θ)
         assert np.count_nonzero(~close) <= 1e-3 * len(close), np.count_nonzero(~close)
+
+
+@twin("reflecto.reconstruct._polar_kernels.luminance_lm")
+@pytest.mark.parametrize("case", ["free", "tied", "fixed_eta", "constant"])
+def test_luminance_lm_is_the_numpy_solve(case):
+    """The compiled Levenberg–Marquardt loop of the luminance fit takes the steps of
+    :func:`isotropic.solve_numpy` (its NumPy reference) on a capture's bins: a GGX α 0.2,
+    η 1.6 lobe with a diffuse floor (free η; ``k_s`` tied to 1; η held; the constant
+    Fresnel lobe), from the data's initial state with the priors set, to the same state
+    and cost within rounding."""
+    from reflecto.instrument.calibrate import nominal_calibration
+    from reflecto.instrument.device import Device
+    from reflecto.instrument.simulate import simulate_capture
+    from reflecto.instrument.slices import extract_slices
+    from reflecto.reconstruct import isotropic
+    from reflecto.reconstruct.pipeline import usable_samples
+    from reflecto.sources.analytic import AnalyticBRDF
+
+    dev = Device.builtin("ideal")
+    sl = extract_slices(simulate_capture(AnalyticBRDF(distribution="ggx", alpha=0.2, eta=1.6, kd=(0.2, 0.15, 0.1), ks=0.5),
+                                         dev, seed=4), nominal_calibration(dev))
+    nodes = isotropic.polar_nodes()
+    bins = isotropic.bin_polar(sl, nodes, usable_samples(sl) & sl.valid)
+    eta = {"fixed_eta": 1.9, "constant": math.inf}.get(case, 1.5)
+    problems = []
+    for _ in range(2):
+        p = isotropic.LuminanceProblem(bins, nodes)
+        isotropic.set_weights(p)
+        s = isotropic.initial_state(p, eta)
+        isotropic.update_shadowing(p, s)
+        isotropic.prior(p, s)
+        problems.append((p, s))
+    kw = dict(fix_eta=case in ("fixed_eta", "constant"), tie_ks=case == "tied")
+    (pa, sa), (pb, sb) = problems
+    fast, cost = isotropic.solve(pa, sa, **kw)
+    ref, cost_ref = isotropic.solve_numpy(pb, sb, **kw)
+    assert cost < 0.5 * pa.cost(sa)  # the loop moved
+    assert cost == pytest.approx(cost_ref, rel=1e-7)  # rounding: BLAS products in another order
+    np.testing.assert_allclose(fast.z, ref.z, rtol=0, atol=1e-7)
+    assert fast.kd == pytest.approx(ref.kd, rel=1e-7, abs=1e-12)
+    assert fast.g == pytest.approx(ref.g, rel=1e-7)
+    assert fast.eta == pytest.approx(ref.eta, rel=1e-9) or fast.eta == ref.eta
+    if kw["fix_eta"]:
+        assert fast.eta == eta
+    if case == "tied":
+        assert fast.g == 1.0
+    # the pass buffers hold a pass the normal equations can start from, as the reference's do
+    assert np.all(np.isfinite(pa._r))

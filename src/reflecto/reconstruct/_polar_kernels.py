@@ -218,3 +218,155 @@ def pass_normal_equations(j, t, cos_d, r, spec, fr, active, w, eta, n_nodes, dia
         col[2] = deta
         _accumulate_bin(j[b], t[b], spec[b], col, wb, r[b], diag, off, cross, dense, grad_z, grad_d)
     _mirror_dense(dense)
+
+
+@njit(inline="always", **_OPTS)
+def _ndf_integral(q_cells, q_t, q_weights, z):  # pragma: no cover - compiled
+    """``N = Σ_q w_q e^{z(θ_q)}`` over the polar quadrature (the exponent capped at 700)."""
+    n = 0.0
+    for q in range(q_cells.shape[0]):
+        lz = (1.0 - q_t[q]) * z[q_cells[q]] + q_t[q] * z[q_cells[q] + 1]
+        n += q_weights[q] * math.exp(min(lz, 700.0))
+    return n
+
+
+@njit(inline="always", **_OPTS)
+def _lm_cost(j, t, z, shadow_geometry, cos_d, f, w, measured, kd, g, eta, h, beta, prior_constant, r, spec, fr,
+             active):  # pragma: no cover - compiled
+    """The luminance fit's cost ``Σ w r² + zᵀHz − 2βᵀz + c`` (one :func:`luminance_pass`); ``inf`` if not finite."""
+    c = luminance_pass(j, t, z, shadow_geometry, cos_d, f, w, measured, kd, g, eta, r, spec, fr, active)
+    c += np.dot(np.dot(z, h), z) - 2.0 * np.dot(beta, z) + prior_constant
+    return c if math.isfinite(c) else math.inf
+
+
+@njit(inline="always", **_OPTS)
+def _lm_system(j, t, cos_d, r, spec, fr, active, w, eta, z, h, beta, q_cells, q_t, q_weights, tie_ks):
+    # pragma: no cover - compiled
+    """``JᵀWJ + H`` and ``JᵀWr + Hz − β`` over ``(z, k_d, log g, log(η − 1))`` from the last
+    pass's values; with ``tie_ks`` the ``log g`` column folded into ``z`` through ``∂ log N/∂z``."""
+    k = z.shape[0]
+    diag, off = np.empty(k), np.empty(k - 1)
+    cross, dense = np.empty((k, 3)), np.empty((3, 3))
+    gz, gd = np.empty(k), np.empty(3)
+    pass_normal_equations(j, t, cos_d, r, spec, fr, active, w, eta, k, diag, off, cross, dense, gz, gd)
+    a = np.zeros((k + 3, k + 3))
+    for i in range(k):
+        a[i, i] = diag[i]
+    for i in range(k - 1):
+        a[i, i + 1] = off[i]
+        a[i + 1, i] = off[i]
+    for i in range(k):
+        for q in range(3):
+            a[i, k + q] = cross[i, q]
+            a[k + q, i] = cross[i, q]
+    for q in range(3):
+        for u in range(3):
+            a[k + q, k + u] = dense[q, u]
+    grad = np.empty(k + 3)
+    grad[:k] = gz
+    grad[k:] = gd
+    if tie_ks:
+        n_total = _ndf_integral(q_cells, q_t, q_weights, z)
+        dn = np.zeros(k)
+        if math.isfinite(n_total) and n_total > 0.0:
+            for q in range(q_cells.shape[0]):
+                lz = (1.0 - q_t[q]) * z[q_cells[q]] + q_t[q] * z[q_cells[q] + 1]
+                wd = q_weights[q] * math.exp(min(lz, 700.0))
+                dn[q_cells[q]] += wd * (1.0 - q_t[q])
+                dn[q_cells[q] + 1] += wd * q_t[q]
+            dn /= n_total
+        cg = a[:k, k + 1].copy()
+        agg = a[k + 1, k + 1]
+        for i in range(k):
+            for u in range(k):
+                a[i, u] += -dn[i] * cg[u] - cg[i] * dn[u] + agg * dn[i] * dn[u]
+        for i in range(k):
+            a[i, k] -= dn[i] * a[k + 1, k]
+            a[i, k + 2] -= dn[i] * a[k + 1, k + 2]
+            a[k, i] = a[i, k]
+            a[k + 2, i] = a[i, k + 2]
+            grad[i] -= dn[i] * grad[k + 1]
+    hz = np.dot(h, z)
+    ridge = 1e-12 * max(diag.max(), 1e-300)  # the z level and g are one degree of freedom
+    for i in range(k):
+        grad[i] += hz[i] - beta[i]
+        for u in range(k):
+            a[i, u] += h[i, u] + ridge
+    return a, grad
+
+
+@njit(**_OPTS)
+def luminance_lm(j, t, shadow_geometry, cos_d, f, w, measured, h, beta, prior_constant, q_cells, q_t, q_weights,
+                 z0, kd, g, eta, fix_eta, tie_ks, fix_kd, eta_min, eta_max, max_iterations, tolerance, r, spec, fr,
+                 active):  # pragma: no cover - compiled
+    """Levenberg–Marquardt of the luminance fit on ``(z, k_d, log g, log(η − 1))``, the
+    loop of :func:`reflecto.reconstruct.isotropic.solve_numpy` (its reference) in one call.
+
+    Each iteration: the normal equations at the state (:func:`_lm_system`), the frozen
+    parameters (η held or at a bound it is pushed past, ``k_d`` at 0 pushed below, the
+    ``log g`` column under ``tie_ks``) as identity rows, then trial steps
+    ``(A + μ diag A) δ = −g`` with μ ×8 until the cost falls (μ /5 on success); the step
+    is renormalized so that ``∫ e^z cos = 1`` (``g`` absorbs the level), ``η`` moves by
+    ``e^{clip(δ, ±2)}`` on ``η − 1`` within ``[eta_min, eta_max]``, ``g`` by
+    ``e^{clip(δ, ±3)}``. Ends when no step lowers the cost or the relative decrease
+    is below ``tolerance``. Returns ``(z, k_d, g, η, cost)``; ``r``, ``spec``, ``fr``,
+    ``active`` hold the last pass's values.
+    """
+    k = z0.shape[0]
+    z = z0.copy()
+    if tie_ks:
+        n0 = _ndf_integral(q_cells, q_t, q_weights, z)
+        z = z - math.log(n0)
+        g = 1.0
+    cost = _lm_cost(j, t, z, shadow_geometry, cos_d, f, w, measured, kd, g, eta, h, beta, prior_constant, r, spec,
+                    fr, active)
+    mu = 1e-3
+    for _ in range(max_iterations):
+        a, grad = _lm_system(j, t, cos_d, r, spec, fr, active, w, eta, z, h, beta, q_cells, q_t, q_weights, tie_ks)
+        frozen = np.zeros(k + 3, dtype=np.bool_)
+        frozen[k + 2] = fix_eta or (eta >= eta_max and grad[k + 2] < 0) or (eta <= eta_min and grad[k + 2] > 0)
+        frozen[k] = fix_kd or (kd <= 0.0 and grad[k] > 0)
+        frozen[k + 1] = tie_ks
+        for q in range(k, k + 3):
+            if frozen[q]:
+                a[q, :] = 0.0
+                a[:, q] = 0.0
+                a[q, q] = 1.0
+                grad[q] = 0.0
+        dg = np.empty(k + 3)
+        for i in range(k + 3):
+            dg[i] = a[i, i]
+        dg += 1e-12 * dg.max()
+        improved = False
+        rel = 0.0
+        while mu < 1e10:
+            m = a.copy()
+            for i in range(k + 3):
+                m[i, i] += mu * dg[i]
+            try:
+                step = -np.linalg.solve(m, grad)
+            except Exception:  # singular or not finite: a larger damping
+                mu *= 8.0
+                continue
+            zt = z + step[:k]
+            n = _ndf_integral(q_cells, q_t, q_weights, zt)
+            c = math.inf
+            if math.isfinite(n) and n > 0.0:
+                zt -= math.log(n)
+                et = eta
+                if math.isfinite(eta):
+                    et = min(max(1.0 + (eta - 1.0) * math.exp(min(max(step[k + 2], -2.0), 2.0)), eta_min), eta_max)
+                gt = 1.0 if tie_ks else g * n * math.exp(min(max(step[k + 1], -3.0), 3.0))
+                kt = max(kd + step[k], 0.0)
+                c = _lm_cost(j, t, zt, shadow_geometry, cos_d, f, w, measured, kt, gt, et, h, beta, prior_constant,
+                             r, spec, fr, active)
+            if math.isfinite(c) and c < cost:
+                rel = (cost - c) / cost
+                z, kd, g, eta, cost = zt, kt, gt, et, c
+                mu = max(mu / 5.0, 1e-9)
+                improved = True
+                break
+            mu *= 8.0
+        if not improved or rel < tolerance:
+            break
+    return z, kd, g, eta, cost

@@ -426,7 +426,23 @@ def normalization(nodes: Array, z: Array) -> tuple[float, Array]:
 
 def solve(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
           tie_ks: bool = False, fix_kd: bool = False) -> tuple[LuminanceState, float]:
-    """Levenberg–Marquardt on ``(z, k_d, log g, log(η − 1))`` with ``S`` and the weights fixed.
+    """Levenberg–Marquardt on ``(z, k_d, log g, log(η − 1))`` with ``S`` and the weights
+    fixed, in one compiled call (:func:`._polar_kernels.luminance_lm`); the steps, bounds
+    and ending of :func:`solve_numpy`, its NumPy reference. Returns the state and its cost."""
+    q = _quadrature(problem.nodes.tobytes())
+    with np.errstate(over="ignore", invalid="ignore"):
+        z, kd, g, eta, cost = _polar_kernels.luminance_lm(
+            problem.j, problem.t, problem.shadow_geometry, problem.bins.cos_d, problem.f, problem.w,
+            problem.measured, problem.h, problem.beta, float(problem.prior_constant), q.cells, q.t, q.norm_weights,
+            s.z, float(s.kd), float(s.g), float(s.eta), fix_eta, tie_ks, fix_kd, ETA_MIN, ETA_MAX,
+            LM_MAX_ITERATIONS, LM_TOLERANCE, problem._r, problem._spec, problem._fr, problem._active)
+    return LuminanceState(z, float(kd), float(g), float(eta)), float(cost)
+
+
+def solve_numpy(problem: LuminanceProblem, s: LuminanceState, fix_eta: bool = False,
+                tie_ks: bool = False, fix_kd: bool = False) -> tuple[LuminanceState, float]:
+    """Levenberg–Marquardt on ``(z, k_d, log g, log(η − 1))`` with ``S`` and the weights fixed
+    (the NumPy reference of :func:`solve`).
 
     ``tie_ks`` holds ``k_s = g N(z) = 1`` (``log g = −log N(z)``: the ``log g`` column
     folds into the ``z`` columns through ``∂ log N / ∂z``). Bounds: ``k_d ≥ 0`` and
