@@ -43,6 +43,7 @@ from .isotropy import IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
 from .normal import (
     ConsistencyDistance,
+    HiddenPeak,
     IsotropicDistance,
     NormalDistance,
     NormalEstimate,
@@ -557,12 +558,13 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     if not isotropic:
         fit = fit_hemicube(sl, ok, fixed_eta=opt.fixed_eta, work_resolution=opt.work_resolution,
                            resolution=opt.resolution, kd_bound_max_deg=opt.kd_bound_max_deg)
-    motion = (detect_motion(slices, sl, ok, isotropic, est.uncertainty_deg) if opt.detect_shake
-              else MotionReport())
+    hidden = _hidden_peaks(slices, ok, est, fit.model)
+    motion = (detect_motion(slices, sl, ok, isotropic, est.uncertainty_deg, [p.led for p in hidden])
+              if opt.detect_shake else MotionReport())
     if isinstance(fit, HemicubeFit):
         motion.excluded_leds = fit.excluded_leds
     model, scale, albedo = limit_energy(fit.model, opt.energy_clamp)
-    notes = _normal_notes(est, opt, isotropic) + _hidden_peak_notes(slices, ok, est, fit.model)
+    notes = _normal_notes(est, opt, isotropic) + _hidden_peak_notes(hidden)
     notes += _notes(fit, model, isotropic, test, scale)
     return Reconstruction(model, fit.eta, test, motion, frame, iso.model_error,
                           fit.fresnel_error if isinstance(fit, HemicubeFit) else math.nan, scale, albedo,
@@ -570,15 +572,21 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
                           est if isinstance(opt.normal, str) and opt.normal == "auto" else None)
 
 
-def _hidden_peak_notes(slices: Slices, valid: NDArray[np.bool_], est: NormalEstimate, model) -> list[str]:
-    """What the tilt hid from view (:func:`.normal.hidden_peaks`), for a tilted frame and an isotropic model."""
+def _hidden_peaks(slices: Slices, valid: NDArray[np.bool_], est: NormalEstimate, model) -> list[HiddenPeak]:
+    """The LEDs whose specular peak the tilt hid (:func:`.normal.hidden_peaks`), for a
+    tilted frame and an isotropic model; none otherwise."""
     table = getattr(model, "ndf_table", None)
     if est.source == "device" or table is None:
         return []
+    return hidden_peaks(slices, valid, est.normal, table.nodes, table.values, est.half_vector_pitch_deg)
+
+
+def _hidden_peak_notes(hidden: list[HiddenPeak]) -> list[str]:
+    """A note per hidden peak (:func:`_hidden_peaks`)."""
     return [f"the tilt hides LED {p.led}'s specular peak (θ_d {p.theta_d_deg:.0f}°; its nearest view "
             f"{p.nearest_deg:.2f}° off the mirror direction, the lobe's half width {p.half_width_deg:.2f}°): "
             "the lobe there is extrapolated; a capture with the device flatter on the sample sees it"
-            for p in hidden_peaks(slices, valid, est.normal, table.nodes, table.values, est.half_vector_pitch_deg)]
+            for p in hidden]
 
 
 def _normal_notes(est: NormalEstimate, opt: Options, isotropic: bool) -> list[str]:
