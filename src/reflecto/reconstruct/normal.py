@@ -13,8 +13,9 @@ direction is rotated (:meth:`~reflecto.instrument.slices.Slices.reframe`).
    direction of a lobe centred on ``n``); otherwise the device axis.
 2. The two tilt angles refined inside the isotropic fit's least squares
    (:class:`TiltProblem`): with ``D``, ``S`` and ``η`` of an isotropic fit in the
-   current frame, Gauss–Newton on ``(t_x, t_y, k_d, k_s)`` of the residuals of eq. 10's
-   weights (``w = cos² θ_i``, the weights the fit itself uses) per sample, where
+   current frame, Gauss–Newton on ``(t_x, t_y, k_d, k_s)`` of the residuals per sample,
+   weighted by eq. 10's ``cos² θ_i`` (the weights the fit itself uses) over the sample's
+   noise variance (:func:`inverse_variance`), where
    ``n = normalize(t_x, t_y, 1)``; the fit is repeated in the new frame until the
    step is below :data:`CONVERGED_DEG`. The samples: every pixel of the specular
    peaks (a sharp peak covers a few pixels, and there the residuals move most with
@@ -488,8 +489,9 @@ class TiltProblem:
 
     (eqs. 1–2, 8; ``F`` and ``l·h`` do not depend on ``n``), the datum
     ``f_n = f (l·z)/(l·n)`` (:meth:`~reflecto.instrument.slices.Slices.reframe`), and the
-    residual ``r = m − f_n`` with weight ``w = (l·n)²`` (eq. 10's cosine weight, as in
-    :func:`.isotropic.set_weights`). Samples whose LED has ``l·n`` below
+    residual ``r = m − f_n`` with weight ``w = (l·n)²/σ²`` (eq. 10's cosine weight, as in
+    :func:`.isotropic.set_weights`, over the sample's noise variance, :func:`inverse_variance`;
+    the cosine alone where the slices carry no noise). Samples whose LED has ``l·n`` below
     :data:`~reflecto.instrument.slices.MIN_LIGHT_COS` (≈ 3° above the candidate's
     horizon: the limit below which :meth:`Slices.reframe` does not correct ``cos θ_i``
     either), or whose view is within 1° of the horizon, take no part.
