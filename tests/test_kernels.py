@@ -1049,8 +1049,8 @@ def test_luminance_lm_is_the_numpy_solve(case):
     from reflecto.sources.analytic import AnalyticBRDF
 
     dev = Device.builtin("ideal")
-    sl = extract_slices(simulate_capture(AnalyticBRDF(distribution="ggx", alpha=0.2, eta=1.6, kd=(0.2, 0.15, 0.1), ks=0.5),
-                                         dev, seed=4), nominal_calibration(dev))
+    src = AnalyticBRDF(distribution="ggx", alpha=0.2, eta=1.6, kd=(0.2, 0.15, 0.1), ks=0.5)
+    sl = extract_slices(simulate_capture(src, dev, seed=4), nominal_calibration(dev))
     nodes = isotropic.polar_nodes()
     bins = isotropic.bin_polar(sl, nodes, usable_samples(sl) & sl.valid)
     eta = {"fixed_eta": 1.9, "constant": math.inf}.get(case, 1.5)
