@@ -227,7 +227,7 @@ def test_interrupt_leaves_no_partial_model(sources: list[Path], tmp_path: Path) 
 
 
 def test_watch_options_reach_the_reconstruction(sources: list[Path], tmp_path: Path) -> None:
-    """``--isotropic``, ``--eta``, ``--normal``, ``--nominal`` and ``--settle`` of ``watch`` are
+    """``--isotropic``, ``--eta``, ``--normal``, ``--shadowing``, ``--nominal`` and ``--settle`` of ``watch`` are
     the reconstruction's and the watcher's: a fixed η is the model's, the tilted capture's
     tilt is found, and a calibration file that is not one is one line naming it."""
     from reflecto.cli import main
@@ -237,9 +237,10 @@ def test_watch_options_reach_the_reconstruction(sources: list[Path], tmp_path: P
     shutil.copytree(sources[1], root / "rough")
     models = tmp_path / "models"
     assert main(["watch", str(root), "--output", str(models), "--once", "--settle", "0.5", "--isotropic", "yes",
-                 "--eta", "1.6", "--normal", "auto", "--nominal"]) == 0
+                 "--eta", "1.6", "--normal", "auto", "--nominal", "--shadowing", "correlated"]) == 0
     summary = json.loads((models / "rough.json").read_text())
     assert summary["isotropic"] is True and summary["eta"] == pytest.approx([1.6] * 3)
+    assert summary["shadowing"]["form"] == "height-correlated" and summary["shadowing"]["reason"] == "option"
     assert abs(summary["normal_tilt_deg"] - 4.0) < 0.5
     bad = tmp_path / "cal.npz"
     bad.write_bytes(b"not a calibration")

@@ -404,7 +404,7 @@ _CAP_ANGLE = _checked(float, lambda v: 0 < v <= 90, "an angle in (0, 90] degrees
 
 def _options(args: argparse.Namespace) -> Options:
     """The reconstruction settings of ``reconstruct``'s (and ``watch``'s) flags."""
-    return Options(normal=args.normal, fixed_eta=args.eta, isotropic=args.isotropic)
+    return Options(normal=args.normal, fixed_eta=args.eta, isotropic=args.isotropic, shadowing=args.shadowing)
 
 
 def _missing(args: argparse.Namespace) -> workflow.Missing:
@@ -881,6 +881,10 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="reconstruct a 1-D isotropic NDF (yes), a hemicube NDF for an anisotropic material (no), "
                         "or decide from the capture (auto)")
+    q.add_argument("--shadowing", choices=("auto", "separable", "correlated"), default="auto",
+                   help="the isotropic model's shadowing form beyond the angles the device sees: eq. 8's product "
+                        "(separable), height-correlated Smith (correlated), or the one that predicts a held-out band "
+                        "of the capture better (auto)")
     q.add_argument("--asymmetric", action="store_true",
                    help="the captures are of one point at several rotations (their manifests' rotation_deg): "
                         "reconstruct one model without the symmetry of eq. 3, completed by microfacet synthesis "
@@ -903,6 +907,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the sample normal (§5.4), as for reconstruct (default: auto, estimated)")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto", help="as for reconstruct")
+    q.add_argument("--shadowing", choices=("auto", "separable", "correlated"), default="auto",
+                   help="as for reconstruct")
     q.add_argument("--settle", type=_SECONDS, default=5.0,
                    help="seconds an incomplete capture folder may stay unchanged before it is reported and skipped")
     q.add_argument("--once", action="store_true", help="process the capture folders there now and exit")

@@ -207,7 +207,8 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
                       "albedo_max": res.albedo_max, "energy_scale": res.energy_scale, "notes": res.notes,
                       "finite": bool(np.isfinite(err.normalized)),
                       "tint_nodes_deg": [] if getattr(m, "tint", None) is None else
-                      np.degrees(m.tint.theta).round(2).tolist()}
+                      np.degrees(m.tint.theta).round(2).tolist(),
+                      "shadowing": None if res.shadowing is None else res.shadowing.form}
         renders[label] = render_sphere(res.model, SPHERE_RES, supersample=2)
     t0 = time.perf_counter()
     ct = fit_cook_torrance(src)
@@ -402,7 +403,7 @@ def write_failures(path: Path, failures: list[tuple[str, str]]) -> None:
 
 COLUMNS = ("name", "half", "device", "ours", "earlier", "cook_torrance", "same_data_ct", "ours_over_ct",
            "ours_over_same_data_ct", "ours_log_rmse", "ct_log_rmse", "eta", "ks_max", "isotropic", "ours_albedo_max",
-           "ours_finite", "tint_nodes_deg", "seconds_total", "seconds_reconstruct", "seconds_ct_fit")
+           "ours_finite", "tint_nodes_deg", "shadowing", "seconds_total", "seconds_reconstruct", "seconds_ct_fit")
 
 
 def _eta_cell(result: dict[str, Any]) -> str:
@@ -417,8 +418,9 @@ def write_table(records: list[dict[str, Any]], path: Path) -> Path:
     Columns :data:`COLUMNS`: the normalized errors of eq. 10 (``ours``, ``earlier``,
     ``cook_torrance``, ``same_data_ct``), the ratios ``ours/ct`` and ``ours/same_data_ct``,
     log-RMSEs, the model's η, largest ``ks``, isotropy, largest albedo and finiteness, the
-    θ_d nodes of the Fresnel tint (degrees, space-separated; empty without a tint), and
-    seconds (total, reconstruction, Cook–Torrance fit).
+    θ_d nodes of the Fresnel tint (degrees, space-separated; empty without a tint), the
+    shadowing form (:mod:`reflecto.reconstruct.extrapolation`; empty on the anisotropic
+    path), and seconds (total, reconstruction, Cook–Torrance fit).
 
     Parameters
     ----------
@@ -444,7 +446,7 @@ def write_table(records: list[dict[str, Any]], path: Path) -> Path:
                     f"{r['ours']['log_rmse']:.6g}", f"{r['cook_torrance']['log_rmse']:.6g}",
                     _eta_cell(r["ours"]), f"{max(r['ours']['ks']):.4g}", r["ours"].get("isotropic"),
                     f"{r['ours']['albedo_max']:.4g}", r["ours"]["finite"],
-                    " ".join(f"{t:.1f}" for t in r["ours"].get("tint_nodes_deg", [])),
+                    " ".join(f"{t:.1f}" for t in r["ours"].get("tint_nodes_deg", [])), r["ours"].get("shadowing") or "",
                     f"{tm['total_s']:.2f}", f"{tm['ours_reconstruct_s']:.3f}", f"{tm['cook_torrance_fit_s']:.2f}"])
     with atomic_write(path, "w") as fh:
         fh.write(buf.getvalue())

@@ -245,9 +245,10 @@ class LuminanceProblem:
     prior a sum of squares, so the cost is ≥ 0).
     """
 
-    def __init__(self, bins: PolarBins, nodes: Array) -> None:
+    def __init__(self, bins: PolarBins, nodes: Array, correlated: bool = False) -> None:
         self.bins = bins
         self.nodes = nodes
+        self.correlated = correlated  # the shadowing form (:func:`pair_shadowing`)
         self.j, self.t = interpolation_cells(nodes, bins.theta_h)
         self.f = bins.luminance
         self.geometry = 1.0 / (4.0 * bins.cos_i * bins.cos_o)
@@ -606,12 +607,25 @@ def set_weights(problem: LuminanceProblem) -> None:
     problem.w = problem.bins.count * problem.bins.cos_i**2 / max(f_max, 1e-300) ** 2
 
 
+def pair_shadowing(ndf: IsotropicNDF, cos_i: Array, cos_o: Array, correlated: bool) -> Array:
+    """The masking–shadowing of a pair of directions from the NDF's ``S`` (eq. 8):
+    the separable product ``S(θ_i) S(θ_o)`` (the paper's), or with ``correlated`` the
+    height-correlated Smith form ``S_i S_o / (S_i + S_o − S_i S_o)`` = ``1/(1 + Λ_i + Λ_o)``
+    (``Λ = 1/S − 1``; Heitz 2014, §1.3 of the algorithm reference), which does not count
+    twice the microfacets that hide from both directions because they lie low. Shapes
+    ``(B,)``, values in [0, 1]; the correlated form is never below the product."""
+    si, so = ndf.shadowing(cos_i), ndf.shadowing(cos_o)
+    if not correlated:
+        return si * so
+    return np.divide(si * so, si + so - si * so, out=np.zeros_like(si), where=(si > 0) & (so > 0))
+
+
 def update_shadowing(problem: LuminanceProblem, s: LuminanceState, damping: bool = False) -> None:
-    """``S(θ_i) S(θ_o)`` of every bin from the current NDF (eq. 8); with ``damping`` the
-    geometric mean of the old and the new value (the fixed point ``S = S(D)``
-    oscillates for broad lobes when taken in full steps)."""
+    """The shadowing of every bin from the current NDF (eq. 8, :func:`pair_shadowing` in
+    the problem's form); with ``damping`` the geometric mean of the old and the new value
+    (the fixed point ``S = S(D)`` oscillates for broad lobes when taken in full steps)."""
     ndf = IsotropicNDF(problem.nodes, np.exp(s.z - s.z.max()))
-    new = ndf.shadowing(problem.bins.cos_i) * ndf.shadowing(problem.bins.cos_o)
+    new = pair_shadowing(ndf, problem.bins.cos_i, problem.bins.cos_o, problem.correlated)
     problem.shadow = np.sqrt(problem.shadow * new) if damping else new
     problem.shadow_geometry = problem.shadow * problem.geometry
 
@@ -653,7 +667,8 @@ class LuminanceFit:
 
 
 def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
-                  outer_iterations: int = OUTER_ITERATIONS) -> LuminanceFit:
+                  outer_iterations: int = OUTER_ITERATIONS, correlated: bool = False,
+                  start: LuminanceState | None = None) -> LuminanceFit:
     """The luminance fit at its fixed point with ``S`` (module docstring, stage 3).
 
     When the free η ends at :data:`ETA_MAX` still pushed upward, the data ask for a
@@ -663,20 +678,23 @@ def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
     at η = 50 the Fresnel curve is already nearly flat, and a fresh start can end in a
     worse minimum than the bound's). The cheapest of the three fits is kept, so no η is
     left parked at the search bound unless the data fit it better than either constant
-    lobe (then the notes say so).
+    lobe (then the notes say so). ``correlated`` chooses the shadowing form
+    (:func:`pair_shadowing`); ``start`` a converged state to continue from instead of the
+    data's initial state.
     """
-    fit = _fit_luminance(bins, nodes, fixed_eta, outer_iterations)
+    fit = _fit_luminance(bins, nodes, fixed_eta, outer_iterations, start=start, correlated=correlated)
     if fixed_eta is None and fit.state.eta >= ETA_MAX * (1 - 1e-9):
-        flats = (_fit_luminance(bins, nodes, CONSTANT, outer_iterations),
-                 _fit_luminance(bins, nodes, CONSTANT, outer_iterations, start=fit.state))
+        flats = (_fit_luminance(bins, nodes, CONSTANT, outer_iterations, correlated=correlated),
+                 _fit_luminance(bins, nodes, CONSTANT, outer_iterations, start=fit.state, correlated=correlated))
         return min((fit, *flats), key=lambda f: f.cost)
     return fit
 
 
 def _fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None, outer_iterations: int,
-                   start: LuminanceState | None = None) -> LuminanceFit:
-    """One luminance fit, η free or held at ``fixed_eta``, from the initial state or ``start``."""
-    problem = LuminanceProblem(bins, nodes)
+                   start: LuminanceState | None = None, correlated: bool = False) -> LuminanceFit:
+    """One luminance fit, η free or held at ``fixed_eta``, from the initial state or ``start``,
+    with the shadowing form ``correlated`` (:func:`pair_shadowing`)."""
+    problem = LuminanceProblem(bins, nodes, correlated)
     set_weights(problem)
     if start is None:
         s = initial_state(problem, 1.5 if fixed_eta is None else fixed_eta)
@@ -810,7 +828,7 @@ def node_ndfs(fit: LuminanceFit, nodes: Array, leds: list[tuple[int, ...]]) -> N
     for members in leds:
         sel = np.isin(p.bins.led, members)
         sub = LuminanceProblem(PolarBins(*(getattr(p.bins, f.name)[sel] for f in dataclasses.fields(PolarBins))),
-                               p.nodes)
+                               p.nodes, p.correlated)
         set_weights(sub)
         s = base.copy()
         update_shadowing(sub, s)
@@ -834,7 +852,7 @@ def unit_specular(fit: LuminanceFit, lobes: NodeNDFs | None = None) -> Array:
     b = p.bins
     lobe = np.zeros(len(b))
     for w, ndf in zip(lobes.hats(np.arccos(np.clip(b.cos_d, 0.0, 1.0))), lobes.ndfs):
-        lobe += w * ndf.at_theta(b.theta_h) * ndf.shadowing(b.cos_i) * ndf.shadowing(b.cos_o)
+        lobe += w * ndf.at_theta(b.theta_h) * pair_shadowing(ndf, b.cos_i, b.cos_o, p.correlated)
     return fresnel(b.cos_d, s.eta) * lobe * p.geometry
 
 
@@ -987,20 +1005,30 @@ class IsotropicFit:
         kd, ks, tint, lobes = tinted_scalars(lum, self.ceiling())
         d = np.exp(lum.state.z - lum.state.z.max())
         return IsotropicMicrofacetBRDF((lum.problem.nodes, d), kd, ks, lum.state.eta, tint=tint,
+                                       correlated=lum.problem.correlated,
                                        lobes=None if lobes is None else (lobes.theta_d, lobes.values))
 
 
 def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | None = None,
-                  kd_bound_max_deg: float = 75.0) -> IsotropicFit:
+                  kd_bound_max_deg: float = 75.0, correlated: bool = False) -> IsotropicFit:
     """Reconstruct an isotropic material from its slices (see the module docstring);
     ``k_d`` is bounded by the samples with θ_i, θ_o ≤ ``kd_bound_max_deg``
-    (:func:`.samples.kd_median_bound`)."""
+    (:func:`.samples.kd_median_bound`); ``correlated`` chooses the shadowing form
+    (:func:`pair_shadowing`; the default is eq. 8's product)."""
     nodes = polar_nodes()
     bins = bin_polar(slices, nodes, valid)
-    lum = fit_luminance(bins, nodes, fixed_eta)
+    lum = fit_luminance(bins, nodes, fixed_eta, correlated=correlated)
+    return isotropic_fit(lum, lambda: kd_median_bound(slices.light, slices.view, slices.values, valid,
+                                                      kd_bound_max_deg))
+
+
+def isotropic_fit(lum: LuminanceFit, ceiling: Callable[[], Array]) -> IsotropicFit:
+    """The :class:`IsotropicFit` of a converged luminance fit, with ``k_d``'s ceiling
+    per channel computed on demand by ``ceiling``."""
+    bins, nodes = lum.problem.bins, lum.problem.nodes
     ((kd_ls, ks_ls),) = scalars_under_ceilings(lum, [None])
     d = np.exp(lum.state.z - lum.state.z.max())
-    ls = IsotropicMicrofacetBRDF((nodes, d), kd_ls, ks_ls, lum.state.eta)
+    ls = IsotropicMicrofacetBRDF((nodes, d), kd_ls, ks_ls, lum.state.eta, correlated=lum.problem.correlated)
     return IsotropicFit(lum.state.eta, lum.eps, lum.ks_bound,
                         (int(np.count_nonzero(~bins.censored)), int(np.count_nonzero(bins.censored))), ls, lum,
-                        lambda: kd_median_bound(slices.light, slices.view, slices.values, valid, kd_bound_max_deg))
+                        ceiling)

@@ -6,6 +6,7 @@
     estimate_frame        the altered normal (§5.4), by default              normal.py
     fit_isotropic         a 1-D NDF D(θ_h), η, k_d, k_s (§5.1–5.3)          isotropic.py
     azimuthal_test        isotropic? symmetric under eq. 3?                  isotropy.py
+    choose_shadowing      S's form beyond the observed θ_d (isotropic)       extrapolation.py
     fit_hemicube          a hemicube NDF, for an anisotropic material        hemicube_fit.py
     detect_motion         check frames, mirror planes, LED pairs (§5.1)      motion.py
     limit_energy          albedo ≤ 1 up to 89°
@@ -37,6 +38,7 @@ from ..errors import ParameterError, ReflectoError
 from ..fresnel import eta_to_json, is_constant
 from ..instrument.slices import Slices
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
+from .extrapolation import ShadowingChoice, choose_shadowing
 from .hemicube_fit import HemicubeFit, fit_hemicube
 from .isotropic import ETA_MAX, IsotropicFit, fit_isotropic
 from .isotropy import IsotropyTest, azimuthal_test
@@ -107,6 +109,10 @@ class Options:
         chosen from the peak's sharpness).
     kd_bound_max_deg
         The anisotropic path bounds k_d by the samples with θ_i, θ_o at most this.
+    shadowing
+        The isotropic model's shadowing form beyond the observed ``θ_d``: ``"auto"``
+        (chosen on a held-out band, :func:`.extrapolation.choose_shadowing`), ``"separable"``
+        (eq. 8's product) or ``"correlated"`` (height-correlated Smith).
     """
 
     isotropic: str = "auto"
@@ -119,6 +125,7 @@ class Options:
     resolution: int = 512
     work_resolution: int | None = None
     kd_bound_max_deg: float = 75.0
+    shadowing: str = "auto"
 
     def __post_init__(self) -> None:
         def bad(what: str) -> ParameterError:
@@ -126,6 +133,8 @@ class Options:
 
         if self.isotropic not in ("auto", "yes", "no"):
             raise bad(f"isotropic must be 'auto', 'yes' or 'no', got {self.isotropic!r}")
+        if self.shadowing not in ("auto", "separable", "correlated"):
+            raise bad(f"shadowing must be 'auto', 'separable' or 'correlated', got {self.shadowing!r}")
         if self.estimate_normal is not None:
             self.normal = "auto" if self.estimate_normal else "device"
             self.estimate_normal = None
@@ -190,6 +199,9 @@ class Reconstruction:
         device axis significantly) or ``"given"``.
     normal_estimate
         The estimate behind :attr:`frame`, or ``None`` when the options imposed it.
+    shadowing
+        The isotropic model's shadowing form and why (:class:`.extrapolation.ShadowingChoice`);
+        ``None`` on the anisotropic path (eq. 8's product).
     """
 
     model: IsotropicMicrofacetBRDF | MicrofacetBRDF
@@ -206,6 +218,7 @@ class Reconstruction:
     normal_uncertainty_deg: float = 0.0
     normal_source: str = "device"
     normal_estimate: NormalEstimate | None = None
+    shadowing: ShadowingChoice | None = None
 
     @property
     def isotropic(self) -> bool:
@@ -233,7 +246,8 @@ class Reconstruction:
             one RGB row per node; ``None`` without a tint); ``normal`` (unit vector, device frame),
             ``normal_tilt_deg``, ``normal_uncertainty_deg`` (degrees), ``normal_source``;
             ``isotropy_test`` (:meth:`IsotropyTest.to_dict`); the motion cues
-            (:meth:`MotionReport.to_dict`: ``shake_detected``, …); ``model_error``,
+            (:meth:`MotionReport.to_dict`: ``shake_detected``, …); ``shadowing``
+            (:meth:`.extrapolation.ShadowingChoice.to_dict`, ``None`` on the anisotropic path); ``model_error``,
             ``fresnel_error``, ``energy_scale``, ``albedo_max``, ``notes`` and ``seconds``.
             Non-finite ``normal_uncertainty_deg``, ``model_error`` and ``fresnel_error`` are
             ``None``.
@@ -248,6 +262,7 @@ class Reconstruction:
                 "normal_uncertainty_deg": nan(self.normal_uncertainty_deg), "normal_source": self.normal_source,
                 "isotropy_test": self.isotropy.to_dict(), **self.motion.to_dict(),
                 "model_error": nan(self.model_error), "fresnel_error": nan(self.fresnel_error),
+                "shadowing": None if self.shadowing is None else self.shadowing.to_dict(),
                 "energy_scale": self.energy_scale, "albedo_max": self.albedo_max, "notes": self.notes,
                 "seconds": self.seconds}
 
@@ -555,7 +570,11 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         iso = device_fit if device_fit is not None else _device_frame_fit(slices, valid, opt)
         test = azimuthal_test(sl, ok, iso.least_squares)
     fit: IsotropicFit | HemicubeFit = iso
-    if not isotropic:
+    shadowing = None
+    if isotropic:
+        iso, shadowing = choose_shadowing(iso, opt.fixed_eta, opt.shadowing)
+        fit = iso
+    else:
         fit = fit_hemicube(sl, ok, fixed_eta=opt.fixed_eta, work_resolution=opt.work_resolution,
                            resolution=opt.resolution, kd_bound_max_deg=opt.kd_bound_max_deg)
     hidden = _hidden_peaks(slices, ok, est, fit.model)
@@ -566,10 +585,13 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     model, scale, albedo = limit_energy(fit.model, opt.energy_clamp)
     notes = _normal_notes(est, opt, isotropic) + _hidden_peak_notes(hidden)
     notes += _notes(fit, model, isotropic, test, scale)
+    shadowing_note = None if shadowing is None else shadowing.note()
+    if shadowing_note:
+        notes.append(shadowing_note)
     return Reconstruction(model, fit.eta, test, motion, frame, iso.model_error,
                           fit.fresnel_error if isinstance(fit, HemicubeFit) else math.nan, scale, albedo,
                           notes, time.perf_counter() - t0, est.uncertainty_deg, est.source,
-                          est if isinstance(opt.normal, str) and opt.normal == "auto" else None)
+                          est if isinstance(opt.normal, str) and opt.normal == "auto" else None, shadowing)
 
 
 def _hidden_peaks(slices: Slices, valid: NDArray[np.bool_], est: NormalEstimate, model) -> list[HiddenPeak]:

@@ -44,9 +44,10 @@ from .. import polar
 __all__ = ["KINDS", "tuned", "PolarTuning", "IsotropicFitTuning", "IsotropyTestTuning", "HemicubeFitTuning",
            "NDFTuning", "FresnelFitTuning", "SamplesTuning", "SymmetryTuning", "SymmetryTestTuning",
            "ConsistencyTuning", "RepeatTuning", "SynthesisTuning", "AsymmetricTuning", "NormalTuning",
-           "PipelineTuning", "POLAR", "ISOTROPIC", "ISOTROPY", "HEMICUBE_FIT", "NDF", "FRESNEL_FIT", "SAMPLES",
-           "SYMMETRY", "SYMMETRY_TEST", "CONSISTENCY", "REPEAT", "SYNTHESIS", "ASYMMETRIC", "NORMAL", "PIPELINE",
-           "STAGES", "constants_table", "update_document", "BEGIN_MARKER", "END_MARKER"]
+           "ExtrapolationTuning", "PipelineTuning", "POLAR", "ISOTROPIC", "ISOTROPY", "HEMICUBE_FIT", "NDF",
+           "FRESNEL_FIT", "SAMPLES", "SYMMETRY", "SYMMETRY_TEST", "CONSISTENCY", "REPEAT", "SYNTHESIS", "ASYMMETRIC",
+           "NORMAL", "EXTRAPOLATION", "PIPELINE", "STAGES", "constants_table", "update_document", "BEGIN_MARKER",
+           "END_MARKER"]
 
 #: The kinds of provenance a field's ``source`` starts with (see the module docstring).
 KINDS = ("mechanism", "measurement", "tuning half", "convention", "unrecorded")
@@ -961,6 +962,31 @@ class MotionTuning:
 
 
 @dataclasses.dataclass(frozen=True)
+class ExtrapolationTuning:
+    """The shadowing form beyond the observed ``θ_d``, chosen by the fit (:mod:`.extrapolation`)."""
+
+    module: ClassVar[str] = "reflecto.reconstruct.extrapolation"
+    paper: ClassVar[str] = "eq. 8"
+
+    min_difference: float = tuned(
+        0.01, name="MIN_DIFFERENCE", units="relative",
+        what="the choice is made only where the correlated form changes some measured bin's model value by at "
+             "least this (with the product's fit)",
+        source="convention: a choice the data change by less than 1 % nowhere is not the data's; measured: the "
+               "earlier device (no grazing LED) 0.00–0.7 %, where a cost comparison took the correlated form on a "
+               "different branch of the fit (natural-209: eq. 10 0.092 → 2.35); the paper's layout 2–32 % on matte "
+               "materials, sharp lobes below 1 %")
+    min_cost_gain: float = tuned(
+        0.01, name="MIN_COST_GAIN", units="relative",
+        what="the height-correlated form is taken only where its fit's cost is below (1 − this) × the product's",
+        source="measurement: the 48 separable analytic lobes of validate_reconstruction.py (ideal device) give "
+               "cost ratios of 0.996–1.000 on the five where the bare comparison takes the correlated form (GGX and "
+               "Beckmann α 0.4), whose eq. 10 error then rises from 0.01–0.02 % to 0.17–0.21 %; lobes rendered with "
+               "the correlated form give 0.93–0.98 (GGX α 0.2–0.4). On the shared materials the choices at "
+               "0.99–1.00 moved eq. 10 by at most 1 %")
+
+
+@dataclasses.dataclass(frozen=True)
 class PipelineTuning:
     """The §5 stages around the fits: energy check and capture acceptance (:mod:`.pipeline`)."""
 
@@ -1016,12 +1042,14 @@ ASYMMETRIC = AsymmetricTuning()
 NORMAL = NormalTuning()
 MOTION = MotionTuning()
 PIPELINE = PipelineTuning()
+EXTRAPOLATION = ExtrapolationTuning()
 
 #: Every stage's default instance, by the instance's name, in the paper's order.
 STAGES: dict[str, Any] = {
     "POLAR": POLAR, "ISOTROPIC": ISOTROPIC, "ISOTROPY": ISOTROPY, "FRESNEL_FIT": FRESNEL_FIT, "SAMPLES": SAMPLES,
     "NDF": NDF, "HEMICUBE_FIT": HEMICUBE_FIT, "NORMAL": NORMAL, "MOTION": MOTION, "SYMMETRY": SYMMETRY,
     "CONSISTENCY": CONSISTENCY,
+    "EXTRAPOLATION": EXTRAPOLATION,
     "REPEAT": REPEAT, "SYMMETRY_TEST": SYMMETRY_TEST, "SYNTHESIS": SYNTHESIS, "ASYMMETRIC": ASYMMETRIC,
     "PIPELINE": PIPELINE,
 }

@@ -88,6 +88,9 @@ class AnalyticBRDF(BRDFSource):
     asymmetry
         ``None`` (symmetric) or ``(shift_x, shift_y, weight)``: the two-lobe asymmetric
         NDF described in the module docstring.
+    correlated
+        Smith's height-correlated masking–shadowing ``G2 = 1/(1 + Λ(i) + Λ(o))`` instead
+        of the separable product ``G1(i) G1(o)`` (Heitz 2014; the albedo bound holds: ``G2 ≤ G1``).
 
     Energy: ``k_d + k_s ≤ 1`` per channel is required, which bounds the albedo by 1
     (Smith-masked microfacet reflection with F ≤ 1 never exceeds 1).
@@ -101,6 +104,7 @@ class AnalyticBRDF(BRDFSource):
     eta: ArrayField = cast("ArrayField", 1.5)
     asymmetry: tuple[float, float, float] | None = None
     path: Path | None = None
+    correlated: bool = False
     lobes: tuple[Lobe, ...] = field(init=False)
 
     kind = "analytic"
@@ -271,8 +275,13 @@ class AnalyticBRDF(BRDFSource):
         h = geometry.half_vector(i, o)
         c = np.sum(i * h, axis=-1)
         d = self.ndf(h)
-        # AR 1.6: D F / (4 σ(i) σ(o)) equals D G1 G1 F / (4 cos cos)
-        denom = 4.0 * self.sigma(i) * self.sigma(o)
+        if self.correlated:
+            # G2 = 1/(1 + Λi + Λo), σ = cos (1 + Λ): D G2 / (4 cos cos) = D / (4 (σi cos_o + σo cos_i − cos_i cos_o))
+            ci, co = i[..., 2], o[..., 2]
+            denom = 4.0 * (self.sigma(i) * co + self.sigma(o) * ci - ci * co)
+        else:
+            # AR 1.6: D F / (4 σ(i) σ(o)) equals D G1 G1 F / (4 cos cos)
+            denom = 4.0 * self.sigma(i) * self.sigma(o)
         spec = np.divide(d, denom, out=np.zeros_like(d), where=ok & (denom > 0))
         f = self.kd / math.pi + self.ks * spec[..., None] * fresnel(c[..., None], self.eta)
         return np.where(ok[..., None], f, 0.0)
@@ -296,6 +305,8 @@ class AnalyticBRDF(BRDFSource):
         }
         if self.asymmetry is not None:
             p["asymmetry"] = list(self.asymmetry)
+        if self.correlated:
+            p["shadowing"] = "height-correlated"
         return p
 
     def to_dict(self) -> dict[str, Any]:
@@ -309,7 +320,9 @@ class AnalyticBRDF(BRDFSource):
         return {"type": "analytic", **self.parameters()}
 
 
-_KEYS = {"type", "distribution", "alpha", "rotation_deg", "kd", "ks", "eta", "asymmetry", "name"}
+_KEYS = {"type", "distribution", "alpha", "rotation_deg", "kd", "ks", "eta", "asymmetry", "name", "shadowing"}
+#: The ``shadowing`` values of a description: Smith's separable product or its height-correlated form.
+SHADOWING_FORMS = ("separable", "height-correlated")
 
 
 def _plain(values: Any) -> str:
@@ -359,7 +372,8 @@ def analytic_from_dict(d: dict[str, Any], path: Path | None = None) -> AnalyticB
     d
         ``{"type": "analytic", ...}`` with optional ``distribution`` (``"ggx"``, ``"beckmann"``),
         ``alpha`` (one or two numbers), ``rotation_deg`` (degrees), ``kd``, ``ks``, ``eta``
-        (one or three numbers), ``asymmetry`` and ``name``.
+        (one or three numbers), ``asymmetry``, ``shadowing`` (``"separable"``, the default, or
+        ``"height-correlated"``) and ``name``.
     path
         The file it was read from, for messages and :attr:`~reflecto.brdf.BRDFSource.path`.
 
@@ -390,6 +404,9 @@ def analytic_from_dict(d: dict[str, Any], path: Path | None = None) -> AnalyticB
     ks = _numbers(d.get("ks", 1.0), "ks", (1, 3), where)
     eta = _numbers(d.get("eta", 1.5), "eta", (1, 3), where)
     asym = _asymmetry(d.get("asymmetry"), where)
+    shadowing = d.get("shadowing", "separable")
+    if shadowing not in SHADOWING_FORMS:
+        raise FileFormatError(where, f"'shadowing' must be one of {list(SHADOWING_FORMS)}, got {short_repr(shadowing)}")
     try:
         return AnalyticBRDF(
             distribution=distribution.lower(),
@@ -400,6 +417,7 @@ def analytic_from_dict(d: dict[str, Any], path: Path | None = None) -> AnalyticB
             eta=eta,
             asymmetry=asym,
             path=path,
+            correlated=shadowing == "height-correlated",
         )
     except (ParameterError, TypeError, ValueError) as e:
         raise FileFormatError(where, str(e)) from None
