@@ -883,8 +883,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "or decide from the capture (auto)")
     q.add_argument("--shadowing", choices=("auto", "separable", "correlated"), default="auto",
                    help="the isotropic model's shadowing form beyond the angles the device sees: eq. 8's product "
-                        "(separable), height-correlated Smith (correlated), or the one that predicts a held-out band "
-                        "of the capture better (auto)")
+                        "(separable), height-correlated Smith (correlated), or the one that fits the capture better "
+                        "(auto)")
     q.add_argument("--asymmetric", action="store_true",
                    help="the captures are of one point at several rotations (their manifests' rotation_deg): "
                         "reconstruct one model without the symmetry of eq. 3, completed by microfacet synthesis "

@@ -25,8 +25,8 @@ Neither is right for every material, so the capture chooses (:func:`choose_shado
    is continued from the product's optimum with the correlated form; the two fits have
    the same parameters (the NDF's nodes, ``k_d``, ``g``, η) and the same priors, so their
    final costs (eq. 10's weighted squares plus the NDF's curvature prior) compare
-   directly, as likelihoods of models of equal size do. The grazing slices (θ_i ≈ 83°), whose views reach θ_o = 68°, are
-   where the two forms differ within the data.
+   directly, as likelihoods of models of equal size do. The grazing slices (θ_i ≈ 83°,
+   views to θ_o = 68°) are where the two forms differ within the data.
 3. **The correlated form must fit clearly better**: its cost below ``1 −``
    :data:`MIN_COST_GAIN` of the product's; otherwise the paper's product stays.
 
@@ -50,7 +50,7 @@ import numpy as np
 
 from ..fresnel import CONSTANT, is_constant
 from ..polar import IsotropicNDF
-from .isotropic import IsotropicFit, LuminanceFit, fit_luminance, isotropic_fit, pair_shadowing
+from .isotropic import IsotropicFit, LuminanceFit, fit_luminance, isotropic_fit
 from .tuning import EXTRAPOLATION
 
 __all__ = ["ShadowingChoice", "choose_shadowing", "form_difference", "SEPARABLE", "CORRELATED",
@@ -63,7 +63,6 @@ MIN_COST_GAIN = EXTRAPOLATION.min_cost_gain
 #: The shadowing forms' names, as the summary and the model file's description give them.
 SEPARABLE = "separable"
 CORRELATED = "height-correlated"
-
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,14 +123,15 @@ def form_difference(fit: LuminanceFit) -> float:
     by the correlated form, ``q_b = (1 − S_i)(1 − S_o)`` (module docstring, step 1)."""
     p, state = fit.problem, fit.state
     ndf = IsotropicNDF(p.nodes, np.exp(state.z - state.z.max()))
-    product = pair_shadowing(ndf, p.bins.cos_i, p.bins.cos_o, False)
-    correlated = pair_shadowing(ndf, p.bins.cos_i, p.bins.cos_o, True)
+    si, so = ndf.shadowing(p.bins.cos_i), ndf.shadowing(p.bins.cos_o)
     spec, _ = p.specular(state)
     value = state.kd / math.pi + spec
-    seen = p.measured & (value > 0) & (product > 0)
+    seen = p.measured & (value > 0) & (si > 0) & (so > 0)
     if not seen.any():
         return 0.0
-    change = spec[seen] * (correlated[seen] / product[seen] - 1.0) / value[seen]
+    si, so = si[seen], so[seen]
+    # correlated / product = 1/(S_i + S_o − S_i S_o) = 1/(1 − q)
+    change = spec[seen] * (1.0 / (si + so - si * so) - 1.0) / value[seen]
     return float(change.max())
 
 
@@ -144,7 +144,7 @@ def choose_shadowing(fit: IsotropicFit, fixed_eta: float | None = None, option: 
     fit
         The converged isotropic fit with eq. 8's product (:func:`.isotropic.fit_isotropic`).
     fixed_eta
-        η held in the held-out fits and the refit (as in ``fit``), or ``None``.
+        η held in the correlated form's fit (as in ``fit``), or ``None``.
     option
         ``"auto"`` (choose), ``"separable"`` (keep ``fit``) or ``"correlated"`` (refit with
         the correlated form without a choice).
@@ -152,7 +152,7 @@ def choose_shadowing(fit: IsotropicFit, fixed_eta: float | None = None, option: 
     Returns
     -------
     (IsotropicFit, ShadowingChoice)
-        ``fit`` itself where the product is kept, else the refit on all its bins.
+        ``fit`` itself where the product is kept, else the correlated form's fit on its bins.
     """
     if option == "separable":
         return fit, ShadowingChoice(SEPARABLE, "option")

@@ -1010,14 +1010,13 @@ class IsotropicFit:
 
 
 def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | None = None,
-                  kd_bound_max_deg: float = 75.0, correlated: bool = False) -> IsotropicFit:
-    """Reconstruct an isotropic material from its slices (see the module docstring);
-    ``k_d`` is bounded by the samples with θ_i, θ_o ≤ ``kd_bound_max_deg``
-    (:func:`.samples.kd_median_bound`); ``correlated`` chooses the shadowing form
-    (:func:`pair_shadowing`; the default is eq. 8's product)."""
+                  kd_bound_max_deg: float = 75.0) -> IsotropicFit:
+    """Reconstruct an isotropic material from its slices (see the module docstring), with
+    eq. 8's product shadowing (:mod:`.extrapolation` may replace it); ``k_d`` is bounded by
+    the samples with θ_i, θ_o ≤ ``kd_bound_max_deg`` (:func:`.samples.kd_median_bound`)."""
     nodes = polar_nodes()
     bins = bin_polar(slices, nodes, valid)
-    lum = fit_luminance(bins, nodes, fixed_eta, correlated=correlated)
+    lum = fit_luminance(bins, nodes, fixed_eta)
     return isotropic_fit(lum, lambda: kd_median_bound(slices.light, slices.view, slices.values, valid,
                                                       kd_bound_max_deg))
 

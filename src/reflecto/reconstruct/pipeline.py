@@ -111,7 +111,7 @@ class Options:
         The anisotropic path bounds k_d by the samples with θ_i, θ_o at most this.
     shadowing
         The isotropic model's shadowing form beyond the observed ``θ_d``: ``"auto"``
-        (chosen on a held-out band, :func:`.extrapolation.choose_shadowing`), ``"separable"``
+        (the one the capture fits better, :func:`.extrapolation.choose_shadowing`), ``"separable"``
         (eq. 8's product) or ``"correlated"`` (height-correlated Smith).
     """
 
