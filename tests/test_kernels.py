@@ -720,7 +720,8 @@ def test_ct_residual():
 
 # ----------------------------------------------------------------------------- isotropic fit
 @twin("reflecto.reconstruct._polar_kernels.bin_polar")
-def test_bin_polar():
+@pytest.mark.parametrize("step_deg", [1.0, 3.0])  # the model's θ_d cells, the normal's light fits'
+def test_bin_polar(step_deg):
     """(LED, θ_h cell, θ_d cell) bins: :func:`isotropic.bin_polar_numpy` (bisection =
     ``searchsorted``), including θ_h beyond the last edge."""
     from reflecto.polar import polar_nodes
@@ -731,24 +732,26 @@ def test_bin_polar():
     noise, bound = rng.random(mask.shape), rng.random(mask.shape)
     nodes = polar_nodes()
     edges = np.interp(np.arange((len(nodes) - 1) * 2 + 1) / 2, np.arange(len(nodes)), nodes)
-    n_td = int(math.ceil(0.5 * math.pi / isotropic.TD_STEP)) + 1
+    step = math.radians(step_deg)
+    n_td = int(math.ceil(0.5 * math.pi / step)) + 1
     n_keys = len(light) * (len(edges) - 1) * n_td
     count, sums, fs = np.zeros(n_keys), np.zeros((n_keys, 5)), np.zeros((n_keys, 3))
     _polar_kernels.bin_polar(mask, light, view, values, noise, bound, edges, cell_table(edges.tobytes()),
-                             isotropic.TD_STEP, n_td, *isotropic.theta_d_tables(n_td), count, sums, fs)
-    ref = isotropic.bin_polar_numpy(mask, light, view, values, noise, bound, edges, n_td)
+                             step, n_td, *isotropic.theta_d_tables(n_td, step), count, sums, fs)
+    ref = isotropic.bin_polar_numpy(mask, light, view, values, noise, bound, edges, n_td, step)
     assert np.array_equal(count, ref[0]) and count.sum() == mask.sum()
     assert np.allclose(sums, ref[1], rtol=1e-12, atol=1e-13) and np.allclose(fs, ref[2], rtol=1e-12, atol=1e-13)
 
 
-def test_theta_d_cell_is_the_arccos_cell_at_and_beside_every_edge():
+@pytest.mark.parametrize("step_deg", [1.0, 3.0])
+def test_theta_d_cell_is_the_arccos_cell_at_and_beside_every_edge(step_deg):
     """The binning's θ_d cell without the arccos equals ``min(⌊arccos(c)/step⌋, n_td − 1)``
     on random cosines and on each cell edge, a few ulps and 10⁻¹³–10⁻⁹ either side of it."""
     from reflecto.reconstruct import _polar_kernels, isotropic
 
-    step = isotropic.TD_STEP
+    step = math.radians(step_deg)
     n_td = int(math.ceil(0.5 * math.pi / step)) + 1
-    td_cos, table = isotropic.theta_d_tables(n_td)
+    td_cos, table = isotropic.theta_d_tables(n_td, step)
     cs = [0.0, 1.0, *np.random.default_rng(25).random(20000)]
     for edge in td_cos[:n_td]:
         near = [edge]

@@ -127,11 +127,12 @@ class PolarBins:
         return self.f @ LUM
 
 
-def bin_polar(slices: Slices, nodes: Array, valid: NDArray[np.bool_]) -> PolarBins:
+def bin_polar(slices: Slices, nodes: Array, valid: NDArray[np.bool_], td_step: float = TD_STEP) -> PolarBins:
     """Average the ``valid`` samples of the slices per (LED, θ_h cell, θ_d cell).
 
     The θ_h cells halve the node intervals (:data:`CELLS_PER_INTERVAL`): a bin's mean
-    BRDF then stands for its mean θ_h to second order in a half interval.
+    BRDF then stands for its mean θ_h to second order in a half interval. The θ_d cells
+    are ``td_step`` wide (radians; :data:`TD_STEP` for the model's fits).
 
     Censored samples (below the detection limit) form their own bins, whose value is
     the mean detection limit (:attr:`Slices.limit`; the sample's own reading where the
@@ -141,7 +142,8 @@ def bin_polar(slices: Slices, nodes: Array, valid: NDArray[np.bool_]) -> PolarBi
     censored = valid & slices.censored if slices.censored is not None else np.zeros_like(valid)
     edges = np.interp(np.arange((len(nodes) - 1) * CELLS_PER_INTERVAL + 1) / CELLS_PER_INTERVAL,
                       np.arange(len(nodes)), nodes)
-    parts = [_bin_group(slices, edges, valid & ~censored, False), _bin_group(slices, edges, censored, True)]
+    parts = [_bin_group(slices, edges, valid & ~censored, False, td_step),
+             _bin_group(slices, edges, censored, True, td_step)]
     parts = [p for p in parts if p is not None]
     if not parts:
         raise ReflectoError("capture: no valid samples")
@@ -149,7 +151,8 @@ def bin_polar(slices: Slices, nodes: Array, valid: NDArray[np.bool_]) -> PolarBi
                        for f in dataclasses.fields(PolarBins)))
 
 
-def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: bool) -> PolarBins | None:
+def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: bool,
+               td_step: float) -> PolarBins | None:
     if not mask.any():
         return None
     zeros = np.zeros(mask.shape)
@@ -158,7 +161,7 @@ def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: 
     if is_bound:
         bound = slices.limit if slices.limit is not None else slices.values @ LUM
         bound = np.ascontiguousarray(bound, dtype=np.float64)
-    n_td = int(math.ceil(0.5 * math.pi / TD_STEP)) + 1
+    n_td = int(math.ceil(0.5 * math.pi / td_step)) + 1
     n_keys = slices.n_leds * (len(edges) - 1) * n_td
     count = np.zeros(n_keys)
     sums = np.zeros((n_keys, 5))
@@ -166,7 +169,7 @@ def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: 
     _polar_kernels.bin_polar(np.ascontiguousarray(mask), np.ascontiguousarray(slices.light, dtype=np.float64),
                              np.ascontiguousarray(slices.view, dtype=np.float64),
                              np.ascontiguousarray(slices.values, dtype=np.float64), noise, bound, edges,
-                             cell_table(edges.tobytes()), TD_STEP, n_td, *theta_d_tables(n_td),
+                             cell_table(edges.tobytes()), td_step, n_td, *theta_d_tables(n_td, td_step),
                              count, sums, fsum)
     used = np.flatnonzero(count)
     n = count[used]
@@ -179,17 +182,17 @@ def _bin_group(slices: Slices, edges: Array, mask: NDArray[np.bool_], is_bound: 
 
 
 @functools.cache
-def theta_d_tables(n_td: int) -> tuple[Array, NDArray[np.intp]]:
+def theta_d_tables(n_td: int, td_step: float = TD_STEP) -> tuple[Array, NDArray[np.intp]]:
     """The θ_d cells' edges in ``c = cos θ_d`` and a table of the cell of ``c = i / m``
     (read-only), with which the binning finds a sample's θ_d cell
     (:func:`._polar_kernels._theta_d_cell`) without an arccos.
 
-    ``td_cos[j] = cos(j · TD_STEP)``, ``j = 0 … n_td``: cell ``j`` holds
+    ``td_cos[j] = cos(j · td_step)``, ``j = 0 … n_td``: cell ``j`` holds
     ``td_cos[j + 1] < c ≤ td_cos[j]``. ``m`` makes the table's step half the narrowest
-    cell (``1 − cos TD_STEP``), so a sample's cell is its table entry's or the one below.
+    cell (``1 − cos td_step``), so a sample's cell is its table entry's or the one below.
     """
-    td_cos = np.cos(np.arange(n_td + 1) * TD_STEP)
-    m = int(math.ceil(2.0 / (1.0 - math.cos(TD_STEP))))
+    td_cos = np.cos(np.arange(n_td + 1) * td_step)
+    m = int(math.ceil(2.0 / (1.0 - math.cos(td_step))))
     c = np.arange(m) / m
     table = (np.searchsorted(-td_cos, -c, side="right") - 1).astype(np.intp)
     td_cos.setflags(write=False)
@@ -198,7 +201,7 @@ def theta_d_tables(n_td: int) -> tuple[Array, NDArray[np.intp]]:
 
 
 def bin_polar_numpy(mask: NDArray[np.bool_], light: Array, view: Array, values: Array, noise: Array, bound: Array,
-                    edges: Array, n_td: int) -> tuple[Array, Array, Array]:
+                    edges: Array, n_td: int, td_step: float = TD_STEP) -> tuple[Array, Array, Array]:
     """NumPy reference of the compiled binning kernel: ``(count, sums, f sums)`` per key."""
     li, pi = np.nonzero(mask)
     i, o = light[li], view[pi]
@@ -208,7 +211,7 @@ def bin_polar_numpy(mask: NDArray[np.bool_], light: Array, view: Array, values: 
     c = np.clip(np.einsum("ij,ij->i", i, hs) / nrm, 0.0, 1.0)
     n_cells = len(edges) - 1
     j = np.clip(np.searchsorted(edges, th, side="right") - 1, 0, n_cells - 1)
-    k = np.minimum((np.arccos(c) / TD_STEP).astype(np.intp), n_td - 1)
+    k = np.minimum((np.arccos(c) / td_step).astype(np.intp), n_td - 1)
     key = (li * n_cells + j) * n_td + k
     n_keys = light.shape[0] * n_cells * n_td
     count = np.bincount(key, minlength=n_keys).astype(np.float64)

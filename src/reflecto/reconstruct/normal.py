@@ -300,6 +300,8 @@ LOBE_LEVEL = NORMAL.lobe_level
 FIT_STRIDE = NORMAL.fit_stride
 #: Outer iterations (S from D) of those fits.
 FIT_OUTER_ITERATIONS = NORMAL.fit_outer_iterations
+#: Width of those fits' θ_d cells (radians; the model's fits: :data:`.isotropic.TD_STEP`).
+FIT_TD_STEP = NORMAL.fit_td_step
 #: The estimate has converged when a refit moves the normal by less than this (degrees)
 #: or by less than :data:`CONVERGED_SHARE` of its uncertainty.
 CONVERGED_DEG = NORMAL.converged_deg
@@ -739,8 +741,8 @@ def _tilt_normal(xy: Array) -> tuple[Array, Array]:
 
 
 def light_fit(slices, valid: NDArray[np.bool_], frame: Array, fixed_eta: float | None) -> isotropic.LuminanceFit:
-    """A light isotropic luminance fit (every :data:`FIT_STRIDE`-th pixel,
-    :data:`FIT_OUTER_ITERATIONS` rounds of ``S`` from ``D``) in ``frame``, from the
+    """A light isotropic luminance fit (every :data:`FIT_STRIDE`-th pixel, θ_d cells of
+    :data:`FIT_TD_STEP`, :data:`FIT_OUTER_ITERATIONS` rounds of ``S`` from ``D``) in ``frame``, from the
     data's initial state each time: a start from the previous refit's state was
     measured worse (untilted captures given tilts of 0.5–2.4°, a rubber's normal off by
     2.1° instead of 0.15°) and no faster."""
@@ -766,7 +768,7 @@ def _light_fit_of(sub: Slices, valid_sub: NDArray[np.bool_], frame: Array,
     sl = sub.reframe(frame)
     ok = valid_sub & sl.valid
     nodes = polar_nodes()
-    bins = isotropic.bin_polar(sl, nodes, ok)
+    bins = isotropic.bin_polar(sl, nodes, ok, FIT_TD_STEP)
     return isotropic.fit_luminance(bins, nodes, fixed_eta, outer_iterations=FIT_OUTER_ITERATIONS)
 
 
