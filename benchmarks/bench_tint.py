@@ -69,5 +69,6 @@ def main() -> None:
               f"max {ms.max():6.2f} ms")
     print(f"ms_tint_extra: {np.median(total):.2f}")
 
+
 if __name__ == "__main__":
     main()

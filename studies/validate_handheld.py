@@ -28,8 +28,9 @@ Reported per half of the generalization split (:mod:`reflecto.evaluate.split`):
   the fitted lobe's half width);
 * of the misses (normal beyond 0.5°; eq. 10 beyond 1.1× the true normal's), the share
   where the capture itself fits the estimated frame at least as well as the true one
-  (the model error ``ε`` of :func:`reflecto.reconstruct.isotropic.model_error`, which
-  needs no ground truth): there the data, not the estimate, put the normal elsewhere;
+  (the model error ``ε`` of :func:`reflecto.reconstruct.isotropic.model_error`, the
+  capture's own misfit, not the reference's): there the data, not the estimate, put the
+  normal elsewhere;
 * time per default reconstruction (median, p90), one process.
 
 Records go to ``OUT/records.jsonl`` as each material finishes (a rerun skips finished
