@@ -270,6 +270,28 @@ def _changing_lobe(alphas=(0.05, 0.15), at_deg=(38.0, 67.0), **kw):
                                    lobes=(np.radians(at_deg), [_ggx_lobe(a) for a in alphas]))
 
 
+def test_the_energy_limit_scales_a_model_with_an_ndf_per_node_and_keeps_everything_else():
+    """``limit_energy`` scales ``k_d`` and ``k_s`` and nothing else: the NDF per θ_d node,
+    the tint, the shadowing form and the metadata stay, so the limited model's albedo is
+    the scaled model's (≤ 1), not that of a model without its node lobes."""
+    from reflecto.reconstruct.pipeline import limit_energy
+
+    nodes = np.radians([38.0, 67.0])
+    m = _changing_lobe(kd=0.95, ks=1.0, correlated=True, metadata={"name": "bright"},
+                       tint=(nodes, np.ones((2, 3))))
+    angles = np.array([0.0, 30.0, 60.0, 75.0, 85.0])
+    assert m.albedo(angles).max() > 1.05
+    limited, scale, albedo = limit_energy(m)
+    assert 0.5 < scale < 0.95 and albedo == 1.0
+    assert limited.lobes is m.lobes and limited.tint is m.tint and limited.ndf_table is m.ndf_table
+    assert limited.correlated and limited.metadata == {"name": "bright"}
+    assert np.allclose(limited.kd, scale * m.kd) and np.allclose(limited.ks, scale * m.ks)
+    rng = np.random.default_rng(3)
+    i, o = (v / np.linalg.norm(v, axis=1, keepdims=True) for v in np.abs(rng.normal(size=(2, 400, 3))))
+    assert np.allclose(limited.eval(i, o), scale * m.eval(i, o), rtol=1e-12)
+    assert limited.albedo(angles).max() <= 1.0 + 1e-3
+
+
 def test_an_ndf_per_theta_d_node_interpolates_stays_normalized_reciprocal_and_round_trips(tmp_path):
 
     from reflecto.polar import NodeNDFs

@@ -336,6 +336,12 @@ class MicrofacetBRDF(BRDFSource):
         f[~((i[..., 2] > 0) & (o[..., 2] > 0))] = 0.0
         return f
 
+    def scaled(self, factor: float) -> MicrofacetBRDF:
+        """The same BRDF times ``factor``: ``k_d`` and ``k_s`` scaled, the NDF, η, tint,
+        shadowing form and metadata kept (``f`` is linear in ``k_d, k_s``, eq. 1)."""
+        return MicrofacetBRDF(self.ndf_values, self.kd * factor, self.ks * factor, self.eta, normalize=False,
+                              correlated=self.correlated, metadata=self.metadata, tint=self.tint)
+
     def parameters(self) -> dict[str, Any]:
         """The model's parameters, for ``reflecto info``.
 
@@ -937,6 +943,14 @@ class IsotropicMicrofacetBRDF(BRDFSource):
                                                         correlated=self.correlated, metadata=self.metadata,
                                                         tint=self.tint)
         return self._hemicube[resolution]
+
+    def scaled(self, factor: float) -> IsotropicMicrofacetBRDF:
+        """The same BRDF times ``factor``: ``k_d`` and ``k_s`` scaled, the NDF and its
+        per-node lobes, η, tint, shadowing form and metadata kept (``f`` is linear in
+        ``k_d, k_s``, eq. 1)."""
+        return IsotropicMicrofacetBRDF(self.ndf_table, self.kd * factor, self.ks * factor, self.eta,
+                                       correlated=self.correlated, metadata=self.metadata, tint=self.tint,
+                                       lobes=self.lobes)
 
     def parameters(self) -> dict[str, Any]:
         """The model's parameters, for ``reflecto info``.

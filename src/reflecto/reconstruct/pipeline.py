@@ -447,13 +447,7 @@ def limit_energy(model: IsotropicMicrofacetBRDF | MicrofacetBRDF, clamp: bool = 
     if not clamp or albedo <= 1.0:
         return model, 1.0, albedo
     scale = 1.0 / albedo
-    out: IsotropicMicrofacetBRDF | MicrofacetBRDF
-    if isinstance(model, IsotropicMicrofacetBRDF):
-        out = IsotropicMicrofacetBRDF(model.ndf_table, model.kd * scale, model.ks * scale, model.eta,
-                                      correlated=model.correlated, metadata=model.metadata, tint=model.tint)
-    else:
-        out = MicrofacetBRDF(model.ndf_values, model.kd * scale, model.ks * scale, model.eta, normalize=False,
-                             correlated=model.correlated, metadata=model.metadata, tint=model.tint)
+    out = model.scaled(scale)
     return out, scale, 1.0
 
 
