@@ -338,7 +338,18 @@ class MicrofacetBRDF(BRDFSource):
 
     def scaled(self, factor: float) -> MicrofacetBRDF:
         """The same BRDF times ``factor``: ``k_d`` and ``k_s`` scaled, the NDF, η, tint,
-        shadowing form and metadata kept (``f`` is linear in ``k_d, k_s``, eq. 1)."""
+        shadowing form and metadata kept (``f`` is linear in ``k_d, k_s``, eq. 1).
+
+        Parameters
+        ----------
+        factor
+            The scale (dimensionless, ≥ 0).
+
+        Returns
+        -------
+        MicrofacetBRDF
+            A new model with ``factor · f``.
+        """
         return MicrofacetBRDF(self.ndf_values, self.kd * factor, self.ks * factor, self.eta, normalize=False,
                               correlated=self.correlated, metadata=self.metadata, tint=self.tint)
 
@@ -947,7 +958,18 @@ class IsotropicMicrofacetBRDF(BRDFSource):
     def scaled(self, factor: float) -> IsotropicMicrofacetBRDF:
         """The same BRDF times ``factor``: ``k_d`` and ``k_s`` scaled, the NDF and its
         per-node lobes, η, tint, shadowing form and metadata kept (``f`` is linear in
-        ``k_d, k_s``, eq. 1)."""
+        ``k_d, k_s``, eq. 1).
+
+        Parameters
+        ----------
+        factor
+            The scale (dimensionless, ≥ 0).
+
+        Returns
+        -------
+        IsotropicMicrofacetBRDF
+            A new model with ``factor · f``.
+        """
         return IsotropicMicrofacetBRDF(self.ndf_table, self.kd * factor, self.ks * factor, self.eta,
                                        correlated=self.correlated, metadata=self.metadata, tint=self.tint,
                                        lobes=self.lobes)
