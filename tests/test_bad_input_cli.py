@@ -421,3 +421,67 @@ def test_watch_skips_a_damaged_summary_of_an_earlier_model(tmp_path, cap, capsys
         (models / f"{name}.reflecto").write_bytes(b"")
     assert main(["watch", str(root), "-o", str(models), "--once"]) == 0
     assert capsys.readouterr().err == ""
+
+
+# ------------------------------------------------------------ second campaign
+def test_an_output_that_names_a_folder_or_nothing_is_refused_before_anything_is_written(tmp_path, cap, model,
+                                                                                        capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    for argv, words in ((["export", str(model), "-o", "."], ". is a folder; export writes"),
+                        (["export", str(model), "-o", "/"], "/ is a folder; export writes"),
+                        (["tabulate", str(PLASTIC), "-o", ".."], ".. is a folder; tabulate writes"),
+                        (["render", str(model), "-o", "."], ". is a folder; render writes"),
+                        (["export", str(model), "-o", " "], "export -o: the argument is empty"),
+                        (["reconstruct", str(cap), "-o", ""], "reconstruct -o: the argument is empty"),
+                        (["watch", str(cap.parent), "-o", "", "--once"], "watch -o: the argument is empty")):
+        _, line = _run(argv, capsys)
+        assert line.startswith(f"reflecto: error: {words}"), line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_samples_count_beyond_the_renderers_range_is_refused(tmp_path, model, capsys):
+    for argv in (["render", str(model), "--spp", "4294967295", "--resolution", "8", "-o", str(tmp_path / "s.png")],
+                 ["report", str(model), "-o", str(tmp_path / "rep"), "--spp", "1000000000000"]):
+        _, line = _run(argv, capsys)
+        assert f"spp must be in [1, {mitsuba.MAX_SPP}]" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_unreadable_environment_map_is_one_line_without_decoder_noise(tmp_path, model, capfd):
+    (tmp_path / "e.hdr").write_bytes(b"#?RADIANCE\ngarbage\n")
+    rc = main(["render", str(model), "--spp", "4", "--resolution", "32", "--envmap", str(tmp_path / "e.hdr"),
+               "-o", str(tmp_path / "e.png")])
+    lines = [line for line in capfd.readouterr().err.splitlines() if line.strip()]
+    assert rc == 1 and len(lines) == 1, lines
+    assert "e.hdr: unreadable environment map" in lines[0] and not (tmp_path / "e.png").exists()
+
+
+def test_a_bad_calibration_is_named_once_before_any_capture_or_output(tmp_path, cap, capsys):
+    root = tmp_path / "root"
+    for name in ("a", "b"):
+        _copy(cap, root / name)
+    (tmp_path / "bad.npz").write_text("x")
+    for argv in (["watch", str(root), "-o", str(tmp_path / "models"), "--once", "--calibration",
+                  str(tmp_path / "bad.npz")],
+                 ["reconstruct", str(root / "a"), str(root / "b"), "--calibration", str(tmp_path / "bad.npz"),
+                  "-o", str(tmp_path / "multi"), "--jobs", "1", "-q"]):
+        _, line = _run(argv, capsys)
+        assert "bad.npz: not a zip archive" in line
+    assert not (tmp_path / "models").exists() and not (tmp_path / "multi").exists()
+
+
+def test_a_model_file_with_an_unknown_fresnel_form_is_refused(tmp_path, model, capsys):
+    with zipfile.ZipFile(model) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    for form, words in (("foo", "'fresnel' must be \"dielectric\" or \"constant\""),
+                        ("constant", "a constant Fresnel lobe has no η")):
+        meta = json.loads(members["meta.json"])
+        meta["fresnel"] = form
+        meta.pop("sha256")
+        meta["sha256"] = rio.content_digest(meta)
+        bad = tmp_path / f"{form}.reflecto"
+        with zipfile.ZipFile(bad, "w") as z:
+            for n, b in members.items():
+                z.writestr(n, json.dumps(meta).encode() if n == "meta.json" else b)
+        _, line = _run(["info", str(bad)], capsys)
+        assert line.startswith(f"reflecto: error: {bad}: invalid model parameters") and words in line, line

@@ -42,7 +42,7 @@ from .export.merl import export_merl
 from .export.rgl import export_rgl
 from .fresnel import eta_from_json, format_eta
 from .instrument import layout
-from .instrument.calibrate import calibrate
+from .instrument.calibrate import calibrate, read_calibration
 from .instrument.capture import CALIBRATION_MANIFEST, MANIFEST, write_capture
 from .instrument.device import BUILTINS as DEVICE_BUILTINS
 from .instrument.device import load_device
@@ -184,6 +184,9 @@ def check_inputs(args: argparse.Namespace) -> None:
             kinds.require(v, label, accept, need)
     spec = _OUTPUTS.get(command)
     if spec is None:
+        out = getattr(args, "output", None)
+        if out is not None and not str(out).strip():  # Path("") is ".": it would write into the current folder
+            raise ReflectoError(f"{command} -o: the argument is empty; expected an output path")
         return
     name, suffixes, what = spec
     out = getattr(args, name, None)
@@ -473,6 +476,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
             seen[o] = c
     for o in outs:  # before any folder is made: nothing goes into a capture
         _refuse_inside(o, caps, "capture folder")
+    if args.calibration:  # one line for a bad file, not one per capture
+        read_calibration(args.calibration)
     if folder:
         make_parents(Path(args.output))
     options, missing = _options(args), _missing(args)
@@ -530,6 +535,8 @@ def cmd_watch(args: argparse.Namespace) -> int:
     check_output(args.output, folder=True)
     # the watcher would take its own output folder (or a capture's) for a capture landing in ROOT
     _refuse_inside(args.output, [args.root], "watched folder")
+    if args.calibration:  # one line for a bad file, before the output folder is made
+        read_calibration(args.calibration)
     recon = default_reconstructor(args.calibration, _options(args), _missing(args))
     watcher = Watcher(args.root, args.output, recon, settle_s=args.settle)
     watcher.run(once=args.once)

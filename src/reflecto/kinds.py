@@ -281,9 +281,13 @@ def require_output_suffix(path: str | Path, command: str, suffixes: Iterable[str
         ``FILE is a .X file; COMMAND writes WHAT (use -o NAME.SUFFIX)``.
     """
     suffixes = tuple(suffixes)
+    if not str(path).strip():  # Path("") is ".": the message would name the current folder
+        raise ReflectoError(f"{command} {flag}: the argument is empty; expected {what}")
     p = Path(path)
     if p.suffix.lower() in suffixes:
         return
+    if not p.name.strip() or p.name == "..":  # ".", "/", "..": a folder, which has no file name to suffix
+        raise KindError(path, "a folder", command, what, f"use {flag} NAME{suffixes[0]}", verb="writes")
     got = f"a {p.suffix} file" if p.suffix else "a name without a suffix"
     alternatives = " or ".join(f"{flag} {p.with_suffix(s)}" for s in suffixes)
     raise KindError(path, got, command, what, f"use {alternatives}", verb="writes")

@@ -667,8 +667,14 @@ def _model_parameters(path: Path, meta: dict[str, Any]) -> tuple[Array, Array, A
 
     kd = triple("kd", 0.0, 1.0)
     ks = triple("ks", 0.0, math.inf)
-    eta = np.full(3, math.inf) if meta.get("fresnel") == "constant" and meta.get("eta") is None \
-        else triple("eta", *ETA_RANGE)
+    form = meta.get("fresnel", "dielectric")  # a file without the field holds a dielectric η
+    if form not in ("dielectric", "constant"):
+        raise FileFormatError(path, f"invalid model parameters ('fresnel' must be \"dielectric\" or "
+                                    f"\"constant\", got {short_repr(form)})")
+    if form == "constant" and meta.get("eta") is not None:
+        raise FileFormatError(path, "invalid model parameters (a constant Fresnel lobe has no η, got "
+                                    f"{short_repr(meta.get('eta'))})")
+    eta = np.full(3, math.inf) if form == "constant" else triple("eta", *ETA_RANGE)
     correlated = meta.get("correlated", False)
     if not isinstance(correlated, bool):
         raise FileFormatError(path, "invalid model parameters "

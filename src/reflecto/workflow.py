@@ -348,6 +348,12 @@ def provenance(capture: Capture) -> dict[str, str]:
 NORMAL_KEYS = ("normal", "normal_tilt_deg", "normal_uncertainty_deg", "normal_source")
 
 
+def _folder_of(output: Path) -> Path:
+    """The real folder the file ``output`` is written into (the write replaces a link named
+    ``output``, so the link itself is not followed: a dangling or looping one is no error)."""
+    return Path(os.path.abspath(output)).parent.resolve()
+
+
 def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path | None = None,
                calibration: str | Path | None = None) -> dict[str, Any]:
     """Write the model file and its ``.json`` summary beside it (each atomically); returns the summary.
@@ -380,10 +386,10 @@ def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path
     summary = result.summary()
     if capture_dir is not None:
         summary = {"capture": str(capture_dir), **summary}
-        rel = os.path.relpath(Path(capture_dir).resolve(), out.resolve().parent)
+        rel = os.path.relpath(Path(capture_dir).resolve(), _folder_of(out))
         result.model.metadata.update({"capture": rel})
     if isinstance(calibration, (str, Path)):
-        rel_cal = os.path.relpath(Path(calibration).resolve(), out.resolve().parent)
+        rel_cal = os.path.relpath(Path(calibration).resolve(), _folder_of(out))
         result.model.metadata.update({"calibration": rel_cal})
     result.model.metadata.update({**result.provenance, "model_error": summary["model_error"],
                                   **{k: summary[k] for k in NORMAL_KEYS}})
@@ -514,7 +520,7 @@ def save_rotations_model(result: AsymmetricReconstruction, output: str | Path, c
     summary = {"captures": [str(c) for c in capture_dirs], **result.summary()}
     if calibration_note:
         summary["calibration"] = calibration_note
-    result.model.metadata.update({"captures": [os.path.relpath(Path(c).resolve(), out.resolve().parent)
+    result.model.metadata.update({"captures": [os.path.relpath(Path(c).resolve(), _folder_of(out))
                                                for c in capture_dirs],
                                   "rotations_deg": result.rotations_deg, "asymmetric": True})
     result.model.save(out)

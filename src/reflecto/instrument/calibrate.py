@@ -844,6 +844,29 @@ def _load_cached(path: Path) -> Calibration:
     return cal
 
 
+def read_calibration(path: str | Path) -> Calibration:
+    """A calibration file, read and checked once per process while it stays unchanged
+    (:func:`load_calibration` without a device to match: a command checks its
+    ``--calibration`` once, before its first capture).
+
+    Parameters
+    ----------
+    path
+        A calibration file (:meth:`Calibration.save`).
+
+    Returns
+    -------
+    Calibration
+        The calibration (its arrays read-only).
+
+    Raises
+    ------
+    FileFormatError
+        For a missing or damaged file.
+    """
+    return _load_cached(Path(path))
+
+
 def load_calibration(path: str | Path, device: Device) -> Calibration:
     """A calibration file, checked against the capture's ``device`` design.
 

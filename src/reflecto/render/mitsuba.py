@@ -32,6 +32,7 @@ The variant is ``llvm_ad_rgb`` where LLVM ≥ 16 is found, else ``scalar_rgb``
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import math
@@ -39,6 +40,7 @@ import os
 import tempfile
 import textwrap
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -77,6 +79,22 @@ def default_envmap() -> Path:
     return SHARED / "envmaps" / "pmndrs_studio.hdr"
 
 
+@contextlib.contextmanager
+def _opencv_quiet() -> Iterator[None]:
+    """OpenCV's log silenced within the block (restored after), where OpenCV is installed."""
+    try:
+        import cv2.utils.logging as cv_log
+    except ImportError:
+        yield
+        return
+    level = cv_log.getLogLevel()
+    cv_log.setLogLevel(cv_log.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        cv_log.setLogLevel(level)
+
+
 def check_envmap(path: str | Path) -> Path:
     """Refuse a missing or unreadable environment map with a clear error.
 
@@ -99,10 +117,11 @@ def check_envmap(path: str | Path) -> Path:
     if not path.is_file():
         raise FileFormatError(path, "environment map not found")
     try:
-
-        img = iio.imread(path)
-    except Exception as e:  # noqa: BLE001 - any decoder failure is "unreadable"
-        raise FileFormatError(path, f"unreadable environment map ({e.__class__.__name__}: {e})") from None
+        with _opencv_quiet():  # imageio may try OpenCV's decoder, which logs its failures to stderr
+            img = iio.imread(path)
+    except Exception:  # noqa: BLE001 - any decoder failure is "unreadable"
+        raise FileFormatError(path, "unreadable environment map: no decoder reads it as an image (damaged, "
+                                    "truncated, or not a Radiance .hdr, OpenEXR or other image file)") from None
     if img.ndim != 3 or img.shape[2] < 3 or not np.all(np.isfinite(img)):
         raise FileFormatError(path, f"environment map must be a finite RGB image, got shape {img.shape}")
     return path
@@ -343,6 +362,11 @@ SAMPLER_MAX_SEED = 2**32 - 1
 MAX_SEED = SAMPLER_MAX_SEED - 2
 
 
+#: Most samples per pixel: Mitsuba's samplers count samples in 32 bits (a larger count is
+#: refused by its scene parser), and 2²⁰ is far beyond a converged render of these scenes.
+MAX_SPP = 2**20
+
+
 def _check(scene: str, resolution: int, spp: int | None, seed: int = 0, max_seed: int = MAX_SEED) -> int:
     """Validated arguments; returns the sample count to render with."""
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= max_seed:
@@ -352,8 +376,8 @@ def _check(scene: str, resolution: int, spp: int | None, seed: int = 0, max_seed
     if scene not in SCENES:
         raise ParameterError(f"unknown scene {scene!r}; choose one of {', '.join(SCENES)}")
     spp = DEFAULT_SPP[scene] if spp is None else int(spp)
-    if spp < 1:
-        raise ParameterError(f"spp must be >= 1, got {spp}")
+    if not 1 <= spp <= MAX_SPP:
+        raise ParameterError(f"spp must be in [1, {MAX_SPP}], got {spp}")
     return sample_count(spp)
 
 
@@ -389,7 +413,7 @@ def render_file(bsdf_path: Path, scene: str = "sphere-env", envmap: str | Path |
     Raises
     ------
     ParameterError
-        An unknown scene, a resolution outside [8, 4096], ``spp < 1`` or a seed outside
+        An unknown scene, a resolution outside [8, 4096], ``spp`` outside [1, :data:`MAX_SPP`] or a seed outside
         [0, :data:`SAMPLER_MAX_SEED`].
     FileFormatError
         A missing or unreadable environment map.
@@ -445,7 +469,7 @@ def render(source: BRDFSource, scene: str = "sphere-env", envmap: str | Path | N
     Raises
     ------
     ParameterError
-        An unknown scene, a resolution outside [8, 4096], ``spp < 1`` or a seed outside
+        An unknown scene, a resolution outside [8, 4096], ``spp`` outside [1, :data:`MAX_SPP`] or a seed outside
         [0, :data:`MAX_SEED`].
     """
     _check(scene, resolution, spp, seed)
