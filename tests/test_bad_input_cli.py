@@ -485,3 +485,16 @@ def test_a_model_file_with_an_unknown_fresnel_form_is_refused(tmp_path, model, c
                 z.writestr(n, json.dumps(meta).encode() if n == "meta.json" else b)
         _, line = _run(["info", str(bad)], capsys)
         assert line.startswith(f"reflecto: error: {bad}: invalid model parameters") and words in line, line
+
+
+def test_exposure_times_the_frames_contradict_are_refused(tmp_path, cap, capsys):
+    """A manifest's exposure time sets the radiance scale: one written wrongly (1e-300 ms,
+    or both exposures labelled ≈ 1 ms) is caught by the frames' own brightness ratio."""
+    for name, new in (("tiny", "1e-300"), ("same", "1.0000000000000002")):
+        bad = _copy(cap, tmp_path / name)
+        text = (bad / "manifest.json").read_text()
+        assert '"exposure_ms": 8.0' in text
+        (bad / "manifest.json").write_text(text.replace('"exposure_ms": 8.0', f'"exposure_ms": {new}'))
+        _, line = _run(["reconstruct", str(bad), "-o", str(tmp_path / f"{name}.reflecto")], capsys)
+        assert f"{bad}: LED " in line and "the manifest's exposure times say" in line, line
+        assert not (tmp_path / f"{name}.reflecto").exists()
