@@ -43,6 +43,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import cv2
 import imageio.v3 as iio
 import numpy as np
 from numpy.typing import NDArray
@@ -81,18 +82,13 @@ def default_envmap() -> Path:
 
 @contextlib.contextmanager
 def _opencv_quiet() -> Iterator[None]:
-    """OpenCV's log silenced within the block (restored after), where OpenCV is installed."""
-    try:
-        import cv2.utils.logging as cv_log
-    except ImportError:
-        yield
-        return
-    level = cv_log.getLogLevel()
-    cv_log.setLogLevel(cv_log.LOG_LEVEL_SILENT)
+    """OpenCV's log silenced within the block (restored after)."""
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     try:
         yield
     finally:
-        cv_log.setLogLevel(level)
+        cv2.utils.logging.setLogLevel(level)
 
 
 def check_envmap(path: str | Path) -> Path:
