@@ -819,6 +819,29 @@ def _constant_fresnel_ggx(alpha=0.08, kd=0.02, ks=0.6):
     return IsotropicMicrofacetBRDF((nodes, d), kd, ks, math.inf)
 
 
+@pytest.mark.parametrize("td_step_deg", [1.0, 2.0, 3.0])
+def test_the_luminance_fit_leaves_the_ks_bound_it_met_on_the_way(td_step_deg):
+    """Flat-Fresnel data (k_s 0.6, F ≡ 1): from η 1.5 the level first needs k_s ≈ 1.6, so the
+    fit meets k_s ≤ 1 at η ≈ 4; as η rises the bound stops binding, the fit leaves it and
+    ends on the constant Fresnel lobe with k_s 0.6, whatever the θ_d cells' width (kept on
+    the bound it ended at η 15 with k_s = 1 on 2° cells, at 2·10⁴ times the cost)."""
+    from reflecto.polar import polar_nodes
+    from reflecto.reconstruct import isotropic
+    from reflecto.reconstruct.pipeline import usable_samples
+
+    sl = _capture(_constant_fresnel_ggx(), seed=5)
+    nodes = polar_nodes()
+    bins = isotropic.bin_polar(sl, nodes, usable_samples(sl) & sl.valid, math.radians(td_step_deg))
+    fit = isotropic.fit_luminance(bins, nodes)
+    assert math.isinf(fit.state.eta) and not fit.ks_bound, (fit.state.eta, fit.ks)
+    assert abs(fit.ks - 0.6) < 0.02 and fit.cost < 1e-3
+    # the multiplier's sign: too bright a specular level does not bind, too dim a level does
+    for ks, binds in ((1.0, False), (0.3, True)):
+        s = fit.state.copy()
+        s.g *= ks / fit.ks
+        assert isotropic.ks_bound_binds(fit.problem, s) is binds
+
+
 def test_flat_fresnel_data_take_the_constant_fresnel_lobe_not_the_eta_bound(tmp_path):
     """Data whose specular level does not rise toward grazing: the fit ends with the
     constant Fresnel lobe (η = ∞) instead of η parked at ETA_MAX, says so, and recovers

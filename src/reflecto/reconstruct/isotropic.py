@@ -24,7 +24,8 @@ from ``D`` (eq. 8). The stages:
    current ``D``; the paper's NDF/shadowing iteration), under the physical bound
    ``k_s ≤ 1`` (a microfacet reflects at most ``F``): when the unconstrained optimum
    needs ``k_s > 1``, the fit continues with ``k_s = 1``, where the specular level
-   fixes ``η``.
+   fixes ``η``, and leaves the bound in a later round where it does not bind
+   (:func:`ks_bound_binds`).
 4. :func:`tinted_scalars` — ``k_d`` and the specular scale per colour channel with the
    shared ``D`` and ``η`` (bounded linear least squares); the scale is a function of
    ``θ_d`` between the nodes where LEDs see the mirror direction (:func:`tint_nodes`),
@@ -127,18 +128,19 @@ class PolarBins:
         return self.f @ LUM
 
 
-def bin_polar(slices: Slices, nodes: Array, valid: NDArray[np.bool_], td_step: float = TD_STEP) -> PolarBins:
+def bin_polar(slices: Slices, nodes: Array, valid: NDArray[np.bool_], td_step: float | None = None) -> PolarBins:
     """Average the ``valid`` samples of the slices per (LED, θ_h cell, θ_d cell).
 
     The θ_h cells halve the node intervals (:data:`CELLS_PER_INTERVAL`): a bin's mean
     BRDF then stands for its mean θ_h to second order in a half interval. The θ_d cells
-    are ``td_step`` wide (radians; :data:`TD_STEP` for the model's fits).
+    are ``td_step`` wide (radians; ``None``: :data:`TD_STEP`, the model's fits').
 
     Censored samples (below the detection limit) form their own bins, whose value is
     the mean detection limit (:attr:`Slices.limit`; the sample's own reading where the
     slices carry none). The noise of a bin is ``√(Σ σ²)/n`` over its ``n`` pixels
     (:attr:`Slices.noise`; 0 where the slices carry none).
     """
+    td_step = TD_STEP if td_step is None else td_step
     censored = valid & slices.censored if slices.censored is not None else np.zeros_like(valid)
     edges = np.interp(np.arange((len(nodes) - 1) * CELLS_PER_INTERVAL + 1) / CELLS_PER_INTERVAL,
                       np.arange(len(nodes)), nodes)
@@ -709,6 +711,8 @@ def _fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None, outer
     cost = math.inf
     for _ in range(outer_iterations):
         prior(problem, s)
+        if tie and not ks_bound_binds(problem, s):
+            tie = False  # the optimum lies inside the bound now: leave it (an active set's release)
         s, cost = solve(problem, s, fix_eta=fixed_eta is not None, tie_ks=tie)
         if not tie and s.g > 1.0:
             tie = True  # the physical bound binds: continue on it
@@ -716,6 +720,17 @@ def _fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None, outer
         update_shadowing(problem, s)
     eps = model_error(problem, s)
     return LuminanceFit(s, eps, cost, tie, problem)
+
+
+def ks_bound_binds(problem: LuminanceProblem, s: LuminanceState) -> bool:
+    """Whether the bound ``k_s ≤ 1`` holds the fit at ``s`` (a state on it): the cost's
+    derivative by ``log g`` at fixed ``z``, ``Σ w_b r_b m_b,spec`` (the specular part of
+    each active bin's model value times its weighted residual), is ≤ 0, so a smaller
+    ``k_s`` would not lower the cost. Where it is > 0 the constraint's multiplier has
+    the wrong sign: the fit's optimum lies inside the bound (Karush–Kuhn–Tucker), and a
+    fit kept on it stays wherever the tie caught it."""
+    r, m = problem.residuals(s)
+    return float(np.sum(problem.w * r * (m - s.kd / math.pi))) <= 0.0
 
 
 def channel_scalars(fit: LuminanceFit, kd_max: Array | None = None) -> tuple[Array, Array]:
