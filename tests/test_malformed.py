@@ -132,7 +132,7 @@ def test_capture_of_pure_noise_is_refused_by_its_exposures_without_an_internal_e
     rc = main(["reconstruct", str(tmp_path / "cap"), "-o", str(tmp_path / "m.reflecto"), "--json"])
     lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert rc == 1 and len(lines) == 1, lines
-    assert "cap: LED 0: its 8 ms frame reads 0.942× its 1 ms frame" in lines[0] and "say 8×" in lines[0], lines
+    assert "cap: LED 0: its 8 ms frame reads 0.941× its 1 ms frame" in lines[0] and "say 8×" in lines[0], lines
     assert not (tmp_path / "m.reflecto").exists()
 
 

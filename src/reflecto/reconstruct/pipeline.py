@@ -447,8 +447,7 @@ def limit_energy(model: IsotropicMicrofacetBRDF | MicrofacetBRDF, clamp: bool = 
     if not clamp or albedo <= 1.0:
         return model, 1.0, albedo
     scale = 1.0 / albedo
-    out = model.scaled(scale)
-    return out, scale, 1.0
+    return model.scaled(scale), scale, 1.0
 
 
 def _choose_isotropic(option: str, test: IsotropyTest) -> bool:
