@@ -24,7 +24,7 @@ def main(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     ref = rf.load_source(Path(__file__).with_name("ggx-plastic.json"))
     model = rf.MicrofacetBRDF.from_ndf_function(ref.ndf, 512, kd=ref.kd, ks=ref.ks, eta=ref.eta)
-    path = model.save(out / "ggx-plastic.reflecto")
+    path = model.save(out / "ggx-plastic-tabulated.reflecto")
     model = rf.load_model(path)
 
     rng = np.random.default_rng(1)

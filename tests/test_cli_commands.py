@@ -157,14 +157,14 @@ def test_report_with_a_reference_shows_its_eq10_error(tmp_path, capsys):
                  str(tmp_path / "rep"), "--json"]) == 0
     page = Path(json_out(capsys)["output"])
     err = brdf_error(ref, MicrofacetBRDF.load(tmp_path / "m.reflecto"))
-    shown = float(row(page, "eq. 10 error vs reference (normalized)"))
-    assert shown == round(err.normalized, 5) and 0.0 < shown < 0.05  # the reference's own NDF, tabulated at 32²
+    shown = float(row(page, "eq. 10 error vs reference (normalized, %)"))
+    assert shown == round(100 * err.normalized, 3) and 0.0 < shown < 5.0  # the reference's own NDF, tabulated at 32²
     assert float(row(page, "log-RMSE vs reference")) == round(err.log_rmse, 5)
     assert f"reference <code>{PLASTIC}</code>" in page.read_text()
     assert (tmp_path / "rep" / "thd_reference.png").is_file()
     assert main(["report", str(tmp_path / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep-none")]) == 0
     assert capsys.readouterr().out.strip() == f"wrote {tmp_path / 'rep-none' / 'index.html'}"
-    assert row(tmp_path / "rep-none" / "index.html", "eq. 10 error vs reference (normalized)") is None
+    assert row(tmp_path / "rep-none" / "index.html", "eq. 10 error vs reference (normalized, %)") is None
 
 
 # ------------------------------------------------------------------ layout

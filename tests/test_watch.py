@@ -196,6 +196,8 @@ def test_once_reports_an_incomplete_folder_and_exits_1(sources: list[Path], tmp_
     assert len(lines) == 1 and str(root / "half") in lines[0] and "no manifest.json" in lines[0]
     assert "Traceback" not in proc.stderr
     assert (models / "good.reflecto").exists() and (models / "good.json").exists()
+    shown = proc.stdout.strip().splitlines()  # one line per modelled capture
+    assert len(shown) == 1 and shown[0].startswith("good: tilt ") and " ms" in shown[0]
 
 
 def test_interrupt_leaves_no_partial_model(sources: list[Path], tmp_path: Path) -> None:
@@ -226,7 +228,7 @@ def test_interrupt_leaves_no_partial_model(sources: list[Path], tmp_path: Path) 
     assert not leftovers
 
 
-def test_watch_options_reach_the_reconstruction(sources: list[Path], tmp_path: Path) -> None:
+def test_watch_options_reach_the_reconstruction(sources: list[Path], tmp_path: Path, capsys) -> None:
     """``--isotropic``, ``--eta``, ``--normal``, ``--shadowing``, ``--nominal`` and ``--settle`` of ``watch`` are
     the reconstruction's and the watcher's: a fixed η is the model's, the tilted capture's
     tilt is found, and a calibration file that is not one is one line naming it."""
@@ -237,8 +239,13 @@ def test_watch_options_reach_the_reconstruction(sources: list[Path], tmp_path: P
     shutil.copytree(sources[1], root / "rough")
     models = tmp_path / "models"
     assert main(["watch", str(root), "--output", str(models), "--once", "--settle", "0.5", "--isotropic", "yes",
-                 "--eta", "1.6", "--normal", "auto", "--nominal", "--shadowing", "correlated"]) == 0
+                 "--eta", "1.6", "--normal", "auto", "--nominal", "--shadowing", "correlated", "--json"]) == 0
     summary = json.loads((models / "rough.json").read_text())
+    line = json.loads(capsys.readouterr().out)  # JSON Lines: one object per modelled capture
+    assert line["capture"] == "rough" and line["model"] == str(models / "rough.reflecto")
+    assert line["normal_tilt_deg"] == summary["normal_tilt_deg"] and line["eta"] == summary["eta"]
+    assert main(["watch", str(root), "-o", str(tmp_path / "m3"), "--once", "--quiet", "--nominal"]) == 0
+    assert capsys.readouterr().out == "" and (tmp_path / "m3" / "rough.reflecto").exists()
     assert summary["isotropic"] is True and summary["eta"] == pytest.approx([1.6] * 3)
     assert summary["shadowing"]["form"] == "height-correlated" and summary["shadowing"]["reason"] == "option"
     assert abs(summary["normal_tilt_deg"] - 4.0) < 0.5
@@ -249,3 +256,29 @@ def test_watch_options_reach_the_reconstruction(sources: list[Path], tmp_path: P
                           env={**os.environ, "PYTHONPATH": str(ROOT / "src")}, timeout=120)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     assert str(bad) in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_an_interrupt_inside_a_compiled_kernel_stops_the_watch(sources: list[Path], tmp_path: Path) -> None:
+    """A Ctrl-C that lands inside a compiled kernel comes back as a ``SystemError`` whose
+    cause is the interrupt: the watcher stops as for any Ctrl-C, the capture is not
+    reported as bad and no partial model is left."""
+    from reflecto.errors import interrupted
+
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "good")
+
+    def kernel_interrupted(cap_dir: Path, out: Path) -> dict:
+        out.write_bytes(b"half a model")
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise SystemError("CPUDispatcher(<function luminance_lm>) returned a result with an exception set") from e
+
+    problems: list[str] = []
+    watcher = Watcher(root, models, kernel_interrupted, report=problems.append, thumbnails=False)
+    with pytest.raises(KeyboardInterrupt):
+        watcher.run(once=True)
+    assert not problems and not watcher.failed
+    assert not (models / "good.reflecto").exists()
+    assert interrupted(SystemError("x")) is False

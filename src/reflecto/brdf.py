@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, overload
@@ -140,6 +141,10 @@ def _eval_chunked(source: BRDFSource, i: Array, o: Array, chunk: int = 1 << 18) 
     return out
 
 
+#: The most half vectors :func:`directional_albedo` integrates over (``n_u · n_phi``).
+MAX_QUADRATURE = 10_000_000
+
+
 def directional_albedo(
     source: BRDFSource,
     theta_i_deg: ArrayLike,
@@ -169,8 +174,28 @@ def directional_albedo(
     -------
     ndarray, shape ``(K, 3)``
         Linear RGB albedo (dimensionless) per incident angle; ``K = 1`` for one number.
+
+    Raises
+    ------
+    ParameterError
+        An angle outside ``[0°, 90°)`` (at 90° the light grazes the surface: no
+        irradiance, and ``f`` divides by ``cos θ_i``) or not finite; quadrature sizes
+        below 1 or above :data:`MAX_QUADRATURE` points in all.
     """
-    theta_i = np.radians(np.atleast_1d(np.asarray(theta_i_deg, dtype=np.float64)))
+    try:
+        deg = np.asarray(theta_i_deg, dtype=np.float64)
+        phi = float(phi_i_deg)
+    except (TypeError, ValueError) as e:
+        raise ParameterError(f"albedo: incidence angles must be numbers ({e})") from None
+    if deg.ndim > 1 or not (np.all(np.isfinite(deg)) and np.all(deg >= 0.0) and np.all(deg < 90.0)):
+        raise ParameterError("albedo: incidence angles must be finite, in [0°, 90°), one number or a sequence")
+    if not math.isfinite(phi):
+        raise ParameterError(f"albedo: incidence azimuth must be finite, got {phi}")
+    if not (isinstance(n_u, (int, np.integer)) and isinstance(n_phi, (int, np.integer)) and n_u >= 1
+            and n_phi >= 1 and n_u * n_phi <= MAX_QUADRATURE):
+        raise ParameterError(f"albedo: quadrature sizes n_u, n_phi must be integers ≥ 1 with at most "
+                             f"{MAX_QUADRATURE} points in all, got {n_u} and {n_phi}")
+    theta_i = np.radians(np.atleast_1d(deg))
     u = (np.arange(n_u) + 0.5) / n_u
     th = u * u * (0.5 * np.pi)
     ph = (np.arange(n_phi) + 0.5) * (2.0 * np.pi / n_phi)

@@ -31,7 +31,16 @@ from tqdm import tqdm
 
 from . import __version__, kinds, workflow
 from .batch import Progress, interactive, run_batch
-from .errors import BatchError, FileFormatError, OutputError, ParameterError, ReflectoError, ReflectoWarning, one_line
+from .errors import (
+    BatchError,
+    FileFormatError,
+    OutputError,
+    ParameterError,
+    ReflectoError,
+    ReflectoWarning,
+    interrupted,
+    one_line,
+)
 from .evaluate.cooktorrance import fit_cook_torrance
 from .evaluate.design import DEFAULT_CONES, DEFAULT_LED_COUNTS, DEFAULT_TILTS, best_design, design_study
 from .evaluate.gallery import GallerySettings, gallery
@@ -56,7 +65,7 @@ from .reconstruct.eq3 import SymmetryTest
 from .render.mitsuba import DEFAULT_SPP, SCENES, compare, comparison_image, render, save_image, titled, to_srgb8
 from .render.mitsuba import MAX_SEED as RENDER_MAX_SEED
 from .sources import merl
-from .watch import Watcher, default_reconstructor
+from .watch import Entry, Watcher, default_reconstructor
 
 _SHOW_WARNING = warnings.showwarning
 
@@ -510,7 +519,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         flag = f"  SHAKE DETECTED ({r['motion']})" if r["shake_detected"] else ""
         kind = "isotropic" if r["isotropic"] else "anisotropic"
         lines.append(f"{outs[k]}: {kind}, eta {format_eta(eta_from_json(r))}, kd {np.round(r['kd'], 3).tolist()}, "
-                     f"ks {np.round(r['ks'], 3).tolist()}, tilt {r['normal_tilt_deg']:.2f}°, "
+                     f"ks {np.round(r['ks'], 3).tolist()}, tilt {_tilt_text(r)}, "
                      f"{r['seconds'] * 1000:.0f} ms{flag}")
         lines += [f"  note: {note}" for note in r["notes"]]
         sym = r.get("symmetry_test", {})
@@ -538,9 +547,35 @@ def cmd_watch(args: argparse.Namespace) -> int:
     if args.calibration:  # one line for a bad file, before the output folder is made
         read_calibration(args.calibration)
     recon = default_reconstructor(args.calibration, _options(args), _missing(args))
-    watcher = Watcher(args.root, args.output, recon, settle_s=args.settle)
+    watcher = Watcher(args.root, args.output, recon, settle_s=args.settle,
+                      announce=None if args.quiet and not args.json else _watch_announcer(args))
     watcher.run(once=args.once)
     return 1 if args.once and watcher.failed else 0
+
+
+def _tilt_text(summary: dict[str, Any]) -> str:
+    """The tilt found and its uncertainty, as a summary gives them (``"2.00° ± 0.21°"``)."""
+    tilt, unc = summary.get("normal_tilt_deg"), summary.get("normal_uncertainty_deg")
+    if not isinstance(tilt, (int, float)):
+        return "?"
+    return f"{tilt:.2f}°" + (f" ± {unc:.2f}°" if isinstance(unc, (int, float)) and unc > 0 else "")
+
+
+def _watch_announcer(args: argparse.Namespace) -> Callable[[Entry, dict[str, Any], float], None]:
+    """One line per modelled capture on stdout: a JSON object with ``--json`` (JSON Lines),
+    else name, tilt, η, the model's misfit, latency and warnings."""
+    def announce(entry: Entry, summary: dict[str, Any], latency_s: float) -> None:
+        if args.json:
+            keys = ("normal_tilt_deg", "normal_uncertainty_deg", "normal_source", "eta", "model_error")
+            print(json.dumps({"capture": entry.name, "model": str(Path(args.output) / f"{entry.name}.reflecto"),
+                              **{k: summary.get(k) for k in keys}, "warnings": entry.warnings,
+                              "latency_s": round(latency_s, 3)}), flush=True)
+            return
+        shown = _tilt_text(summary)
+        warn = f", {len(entry.warnings)} warning(s)" if entry.warnings else ""
+        print(f"{entry.name}: tilt {shown}, η {entry.eta}, ε {summary.get('model_error', float('nan')):.4f}, "
+              f"{1000 * latency_s:.0f} ms{warn}", flush=True)
+    return announce
 
 
 def _export_format(args: argparse.Namespace) -> str:
@@ -682,7 +717,7 @@ def cmd_fit_ct(args: argparse.Namespace) -> int:
         f"  rho_d  {np.round(ct.rho_d, 5).tolist()}",
         f"  rho_s  {np.round(ct.rho_s, 5).tolist()}",
         f"  F0     {ct.f0:.4f}    m  {ct.m:.5f}",
-        f"  error  {err.normalized:.5f} (normalized), log-RMSE {err.log_rmse:.5f}"])
+        f"  normalized error  {100 * err.normalized:.3f} % (eq. 10), log-RMSE {err.log_rmse:.5f}"])
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
@@ -911,7 +946,8 @@ def build_parser() -> argparse.ArgumentParser:
     how.add_argument("--calibration", help="calibration file from `reflecto calibrate` (as for reconstruct)")
     how.add_argument("--nominal", action="store_true", help="use the device's nominal calibration (as for reconstruct)")
     q.add_argument("--normal", type=_normal_arg, default="auto", metavar="auto|device|X,Y,Z",
-                   help="the sample normal (§5.4), as for reconstruct (default: auto, estimated)")
+                   help="the sample normal (§5.4), as for reconstruct: estimated from each capture (auto), the "
+                        "device axis (device), or a known unit vector")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto", help="as for reconstruct")
     q.add_argument("--shadowing", choices=("auto", "separable", "correlated"), default="auto",
@@ -919,6 +955,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--settle", type=_SECONDS, default=5.0,
                    help="seconds an incomplete capture folder may stay unchanged before it is reported and skipped")
     q.add_argument("--once", action="store_true", help="process the capture folders there now and exit")
+    q.add_argument("-q", "--quiet", action="store_true",
+                   help="no line per modelled capture (problems are still reported)")
+    q.add_argument("--json", action="store_true", help="one JSON object per modelled capture (JSON Lines) on stdout")
     q.set_defaults(func=cmd_watch)
 
     q = sub.add_parser("export",
@@ -1142,6 +1181,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         except OverflowError as e:  # a number beyond a float's range that no check caught: still one line
             print(f"reflecto: error: a number is out of range ({one_line(e)})", file=sys.stderr)
         except KeyboardInterrupt:
+            print("reflecto: interrupted", file=sys.stderr)
+            rc = 130
+        except SystemError as e:
+            if not interrupted(e):  # Ctrl-C inside a compiled kernel comes back as a SystemError
+                raise
             print("reflecto: interrupted", file=sys.stderr)
             rc = 130
         finally:

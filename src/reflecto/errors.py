@@ -12,10 +12,45 @@ from pathlib import Path
 from typing import Any
 
 
+def shown_path(path: str | Path) -> str:
+    """``path`` as a message shows it: its control characters (a newline, a tab) written as
+    Python's escapes, so that the message stays one line."""
+    s = str(path)
+    return s if s.isprintable() else "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
+                                             for c in s)
+
+
 def one_line(text: object, max_chars: int = 600) -> str:
     """``text`` as one line (newlines and runs of blanks become one space), cut to ``max_chars``."""
     s = " ".join(str(text).split())
     return s if len(s) <= max_chars else s[: max_chars - 1] + "…"
+
+
+def interrupted(error: BaseException) -> bool:
+    """Whether ``error`` is, or was raised from, a :class:`KeyboardInterrupt`.
+
+    A Ctrl-C that lands inside a compiled kernel comes back as a ``SystemError``
+    ("returned a result with an exception set") whose cause is the interrupt; a caller
+    that catches ``Exception`` must not take it for a fault of its input.
+
+    Parameters
+    ----------
+    error
+        The exception caught.
+
+    Returns
+    -------
+    bool
+        True where a :class:`KeyboardInterrupt` is in its chain of causes and contexts.
+    """
+    seen: set[int] = set()
+    e: BaseException | None = error
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
 
 
 def short_repr(value: Any, max_chars: int = 60) -> str:
@@ -57,7 +92,7 @@ class FileFormatError(ReflectoError):
     def __init__(self, path: str | Path, problem: str) -> None:
         self.path = Path(path)
         self.problem = one_line(problem)
-        super().__init__(f"{self.path}: {self.problem}")
+        super().__init__(f"{shown_path(self.path)}: {self.problem}")
 
 
 class OutputError(ReflectoError):
@@ -74,7 +109,7 @@ class OutputError(ReflectoError):
     def __init__(self, path: str | Path, problem: str) -> None:
         self.path = Path(path)
         self.problem = one_line(problem)
-        super().__init__(f"{self.path}: {self.problem}")
+        super().__init__(f"{shown_path(self.path)}: {self.problem}")
 
 
 class LimitError(FileFormatError):

@@ -469,6 +469,30 @@ def zip_members(raw: bytes, path: str | Path, max_unpacked: int = MAX_UNPACKED_B
     return out
 
 
+#: The date every member of a file reflecto zips carries (the zip format's earliest), so
+#: that the same content gives the same bytes.
+ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+
+
+def write_zip(fh: IO[bytes], members: dict[str, bytes]) -> None:
+    """``members`` (name → bytes) deflated into a zip written to ``fh``, in their order,
+    each dated :data:`ZIP_DATE` with permissions 0644: equal members, equal bytes.
+
+    Parameters
+    ----------
+    fh
+        A binary file open for writing.
+    members
+        The members' names and contents.
+    """
+    with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED) as z:
+        for name, data in members.items():
+            info = zipfile.ZipInfo(name, date_time=ZIP_DATE)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = 0o644 << 16
+            z.writestr(info, data)
+
+
 def npy_bytes(array: np.ndarray) -> bytes:
     """``array`` in ``.npy`` format (no pickles).
 

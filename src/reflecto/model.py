@@ -28,7 +28,6 @@ import json
 import math
 import os
 import warnings
-import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +49,7 @@ from .io import (
     parse_json,
     read_input,
     sha256,
+    write_zip,
     zip_members,
 )
 from .polar import IsotropicNDF, NodeNDFs
@@ -571,10 +571,7 @@ def _write_model_file(path: Path, meta: dict[str, Any], arrays: dict[str, NDArra
                              "sha256": sha256(members[f"{name}.npy"])} for name, a in arrays.items()}
     meta["sha256"] = content_digest(meta)
     with atomic_write(path) as fh:
-        with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED) as z:
-            z.writestr("meta.json", json.dumps(meta, indent=1))
-            for name, data in members.items():
-                z.writestr(name, data)
+        write_zip(fh, {"meta.json": json.dumps(meta, indent=1).encode(), **members})
 
 
 def _read_model_file(path: Path) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:

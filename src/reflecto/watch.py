@@ -41,13 +41,14 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote as url_quote
 
 import cv2
 import numpy as np
 
 from . import workflow
 from .brdf import BRDFSource
-from .errors import ReflectoError, one_line
+from .errors import ReflectoError, interrupted, one_line
 from .fresnel import eta_from_json, format_eta
 from .instrument.capture import MANIFEST
 from .io import atomic_write, make_parents, read_json
@@ -242,17 +243,22 @@ class Watcher:
         Receives each one-line problem (default: ``reflecto: watch: …`` on stderr).
     thumbnails
         Render the index page's thumbnails.
+    announce
+        Receives each capture's entry, summary and latency (seconds) once its model,
+        summary and index are written (default: nothing).
     """
 
     def __init__(self, root: str | Path, models: str | Path, reconstruct_one: Reconstructor | None = None,
                  settle_s: float = SETTLE_S, report: Callable[[str], None] | None = None,
-                 thumbnails: bool = True) -> None:
+                 thumbnails: bool = True,
+                 announce: Callable[[Entry, dict[str, Any], float], None] | None = None) -> None:
         self.root = Path(root)
         self.models = Path(models)
         self.reconstruct_one = reconstruct_one or default_reconstructor()
         self.settle_s = settle_s
         self.report = report or (lambda line: print(f"reflecto: watch: {line}", file=sys.stderr, flush=True))
         self.thumbnails = thumbnails
+        self.announce = announce
         self.entries: dict[str, Entry] = {}
         self.failed: dict[str, str] = {}
         self._failed_sig: dict[str, tuple] = {}
@@ -272,7 +278,16 @@ class Watcher:
             return []
         except OSError as e:
             raise ReflectoError(f"{self.root}: cannot list the folder ({e.strerror or e})") from None
-        return [self.root / n for n in names if n not in self.entries]
+        inside = self._models_in_root()
+        return [self.root / n for n in names if n not in self.entries and n != inside]
+
+    def _models_in_root(self) -> str | None:
+        """The name of the models folder where it lies directly in the watched folder (never a
+        capture), else ``None``."""
+        try:
+            return self.models.name if self.models.resolve().parent == self.root.resolve() else None
+        except OSError:
+            return None
 
     def _done(self, name: str) -> bool:
         return (self.models / f"{name}.json").exists() and (self.models / f"{name}.reflecto").exists()
@@ -322,7 +337,7 @@ class Watcher:
         self._waiting.pop(name, None)
         self.failed[name] = problem
         self._failed_sig[name] = _signature(folder) if sig is None else sig
-        self.report(f"{folder}: {problem}" if not problem.startswith(str(folder)) else problem)
+        self.report(one_line(f"{folder}: {problem}" if not problem.startswith(str(folder)) else problem))
         self._write_index()
 
     def _adopt(self, name: str) -> None:
@@ -362,6 +377,8 @@ class Watcher:
         except Exception as e:  # a fault of one capture's reconstruction must not stop the watch
             if not summary_path.exists():
                 out.unlink(missing_ok=True)
+            if interrupted(e):  # Ctrl-C inside a compiled kernel: an interrupt, not the capture's fault
+                raise KeyboardInterrupt from e
             self._fail(folder, f"reconstruction failed ({type(e).__name__}: {one_line(e)})")
             return False
         except BaseException:
@@ -380,6 +397,8 @@ class Watcher:
         self._write_index()
         self.finished_at[name] = time.monotonic()
         self.latency[name] = self.finished_at[name] - found
+        if self.announce is not None:
+            self.announce(self.entries[name], summary, self.latency[name])
         return True
 
     # ------------------------------------------------------------------ the page
@@ -390,11 +409,11 @@ class Watcher:
         rows = []
         for e in sorted(self.entries.values(), key=lambda e: e.name):
             thumb = self.models / "thumbs" / f"{e.name}.png"
-            img = (f'<img src="thumbs/{esc(e.name)}.png" width="{THUMB_PX}" height="{THUMB_PX}" alt="">'
+            img = (f'<img src="thumbs/{esc(url_quote(e.name))}.png" width="{THUMB_PX}" height="{THUMB_PX}" alt="">'
                    if thumb.exists() else "")
             tilt = "–" if not math.isfinite(e.tilt_deg) else f"{e.tilt_deg:.2f}°"
             warn = "<br>".join(esc(w) for w in e.warnings) or "–"
-            rows.append(f'<tr><td><a href="{esc(e.name)}.json">{esc(e.name)}</a></td><td>{tilt}</td>'
+            rows.append(f'<tr><td><a href="{esc(url_quote(e.name))}.json">{esc(e.name)}</a></td><td>{tilt}</td>'
                         f"<td>{esc(e.eta)}</td><td>{img}</td><td>{warn}</td></tr>")
         skipped = "".join(f"<li>{esc(n)}: {esc(p)}</li>" for n, p in sorted(self.failed.items()))
         page = ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>reflecto watch: "

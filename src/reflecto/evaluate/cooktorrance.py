@@ -29,6 +29,7 @@ from scipy.optimize import least_squares
 
 from .. import _kernels, geometry
 from ..brdf import BRDFSource
+from ..errors import ParameterError
 from ..hemicube import hemicube
 from ..reconstruct.samples import bin_samples
 from .metrics import evaluate_on_grid, metric_grid
@@ -56,8 +57,19 @@ class CookTorrance(BRDFSource):
     kind = "cook-torrance"
 
     def __post_init__(self) -> None:
-        self.rho_d = np.broadcast_to(np.asarray(self.rho_d, float), (3,)).copy()
-        self.rho_s = np.broadcast_to(np.asarray(self.rho_s, float), (3,)).copy()
+        try:
+            self.rho_d = np.broadcast_to(np.asarray(self.rho_d, float), (3,)).copy()
+            self.rho_s = np.broadcast_to(np.asarray(self.rho_s, float), (3,)).copy()
+            self.f0, self.m = float(self.f0), float(self.m)
+        except (TypeError, ValueError) as e:
+            raise ParameterError(f"Cook–Torrance: ρ_d, ρ_s must be 1 or 3 numbers and F0, m numbers ({e})") from None
+        if not (np.all(np.isfinite(self.rho_d)) and np.all(self.rho_d >= 0)
+                and np.all(np.isfinite(self.rho_s)) and np.all(self.rho_s >= 0)):
+            raise ParameterError(f"Cook–Torrance: ρ_d and ρ_s must be finite and ≥ 0, got {self.rho_d.tolist()} "
+                                 f"and {self.rho_s.tolist()}")
+        if not (0.0 <= self.f0 <= 1.0) or not (math.isfinite(self.m) and self.m > 0.0):
+            raise ParameterError(f"Cook–Torrance: F0 must lie in [0, 1] and m be finite and > 0, got {self.f0} "
+                                 f"and {self.m}")
         self.isotropic = True
         self.reciprocal = True
         self.path = None

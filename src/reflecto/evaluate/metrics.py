@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from .. import geometry
 from ..brdf import BRDFSource, HasNDF
+from ..errors import ParameterError
 from ..hemicube import hemicube
 from ..sources import merl
 
@@ -66,7 +67,12 @@ class Grid:
 @functools.lru_cache(maxsize=16)
 def metric_grid(stride: int = 1, theta_max_deg: float = THETA_MAX_DEG, offset: tuple[int, int] = (0, 0)) -> Grid:
     """The bins of eq. 10 (every ``stride``-th bin along θ_d and φ_d, for quick checks,
-    starting at bin ``offset`` = (θ_d, φ_d))."""
+    starting at bin ``offset`` = (θ_d, φ_d)); ``stride`` an integer in ``[1, 90]``, the angle
+    in ``(0°, 90°]``."""
+    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or not 1 <= stride <= merl.N_THETA_D:
+        raise ParameterError(f"eq. 10 grid: stride must be an integer in [1, {merl.N_THETA_D}], got {stride!r}")
+    if not (isinstance(theta_max_deg, (int, float, np.number)) and 0.0 < theta_max_deg <= 90.0):
+        raise ParameterError(f"eq. 10 grid: the largest angle must lie in (0°, 90°], got {theta_max_deg!r}")
     th, td, pd = merl.bin_centres()
     kh = np.arange(merl.N_THETA_H)
     kd = np.arange(offset[0] % stride, merl.N_THETA_D, stride)
@@ -271,6 +277,12 @@ def brdf_error(reference: BRDFSource, test: BRDFSource, stride: int = 1, albedo_
     """
     g = metric_grid(stride)
     r = evaluate_on_grid(reference, g) if reference_values is None else reference_values
+    if np.shape(r) != (len(g.i), 3):
+        raise ParameterError(f"eq. 10: reference_values must have shape ({len(g.i)}, 3) (the grid of stride "
+                             f"{stride}), got {np.shape(r)}")
+    if albedo_ref is not None and not (isinstance(albedo_ref, (int, float, np.number))
+                                       and math.isfinite(albedo_ref) and albedo_ref > 0):
+        raise ParameterError(f"eq. 10: albedo_ref must be a finite number > 0, got {albedo_ref!r}")
     sums = _Sums()
     _accumulate(sums, g, r, evaluate_on_grid(test, g), test.name)
     return _error(sums, reference, albedo_ref, "merl", 1)

@@ -365,7 +365,8 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     summary = read_json(summary_path) if summary_path.is_file() else {}
     if not isinstance(summary, dict):
         raise FileFormatError(summary_path, "a model summary must be a JSON object")
-    for key, label in (("normal_tilt_deg", "normal tilt (deg)"), ("model_error", "relative model error ε of the fit"),
+    for key, label in (("normal_tilt_deg", "normal tilt (deg)"), ("normal_uncertainty_deg", "its uncertainty (deg)"),
+                       ("model_error", "relative model error ε of the fit"),
                        ("shake_detected", "shake detected"), ("isotropic", "isotropic")):
         if key in summary and summary[key] is not None:
             v = summary[key]
@@ -384,7 +385,7 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
         items.append((theta_h_theta_d_image(ref, out, "thd_reference.png", "reference: θ_h–θ_d at φ_d = 90°"),
                       "Reference."))
         err = brdf_error(ref, model)
-        numbers["eq. 10 error vs reference (normalized)"] = round(err.normalized, 5)
+        numbers["eq. 10 error vs reference (normalized, %)"] = round(100 * err.normalized, 3)
         numbers["log-RMSE vs reference"] = round(err.log_rmse, 5)
     figs.append(("θ_h–θ_d slice", items))
     cap_dir = model.metadata.get("capture")

@@ -29,7 +29,6 @@ import json
 import math
 import os
 import warnings
-import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -53,6 +52,7 @@ from ..io import (
     read_input,
     read_json,
     sha256,
+    write_zip,
     zip_members,
 )
 from .capture import CaptureError, read_capture, read_image
@@ -172,9 +172,7 @@ class Calibration:
         meta["sha256"] = content_digest(meta)
         members["meta.npy"] = npy_bytes(np.frombuffer(json.dumps(meta).encode(), np.uint8))
         buf = io.BytesIO()
-        with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as z:
-            for name, data in members.items():
-                z.writestr(name, data)
+        write_zip(buf, members)
         with atomic_write(path) as fh:
             fh.write(buf.getvalue())
         return Path(path)

@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import _kernels
-from ..errors import FileFormatError, LimitError, ReflectoError, short_repr
+from ..errors import FileFormatError, LimitError, ReflectoError, short_repr, shown_path
 from ..io import atomic_folder, inside, read_input, read_json
 from .device import MAX_EXPOSURE_MS, Device
 from .hdr import SATURATION
@@ -75,7 +75,7 @@ class CaptureError(ReflectoError):
     def __init__(self, path: str | Path, problem: str) -> None:
         self.path = Path(path)
         self.problem = problem
-        super().__init__(f"{self.path}: {problem}")
+        super().__init__(f"{shown_path(self.path)}: {problem}")
 
 
 @dataclasses.dataclass

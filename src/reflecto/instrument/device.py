@@ -311,10 +311,17 @@ class Camera:
             raise ParameterError("camera: a gamma-encoded camera has 8 bits")
         if not 0 <= self.black_level < self.max_value / 2:
             raise ParameterError("camera: black level out of range")
-        if self.full_well <= 0 or self.sensitivity <= 0 or self.read_noise < 0:
-            raise ParameterError("camera: full_well and sensitivity must be > 0, read_noise >= 0")
+        finite = (lambda x: isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x))
+        if not (finite(self.full_well) and self.full_well > 0 and finite(self.sensitivity) and self.sensitivity > 0
+                and finite(self.read_noise) and self.read_noise >= 0):
+            raise ParameterError(f"camera: full_well and sensitivity must be finite and > 0, read_noise finite and "
+                                 f">= 0, got {self.full_well}, {self.sensitivity} and {self.read_noise}")
+        if self.response == "gamma" and not (finite(self.gamma) and self.gamma > 0):
+            raise ParameterError(f"camera: gamma must be finite and > 0, got {self.gamma}")
         if not self.exposures_ms or any(not (t > 0 and math.isfinite(t)) for t in self.exposures_ms):
             raise ParameterError("camera: exposure times must be positive")
+        if any(b <= a for a, b in zip(self.exposures_ms, self.exposures_ms[1:])):
+            raise ParameterError(f"camera: exposure times must increase, got {list(self.exposures_ms)}")
 
     @property
     def max_value(self) -> int:

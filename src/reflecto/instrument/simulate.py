@@ -203,6 +203,10 @@ def _truth(device: Device) -> tuple[Optics, Array, Array, Array]:
     return t.optics, t.leds, np.asarray(t.led_intensity), t.transmission_field()
 
 
+#: The largest turn of a simulated shake (degrees): a hand moves the device a few degrees.
+MAX_SHAKE_DEG = 30.0
+
+
 def _check_angle(what: str, deg: float) -> None:
     """Refuse an angle that is not finite or beyond a few turns (its sine and cosine would be noise,
     and NaN would reach the manifest and the frames)."""
@@ -265,8 +269,14 @@ def simulate_capture(
         For a tilt outside [0°, :data:`MAX_TILT_DEG`], a tilt azimuth or rotation that is
         not a finite angle of at most :data:`MAX_ROTATION_DEG`, or a negative seed.
     """
+    for name, v in (("tilt", tilt_deg), ("rotation", rotation_deg), ("tilt azimuth", tilt_azimuth_deg),
+                    ("shake angle", shake_deg)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.number))):
+            raise ParameterError(f"{name} must be a number of degrees, got {v!r}")
     if not (math.isfinite(tilt_deg) and 0.0 <= tilt_deg <= MAX_TILT_DEG):
         raise ParameterError(f"tilt must be in [0°, {MAX_TILT_DEG}°], got {tilt_deg}")
+    if shake_deg is not None and not (math.isfinite(shake_deg) and 0.0 < shake_deg <= MAX_SHAKE_DEG):
+        raise ParameterError(f"shake angle must be in (0°, {MAX_SHAKE_DEG:g}°], got {shake_deg}")
     _check_angle("rotation", rotation_deg)
     if tilt_azimuth_deg is not None:
         _check_angle("tilt azimuth", tilt_azimuth_deg)

@@ -10,11 +10,13 @@ it has estimated the normal (:func:`Slices.reframe`).
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .. import _kernels, geometry
+from ..errors import ParameterError
 from .calibrate import Calibration
 from .capture import Capture, CaptureError
 from .hdr import BLACK_DN, dithered, merge_debevec, merge_linear_pixels
@@ -124,8 +126,57 @@ class Slices:
                       rescale(self.limit), self.check_leds, check_values, check_valid)
 
 
+#: Directions further from unit length than this are refused (:func:`check_slices`).
+UNIT_TOLERANCE = 1e-6
+
+
+def check_slices(slices: Slices, where: str = "slices") -> None:
+    """Refuse slices the reconstruction cannot read: ``light`` ``(L, 3)`` and ``view``
+    ``(P, 3)`` finite unit vectors (``L, P ≥ 1``), ``values`` ``(L, P, 3)`` finite on the
+    valid samples, ``valid`` ``(L, P)``, ``frame`` a finite ``(3, 3)``. The compiled kernels
+    index their tables by the directions' angles, which a NaN would send out of bounds.
+
+    Parameters
+    ----------
+    slices
+        The slices to check (any frame).
+    where
+        The name that leads the message.
+
+    Raises
+    ------
+    ParameterError
+        One line naming the first array that does not hold.
+    """
+    def bad(what: str) -> ParameterError:
+        return ParameterError(f"{where}: {what}")
+
+    light, view = np.asarray(slices.light), np.asarray(slices.view)
+    for name, d in (("light", light), ("view", view)):
+        if d.ndim != 2 or d.shape[1] != 3 or len(d) == 0:
+            raise bad(f"{name} directions must have shape (N ≥ 1, 3), got {d.shape}")
+        if not np.all(np.isfinite(d)):
+            raise bad(f"{name} directions hold NaN or infinite values")
+        if np.any(np.abs(np.einsum("ij,ij->i", d, d) - 1.0) > 2 * UNIT_TOLERANCE):
+            raise bad(f"{name} directions must be unit vectors")
+    shape = (len(light), len(view))
+    values, valid = np.asarray(slices.values), np.asarray(slices.valid)
+    if values.shape != (*shape, 3) or valid.shape != shape:
+        raise bad(f"values {values.shape} and valid {valid.shape} must have shapes {(*shape, 3)} and {shape}")
+    if not np.all(np.isfinite(values[valid])):
+        raise bad("values hold NaN or infinite values where valid")
+    frame = np.asarray(slices.frame)
+    if frame.shape != (3, 3) or not np.all(np.isfinite(frame)):
+        raise bad(f"frame must be a finite (3, 3) array, got {frame.shape}")
+
+
 def _check_inputs(capture: Capture, calibration: Calibration) -> None:
     where = capture.path or "<capture>"
+    design, ours = calibration.device, capture.device
+    if (design.n_leds != ours.n_leds or design.camera != ours.camera
+            or not np.allclose(np.asarray(design.leds), np.asarray(ours.leds), atol=1e-6)):
+        raise CaptureError(where, f"the calibration is for device {design.name!r}, whose design (LEDs, camera) "
+                                  f"is not that of the capture's device {ours.name!r}")
     leds = np.asarray(calibration.leds, dtype=np.float64)
     if leds.shape != (capture.device.n_leds, 3):
         raise CaptureError(where, f"calibration has {leds.shape} LED directions, "
@@ -143,9 +194,18 @@ def _check_inputs(capture: Capture, calibration: Calibration) -> None:
             raise CaptureError(where, "the calibration's scale field has NaN, infinite or negative values")
         if not scale.flags.writeable:
             calibration.__dict__["_scale_checked"] = scale
+    raw = capture.raw
+    if (not isinstance(raw, np.ndarray) or raw.dtype.kind != "u" or raw.ndim != 5
+            or raw.shape[0] != capture.device.n_leds or raw.shape[2:] != (o.height, o.width, 3)):
+        raise CaptureError(where, f"raw frames must be unsigned integers of shape (LEDs {capture.device.n_leds}, "
+                                  f"exposures, {o.height}, {o.width}, 3), got "
+                                  f"{getattr(raw, 'dtype', type(raw).__name__)} {getattr(raw, 'shape', '')}")
     t = np.asarray(capture.exposures_ms, dtype=np.float64)
     if t.shape != (capture.raw.shape[1],) or not np.all(np.isfinite(t)) or np.any(t <= 0):
         raise CaptureError(where, "exposure times must be positive and one per exposure slot")
+    r = capture.rotation_deg
+    if isinstance(r, bool) or not isinstance(r, (int, float, np.number)) or not math.isfinite(r):
+        raise CaptureError(where, f"rotation_deg must be a finite number of degrees, got {r!r}")
 
 
 def extract_slices(capture: Capture, calibration: Calibration) -> Slices:

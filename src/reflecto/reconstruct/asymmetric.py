@@ -62,7 +62,7 @@ from .. import geometry
 from ..errors import ReflectoError
 from ..fresnel import eta_to_json
 from ..hemicube import Hemicube, hemicube
-from ..instrument.slices import Slices
+from ..instrument.slices import Slices, check_slices
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
 from . import hemicube_fit as hf
 from .eq3 import PairRatios, SymmetryTest, pair_ratios, symmetry_from_ratios
@@ -112,6 +112,7 @@ def check_rotations(captures: Sequence[RotatedCapture]) -> None:
     for k, c in enumerate(captures):
         if not math.isfinite(c.rotation_deg):
             raise ReflectoError(f"{c.name}: rotation {c.rotation_deg} is not a finite angle")
+        check_slices(c.slices, c.name)
         if c.slices.n_leds != first.slices.n_leds or c.slices.view.shape != first.slices.view.shape:
             raise ReflectoError(f"{c.name}: captured with another device than {first.name} "
                                 f"({c.slices.n_leds} LEDs, {len(c.slices.view)} views against "

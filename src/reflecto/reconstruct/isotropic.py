@@ -609,6 +609,8 @@ def set_weights(problem: LuminanceProblem) -> None:
     than a dense Cook–Torrance fit's on 34 of 50 (on 20 of 50 with these weights).
     """
     f_max = float(np.max(np.abs(problem.f))) if len(problem.f) else 1.0
+    if not f_max > 0.0:
+        raise ReflectoError("capture: every usable sample reads 0 (no light reached the camera)")
     problem.w = problem.bins.count * problem.bins.cos_i**2 / max(f_max, 1e-300) ** 2
 
 

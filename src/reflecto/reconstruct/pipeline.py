@@ -36,7 +36,7 @@ from .. import geometry
 from ..brdf import albedo_angles
 from ..errors import ParameterError, ReflectoError
 from ..fresnel import eta_to_json, is_constant
-from ..instrument.slices import Slices
+from ..instrument.slices import Slices, check_slices
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
 from .extrapolation import ShadowingChoice, choose_shadowing
 from .hemicube_fit import HemicubeFit, fit_hemicube
@@ -152,14 +152,24 @@ class Options:
             if n[2] / norm < math.cos(math.radians(60.0)):
                 raise bad(f"a given normal must lie within 60° of the device axis, got {self.normal!r}")
             self.normal = n / norm
-        if self.resolution < 8 or (self.work_resolution is not None and self.work_resolution < 8):
-            raise bad(f"hemicube resolutions must be ≥ 8, got {self.resolution} and {self.work_resolution}")
+        for name, cells in (("resolution", self.resolution), ("work_resolution", self.work_resolution)):
+            if cells is not None and not (isinstance(cells, (int, np.integer)) and not isinstance(cells, bool)
+                                          and 8 <= cells <= MAX_RESOLUTION):
+                raise bad(f"{name} must be an integer in [8, {MAX_RESOLUTION}] (hemicube cells per face side), "
+                          f"got {cells!r}")
+        if self.fixed_eta is not None and not isinstance(self.fixed_eta, (int, float, np.number)):
+            raise bad(f"a fixed η must be a number, got {self.fixed_eta!r}")
         if self.fixed_eta is not None and not (math.isfinite(self.fixed_eta) and 1.0 < self.fixed_eta <= ETA_MAX):
             raise bad(f"a fixed η must be a finite relative index in (1, {ETA_MAX:g}], got {self.fixed_eta}")
         if not (math.isfinite(self.max_tilt_deg) and 0.0 < self.max_tilt_deg < 60.0):
             raise bad(f"max_tilt_deg must lie in (0°, 60°), got {self.max_tilt_deg}")
         if not (math.isfinite(self.kd_bound_max_deg) and 0.0 < self.kd_bound_max_deg <= 90.0):
             raise bad(f"kd_bound_max_deg must lie in (0°, 90°], got {self.kd_bound_max_deg}")
+
+
+#: The largest hemicube resolution the options take (the paper's is 512; 2048² cells per face
+#: are 100 MB of NDF).
+MAX_RESOLUTION = 2048
 
 
 @dataclasses.dataclass
@@ -278,7 +288,7 @@ def usable_samples(slices: Slices) -> NDArray[np.bool_]:
     Returns
     -------
     numpy.ndarray of bool, shape (L, P)
-        ``slices.valid`` and every channel finite.
+        ``slices.valid``, every channel finite, the LED and the view above the sample plane.
 
     Raises
     ------
@@ -286,6 +296,7 @@ def usable_samples(slices: Slices) -> NDArray[np.bool_]:
         Fewer than :data:`MIN_SAMPLES` samples are usable.
     """
     ok = slices.valid & np.all(np.isfinite(slices.values), axis=-1)  # a NaN or ±inf channel poisons the sum
+    ok &= (slices.light[:, 2] > 0)[:, None] & (slices.view[:, 2] > 0)[None, :]
     if int(ok.sum()) < MIN_SAMPLES:
         raise ReflectoError(f"capture: fewer than {MIN_SAMPLES} valid samples "
                             "(saturated, dark or outside the view cone)")
@@ -529,6 +540,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     if isinstance(opt.normal, str) and opt.normal == "search":  # the §5.5 set search; one capture: as "auto"
         opt = dataclasses.replace(opt, normal="auto")
     t0 = time.perf_counter()
+    check_slices(slices)
     valid = usable_samples(slices)
     est = resolve_normal(slices, valid, opt)
     frame = est.frame
