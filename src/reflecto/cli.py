@@ -447,7 +447,9 @@ def _reconstruct_asymmetric(args: argparse.Namespace) -> int:
              f"kd {np.round(res.model.kd, 3).tolist()}, ks {np.round(res.model.ks, 3).tolist()}, "
              f"tilt {res.normal_tilt_deg:.2f}°, {res.seconds * 1000:.0f} ms"
              + ("  SHAKE DETECTED" if res.shake_detected else ""),
-             f"  {res.symmetry.describe()}"]
+             f"  {res.symmetry.describe()}" + ("; the §5.5 model above holds it (hemicube NDF, no eq. 3)"
+                                               if res.symmetry.decided and not res.symmetry.symmetric
+                                               and not res.isotropic else "")]
     lines += [f"  note: {note}" for note in res.notes]
     if args.json:
         print(json.dumps(info, indent=1))
