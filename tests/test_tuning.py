@@ -34,6 +34,7 @@ NOT_TUNED = {
                                           "(≈ 1e-16) and below the cells' width gives the arccos's cells",
     ("symmetry", "MIN_ELEVATION_DEG"): "the device's definition of a steep LED "
                                        "(instrument.device.STEEP_ELEVATION_DEG), not a reconstruction choice",
+    ("pipeline", "MAX_RESOLUTION"): "an input limit of Options (memory: 2048² cells per face), not a fit's choice",
 }
 
 #: Modules another change is rewriting: their constants are still literals, checked for

@@ -259,6 +259,7 @@ class Watcher:
         self.report = report or (lambda line: print(f"reflecto: watch: {line}", file=sys.stderr, flush=True))
         self.thumbnails = thumbnails
         self.announce = announce
+        self._interrupted = False  # a Ctrl-C or SIGTERM arrived (run)
         self.entries: dict[str, Entry] = {}
         self.failed: dict[str, str] = {}
         self._failed_sig: dict[str, tuple] = {}
@@ -330,6 +331,8 @@ class Watcher:
             self._waiting.pop(name, None)
             if self._model(folder, now):
                 made += 1
+            if self._interrupted:  # a Ctrl-C that something on the way swallowed: stop between captures
+                raise KeyboardInterrupt
         return made
 
     def _fail(self, folder: Path, problem: str, sig: tuple | None = None) -> None:
@@ -445,15 +448,18 @@ class Watcher:
             return
 
         def interrupt(signum: int, frame: object) -> None:
+            # remembered as well as raised: a compiled kernel that catches errors can swallow the
+            # KeyboardInterrupt raised inside it, and the watch then stops after that capture
+            self._interrupted = True
             raise KeyboardInterrupt
 
         # a service manager's SIGTERM stops the watch as Ctrl-C does: between two files
         main = threading.current_thread() is threading.main_thread()
-        previous = signal.signal(signal.SIGTERM, interrupt) if main else None
+        previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)} if main else {}
         try:
             while stop is None or not stop():
                 if self.scan() == 0:
                     time.sleep(poll_s)
         finally:
-            if main:
-                signal.signal(signal.SIGTERM, previous)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
