@@ -384,3 +384,24 @@ def test_shake_moves_the_leds_fired_after_it():
             for k in range(dev.n_leds):
                 same = np.array_equal(shaken.values[k], clean.values[k])
                 assert same == (k not in info["moved_leds"]), (order, seed, k)
+
+
+def test_a_pixel_footprint_and_blur_spread_a_sharp_peak_and_keep_its_energy():
+    """``footprint`` and ``blur_px``: a Lambertian slice is the same (the mean of a constant);
+    a lobe narrower than a pixel reads a lower peak, spread over more pixels, with the
+    slice's sum of values (its energy on the image plane) kept within 2 %."""
+    dev = Device.builtin("ideal")
+    cal = nominal_calibration(dev)
+    flat = AnalyticBRDF(distribution="ggx", alpha=0.5, kd=0.6, ks=0.0)
+    point = extract_slices(simulate_capture(flat, dev, seed=1), cal).values
+    assert np.array_equal(point, extract_slices(simulate_capture(flat, dev, seed=1, footprint=2), cal).values)
+    sharp = AnalyticBRDF(distribution="ggx", alpha=0.02, kd=0.0, ks=0.8, eta=1.8)
+    a = extract_slices(simulate_capture(sharp, dev, tilt_deg=0.05, tilt_azimuth_deg=40.0, seed=2), cal).values
+    b = extract_slices(simulate_capture(sharp, dev, tilt_deg=0.05, tilt_azimuth_deg=40.0, seed=2, footprint=2,
+                                        blur_px=1.0), cal).values
+    k = int(np.argmax(a[..., 1].max(axis=1)))
+    assert b[k, :, 1].max() < 0.8 * a[k, :, 1].max()
+    assert abs(b[k, :, 1].sum() / a[k, :, 1].sum() - 1.0) < 0.02
+    for bad in ({"footprint": 0}, {"footprint": 2.0}, {"blur_px": -1.0}, {"blur_px": float("nan")}):
+        with pytest.raises(ParameterError):
+            simulate_capture(flat, dev, **bad)

@@ -10,7 +10,9 @@ plane) times the LED's real intensity factor,
 
 ``T`` the optical transmission/vignetting field,
 ``f`` the BRDF in sr⁻¹ evaluated in the sample's local frame (``i_loc``, ``o_loc``;
-the sample may be tilted, rotated, or move between frames), then Poisson photon
+the sample may be tilted, rotated, or move between frames) at the pixel's centre
+direction (by default; or averaged over the pixel's area and blurred by a Gaussian
+spread, :func:`simulate_capture`'s ``footprint`` and ``blur_px``), then Poisson photon
 noise, clipping at the full well, Gaussian read noise, conversion to DN with the
 black level, rounding and clipping to the ADC range. A gamma camera encodes
 ``255 (e/full_well)^(1/γ)`` in 8 bits instead. Pixels outside the condenser's view
@@ -30,6 +32,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -232,6 +235,8 @@ def simulate_capture(
     shake_deg: float | None = None,
     seed: int = 0,
     source_name: str | None = None,
+    footprint: int = 1,
+    blur_px: float = 0.0,
 ) -> Capture:
     """Raw frames of one capture of ``source`` (see the module docstring).
 
@@ -256,6 +261,14 @@ def simulate_capture(
         The device; its ``truth`` (as-built imperfections), if any, is simulated.
     source_name
         Name recorded in the manifest (default: the source's name).
+    footprint, blur_px
+        How a pixel sees the BRDF: at its centre's direction (``footprint`` 1, ``blur_px``
+        0, the default), or as the mean over ``footprint × footprint`` sub-pixel
+        directions of the BRDF's image blurred by a Gaussian of ``blur_px`` pixels
+        (standard deviation; the spread of a real device's pinhole and LED beam). A lobe
+        narrower than a pixel is read high or low by where the pixel centres fall; the
+        footprint and the blur make the reading a smooth function of the pose, at
+        ``footprint²`` times the BRDF evaluations (docs/design/normal.md, Limits).
 
     Returns
     -------
@@ -281,6 +294,11 @@ def simulate_capture(
     if tilt_azimuth_deg is not None:
         _check_angle("tilt azimuth", tilt_azimuth_deg)
     _check_seed(seed)
+    if isinstance(footprint, bool) or not isinstance(footprint, (int, np.integer)) or not 1 <= footprint <= 8:
+        raise ParameterError(f"footprint must be an integer in [1, 8] (sub-pixel directions per side), "
+                             f"got {footprint!r}")
+    if isinstance(blur_px, bool) or not isinstance(blur_px, (int, float)) or not 0.0 <= blur_px <= 8.0:
+        raise ParameterError(f"blur_px must be a number of pixels in [0, 8], got {blur_px!r}")
     rng = np.random.default_rng(seed)
     optics, leds, intensity, trans = _truth(device)
     cam = device.camera
@@ -308,15 +326,20 @@ def simulate_capture(
     scale = cam.sensitivity * trans[mask][:, None] * ~device.occluded(o)[:, None]
     power = device.led_irradiance * intensity
 
-    def rate(k: int, p: Pose) -> Array:
-        i_loc = p.to_local(leds[k])
-        o_loc = p.to_local(o)
+    fine = _fine_views(optics, mask, footprint, blur_px) if footprint > 1 or blur_px > 0 else None
+
+    def brdf(i_loc: Array, o_loc: Array) -> Array:
         ok = (o_loc[:, 2] > 0) & (i_loc[2] > 0)
-        f = np.zeros((len(o), 3))
+        f = np.zeros((len(o_loc), 3))
         if ok.any():
             f[ok] = source.eval(np.broadcast_to(i_loc, (int(ok.sum()), 3)), o_loc[ok])
         if not np.all(np.isfinite(f)):
             raise ParameterError(f"source {source_name or source.name} returned non-finite values")
+        return f
+
+    def rate(k: int, p: Pose) -> Array:
+        i_loc = p.to_local(leds[k])
+        f = brdf(i_loc, p.to_local(o)) if fine is None else fine.pixel_means(brdf(i_loc, p.to_local(fine.views)))
         r = np.zeros((h, w, 3))
         r[mask] = f * (max(i_loc[2], 0.0) * power[k]) * scale
         return r
@@ -358,6 +381,41 @@ WHITE_ALBEDO = 0.99
 GRID_SPACING = 0.1
 #: Angular radius (degrees) of a spot: pinhole diffraction / LED size blur.
 SPOT_BLUR_PX = 0.8
+
+
+@dataclasses.dataclass(frozen=True)
+class _FineViews:
+    """The sub-pixel view directions of :func:`simulate_capture`'s ``footprint`` and
+    ``blur_px``, and how their BRDF values become the view-cone pixels' means."""
+
+    views: Array  # (M, 3) device-frame directions on the fine grid near the view cone
+    near: NDArray[np.bool_]  # (H·n, W·n): where ``views`` lie on the fine grid
+    mask: NDArray[np.bool_]  # (H, W): the view cone's pixels
+    footprint: int
+    blur_px: float
+
+    def pixel_means(self, f: Array) -> Array:
+        """Per view-cone pixel (``mask`` order), the mean of the blurred fine image, shape ``(P, 3)``."""
+        n = self.footprint
+        h, w = self.mask.shape
+        img = np.zeros((h * n, w * n, 3))
+        img[self.near] = f
+        if self.blur_px > 0:
+            img = cv2.GaussianBlur(img, (0, 0), self.blur_px * n, borderType=cv2.BORDER_CONSTANT)
+        return img.reshape(h, n, w, n, 3).mean(axis=(1, 3))[self.mask]
+
+
+def _fine_views(optics: Optics, mask: NDArray[np.bool_], footprint: int, blur_px: float) -> _FineViews:
+    """``footprint²`` directions per pixel at the centres of its sub-pixels, over the view
+    cone's pixels and a margin of three blur widths (the blur carries light in from there)."""
+    n = footprint
+    h, w = mask.shape
+    v, u = np.mgrid[0:h * n, 0:w * n].astype(np.float64)
+    uv = np.stack([(u + 0.5) / n - 0.5, (v + 0.5) / n - 0.5], axis=-1)
+    reach = 1 + int(math.ceil(3.0 * blur_px))
+    grown = cv2.dilate(mask.astype(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)) > 0
+    near = np.repeat(np.repeat(grown, n, axis=0), n, axis=1)
+    return _FineViews(optics.pixel_to_direction(uv[near]), near, mask, n, float(blur_px))
 
 
 def grid_directions(optics: Optics, offset: tuple[float, float]) -> Array:

@@ -360,6 +360,13 @@ class NormalEstimate:
     planes
         The slices' symmetry planes that entered the estimate (:func:`with_symmetry_planes`;
         0 where they gave none).
+    fit_uncertainty_deg
+        The estimate's uncertainty before the floor of the half vector's sampling: what
+        the fit's residuals and the symmetry planes tell (degrees; NaN when nothing was
+        estimated).
+    lobe_half_width_deg
+        Half width at half maximum of the last light fit's NDF (degrees; NaN when nothing
+        was estimated).
     """
 
     normal: Array
@@ -370,6 +377,8 @@ class NormalEstimate:
     alternative: Array | None = None
     half_vector_pitch_deg: float = math.nan
     planes: int = 0
+    fit_uncertainty_deg: float = math.nan
+    lobe_half_width_deg: float = math.nan
 
     @property
     def tilt_deg(self) -> float:
@@ -895,14 +904,15 @@ def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0
         # an estimate still moving after MAX_REFITS is not known better than its last move
         sd = math.hypot(sd, weighting_shift_deg(problem, model, new), moving)
     planes, fitted = 0, None
-    if refits and symmetry.resolves_lobe(lobe_half_width_deg(lum.problem.nodes, np.exp(lum.state.z))):
+    width = lobe_half_width_deg(lum.problem.nodes, np.exp(lum.state.z)) if refits else math.nan
+    if refits and symmetry.resolves_lobe(width):
         # not on a sharp lobe: there the fit's peak places the normal, the planes cannot (MIN_LOBE_TEXELS)
         fitted = normal
         normal, sd, planes = with_symmetry_planes(slices, valid, normal, sd, limit)
     pitch = half_vector_pitch_deg(slices)
-    sd = max(sd, pitch)
-    return NormalEstimate(normal, sd, "estimated", refits, _angle_deg(normal, z), half_vector_pitch_deg=pitch,
-                          planes=planes, alternative=fitted if planes else None)
+    return NormalEstimate(normal, max(sd, pitch), "estimated", refits, _angle_deg(normal, z),
+                          half_vector_pitch_deg=pitch, planes=planes, alternative=fitted if planes else None,
+                          fit_uncertainty_deg=sd, lobe_half_width_deg=width)
 
 
 def with_symmetry_planes(slices: Slices, valid: NDArray[np.bool_], normal: Array, sd_deg: float,

@@ -382,9 +382,47 @@ def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> No
     if opt.isotropic == "no":  # the estimate fits an isotropic lobe: not for a declared anisotropic one
         return NormalEstimate(z, 0.0, "device")
     est = estimate_normal(slices, valid, opt.max_tilt_deg, opt.fixed_eta)
-    if not (est.tilt_deg > DEVICE_AXIS_SIGMAS * est.uncertainty_deg):
+    if not (est.tilt_deg > DEVICE_AXIS_SIGMAS * _decision_uncertainty(est)):
         return dataclasses.replace(est, normal=z, source="device", alternative=est.normal)  # not told apart
     return est
+
+
+#: A lobe at most this many half-vector pitches wide (half width at half maximum) has its
+#: tilt tested against the fit's own uncertainty (:func:`_decision_uncertainty`) …
+SHARP_LOBE_PITCHES = PIPELINE.sharp_lobe_pitches
+#: … but never less than this many pitches: the bias of a peak placed between pixels.
+SUBPIXEL_BIAS = PIPELINE.subpixel_bias
+
+
+def _decision_uncertainty(est: NormalEstimate) -> float:
+    """The uncertainty the device-axis test of :func:`resolve_normal` uses.
+
+    The reported uncertainty has the half vector's sampling (≈ 0.2°) as its floor. On a
+    sharp lobe, at most :data:`SHARP_LOBE_PITCHES` pitches wide, the peak covers a few
+    pixels whose values place the normal to hundredths of a degree (steel on the ideal
+    device tilted 0.03–0.20°: found within 0.015°, ±0.004–0.010°), and there a tenth of
+    a degree of frame costs eq. 10 a factor of 2–2.7: the test uses the fit's own
+    uncertainty (:attr:`.normal.NormalEstimate.fit_uncertainty_deg`), but at least
+    :data:`SUBPIXEL_BIAS` pitches, the bias of a peak placed between pixels (so a tilt
+    is told from none from ≈ 0.04° on). A broader lobe's tilt comes from many pixels,
+    where the 1-D model's misfit biases it by more than the fit's scatter (untilted
+    paints and fabrics: 0.1–0.4°): the pitch's floor stays."""
+    sd, width, pitch = est.fit_uncertainty_deg, est.lobe_half_width_deg, est.half_vector_pitch_deg
+    if math.isfinite(sd) and width <= SHARP_LOBE_PITCHES * pitch:
+        return max(sd, SUBPIXEL_BIAS * pitch)
+    return est.uncertainty_deg
+
+
+def _within_sampling(est: NormalEstimate) -> bool:
+    """Whether an estimated tilt lies within the half vector's sampling (≤
+    :data:`DEVICE_AXIS_SIGMAS` times the reported uncertainty, whose floor is the
+    sampling): there both frames put the peak in the same pixels, and the isotropic
+    fits' misfit ε does not tell them apart (steel on the ideal device tilted 0.06° and
+    0.12°: ε 0.219 and 0.234 in the device frame against 0.254 and 0.250 in the
+    estimated one, whose eq. 10 error is 2.2× and 2.5× lower). The tilt's own
+    significance (:func:`_decision_uncertainty`) decides there, without the device
+    frame's check (:func:`_tilt_explains_nothing`)."""
+    return est.tilt_deg <= DEVICE_AXIS_SIGMAS * est.uncertainty_deg
 
 
 def _device_frame_fit(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> IsotropicFit:
@@ -551,7 +589,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         iso = device_fit = _device_frame_fit(slices, valid, opt)
     else:
         iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
-        if _needs_device_check(opt):
+        if _needs_device_check(opt) and not _within_sampling(est):
             device_fit = _device_frame_fit(slices, valid, opt)
         if (device_fit is not None and _tilt_explains_nothing(device_fit, iso)
                 and not _fit_frame_explains(slices, valid, opt, est, device_fit)):

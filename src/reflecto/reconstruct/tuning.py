@@ -1008,6 +1008,27 @@ class PipelineTuning:
         source="mechanism: a tilt within the normal's two-sided 95 % bound is not told apart from none "
                "(docs/design/normal.md); on the hand-held study the untilted captures kept the device axis on "
                "44 of 50")
+    sharp_lobe_pitches: float = tuned(
+        2.0, name="SHARP_LOBE_PITCHES", units="half-vector pitches",
+        what="a lobe whose half width at half maximum is at most this many of the camera's half-vector pitches "
+             "has its peak in a few pixels: its tilt is tested against the fit's own uncertainty, below the "
+             "pitch's floor",
+        source="mechanism: within a couple of pixels the peak's shape places it to a fraction of a pixel (steel "
+               "and chrome-steel on the ideal device tilted 0.03–0.20°: found within 0.015°, ±0.004–0.010°); "
+               "broader lobes spread their tilt over many pixels where the 1-D model's misfit biases it. "
+               "Measurement (hand-held study, ideal device, the 50 untilted captures): without the gate 10 keep "
+               "tilts of 0.01–0.40° (blue-metallic-paint, half width 8.1°: 0.40°; color-changing-paint2, 0.72°: "
+               "0.17°; chm_mint, 0.59°: 0.10°); with it, the lobes of 0.16–0.31° keep ≤ 0.02°")
+    subpixel_bias: float = tuned(
+        0.1, name="SUBPIXEL_BIAS", units="half-vector pitches",
+        what="the least uncertainty of a sharp lobe's tilt in the device-axis test: the bias of a peak placed "
+             "between pixels",
+        source="mechanism: a peak one or two pixels wide, located from its pixels' values by a model of its "
+               "shape, is drawn toward the pixel centres by up to about a tenth of a pixel (peak locking, the "
+               "known bias of sub-pixel peak estimators in particle image velocimetry); measurement (sweeps and "
+               "hand-held study, ideal and as-built, untilted): the sharp lobes' estimates lie 0.010–0.022° from "
+               "the device axis with fit uncertainties under half of that (steel ±0.005°), and kept, "
+               "pink-jasper's 0.013° raised its eq. 10 error by 8 %")
     albedo_angles: tuple[float, ...] = tuned(
         (0.0, 30.0, 60.0, 75.0, 85.0, 89.0), name="ALBEDO_ANGLES", units="deg",
         what="incidence angles at which the directional albedo is checked against 1 (limit_energy)",
