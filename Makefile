@@ -18,6 +18,11 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[dev,render]'
 	@$(MAKE) --no-print-directory sysdeps
+	@# compile the Numba kernels into their cache once, so that no timing a user reads includes it
+	@echo "compiling the kernels (once)"
+	@$(BIN)/reflecto simulate examples/ggx-plastic.json --device as-built --tilt 2 -o $(VENV)/warm-up/capture -q
+	@$(BIN)/reflecto reconstruct $(VENV)/warm-up/capture --nominal -o $(VENV)/warm-up/model.reflecto -q >/dev/null
+	@rm -rf $(VENV)/warm-up
 	@touch $(STAMP)
 
 # Optional system packages, never fatal:
