@@ -1018,7 +1018,9 @@ class PipelineTuning:
                "broader lobes spread their tilt over many pixels where the 1-D model's misfit biases it. "
                "Measurement (hand-held study, ideal device, the 50 untilted captures): without the gate 10 keep "
                "tilts of 0.01–0.40° (blue-metallic-paint, half width 8.1°: 0.40°; color-changing-paint2, 0.72°: "
-               "0.17°; chm_mint, 0.59°: 0.10°); with it, the lobes of 0.16–0.31° keep ≤ 0.02°")
+               "0.17°; chm_mint, 0.59°: 0.10°); with it and SUBPIXEL_BIAS's floor, every untilted capture of the "
+               "study and the four sweeps keeps the axis it kept with the pitch's floor, but red-specular-plastic "
+               "on wide (0.048°) and chm_mint on wide-as-built")
     subpixel_bias: float = tuned(
         0.1, name="SUBPIXEL_BIAS", units="half-vector pitches",
         what="the least uncertainty of a sharp lobe's tilt in the device-axis test: the bias of a peak placed "
@@ -1028,7 +1030,7 @@ class PipelineTuning:
                "known bias of sub-pixel peak estimators in particle image velocimetry); measurement (sweeps and "
                "hand-held study, ideal and as-built, untilted): the sharp lobes' estimates lie 0.010–0.022° from "
                "the device axis with fit uncertainties under half of that (steel ±0.005°), and kept, "
-               "pink-jasper's 0.013° raised its eq. 10 error by 8 %")
+               "pink-jasper's 0.013° would raise its eq. 10 error by 8 %")
     albedo_angles: tuple[float, ...] = tuned(
         (0.0, 30.0, 60.0, 75.0, 85.0, 89.0), name="ALBEDO_ANGLES", units="deg",
         what="incidence angles at which the directional albedo is checked against 1 (limit_energy)",
