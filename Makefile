@@ -22,6 +22,8 @@ $(STAMP): pyproject.toml
 	@echo "compiling the kernels (once)"
 	@$(BIN)/reflecto simulate examples/ggx-plastic.json --device as-built --tilt 2 -o $(VENV)/warm-up/capture -q
 	@$(BIN)/reflecto reconstruct $(VENV)/warm-up/capture --nominal -o $(VENV)/warm-up/model.reflecto -q >/dev/null
+	@$(BIN)/reflecto simulate examples/brushed-asymmetric.toml -o $(VENV)/warm-up/brushed -q
+	@$(BIN)/reflecto reconstruct $(VENV)/warm-up/brushed -o $(VENV)/warm-up/brushed.reflecto -q >/dev/null
 	@rm -rf $(VENV)/warm-up
 	@touch $(STAMP)
 
