@@ -260,6 +260,11 @@ class Watcher:
         self.thumbnails = thumbnails
         self.announce = announce
         self._interrupted = False  # a Ctrl-C or SIGTERM arrived (run)
+        # the models folder's name where it lies directly in the watched folder: never a capture
+        try:
+            self._models_here = self.models.name if self.models.resolve().parent == self.root.resolve() else None
+        except OSError:
+            self._models_here = None
         self.entries: dict[str, Entry] = {}
         self.failed: dict[str, str] = {}
         self._failed_sig: dict[str, tuple] = {}
@@ -279,16 +284,7 @@ class Watcher:
             return []
         except OSError as e:
             raise ReflectoError(f"{self.root}: cannot list the folder ({e.strerror or e})") from None
-        inside = self._models_in_root()
-        return [self.root / n for n in names if n not in self.entries and n != inside]
-
-    def _models_in_root(self) -> str | None:
-        """The name of the models folder where it lies directly in the watched folder (never a
-        capture), else ``None``."""
-        try:
-            return self.models.name if self.models.resolve().parent == self.root.resolve() else None
-        except OSError:
-            return None
+        return [self.root / n for n in names if n not in self.entries and n != self._models_here]
 
     def _done(self, name: str) -> bool:
         return (self.models / f"{name}.json").exists() and (self.models / f"{name}.reflecto").exists()
