@@ -159,6 +159,33 @@ def test_lobe_log_recovers_ggx_and_beckmann_shapes():
         assert np.allclose(lobe[far], np.log(d[far]), atol=0.02), dist
 
 
+def test_an_ndf_from_a_fits_log_state_is_the_constructors():
+    """``IsotropicNDF.from_log`` (the fit's rounds, without the constructor's checks) gives the
+    constructor's table, values and σ bit for bit, the state's scale removed."""
+    nodes = polar_nodes()
+    z = -np.tan(nodes) ** 2 / 0.04 + 3.7 - 4.0 * np.log(np.cos(np.minimum(nodes, 1.5)))
+    a, b = IsotropicNDF.from_log(nodes, z), IsotropicNDF(nodes, np.exp(z - z.max()))
+    for x, y in ((a.log_values, b.log_values), (a.values, b.values), (a.sigma, b.sigma)):
+        assert np.array_equal(x, y) and not x.flags.writeable
+    assert a.normalization == pytest.approx(1.0, rel=1e-12)
+
+
+def test_difference_gram_scaled_equals_the_scaled_rows_product():
+    """The priors' first-difference Gram matrix, cached and scaled afterwards, equals the
+    product of the scaled difference rows bit for bit (its entries are 0, ±1 and 2), so the
+    prior's matrices do not depend on which way they are assembled."""
+    rng = np.random.default_rng(3)
+    k = len(polar_nodes())
+    for rows in ((k - 2,), tuple(range(40, k - 1)), tuple(sorted(rng.choice(k - 1, 12, replace=False).tolist())),
+                 (5, 6, 7, 30, 31)):
+        p = np.zeros((len(rows), k))
+        p[np.arange(len(rows)), np.asarray(rows) + 1] = 1.0
+        p[np.arange(len(rows)), np.asarray(rows)] = -1.0
+        for scale in (1.0, 0.1 * math.pi, rng.lognormal(0.0, 5.0)):
+            assert np.array_equal(scale * isotropic._difference_gram(k, rows), scale * p.T @ p)
+    assert not isotropic._difference_gram(k, (3,)).flags.writeable
+
+
 def test_fresnel_tint_interpolates_holds_and_refuses_impossible_tables():
     from reflecto.fresnel import FresnelTint
 

@@ -55,6 +55,7 @@ INLINED_INTO = {
     "reflecto._kernels._cube_lookup": ("cube_lookup", "mirror_distances", "model_eval"),
     "reflecto._kernels._bilinear": ("_cube_lookup", "_upsample"),
     "reflecto._kernels._sigma_lookup": ("model_eval",),
+    "reflecto._kernels._polar_shadowing": ("pair_shadowing",),
     "reflecto._kernels._upsample": ("upsample", "pull"),
     "reflecto._kernels._texel": ("cube_index", "bin_accumulate", "splat"),
     "reflecto._kernels._fresnel": ("fresnel_flat", "pair_residuals"),
@@ -469,6 +470,34 @@ def test_shadowing_at():
     assert np.allclose(out, np.divide(cos, sigma, out=np.zeros_like(cos), where=sigma > 0), rtol=1e-14, atol=1e-15)
     assert np.allclose(table.eval_at(st), table.eval(dirs), rtol=1e-14, atol=1e-15)
     assert out[-1] == 0.0  # below the horizon
+
+
+@twin("reflecto._kernels.pair_shadowing")
+@pytest.mark.parametrize("correlated", [False, True])
+def test_pair_shadowing(correlated):
+    """The pair's shadowing from prepared cells equals the product (or the height-correlated
+    form) of :meth:`IsotropicNDF.shadowing` (``np.interp`` on σ's table) bit for bit, at
+    random cosines, at the σ table's own angles (``np.interp``'s exact branch), at grazing
+    (cos 0, θ = π/2: the last node), at the pole and below the horizon (clipped to 0)."""
+    from reflecto.polar import SIGMA_NODES, IsotropicNDF, polar_nodes, shadowing_cells
+
+    rng = np.random.default_rng(11)
+    nodes = polar_nodes()
+    grid = np.linspace(0.0, 0.5 * math.pi, SIGMA_NODES)
+    special = np.concatenate([np.cos(grid), [0.0, 1.0, -0.3, 1.2, 1e-300]])
+    for alpha in (0.02, 0.3, 0.9):  # sharp to broad: S from 1 down to ≈ 0 at grazing
+        ndf = IsotropicNDF(nodes, np.exp(-np.tan(nodes) ** 2 / alpha**2) / np.cos(nodes) ** 4)
+        cos_i = np.concatenate([rng.random(3000), special, rng.random(len(special))])
+        cos_o = np.concatenate([rng.random(3000), rng.random(len(special)), special])
+        geometry = 1.0 / (4.0 * np.maximum(cos_i, 0.05) * np.maximum(cos_o, 0.05))
+        shadow, shadow_geometry = ndf.pair_shadowing(shadowing_cells(cos_i), shadowing_cells(cos_o), correlated,
+                                                     geometry)
+        si, so = ndf.shadowing(cos_i), ndf.shadowing(cos_o)
+        want = (np.divide(si * so, si + so - si * so, out=np.zeros_like(si), where=(si > 0) & (so > 0))
+                if correlated else si * so)
+        assert np.array_equal(shadow, want) and np.array_equal(shadow_geometry, want * geometry)
+        assert shadow.min() >= 0.0 and shadow.max() <= 1.0
+    assert shadow[3000 + SIGMA_NODES] == 0.0 and shadow[3000 + SIGMA_NODES + 2] == 0.0  # grazing, below
 
 
 @twin("reflecto._kernels.model_eval")

@@ -111,6 +111,36 @@ def shadowing_at(flat, w, idx, ft, fp, cos, out):
         out[k] = cos[k] / s if s > 0.0 else 0.0
 
 
+@njit(inline="always", **_OPTS)
+def _polar_shadowing(sigma, theta_s, cell: int, offset: float, c: float) -> float:
+    """``S = c/max(σ(θ), c)`` with ``σ(θ)`` as ``np.interp(θ, theta_s, sigma)`` takes it at
+    ``θ = theta_s[cell] + offset`` (the node itself where ``offset`` is 0 or ``cell`` the last;
+    else ``slope · offset + σ[cell]``, the slope ``(σ[j+1] − σ[j])/(θ[j+1] − θ[j])``)."""
+    if cell == sigma.shape[0] - 1 or offset == 0.0:
+        sig = sigma[cell]
+    else:
+        sig = (sigma[cell + 1] - sigma[cell]) / (theta_s[cell + 1] - theta_s[cell]) * offset + sigma[cell]
+    s = sig if sig >= c else c
+    return c / s if s > 0.0 else 0.0
+
+
+@njit(**_OPTS)
+def pair_shadowing(sigma, theta_s, cell_i, offset_i, cos_i, cell_o, offset_o, cos_o, correlated, geometry,
+                   out, out_geometry):
+    """The pair's shadowing ``S_i S_o`` (or with ``correlated`` ``S_i S_o/(S_i + S_o − S_i S_o)``,
+    0 where either is 0) and its product with ``geometry``: :meth:`reflecto.polar.IsotropicNDF.pair_shadowing`
+    (the NumPy reference: ``IsotropicNDF.shadowing`` of each direction)."""
+    for k in range(cell_i.shape[0]):
+        si = _polar_shadowing(sigma, theta_s, cell_i[k], offset_i[k], cos_i[k])
+        so = _polar_shadowing(sigma, theta_s, cell_o[k], offset_o[k], cos_o[k])
+        if correlated:
+            v = si * so / (si + so - si * so) if (si > 0.0 and so > 0.0) else 0.0
+        else:
+            v = si * so
+        out[k] = v
+        out_geometry[k] = v * geometry[k]
+
+
 @njit(**_OPTS)
 def cube_lookup(padded, pad_offsets, n, dirs, out):
     """``out[k] = lookup(dirs[k])`` for directions of shape ``(M, 3)``."""

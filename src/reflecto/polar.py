@@ -28,11 +28,13 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from . import _kernels
 from .errors import ParameterError
 
 Array = NDArray[np.float64]
 
-__all__ = ["IsotropicNDF", "NodeNDFs", "azimuthal_kernel", "polar_nodes", "interpolation_cells"]
+__all__ = ["IsotropicNDF", "NodeNDFs", "ShadowingCells", "azimuthal_kernel", "polar_nodes", "interpolation_cells",
+           "shadowing_cells"]
 
 #: Node spacing at the pole (radians): 0.1°, half the camera's angular sampling of
 #: the half vector (a pixel moves h by ≈ 0.2°), so that the sharpest peaks it can
@@ -120,7 +122,7 @@ def _quadrature(nodes_key: bytes) -> _Quadrature:
     theta = 0.5 * math.pi * u * u
     ring = np.sin(theta) * (math.pi * u / QUADRATURE_RINGS)  # sin θ dθ of each ring
     j, t = interpolation_cells(nodes, theta)
-    theta_s = np.linspace(0.0, 0.5 * math.pi, SIGMA_NODES)
+    theta_s = _sigma_grid()
     q = _Quadrature(j, t, 2.0 * math.pi * np.cos(theta) * ring, azimuthal_kernel(theta_s, theta) * ring[None, :],
                     theta_s)
     for a in (q.cells, q.t, q.norm_weights, q.sigma_matrix, q.sigma_theta):
@@ -135,6 +137,46 @@ def lobe_half_width_deg(nodes: Array, values: Array) -> float:
     d = np.interp(theta, nodes, values)
     below = np.flatnonzero(d < 0.5 * d[0])
     return math.degrees(float(theta[below[0]])) if len(below) else 90.0
+
+
+@dataclasses.dataclass(frozen=True)
+class ShadowingCells:
+    """Fixed directions prepared once for their ``S`` under many NDFs (a fit's bins).
+
+    Attributes
+    ----------
+    cos
+        ``cos θ`` clipped to [0, 1], shape ``(B,)``.
+    cell
+        The σ table's cell of ``θ = arccos(cos)``: ``θ_s[cell] ≤ θ < θ_s[cell + 1]``, the last
+        node where ``θ`` is π/2 (as ``np.interp`` finds it), shape ``(B,)``.
+    offset
+        ``θ − θ_s[cell]`` (radians), shape ``(B,)``.
+    """
+
+    cos: Array
+    cell: NDArray[np.intp]
+    offset: Array
+
+
+def shadowing_cells(cos_theta: ArrayLike) -> ShadowingCells:
+    """:class:`ShadowingCells` of the cosines ``cos_theta`` (shape ``(B,)``) on the σ table's
+    polar angles (:data:`SIGMA_NODES` from 0 to π/2, the same for every node grid)."""
+    c = np.clip(np.asarray(cos_theta, dtype=np.float64), 0.0, 1.0)
+    theta = np.arccos(c)
+    grid = _sigma_grid()
+    cell = np.clip(np.searchsorted(grid, theta, side="right") - 1, 0, len(grid) - 1)
+    out = ShadowingCells(c, cell.astype(np.intp), theta - grid[cell])
+    for a in (out.cos, out.cell, out.offset):
+        a.setflags(write=False)
+    return out
+
+
+@functools.lru_cache(maxsize=1)
+def _sigma_grid() -> Array:
+    grid = np.linspace(0.0, 0.5 * math.pi, SIGMA_NODES)
+    grid.setflags(write=False)
+    return grid
 
 
 class IsotropicNDF:
@@ -161,6 +203,18 @@ class IsotropicNDF:
             raise ParameterError("isotropic NDF: nodes must increase from 0 to π/2")
         if not np.all(np.isfinite(values)) or np.any(values < 0) or not np.any(values > 0):
             raise ParameterError("isotropic NDF: values must be finite, ≥ 0 and not all 0")
+        self._tabulate(nodes, values, normalize)
+
+    @classmethod
+    def from_log(cls, nodes: Array, z: Array) -> IsotropicNDF:
+        """The normalized NDF ``∝ e^z`` at ``nodes`` (a fit's state: ``z`` finite, ``nodes`` a
+        node grid already checked), without the constructor's checks: the values
+        ``e^{z − max z}`` and their table are exactly the constructor's."""
+        ndf = cls.__new__(cls)
+        ndf._tabulate(nodes, np.exp(z - z.max()), True)
+        return ndf
+
+    def _tabulate(self, nodes: Array, values: Array, normalize: bool) -> None:
         self.nodes = nodes
         self._quad = _quadrature(nodes.tobytes())
         log_d = np.log(np.maximum(values, values.max() * 1e-300))
@@ -202,6 +256,19 @@ class IsotropicNDF:
         c = np.clip(np.asarray(cos_theta, dtype=np.float64), 0.0, 1.0)
         sig = np.interp(np.arccos(c), self._quad.sigma_theta, self.sigma)
         return np.maximum(sig, c)
+
+    def pair_shadowing(self, cells_i: ShadowingCells, cells_o: ShadowingCells, correlated: bool = False,
+                       geometry: Array | None = None) -> tuple[Array, Array]:
+        """The shadowing of direction pairs, ``S(θ_i) S(θ_o)`` (eq. 8), or with ``correlated``
+        the height-correlated ``S_i S_o / (S_i + S_o − S_i S_o)`` (0 where either is 0), at
+        prepared directions (:func:`shadowing_cells`, shape ``(B,)`` each) in one compiled
+        pass; each ``S`` equals :meth:`shadowing`'s bit for bit. Returns the shadowing and
+        its product with ``geometry`` (shape ``(B,)``; ones where ``None``)."""
+        out, out_geometry = np.empty(len(cells_i.cos)), np.empty(len(cells_i.cos))
+        _kernels.pair_shadowing(self.sigma, _sigma_grid(), cells_i.cell, cells_i.offset, cells_i.cos, cells_o.cell,
+                                cells_o.offset, cells_o.cos, bool(correlated),
+                                np.ones(len(out)) if geometry is None else geometry, out, out_geometry)
+        return out, out_geometry
 
     def shadowing(self, cos_theta: ArrayLike) -> Array:
         """APS shadowing ``S = cos θ / σ`` in [0, 1] (eq. 8) at ``cos θ``, any shape."""

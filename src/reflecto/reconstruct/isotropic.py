@@ -60,10 +60,12 @@ from ..model import IsotropicMicrofacetBRDF
 from ..polar import (
     IsotropicNDF,
     NodeNDFs,
+    ShadowingCells,
     _quadrature,
     cell_table,
     interpolation_cells,
     polar_nodes,
+    shadowing_cells,
 )
 from . import _polar_kernels
 from .samples import kd_median_bound
@@ -270,6 +272,11 @@ class LuminanceProblem:
         self.beta = np.zeros(len(nodes))
         self.prior_constant = 0.0
 
+    @functools.cached_property
+    def shadowing_cells(self) -> tuple[ShadowingCells, ShadowingCells]:
+        """The bins' light and view directions prepared for ``S`` (:func:`reflecto.polar.shadowing_cells`)."""
+        return shadowing_cells(self.bins.cos_i), shadowing_cells(self.bins.cos_o)
+
     def specular(self, s: LuminanceState) -> tuple[Array, Array]:
         """``g F e^z S / (4 cos cos)`` per bin, and F."""
         z = s.z
@@ -277,12 +284,25 @@ class LuminanceProblem:
         fr = fresnel(self.bins.cos_d, s.eta)
         return s.g * fr * np.exp(np.minimum(log_d, 700.0)) * self.shadow * self.geometry, fr
 
+    def values(self, s: LuminanceState) -> Array:
+        """The model values ``m_b`` (sr⁻¹, shape ``(B,)``)."""
+        spec, _ = self.specular(s)
+        return s.kd / math.pi + spec
+
     def residuals(self, s: LuminanceState) -> tuple[Array, Array]:
         """Residuals (bounds one-sided) and the model values."""
-        spec, _ = self.specular(s)
-        m = s.kd / math.pi + spec
+        m = self.values(s)
         r = m - self.f
         return np.where(self.measured, r, np.maximum(r, 0.0)), m
+
+    @functools.cached_property
+    def measured_extent(self) -> tuple[float, int | None]:
+        """The measured bins' span of ``θ_h`` (radians; 1 where none is measured) and the
+        last ring they lie in (the lower node of the outermost cell; ``None`` where none)."""
+        me = self.measured
+        if not me.any():
+            return 1.0, None
+        return float(np.ptp(self.bins.theta_h[me])), int(self.j[me].max())
 
     def data_pass(self, s: LuminanceState) -> float:
         """``Σ w r²`` in one compiled pass (:func:`._polar_kernels.luminance_pass`); the
@@ -318,24 +338,21 @@ def prior(problem: LuminanceProblem, s: LuminanceState, tail: Array | None = Non
     """
     nodes = problem.nodes
     k = len(nodes)
-    _, m = problem.residuals(s)
+    m = problem.values(s)
     me = problem.measured
-    span = float(np.ptp(problem.bins.theta_h[me])) if me.any() else 1.0
+    span, last_ring = problem.measured_extent
     rho = float(np.sum((problem.w * m * m)[me])) / max(span, 1e-3)
     h = rho * SMOOTH_LENGTH**4 * _curvature_matrix(nodes.tobytes())
     beta = np.zeros(k)
     constant = 0.0
+    step = _median_step(nodes.tobytes())
     # the last ring measured: the lower node of the outermost cell a measured bin lies in
     # (the node above it is touched only through interpolation weights that vanish there)
-    if me.any():
-        first = int(problem.j[me].max()) if tail_from is None else min(tail_from, int(problem.j[me].max()))
+    if last_ring is not None:
+        first = last_ring if tail_from is None else min(tail_from, last_ring)
         lobe = None if first >= k - 1 else tail if tail is not None else lobe_log(nodes, s.z, np.arange(k) <= first)
         if lobe is not None:
-            rows = np.zeros((k - 1 - first, k))
-            idx = np.arange(first, k - 1)
-            rows[np.arange(len(idx)), idx + 1] = 1.0
-            rows[np.arange(len(idx)), idx] = -1.0
-            pt = TAIL_WEIGHT * rho * float(np.median(np.diff(nodes))) * rows.T @ rows
+            pt = TAIL_WEIGHT * rho * step * _difference_gram(k, tuple(range(first, k - 1)))
             h = h + pt
             beta = pt @ lobe
             constant = float(lobe @ pt @ lobe)
@@ -343,11 +360,28 @@ def prior(problem: LuminanceProblem, s: LuminanceState, tail: Array | None = Non
     peak = int(np.argmax(s.z))
     rise = np.flatnonzero(np.diff(s.z)[peak:] > 0) + peak
     if len(rise):
-        rows = np.zeros((len(rise), k))
-        rows[np.arange(len(rise)), rise + 1] = 1.0
-        rows[np.arange(len(rise)), rise] = -1.0
-        h = h + MONOTONE_WEIGHT * rho * float(np.median(np.diff(nodes))) * rows.T @ rows
+        h = h + MONOTONE_WEIGHT * rho * step * _difference_gram(k, tuple(rise.tolist()))
     problem.h, problem.beta, problem.prior_constant = h, beta, constant
+
+
+@functools.lru_cache(maxsize=4)
+def _median_step(nodes_key: bytes) -> float:
+    """The median spacing of the nodes (radians)."""
+    return float(np.median(np.diff(np.frombuffer(nodes_key, dtype=np.float64))))
+
+
+@functools.lru_cache(maxsize=64)
+def _difference_gram(k: int, rows: tuple[int, ...]) -> Array:
+    """``PᵀP`` (shape ``(k, k)``, read-only) of the first differences ``(P z)_r = z[q_r + 1] − z[q_r]``
+    for the indices ``q_r`` of ``rows``. Its entries are small integers, so a scale times it equals
+    the scaled rows' product exactly."""
+    p = np.zeros((len(rows), k))
+    idx = np.asarray(rows, dtype=np.intp)
+    p[np.arange(len(idx)), idx + 1] = 1.0
+    p[np.arange(len(idx)), idx] = -1.0
+    out = p.T @ p
+    out.setflags(write=False)
+    return out
 
 
 @functools.lru_cache(maxsize=4)
@@ -386,7 +420,8 @@ def lobe_log(nodes: Array, z: Array, observed: NDArray[np.bool_]) -> Array | Non
     if np.count_nonzero(sel) < 4:
         return None
     th = nodes[sel]
-    x = np.stack([np.ones(len(th)), np.tan(th) ** 2], axis=1)
+    x = np.ones((len(th), 2))
+    x[:, 1] = np.tan(th) ** 2
     lc4 = z[sel] + 4.0 * np.log(np.cos(th)) - peak
     best: tuple[float, str, Array] | None = None
     for family in ("ggx", "beckmann"):
@@ -631,10 +666,13 @@ def update_shadowing(problem: LuminanceProblem, s: LuminanceState, damping: bool
     """The shadowing of every bin from the current NDF (eq. 8, :func:`pair_shadowing` in
     the problem's form); with ``damping`` the geometric mean of the old and the new value
     (the fixed point ``S = S(D)`` oscillates for broad lobes when taken in full steps)."""
-    ndf = IsotropicNDF(problem.nodes, np.exp(s.z - s.z.max()))
-    new = pair_shadowing(ndf, problem.bins.cos_i, problem.bins.cos_o, problem.correlated)
-    problem.shadow = np.sqrt(problem.shadow * new) if damping else new
-    problem.shadow_geometry = problem.shadow * problem.geometry
+    ndf = IsotropicNDF.from_log(problem.nodes, s.z)
+    new, new_geometry = ndf.pair_shadowing(*problem.shadowing_cells, problem.correlated, problem.geometry)
+    if damping:
+        problem.shadow = np.sqrt(problem.shadow * new)
+        problem.shadow_geometry = problem.shadow * problem.geometry
+    else:
+        problem.shadow, problem.shadow_geometry = new, new_geometry
 
 
 def initial_state(problem: LuminanceProblem, eta: float = 1.5) -> LuminanceState:
@@ -872,7 +910,7 @@ def unit_specular(fit: LuminanceFit, lobes: NodeNDFs | None = None) -> Array:
     b = p.bins
     lobe = np.zeros(len(b))
     for w, ndf in zip(lobes.hats(np.arccos(np.clip(b.cos_d, 0.0, 1.0))), lobes.ndfs):
-        lobe += w * ndf.at_theta(b.theta_h) * pair_shadowing(ndf, b.cos_i, b.cos_o, p.correlated)
+        lobe += w * ndf.at_theta(b.theta_h) * ndf.pair_shadowing(*p.shadowing_cells, p.correlated)[0]
     return fresnel(b.cos_d, s.eta) * lobe * p.geometry
 
 
