@@ -121,3 +121,39 @@ def test_a_layout_without_grazing_light_cannot_choose():
     dev = Device.builtin("earlier")
     res = reconstruct(extract_slices(simulate_capture(src, dev, seed=1), nominal_calibration(dev)))
     assert res.shadowing.reason == "indistinct" and res.shadowing.difference < 0.01 and not res.model.correlated
+
+
+
+def test_the_correlated_fit_continues_from_the_products_active_set(monkeypatch, shared):
+    """The correlated form's fit starts where the product's fit ended, its bound included:
+    on the bound ``k_s = 1`` (delrin's product fit ends there) each round solves once,
+    held on it (not a solve off the bound that must then be repeated on it), and a start
+    whose optimum lies inside the bound leaves it before the first solve (the
+    multiplier's sign, ``ks_bound_binds``)."""
+    from reflecto.evaluate.sweep import material_seed
+    from reflecto.load import load_source
+    from reflecto.reconstruct import extrapolation, isotropic
+    from reflecto.reconstruct.pipeline import usable_samples
+
+    nodes = polar_nodes()
+    solves = []
+    real = isotropic.solve
+    monkeypatch.setattr(isotropic, "solve",
+                        lambda p, s, **kw: solves.append(kw.get("tie_ks", False)) or real(p, s, **kw))
+
+    def product_fit(src, seed=1):
+        sl = _capture(src, seed)
+        return isotropic.fit_luminance(isotropic.bin_polar(sl, nodes, usable_samples(sl) & sl.valid), nodes)
+
+    bound = product_fit(load_source(shared / "merl-nbrdf" / "delrin.h5"), material_seed("delrin"))
+    assert bound.ks_bound and bound.ks == pytest.approx(1.0, abs=1e-9)
+    solves.clear()
+    alt = extrapolation._correlated_fit(bound, None)
+    assert solves == [True] * isotropic.OUTER_ITERATIONS
+    assert alt.ks_bound and alt.cost > (1 - extrapolation.MIN_COST_GAIN) * bound.cost  # delrin keeps the product
+
+    inside = product_fit(AnalyticBRDF(distribution="ggx", alpha=0.3, kd=0.0, ks=0.4, eta=1.5, correlated=True))
+    assert not inside.ks_bound and inside.ks < 0.6
+    solves.clear()
+    released = isotropic.fit_luminance(inside.problem.bins, nodes, correlated=True, start=inside.state, tied=True)
+    assert solves[0] is False and not released.ks_bound and released.ks == pytest.approx(0.4, abs=0.02)

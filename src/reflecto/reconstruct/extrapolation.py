@@ -22,7 +22,8 @@ Neither is right for every material, so the capture chooses (:func:`choose_shado
    looks; or a layout without grazing light, as the earlier device's), the data cannot
    choose and the product is kept without another fit.
 2. **Both forms fitted to every bin.** The luminance fit (:func:`.isotropic.fit_luminance`)
-   is continued from the product's optimum with the correlated form; the two fits have
+   is continued from the product's optimum and its active set (on ``k_s = 1`` where the
+   product's fit ended there) with the correlated form; the two fits have
    the same parameters (the NDF's nodes, ``k_d``, ``g``, η) and the same priors, so their
    final costs (eq. 10's weighted squares plus the NDF's curvature prior) compare
    directly, as likelihoods of models of equal size do. The grazing slices (θ_i ≈ 83°,
@@ -172,6 +173,8 @@ def choose_shadowing(fit: IsotropicFit, fixed_eta: float | None = None, option: 
 
 def _correlated_fit(lum: LuminanceFit, fixed_eta: float | None) -> LuminanceFit:
     """``lum`` continued on the same bins with the correlated form, from its converged state
-    (η held where ``lum`` holds it, or took the constant Fresnel lobe)."""
+    and its active set (on the bound ``k_s = 1`` where ``lum`` ended on it; η held where
+    ``lum`` holds it, or took the constant Fresnel lobe)."""
     hold = fixed_eta if fixed_eta is not None else (CONSTANT if is_constant(lum.state.eta) else None)
-    return fit_luminance(lum.problem.bins, lum.problem.nodes, hold, correlated=True, start=lum.state)
+    return fit_luminance(lum.problem.bins, lum.problem.nodes, hold, correlated=True, start=lum.state,
+                         tied=lum.ks_bound)

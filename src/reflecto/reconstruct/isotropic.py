@@ -713,7 +713,7 @@ class LuminanceFit:
 
 def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
                   outer_iterations: int = OUTER_ITERATIONS, correlated: bool = False,
-                  start: LuminanceState | None = None) -> LuminanceFit:
+                  start: LuminanceState | None = None, tied: bool = False) -> LuminanceFit:
     """The luminance fit at its fixed point with ``S`` (module docstring, stage 3).
 
     When the free η ends at :data:`ETA_MAX` still pushed upward, the data ask for a
@@ -725,9 +725,11 @@ def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
     left parked at the search bound unless the data fit it better than either constant
     lobe (then the notes say so). ``correlated`` chooses the shadowing form
     (:func:`pair_shadowing`); ``start`` a converged state to continue from instead of the
-    data's initial state.
+    data's initial state, and ``tied`` whether it starts on the bound ``k_s = 1`` (the
+    active set of the fit it continues: its first round leaves the bound only where
+    :func:`ks_bound_binds` says the optimum lies inside).
     """
-    fit = _fit_luminance(bins, nodes, fixed_eta, outer_iterations, start=start, correlated=correlated)
+    fit = _fit_luminance(bins, nodes, fixed_eta, outer_iterations, start=start, correlated=correlated, tied=tied)
     if fixed_eta is None and fit.state.eta >= ETA_MAX * (1 - 1e-9):
         flats = (_fit_luminance(bins, nodes, CONSTANT, outer_iterations, correlated=correlated),
                  _fit_luminance(bins, nodes, CONSTANT, outer_iterations, start=fit.state, correlated=correlated))
@@ -736,7 +738,8 @@ def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
 
 
 def _fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None, outer_iterations: int,
-                   start: LuminanceState | None = None, correlated: bool = False) -> LuminanceFit:
+                   start: LuminanceState | None = None, correlated: bool = False, tied: bool = False
+                   ) -> LuminanceFit:
     """One luminance fit, η free or held at ``fixed_eta``, from the initial state or ``start``,
     with the shadowing form ``correlated`` (:func:`pair_shadowing`)."""
     problem = LuminanceProblem(bins, nodes, correlated)
@@ -747,7 +750,7 @@ def _fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None, outer
         s = start.copy()
         s.eta = s.eta if fixed_eta is None else fixed_eta
         update_shadowing(problem, s)
-    tie = False
+    tie = tied
     cost = math.inf
     for _ in range(outer_iterations):
         prior(problem, s)
