@@ -160,14 +160,16 @@ def test_lobe_log_recovers_ggx_and_beckmann_shapes():
 
 
 def test_an_ndf_from_a_fits_log_state_is_the_constructors():
-    """``IsotropicNDF.from_log`` (the fit's rounds, without the constructor's checks) gives the
-    constructor's table, values and σ bit for bit, the state's scale removed."""
+    """``IsotropicNDF.from_log`` (the fit's rounds, checking only the state's finiteness) gives
+    the constructor's table, values and σ bit for bit, the state's scale removed."""
     nodes = polar_nodes()
     z = -np.tan(nodes) ** 2 / 0.04 + 3.7 - 4.0 * np.log(np.cos(np.minimum(nodes, 1.5)))
     a, b = IsotropicNDF.from_log(nodes, z), IsotropicNDF(nodes, np.exp(z - z.max()))
     for x, y in ((a.log_values, b.log_values), (a.values, b.values), (a.sigma, b.sigma)):
         assert np.array_equal(x, y) and not x.flags.writeable
     assert a.normalization == pytest.approx(1.0, rel=1e-12)
+    with pytest.raises(ParameterError, match="finite"):
+        IsotropicNDF.from_log(nodes, np.where(nodes > 1.0, np.nan, z))
 
 
 def test_difference_gram_scaled_equals_the_scaled_rows_product():

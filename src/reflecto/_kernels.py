@@ -114,13 +114,14 @@ def shadowing_at(flat, w, idx, ft, fp, cos, out):
 @njit(inline="always", **_OPTS)
 def _polar_shadowing(sigma, theta_s, cell: int, offset: float, c: float) -> float:
     """``S = c/max(σ(θ), c)`` with ``σ(θ)`` as ``np.interp(θ, theta_s, sigma)`` takes it at
-    ``θ = theta_s[cell] + offset`` (the node itself where ``offset`` is 0 or ``cell`` the last;
-    else ``slope · offset + σ[cell]``, the slope ``(σ[j+1] − σ[j])/(θ[j+1] − θ[j])``)."""
+    ``θ = theta_s[cell] + offset`` (the node itself where ``offset`` is 0, as NumPy avoids a
+    non-finite slope there, or where ``cell`` is the last; else ``slope · offset + σ[cell]``,
+    the slope ``(σ[j+1] − σ[j])/(θ[j+1] − θ[j])``)."""
     if cell == sigma.shape[0] - 1 or offset == 0.0:
         sig = sigma[cell]
     else:
         sig = (sigma[cell + 1] - sigma[cell]) / (theta_s[cell + 1] - theta_s[cell]) * offset + sigma[cell]
-    s = sig if sig >= c else c
+    s = sig if (sig >= c or sig != sig) else c  # np.maximum's: a NaN σ propagates (then S is 0)
     return c / s if s > 0.0 else 0.0
 
 

@@ -207,9 +207,11 @@ class IsotropicNDF:
 
     @classmethod
     def from_log(cls, nodes: Array, z: Array) -> IsotropicNDF:
-        """The normalized NDF ``∝ e^z`` at ``nodes`` (a fit's state: ``z`` finite, ``nodes`` a
-        node grid already checked), without the constructor's checks: the values
-        ``e^{z − max z}`` and their table are exactly the constructor's."""
+        """The normalized NDF ``∝ e^z`` at ``nodes`` (a fit's state; ``nodes`` a node grid
+        already checked, so only ``z``'s finiteness is): the values ``e^{z − max z}`` and
+        their table are exactly the constructor's."""
+        if not np.all(np.isfinite(z)):
+            raise ParameterError("isotropic NDF: the log values must be finite")
         ndf = cls.__new__(cls)
         ndf._tabulate(nodes, np.exp(z - z.max()), True)
         return ndf
@@ -264,10 +266,16 @@ class IsotropicNDF:
         prepared directions (:func:`shadowing_cells`, shape ``(B,)`` each) in one compiled
         pass; each ``S`` equals :meth:`shadowing`'s bit for bit. Returns the shadowing and
         its product with ``geometry`` (shape ``(B,)``; ones where ``None``)."""
-        out, out_geometry = np.empty(len(cells_i.cos)), np.empty(len(cells_i.cos))
-        _kernels.pair_shadowing(self.sigma, _sigma_grid(), cells_i.cell, cells_i.offset, cells_i.cos, cells_o.cell,
-                                cells_o.offset, cells_o.cos, bool(correlated),
-                                np.ones(len(out)) if geometry is None else geometry, out, out_geometry)
+        n = len(cells_i.cos)
+        geometry = np.ones(n) if geometry is None else np.ascontiguousarray(geometry, dtype=np.float64)
+        if len(cells_o.cos) != n or geometry.shape != (n,):
+            raise ParameterError(f"pair shadowing: {n} light directions, {len(cells_o.cos)} view directions and "
+                                 f"geometry of shape {geometry.shape}")
+        out, out_geometry = np.empty(n), np.empty(n)
+        # the cells index the σ table's angles (shadowing_cells), which every node grid's quadrature shares
+        _kernels.pair_shadowing(self.sigma, self._quad.sigma_theta, cells_i.cell, cells_i.offset, cells_i.cos,
+                                cells_o.cell, cells_o.offset, cells_o.cos, bool(correlated), geometry, out,
+                                out_geometry)
         return out, out_geometry
 
     def shadowing(self, cos_theta: ArrayLike) -> Array:

@@ -273,7 +273,7 @@ class LuminanceProblem:
         self.prior_constant = 0.0
 
     @functools.cached_property
-    def shadowing_cells(self) -> tuple[ShadowingCells, ShadowingCells]:
+    def direction_cells(self) -> tuple[ShadowingCells, ShadowingCells]:
         """The bins' light and view directions prepared for ``S`` (:func:`reflecto.polar.shadowing_cells`)."""
         return shadowing_cells(self.bins.cos_i), shadowing_cells(self.bins.cos_o)
 
@@ -667,7 +667,7 @@ def update_shadowing(problem: LuminanceProblem, s: LuminanceState, damping: bool
     the problem's form); with ``damping`` the geometric mean of the old and the new value
     (the fixed point ``S = S(D)`` oscillates for broad lobes when taken in full steps)."""
     ndf = IsotropicNDF.from_log(problem.nodes, s.z)
-    new, new_geometry = ndf.pair_shadowing(*problem.shadowing_cells, problem.correlated, problem.geometry)
+    new, new_geometry = ndf.pair_shadowing(*problem.direction_cells, problem.correlated, problem.geometry)
     if damping:
         problem.shadow = np.sqrt(problem.shadow * new)
         problem.shadow_geometry = problem.shadow * problem.geometry
@@ -913,7 +913,7 @@ def unit_specular(fit: LuminanceFit, lobes: NodeNDFs | None = None) -> Array:
     b = p.bins
     lobe = np.zeros(len(b))
     for w, ndf in zip(lobes.hats(np.arccos(np.clip(b.cos_d, 0.0, 1.0))), lobes.ndfs):
-        lobe += w * ndf.at_theta(b.theta_h) * ndf.pair_shadowing(*p.shadowing_cells, p.correlated)[0]
+        lobe += w * ndf.at_theta(b.theta_h) * ndf.pair_shadowing(*p.direction_cells, p.correlated)[0]
     return fresnel(b.cos_d, s.eta) * lobe * p.geometry
 
 
