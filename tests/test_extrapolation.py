@@ -160,3 +160,27 @@ def test_the_correlated_fit_continues_from_the_products_active_set(monkeypatch, 
     released = isotropic.fit_luminance(inside.problem.bins, nodes, correlated=True, start=on_bound, tied=True)
     assert solves[0] is False and not released.ks_bound and released.ks == pytest.approx(0.4, abs=0.02)
 
+
+
+def test_a_continuation_keeps_a_bound_it_left_and_met_again(monkeypatch, shared):
+    """The correlated form's fit does not zigzag on the bound: natural-209's met it, left it,
+    met it again and left it again every other round (its cost alternating 0.72 and 1.03 of
+    the product's, so the choice of form followed the rounds' parity); a continuation that
+    left the bound and meets it again keeps it, so it leaves at most once."""
+    from reflecto.evaluate.sweep import material_seed
+    from reflecto.load import load_source
+    from reflecto.reconstruct import extrapolation, isotropic
+    from reflecto.reconstruct.pipeline import usable_samples
+
+    nodes = polar_nodes()
+    solves = []
+    real = isotropic.solve
+    monkeypatch.setattr(isotropic, "solve",
+                        lambda p, s, **kw: solves.append("T" if kw.get("tie_ks") else "F") or real(p, s, **kw))
+    sl = _capture(load_source(shared / "merl-nbrdf" / "natural-209.h5"), material_seed("natural-209"))
+    lum = isotropic.fit_luminance(isotropic.bin_polar(sl, nodes, usable_samples(sl) & sl.valid), nodes)
+    solves.clear()
+    alt = extrapolation._correlated_fit(lum, None)
+    sequence = "".join(solves)
+    assert "FT" in sequence and sequence.count("TF") <= 1, sequence  # met, and left at most once
+    assert alt.ks_bound and alt.cost > (1 - extrapolation.MIN_COST_GAIN) * lum.cost  # the product stays

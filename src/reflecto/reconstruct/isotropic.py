@@ -726,8 +726,9 @@ def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
     lobe (then the notes say so). ``correlated`` chooses the shadowing form
     (:func:`pair_shadowing`); ``start`` a converged state to continue from instead of the
     data's initial state, and ``tied`` whether it starts on the bound ``k_s = 1`` (the
-    active set of the fit it continues: its first round leaves the bound only where
-    :func:`ks_bound_binds` says the optimum lies inside).
+    active set of the fit it continues: a round leaves the bound where
+    :func:`ks_bound_binds` says the optimum lies inside; a continuation that left it
+    and meets it again stays on it).
     """
     fit = _fit_luminance(bins, nodes, fixed_eta, outer_iterations, start=start, correlated=correlated, tied=tied)
     if fixed_eta is None and fit.state.eta >= ETA_MAX * (1 - 1e-9):
@@ -751,14 +752,18 @@ def _fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None, outer
         s.eta = s.eta if fixed_eta is None else fixed_eta
         update_shadowing(problem, s)
     tie = tied
+    left = held = False
     cost = math.inf
     for _ in range(outer_iterations):
         prior(problem, s)
-        if tie and not ks_bound_binds(problem, s):
-            tie = False  # the optimum lies inside the bound now: leave it (an active set's release)
+        if tie and not held and not ks_bound_binds(problem, s):
+            tie, left = False, True  # the optimum lies inside the bound now: leave it (an active set's release)
         s, cost = solve(problem, s, fix_eta=fixed_eta is not None, tie_ks=tie)
         if not tie and s.g > 1.0:
-            tie = True  # the physical bound binds: continue on it
+            # the physical bound binds: continue on it. A continuation (``start``) that left it and
+            # meets it again keeps it: its cost is compared with its start's, and a bound left and
+            # met every other round makes that comparison follow the rounds' parity
+            tie, held = True, left and start is not None
             s, cost = solve(problem, s, fix_eta=fixed_eta is not None, tie_ks=True)
         update_shadowing(problem, s)
     eps = model_error(problem, s)
