@@ -56,6 +56,20 @@ def test_slices_the_kernels_cannot_read_are_refused(slices, change, words):
         reconstruct(dataclasses.replace(slices, **change(slices)))
 
 
+def test_slices_check_reads_the_valid_samples_only(slices):
+    """A NaN where a sample is not valid is no error, nor are finite values whose sum
+    overflows; a NaN or an infinity where one is valid is."""
+    from reflecto.instrument.slices import check_slices
+
+    hidden = _with(slices.valid, (1, 7), False)
+    check_slices(dataclasses.replace(slices, valid=hidden, values=_with(slices.values, (1, 7), np.nan)))
+    check_slices(dataclasses.replace(slices, values=_with(slices.values, (0, 5), 1e308)))
+    seen = tuple(np.argwhere(slices.valid)[-1])
+    for bad in (np.nan, np.inf, -np.inf):
+        with pytest.raises(ParameterError, match="values hold NaN or infinite values where valid"):
+            check_slices(dataclasses.replace(slices, values=_with(slices.values, seen + (2,), bad)))
+
+
 @pytest.mark.parametrize("change, words", [
     ({"raw": "short"}, "raw frames must be unsigned integers"),
     ({"raw": "bool"}, "raw frames must be unsigned integers"),

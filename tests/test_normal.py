@@ -311,14 +311,15 @@ def test_the_fit_frame_decides_the_device_check_where_the_planes_moved_the_norma
 
 
 def test_the_device_frame_is_fitted_once_where_it_is_used(monkeypatch):
-    """The device frame's full fit is made once: it checks an estimated tilt (1° and 7°),
-    and it is the model where the device axis is kept (untilted) or where the estimated
+    """The device frame is fitted once: it checks an estimated tilt (1° and 7°; its first
+    rounds may answer, :func:`.pipeline.device_frame_check`), and it is the model where the device axis is kept (untilted) or where the estimated
     frame's lobe is anisotropic (GGX α 0.2 × 0.05: the fallback reuses it)."""
     from reflecto.reconstruct import pipeline
 
     calls = []
-    real = pipeline._device_frame_fit
+    real, check = pipeline._device_frame_fit, pipeline.device_frame_check
     monkeypatch.setattr(pipeline, "_device_frame_fit", lambda *a: calls.append(1) or real(*a))
+    monkeypatch.setattr(pipeline, "device_frame_check", lambda *a: calls.append(2) or check(*a))
     src = AnalyticBRDF(distribution="ggx", alpha=0.1, kd=0.1, ks=0.8, eta=1.5)
     for tilt, source in ((7.0, "estimated"), (1.0, "estimated"), (0.0, "device")):
         calls.clear()
@@ -398,3 +399,29 @@ def test_a_plane_seen_only_on_the_flank_of_a_hidden_peak_is_not_judged(shared):
     assert any("hides LED 2's" in n for n in res.notes)
     assert res.motion.plane_offsets_deg[2] is None and res.motion.plane_offsets_deg[4] is not None
     assert not res.shake_detected
+
+
+def test_the_device_frame_check_stops_only_where_its_first_rounds_answer():
+    """:func:`.pipeline.device_frame_check`: on GGX α 0.1 tilted 7° the device frame's ε
+    after its first rounds is already many times the estimated frame's, and the check
+    stops there, as the full fit would answer (its ε is higher too); where the estimated
+    frame's ε were as high, the check runs on and gives the full fit, bit for bit."""
+    import dataclasses
+
+    from reflecto.reconstruct import pipeline
+    from reflecto.reconstruct.isotropic import fit_isotropic
+
+    sl, truth = _capture(AnalyticBRDF(distribution="ggx", alpha=0.1, kd=0.1, ks=0.8, eta=1.5), 7.0)
+    valid = usable_samples(sl)
+    opt = pipeline.Options()
+    est = estimate_normal(sl, valid)
+    turned = sl.reframe(est.frame)
+    estimated = fit_isotropic(turned, valid & turned.valid)
+    full = pipeline._device_frame_fit(sl, valid, opt)
+    assert full.model_error > pipeline.DEVICE_CHECK_MARGIN * estimated.model_error
+    assert pipeline.device_frame_check(sl, valid, opt, estimated) is None
+    poor = dataclasses.replace(estimated, model_error=full.model_error)
+    ran = pipeline.device_frame_check(sl, valid, opt, poor)
+    assert ran is not None and ran.model_error == full.model_error and ran.eta == full.eta
+    assert np.array_equal(ran.luminance.state.z, full.luminance.state.z)
+    assert np.array_equal(ran.model.kd, full.model.kd) and np.array_equal(ran.model.ks, full.model.ks)

@@ -74,7 +74,7 @@ from .tuning import ISOTROPIC
 Array = NDArray[np.float64]
 
 __all__ = ["PolarBins", "IsotropicFit", "bin_polar", "fit_isotropic", "LuminanceProblem", "solve",
-           "fit_luminance", "channel_scalars", "lobe_log"]
+           "fit_luminance", "LuminanceRun", "with_constant_fresnel", "channel_scalars", "lobe_log"]
 
 # Tuned numbers: what, units and provenance are in :mod:`.tuning` (isotropic stage).
 CELLS_PER_INTERVAL = ISOTROPIC.cells_per_interval
@@ -730,8 +730,17 @@ def fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None = None,
     :func:`ks_bound_binds` says the optimum lies inside; a continuation that left it
     and meets it again stays on it).
     """
-    fit = _fit_luminance(bins, nodes, fixed_eta, outer_iterations, start=start, correlated=correlated, tied=tied)
+    run = LuminanceRun(bins, nodes, fixed_eta, start=start, correlated=correlated, tied=tied)
+    run.rounds(outer_iterations)
+    return with_constant_fresnel(run.fit(), fixed_eta, outer_iterations)
+
+
+def with_constant_fresnel(fit: LuminanceFit, fixed_eta: float | None,
+                          outer_iterations: int = OUTER_ITERATIONS) -> LuminanceFit:
+    """``fit``, or where its free η ended at :data:`ETA_MAX` the cheapest of it and the two
+    constant Fresnel lobes' fits (:func:`fit_luminance`)."""
     if fixed_eta is None and fit.state.eta >= ETA_MAX * (1 - 1e-9):
+        bins, nodes, correlated = fit.problem.bins, fit.problem.nodes, fit.problem.correlated
         flats = (_fit_luminance(bins, nodes, CONSTANT, outer_iterations, correlated=correlated),
                  _fit_luminance(bins, nodes, CONSTANT, outer_iterations, start=fit.state, correlated=correlated))
         return min((fit, *flats), key=lambda f: f.cost)
@@ -743,31 +752,62 @@ def _fit_luminance(bins: PolarBins, nodes: Array, fixed_eta: float | None, outer
                    ) -> LuminanceFit:
     """One luminance fit, η free or held at ``fixed_eta``, from the initial state or ``start``,
     with the shadowing form ``correlated`` (:func:`pair_shadowing`)."""
-    problem = LuminanceProblem(bins, nodes, correlated)
-    set_weights(problem)
-    if start is None:
-        s = initial_state(problem, 1.5 if fixed_eta is None else fixed_eta)
-    else:
-        s = start.copy()
-        s.eta = s.eta if fixed_eta is None else fixed_eta
-        update_shadowing(problem, s)
-    tie = tied
-    left = held = False
-    cost = math.inf
-    for _ in range(outer_iterations):
-        prior(problem, s)
-        if tie and not held and not ks_bound_binds(problem, s):
-            tie, left = False, True  # the optimum lies inside the bound now: leave it (an active set's release)
-        s, cost = solve(problem, s, fix_eta=fixed_eta is not None, tie_ks=tie)
-        if not tie and s.g > 1.0:
-            # the physical bound binds: continue on it. A continuation (``start``) that left it and
-            # meets it again keeps it: its cost is compared with its start's, and a bound left and
-            # met every other round makes that comparison follow the rounds' parity
-            tie, held = True, left and start is not None
-            s, cost = solve(problem, s, fix_eta=fixed_eta is not None, tie_ks=True)
-        update_shadowing(problem, s)
-    eps = model_error(problem, s)
-    return LuminanceFit(s, eps, cost, tie, problem)
+    run = LuminanceRun(bins, nodes, fixed_eta, start=start, correlated=correlated, tied=tied)
+    run.rounds(outer_iterations)
+    return run.fit()
+
+
+class LuminanceRun:
+    """One luminance fit's outer rounds (``S`` from ``D``, then the Levenberg–Marquardt
+    solve with ``S`` held), taken a round at a time so that a caller may look at the
+    state between them (:func:`.pipeline.device_frame_check` stops a fit whose ``ε``
+    already answers its question). η free or held at ``fixed_eta``, from the data's
+    initial state or ``start``, with the shadowing form ``correlated``
+    (:func:`pair_shadowing`) and the active set ``tied`` (:func:`fit_luminance`).
+    ``rounds(n)`` then :meth:`fit` is the fit of ``n`` outer rounds."""
+
+    def __init__(self, bins: PolarBins, nodes: Array, fixed_eta: float | None, start: LuminanceState | None = None,
+                 correlated: bool = False, tied: bool = False) -> None:
+        self.problem = problem = LuminanceProblem(bins, nodes, correlated)
+        set_weights(problem)
+        if start is None:
+            self.state = initial_state(problem, 1.5 if fixed_eta is None else fixed_eta)
+        else:
+            self.state = start.copy()
+            self.state.eta = self.state.eta if fixed_eta is None else fixed_eta
+            update_shadowing(problem, self.state)
+        self.fixed_eta = fixed_eta
+        self.continuation = start is not None
+        self.tie = tied
+        self.left = self.held = False
+        self.cost = math.inf
+
+    def rounds(self, n: int) -> None:
+        """Take ``n`` more outer rounds."""
+        problem, s = self.problem, self.state
+        fix_eta = self.fixed_eta is not None
+        for _ in range(n):
+            prior(problem, s)
+            if self.tie and not self.held and not ks_bound_binds(problem, s):
+                # the optimum lies inside the bound now: leave it (an active set's release)
+                self.tie, self.left = False, True
+            s, self.cost = solve(problem, s, fix_eta=fix_eta, tie_ks=self.tie)
+            if not self.tie and s.g > 1.0:
+                # the physical bound binds: continue on it. A continuation (``start``) that left it and
+                # meets it again keeps it: its cost is compared with its start's, and a bound left and
+                # met every other round makes that comparison follow the rounds' parity
+                self.tie, self.held = True, self.left and self.continuation
+                s, self.cost = solve(problem, s, fix_eta=fix_eta, tie_ks=True)
+            update_shadowing(problem, s)
+        self.state = s
+
+    def model_error(self) -> float:
+        """``ε`` of the current state (:func:`model_error`)."""
+        return model_error(self.problem, self.state)
+
+    def fit(self) -> LuminanceFit:
+        """The fit at the current state."""
+        return LuminanceFit(self.state, self.model_error(), self.cost, self.tie, self.problem)
 
 
 def ks_bound_binds(problem: LuminanceProblem, s: LuminanceState) -> bool:

@@ -38,9 +38,19 @@ from ..errors import ParameterError, ReflectoError
 from ..fresnel import eta_to_json, is_constant
 from ..instrument.slices import Slices, check_slices
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
+from ..polar import polar_nodes
 from .extrapolation import ShadowingChoice, choose_shadowing
 from .hemicube_fit import HemicubeFit, fit_hemicube
-from .isotropic import ETA_MAX, IsotropicFit, fit_isotropic
+from .isotropic import (
+    ETA_MAX,
+    OUTER_ITERATIONS,
+    IsotropicFit,
+    LuminanceRun,
+    bin_polar,
+    fit_isotropic,
+    isotropic_fit,
+    with_constant_fresnel,
+)
 from .isotropy import IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
 from .normal import (
@@ -54,6 +64,7 @@ from .normal import (
     hidden_peaks,
     refine_normal,
 )
+from .samples import kd_median_bound
 from .tuning import PIPELINE
 
 Array = NDArray[np.float64]
@@ -430,6 +441,41 @@ def _device_frame_fit(slices: Slices, valid: NDArray[np.bool_], opt: Options) ->
     return fit_isotropic(slices, valid & slices.valid, opt.fixed_eta, opt.kd_bound_max_deg)
 
 
+#: The device frame's check looks at its fit's ``ε`` after this many outer rounds …
+DEVICE_CHECK_ROUNDS = PIPELINE.device_check_rounds
+#: … and stops it where that ``ε`` is at least this many times the estimated frame's.
+DEVICE_CHECK_MARGIN = PIPELINE.device_check_margin
+
+
+def device_frame_check(slices: Slices, valid: NDArray[np.bool_], opt: Options,
+                       estimated: IsotropicFit) -> IsotropicFit | None:
+    """The device frame's isotropic fit that checks an estimated tilt
+    (:func:`_tilt_explains_nothing`), or ``None`` where its first rounds already answer:
+    the tilt explains the data better.
+
+    The check compares the fits' final ``ε``; its fit is needed in full only where the
+    device axis may win (then it becomes the model). After :data:`DEVICE_CHECK_ROUNDS`
+    outer rounds ``ε`` is within 0.99–1.41× of its final value on the hand-held study's
+    captures, so where it is still at least :data:`DEVICE_CHECK_MARGIN` times the
+    estimated frame's the final one exceeds it too, and the rest of the fit (its other
+    rounds, ``k_d``'s ceiling) is not run. Otherwise the fit runs on to the end, the same
+    fit as :func:`_device_frame_fit`. Not while η is at its search bound after those
+    rounds: there :func:`.isotropic.with_constant_fresnel` may replace the fit by a
+    lower one.
+    """
+    ok = valid & slices.valid
+    nodes = polar_nodes()
+    run = LuminanceRun(bin_polar(slices, nodes, ok), nodes, opt.fixed_eta)
+    run.rounds(DEVICE_CHECK_ROUNDS)
+    if (run.state.eta < ETA_MAX * (1 - 1e-9)
+            and run.model_error() >= DEVICE_CHECK_MARGIN * estimated.model_error):
+        return None
+    run.rounds(OUTER_ITERATIONS - DEVICE_CHECK_ROUNDS)
+    lum = with_constant_fresnel(run.fit(), opt.fixed_eta)
+    return isotropic_fit(lum, lambda: kd_median_bound(slices.light, slices.view, slices.values, ok,
+                                                      opt.kd_bound_max_deg))
+
+
 def _needs_device_check(opt: Options) -> bool:
     """Whether an estimated tilt is checked against the device frame's fit
     (:func:`_tilt_explains_nothing`): under ``normal="auto"``, isotropy not imposed as "no"."""
@@ -590,7 +636,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     else:
         iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
         if _needs_device_check(opt) and not _within_sampling(est):
-            device_fit = _device_frame_fit(slices, valid, opt)
+            device_fit = device_frame_check(slices, valid, opt, iso)
         if (device_fit is not None and _tilt_explains_nothing(device_fit, iso)
                 and not _fit_frame_explains(slices, valid, opt, est, device_fit)):
             # the device axis fits as well as the estimated tilt: the data tell the normal only to
