@@ -312,8 +312,9 @@ def test_the_fit_frame_decides_the_device_check_where_the_planes_moved_the_norma
 
 def test_the_device_frame_is_fitted_once_where_it_is_used(monkeypatch):
     """The device frame is fitted once: it checks an estimated tilt (1° and 7°; its first
-    rounds may answer, :func:`.pipeline.device_frame_check`), and it is the model where the device axis is kept (untilted) or where the estimated
-    frame's lobe is anisotropic (GGX α 0.2 × 0.05: the fallback reuses it)."""
+    rounds may answer, :func:`.pipeline.device_frame_check`), and it is the model where
+    the device axis is kept (untilted) or where the estimated frame's lobe is anisotropic
+    (GGX α 0.2 × 0.05, untilted: the fallback reuses the check's full fit)."""
     from reflecto.reconstruct import pipeline
 
     calls = []
@@ -425,3 +426,28 @@ def test_the_device_frame_check_stops_only_where_its_first_rounds_answer():
     assert ran is not None and ran.model_error == full.model_error and ran.eta == full.eta
     assert np.array_equal(ran.luminance.state.z, full.luminance.state.z)
     assert np.array_equal(ran.model.kd, full.model.kd) and np.array_equal(ran.model.ks, full.model.ks)
+
+
+def test_the_device_frame_check_runs_on_where_eta_may_still_reach_its_bound(monkeypatch):
+    """GGX α 0.2 with η 100 (untilted): the device frame's free η is still climbing after
+    the check's rounds (19 after two) and its final fit is the constant Fresnel lobe's,
+    whose ε is 1.9× lower than after those rounds. With a margin of 1.5, an estimated
+    frame's ε between the two would stop a check that looked at ε alone, and the tilt
+    would be kept; the η guard runs it on to the full fit, which keeps the device axis."""
+    import dataclasses
+
+    from reflecto.fresnel import is_constant
+    from reflecto.reconstruct import pipeline
+
+    sl, _ = _capture(AnalyticBRDF(distribution="ggx", alpha=0.2, kd=0.02, ks=0.9, eta=100.0), 0.0, seed=1)
+    valid = usable_samples(sl)
+    opt = pipeline.Options()
+    full = pipeline._device_frame_fit(sl, valid, opt)
+    assert is_constant(full.eta)
+    between = dataclasses.replace(full, model_error=1.15 * full.model_error)
+    assert pipeline._tilt_explains_nothing(full, between)
+    monkeypatch.setattr(pipeline, "DEVICE_CHECK_MARGIN", 1.5)
+    ran = pipeline.device_frame_check(sl, valid, opt, between)
+    assert ran is not None and ran.model_error == full.model_error and is_constant(ran.eta)
+    monkeypatch.setattr(pipeline, "DEVICE_CHECK_ETA", math.inf)  # ε alone would have stopped it
+    assert pipeline.device_frame_check(sl, valid, opt, between) is None

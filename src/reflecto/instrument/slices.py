@@ -166,8 +166,8 @@ def check_slices(slices: Slices, where: str = "slices") -> None:
     # a finite sum has no NaN or infinite term (one would make it NaN or infinite): the usual
     # case costs one pass without gathering the valid samples; a sum that overflows is looked at closely
     with np.errstate(over="ignore", invalid="ignore"):
-        total = float(np.sum(values))
-    if not math.isfinite(total) and not np.all(np.isfinite(values[valid])):
+        total = np.sum(values)
+    if not np.isfinite(total) and not np.all(np.isfinite(values[valid])):
         raise bad("values hold NaN or infinite values where valid")
     frame = np.asarray(slices.frame)
     if frame.shape != (3, 3) or not np.all(np.isfinite(frame)):

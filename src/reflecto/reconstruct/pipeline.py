@@ -443,8 +443,10 @@ def _device_frame_fit(slices: Slices, valid: NDArray[np.bool_], opt: Options) ->
 
 #: The device frame's check looks at its fit's ``ε`` after this many outer rounds …
 DEVICE_CHECK_ROUNDS = PIPELINE.device_check_rounds
-#: … and stops it where that ``ε`` is at least this many times the estimated frame's.
+#: … and stops it where that ``ε`` is at least this many times the estimated frame's …
 DEVICE_CHECK_MARGIN = PIPELINE.device_check_margin
+#: … and its η is at most this.
+DEVICE_CHECK_ETA = PIPELINE.device_check_eta
 
 
 def device_frame_check(slices: Slices, valid: NDArray[np.bool_], opt: Options,
@@ -453,24 +455,27 @@ def device_frame_check(slices: Slices, valid: NDArray[np.bool_], opt: Options,
     (:func:`_tilt_explains_nothing`), or ``None`` where its first rounds already answer:
     the tilt explains the data better.
 
-    The check compares the fits' final ``ε``; its fit is needed in full only where the
-    device axis may win (then it becomes the model). After :data:`DEVICE_CHECK_ROUNDS`
-    outer rounds ``ε`` is within 0.99–1.41× of its final value on the hand-held study's
-    captures, so where it is still at least :data:`DEVICE_CHECK_MARGIN` times the
-    estimated frame's the final one exceeds it too, and the rest of the fit (its other
-    rounds, ``k_d``'s ceiling) is not run. Otherwise the fit runs on to the end, the same
-    fit as :func:`_device_frame_fit`. Not while η is at its search bound after those
-    rounds: there :func:`.isotropic.with_constant_fresnel` may replace the fit by a
-    lower one.
+    The check compares the fits' final ``ε``; the device frame's fit is the model only
+    where the device axis wins (or where the estimated frame's lobe turns out
+    anisotropic, and then :func:`reconstruct` fits it again). After
+    :data:`DEVICE_CHECK_ROUNDS` outer rounds its ``ε`` lies within 0.99–1.41× of its
+    final value on the hand-held study's captures; where it is still at least
+    :data:`DEVICE_CHECK_MARGIN` times the estimated frame's, the check stops there, and
+    the rest of the fit (its other rounds, ``k_d``'s ceiling) is not run. That is a
+    measured margin, not a bound: ``ε`` is not monotone in the rounds. Not where η
+    after those rounds exceeds :data:`DEVICE_CHECK_ETA`: it may still climb to the
+    search bound, where :func:`.isotropic.with_constant_fresnel` can replace the fit by
+    one of lower ``ε``. Otherwise the fit runs on to the end: the same fit as
+    :func:`_device_frame_fit`, bit for bit.
     """
     ok = valid & slices.valid
     nodes = polar_nodes()
     run = LuminanceRun(bin_polar(slices, nodes, ok), nodes, opt.fixed_eta)
-    run.rounds(DEVICE_CHECK_ROUNDS)
-    if (run.state.eta < ETA_MAX * (1 - 1e-9)
-            and run.model_error() >= DEVICE_CHECK_MARGIN * estimated.model_error):
+    first = min(DEVICE_CHECK_ROUNDS, OUTER_ITERATIONS)
+    run.rounds(first)
+    if run.state.eta <= DEVICE_CHECK_ETA and run.model_error() >= DEVICE_CHECK_MARGIN * estimated.model_error:
         return None
-    run.rounds(OUTER_ITERATIONS - DEVICE_CHECK_ROUNDS)
+    run.rounds(OUTER_ITERATIONS - first)
     lum = with_constant_fresnel(run.fit(), opt.fixed_eta)
     return isotropic_fit(lum, lambda: kd_median_bound(slices.light, slices.view, slices.values, ok,
                                                       opt.kd_bound_max_deg))
