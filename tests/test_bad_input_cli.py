@@ -278,9 +278,13 @@ def test_a_damaged_interlaced_frame_is_reflectos_one_line_only(tmp_path, cap, ca
     def chunk(kind: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
+    from reflecto.instrument.capture import _adam7_bytes
+
     ihdr = struct.pack(">IIBBBBB", 320, 240, 16, 2, 0, 0, 1)  # 16-bit RGB, Adam7-interlaced
+    # the passes' size is right (reflecto's check), their filter bytes are not (libpng's, with its own message)
+    data = bytes([9]) * _adam7_bytes(320, 240, 6)
     (bad / "led2_t8ms.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
-                                        + chunk(b"IDAT", zlib.compress(bytes(100))) + chunk(b"IEND", b""))
+                                        + chunk(b"IDAT", zlib.compress(data)) + chunk(b"IEND", b""))
     assert main(["reconstruct", str(bad), "-o", str(tmp_path / "il.reflecto")]) == 1
     lines = [line for line in capfd.readouterr().err.splitlines() if line.strip()]  # fd 2, not only sys.stderr
     assert lines == [f"reflecto: error: {bad / 'led2_t8ms.png'}: not a readable image (damaged PNG)"], lines
@@ -498,3 +502,14 @@ def test_exposure_times_the_frames_contradict_are_refused(tmp_path, cap, capsys)
         _, line = _run(["reconstruct", str(bad), "-o", str(tmp_path / f"{name}.reflecto")], capsys)
         assert f"{bad}: LED " in line and "the manifest's exposure times say" in line, line
         assert not (tmp_path / f"{name}.reflecto").exists()
+
+
+@pytest.mark.parametrize("suffix", [".bsdf", ".reflecto"])
+def test_an_output_name_longer_than_the_system_allows_is_one_line(tmp_path, model, cap, capsys, suffix):
+    """A 300-byte file name in an existing folder: one line naming it, nothing created."""
+    out = tmp_path / ("a" * 300 + suffix)
+    argv = (["export", str(model), "-o", str(out), "-q"] if suffix == ".bsdf"
+            else ["reconstruct", str(cap), "-o", str(out), "-q"])
+    _, line = _run(argv, capsys)
+    assert "a" * 300 in line and ("too long" in line.lower() or "name" in line.lower())
+    assert list(tmp_path.iterdir()) == []

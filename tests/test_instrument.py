@@ -275,6 +275,8 @@ def _edit_manifest(d, fn):
         (lambda d: cv2.imwrite(str(d / "led2_t1ms.png"), np.zeros((120, 160, 3), np.uint16)), "160×120"),
         (lambda d: _edit_manifest(d, lambda m: m["frames"].pop()), "missing from the manifest"),
         (lambda d: _edit_manifest(d, lambda m: m["frames"].append(dict(m["frames"][0]))), "listed twice"),
+        (lambda d: _edit_manifest(d, lambda m: m["frames"][1].update(file=m["frames"][0]["file"])),
+         "is named for two frames"),
         (lambda d: _edit_manifest(d, lambda m: m["image"].update(width=640)), "does not match"),
         (lambda d: _edit_manifest(d, lambda m: (m["device"]["leds"].pop(), m["device"].pop("firing_order", None),
                                                 m["device"].update(check_leds=[0]))),

@@ -101,3 +101,61 @@ def test_invalid_filter_type_is_refused() -> None:
            + _chunk(b"IEND", b""))
     with pytest.raises(CaptureError, match="filter type"):
         _decode_png(bad, Path("f.png"), (4, 4), 16)
+
+
+def _chunks(img: np.ndarray, body: bytes | None = None) -> tuple[bytes, bytes, bytes, bytes]:
+    """Signature + IHDR, the image data (one IDAT's body), ``tEXt``, IEND of ``img`` (filter 0)."""
+    h, w, _ = img.shape
+    raw = _filter_rows(img.astype(">u2").view(np.uint8).reshape(h, -1), [0] * h, 6)
+    head = b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
+    return head, zlib.compress(raw) if body is None else body, _chunk(b"tEXt", b"k\x00v"), _chunk(b"IEND", b"")
+
+
+@pytest.mark.parametrize("build, problem", [
+    (lambda head, data, text, end: head + head[8:] + _chunk(b"IDAT", data) + end, "header chunk"),
+    (lambda head, data, text, end: head + _chunk(b"ABCD", b"x") + _chunk(b"IDAT", data) + end, "unknown critical"),
+    (lambda head, data, text, end: head + _chunk(b"IDAT", data) + end + text, "after the end chunk"),
+    (lambda head, data, text, end: head + _chunk(b"IDAT", data[:9]) + text + _chunk(b"IDAT", data[9:]) + end,
+     "not consecutive"),
+    (lambda head, data, text, end: head + _chunk(b"IDAT", data + bytes(64)) + end, "after the end of the image"),
+    (lambda head, data, text, end: head + _chunk(b"IDAT", data + zlib.compress(b"x")) + end,
+     "after the end of the image"),
+    (lambda head, data, text, end: head + text + end, "no image data"),
+])
+def test_a_png_whose_chunks_break_the_spec_is_refused(build, problem: str) -> None:  # type: ignore[no-untyped-def]
+    """PNG spec §5.6: one header, first; no unknown critical chunk; the image data chunks
+    consecutive; nothing after the end chunk; nothing after the image data's stream. Each
+    damage is refused naming it; the same parts put together rightly decode (and an
+    ancillary chunk before the image data is no damage)."""
+    img = np.arange(4 * 4 * 3, dtype=np.uint16).reshape(4, 4, 3) * 97
+    head, data, text, end = _chunks(img)
+    with pytest.raises(CaptureError, match=problem):
+        _decode_png(build(head, data, text, end), Path("f.png"), (4, 4), 16)
+    fine = head + text + _chunk(b"IDAT", data[:9]) + _chunk(b"IDAT", data[9:]) + end
+    assert np.array_equal(_decode_png(fine, Path("f.png"), (4, 4), 16), img)
+
+
+def test_an_interlaced_frame_is_refused_when_its_data_outgrow_its_passes(tmp_path: Path) -> None:
+    """An Adam7 frame goes to OpenCV only after its inflated size matches its seven passes
+    (PNG spec §8.2); OpenCV alone accepts 5 000 bytes too many."""
+    img = np.random.default_rng(2).integers(0, 4096, size=(13, 11, 3)).astype(np.uint16)
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(img[..., ::-1]))
+    assert ok
+    plain = buf.tobytes()
+    # re-encode the same pixels interlaced, by hand: seven passes, filter type 0
+    passes = []
+    for x0, y0, dx, dy in ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2),
+                           (0, 1, 1, 2)):
+        sub = img[y0::dy, x0::dx]
+        if sub.size:
+            passes.append(b"".join(b"\x00" + row.astype(">u2").tobytes() for row in sub))
+    raw = b"".join(passes)
+    ihdr = struct.pack(">IIBBBBB", 11, 13, 16, 2, 0, 0, 1)
+    good = plain[:8] + _chunk(b"IHDR", ihdr) + _chunk(b"IDAT", zlib.compress(raw)) + _chunk(b"IEND", b"")
+    path = tmp_path / "led0_t1ms.png"
+    path.write_bytes(good)
+    assert np.array_equal(read_image(path, (13, 11), np.uint16), img)
+    path.write_bytes(good.replace(good[33:], _chunk(b"IDAT", zlib.compress(raw + bytes(5000))) + _chunk(b"IEND", b"")))
+    with pytest.raises(CaptureError, match="image data holds") as e:
+        read_image(path, (13, 11), np.uint16)
+    assert str(path) in str(e.value)

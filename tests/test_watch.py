@@ -282,3 +282,26 @@ def test_an_interrupt_inside_a_compiled_kernel_stops_the_watch(sources: list[Pat
     assert not problems and not watcher.failed
     assert not (models / "good.reflecto").exists()
     assert interrupted(SystemError("x")) is False
+
+
+@pytest.mark.parametrize("fields", [{"notes": 5}, {"notes": None}, {"seconds": "abc"}, {"seconds": [1]},
+                                    {"symmetry_test": "broken"}, {"symmetry_test": [1]}, {"normal_tilt_deg": "x"},
+                                    {"shake_detected": True, "motion": 3}])
+def test_a_damaged_summary_of_an_earlier_model_is_listed_not_fatal(sources: list[Path], reference: list[dict],
+                                                                   tmp_path: Path, fields: dict) -> None:
+    """A model made before the watcher started is taken over from its summary; a summary
+    whose fields have the wrong types (another program's, or damaged) neither stops the
+    watch nor keeps the other captures from being modelled."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    models.mkdir()
+    for s in sources:
+        shutil.copytree(s, root / s.name)
+    first = sources[0].name
+    (models / f"{first}.reflecto").write_bytes(b"")
+    (models / f"{first}.json").write_text(json.dumps({**reference[0], **fields}))
+    lines: list[str] = []
+    w = Watcher(root, models, report=lines.append, thumbnails=False)
+    w.run(once=True)
+    assert sorted(w.entries) == sorted(s.name for s in sources) and not w.failed, lines
+    assert (models / f"{sources[1].name}.reflecto").exists() and (models / "index.html").exists()

@@ -1107,10 +1107,20 @@ def _new_paths(path: str | Path | None) -> list[Path]:
         return []
     out: list[Path] = []
     p = Path(path)
-    while not p.exists() and not p.is_symlink() and p != p.parent:
+    while not _exists(p) and p != p.parent:
         out.append(p)
         p = p.parent
     return out[::-1]
+
+
+def _exists(path: Path) -> bool:
+    """Whether ``path`` names something (a dangling link too). A name the system cannot
+    look up (longer than it allows) counts as existing: nothing is created there, and
+    the command's own write reports the name in one line."""
+    try:
+        return path.exists() or path.is_symlink()
+    except OSError:
+        return True
 
 
 def _clean_up(new: list[Path], command: str) -> None:

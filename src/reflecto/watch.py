@@ -207,13 +207,23 @@ def warnings_of(summary: dict[str, Any]) -> list[str]:
         Shake detected, symmetry of eq. 3 broken, and the summary's notes.
     """
     out = []
-    if summary.get("shake_detected"):
-        out.append("shake detected" + (f" ({summary['motion']})" if summary.get("motion") else ""))
-    sym = summary.get("symmetry_test") or {}
-    if sym.get("decided") and not sym.get("symmetric"):
+    if summary.get("shake_detected") is True:
+        motion = summary.get("motion")
+        out.append("shake detected" + (f" ({motion})" if isinstance(motion, str) and motion else ""))
+    sym = summary.get("symmetry_test")
+    if isinstance(sym, dict) and sym.get("decided") is True and sym.get("symmetric") is False:
         out.append("symmetry of eq. 3 broken (capture rotations for §5.5)")
-    out += [str(n) for n in summary.get("notes", [])]
+    notes = summary.get("notes")
+    # a summary written by another program, or damaged, may hold anything: only a list of notes is read
+    out += [str(n) for n in notes] if isinstance(notes, list) else []
     return out
+
+
+def _number(value: Any, default: float = math.nan) -> float:
+    """``value`` as a float where it is a finite JSON number, else ``default``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return default
+    return float(value)
 
 
 @dataclasses.dataclass
@@ -350,10 +360,8 @@ class Watcher:
 
     def _entry(self, name: str, summary: dict[str, Any]) -> Entry:
         eta = eta_from_json(summary)
-        tilt = summary.get("normal_tilt_deg")
-        return Entry(name, float(tilt) if isinstance(tilt, (int, float)) else math.nan,
-                     "?" if eta is None else format_eta(eta), warnings_of(summary),
-                     float(summary.get("seconds") or 0.0))
+        return Entry(name, _number(summary.get("normal_tilt_deg")), "?" if eta is None else format_eta(eta),
+                     warnings_of(summary), _number(summary.get("seconds"), 0.0))
 
     def _model(self, folder: Path, found: float) -> bool:
         """Reconstruct one capture; a refused one is reported and remembered."""

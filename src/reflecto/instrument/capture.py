@@ -166,15 +166,71 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_CAPTURE_BYTES = 1 << 30
 
 
+#: The critical chunks an RGB PNG may hold (PNG spec §4.3; PLTE: a suggested palette).
+_CRITICAL_CHUNKS = (b"IHDR", b"PLTE", b"IDAT", b"IEND")
+
+
+def _png_image_data(data: bytes, path: Path) -> list[bytes]:
+    """The IDAT chunks' contents of a PNG whose signature and header were read, after
+    checking its chunk structure (PNG spec §5.3, §5.6): every chunk's length and CRC;
+    one header (13 bytes), first; no unknown critical chunk (a reader must refuse one);
+    the IDAT chunks consecutive; the end chunk present and nothing after it."""
+    pos, idat, end, idat_closed = 8, [], False, False
+    while pos + 12 <= len(data):
+        (length,) = struct.unpack_from(">I", data, pos)
+        if length > len(data) - pos - 12:
+            break
+        (crc,) = struct.unpack_from(">I", data, pos + 8 + length)
+        kind = data[pos + 4 : pos + 8]
+        if _crc32(data[pos + 4 : pos + 8 + length]) != crc:
+            raise CaptureError(path, f"damaged PNG: chunk {kind!r} at byte {pos} fails its CRC")
+        if kind == b"IHDR" and (pos != 8 or length != 13):
+            raise CaptureError(path, f"damaged PNG: a header chunk at byte {pos} of length {length} "
+                               "(one of 13 bytes, first)")
+        if not kind[0] & 0x20 and kind not in _CRITICAL_CHUNKS:
+            raise CaptureError(path, f"damaged PNG: unknown critical chunk {kind!r} at byte {pos}")
+        if kind == b"IDAT":
+            if idat_closed:
+                raise CaptureError(path, f"damaged PNG: image data chunks not consecutive (byte {pos})")
+            idat.append(data[pos + 8 : pos + 8 + length])
+        elif idat:
+            idat_closed = True
+        pos += 12 + length
+        if kind == b"IEND":
+            end = True
+            break
+    if not end:
+        raise CaptureError(path, "damaged PNG: truncated (no end chunk)")
+    if pos != len(data):
+        raise CaptureError(path, f"damaged PNG: {len(data) - pos} bytes after the end chunk")
+    if not idat:
+        raise CaptureError(path, "damaged PNG: no image data")
+    return idat
+
+
+def _adam7_bytes(width: int, height: int, pixel_bytes: int) -> int:
+    """The inflated size of an Adam7-interlaced image (PNG spec §8.2): each of the seven
+    passes' rows, each one filter byte and its pixels."""
+    total = 0
+    for x0, y0, dx, dy in ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2),
+                           (0, 1, 1, 2)):
+        w, h = (width - x0 + dx - 1) // dx, (height - y0 + dy - 1) // dy
+        if w > 0 and h > 0:
+            total += h * (1 + w * pixel_bytes)
+    return total
+
+
 def _decode_png(data: bytes, path: Path, shape: tuple[int, int], depth_bits: int) -> NDArray[np.integer] | None:
     """Validate and decode an RGB PNG in one pass: the pixels ``(height, width, 3)`` (RGB,
     native uint16 or uint8), or ``None`` for an interlaced file (the caller decodes that).
 
     Checks, before anything is allocated for the pixels: the header against ``shape``
-    and the bit depth (colour type 2, compression and filter method 0), every chunk's
-    length and CRC, the end chunk. Then the image data is inflated once, bounded to
-    the size of its rows plus one byte (no decompression bomb), must hold exactly
-    ``height · (1 + 3 · width · depth/8)`` bytes, and its row filters (types 0–4) are
+    and the bit depth (colour type 2, compression and filter method 0), the chunks'
+    structure (:func:`_png_image_data`: lengths, CRCs, order, the end chunk last). Then
+    the image data is inflated once, bounded to the size of its rows plus one byte (no
+    decompression bomb), must hold exactly ``height · (1 + 3 · width · depth/8)`` bytes
+    (an interlaced file: its seven passes', :func:`_adam7_bytes`) and nothing after
+    its stream's end, and its row filters (types 0–4) are
     undone (:func:`reflecto._kernels.png_unfilter`, the arithmetic of the PNG spec
     §9.2; the 16-bit samples are big-endian). The result is bit-identical to
     OpenCV's ``imdecode(…, IMREAD_UNCHANGED)`` (BGR flipped to RGB), which decodes at
@@ -194,27 +250,9 @@ def _decode_png(data: bytes, path: Path, shape: tuple[int, int], depth_bits: int
     if method != 0 or filt != 0 or interlace > 1:
         raise CaptureError(path, f"damaged PNG: unknown compression, filter or interlace method "
                            f"({method}, {filt}, {interlace})")
-    pos, idat, end = 8, [], False
-    while pos + 12 <= len(data):
-        (length,) = struct.unpack_from(">I", data, pos)
-        if length > len(data) - pos - 12:
-            break
-        (crc,) = struct.unpack_from(">I", data, pos + 8 + length)
-        if _crc32(data[pos + 4 : pos + 8 + length]) != crc:
-            raise CaptureError(path, f"damaged PNG: chunk {data[pos + 4 : pos + 8]!r} at byte {pos} fails its CRC")
-        kind = data[pos + 4 : pos + 8]
-        if kind == b"IDAT":
-            idat.append(data[pos + 8 : pos + 8 + length])
-        pos += 12 + length
-        if kind == b"IEND":
-            end = True
-            break
-    if not end:
-        raise CaptureError(path, "damaged PNG: truncated (no end chunk)")
-    if interlace != 0:
-        return None  # Adam7 rows differ in length; OpenCV decodes and checks them
+    idat = _png_image_data(data, path)
     rowbytes = width * 3 * depth // 8
-    need = (1 + rowbytes) * height
+    need = (1 + rowbytes) * height if interlace == 0 else _adam7_bytes(width, height, 3 * depth // 8)
     z = _decompressobj()
     try:
         rows = z.decompress(idat[0] if len(idat) == 1 else b"".join(idat), need + 1)
@@ -223,6 +261,10 @@ def _decode_png(data: bytes, path: Path, shape: tuple[int, int], depth_bits: int
     if len(rows) != need or not z.eof:
         raise CaptureError(path, f"damaged PNG: image data holds {len(rows)}{'+' if not z.eof else ''} bytes, "
                            f"{need} expected")
+    if z.unused_data:
+        raise CaptureError(path, f"damaged PNG: {len(z.unused_data)} bytes after the end of the image data stream")
+    if interlace != 0:
+        return None  # Adam7 passes: its size is checked, OpenCV undoes the passes and their filters
     out = np.empty((height, rowbytes), dtype=np.uint8)
     if _kernels.png_unfilter(np.frombuffer(rows, np.uint8), height, rowbytes, 3 * depth // 8, out) >= 0:
         raise CaptureError(path, "damaged PNG: invalid row filter type")
@@ -526,6 +568,7 @@ def read_capture(cap_dir: str | Path) -> Capture:
     expected = {(led, float(t), False) for led in range(device.n_leds) for t in times}
     expected |= {(led, float(t), True) for led in check_leds for t in times}
     got: dict[tuple[int, float, bool], str] = {}
+    named: dict[str, str] = {}
     for key, name in entries:
         what = f"{'check frame' if key[2] else 'frame'} for LED {key[0]} at {key[1]:g} ms"
         if key not in expected:
@@ -536,7 +579,11 @@ def read_capture(cap_dir: str | Path) -> Capture:
             raise CaptureError(mpath, f"{what} listed twice")
         if Path(name).name != name or name in ("", ".", ".."):
             raise CaptureError(mpath, f"frame file {short_repr(name)} must be a plain name inside the capture folder")
+        if name in named:  # one image cannot be two exposures: a copy-paste slip in the manifest
+            raise CaptureError(mpath, f"frame file {short_repr(name)} is named for two frames "
+                               f"({named[name]} and {what})")
         got[key] = name
+        named[name] = what
     missing = sorted(expected - set(got))
     if missing:
         led, t, chk = missing[0]
