@@ -243,6 +243,11 @@ def test_model_names_its_calibration_and_the_report_reads_the_slices_with_it(tmp
     (tmp_path / "moved").mkdir()
     shutil.copy(tmp_path / "m.reflecto", tmp_path / "moved")
     assert main(["report", str(tmp_path / "moved" / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep2")]) == 0
-    assert ("not shown: the model names the capture cap, which is not a readable capture folder"
+    assert ("not shown: the model names the capture cap, which is not a capture folder"
             in (tmp_path / "rep2" / "index.html").read_text())
+    frame = tmp_path / "cap" / "led2_t8ms.png"  # a damaged frame: the page names it
+    frame.write_bytes(frame.read_bytes()[:500])
+    assert main(["report", str(tmp_path / "m.reflecto"), "--no-render", "-o", str(tmp_path / "rep3")]) == 0
+    page = (tmp_path / "rep3" / "index.html").read_text()
+    assert "not shown: the capture cannot be read" in page and "led2_t8ms.png" in page and "truncated" in page
     capsys.readouterr()

@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from .. import geometry, workflow
 from ..brdf import BRDFSource, HasNDF, albedo_angles
 from ..colour import LUM
-from ..errors import FileFormatError, ReflectoError
+from ..errors import FileFormatError, ReflectoError, one_line
 from ..fresnel import is_constant
 from ..instrument.capture import read_capture
 from ..instrument.device import load_device
@@ -202,7 +202,8 @@ def slice_figure(capture_dir: Path, out: Path, calibration: str | Path | None = 
     """The slices of a capture (luminance, log scale, with its colour bar) on the sensor, read
     with ``calibration`` (the capture's own; default: the device's nominal one).
 
-    Returns ``(file, device, calibration words)``, or None if the capture is unreadable.
+    Returns ``(file, device, calibration words)``, or the reason the capture cannot be read
+    (one line naming the file at fault).
 
     Parameters
     ----------
@@ -216,14 +217,14 @@ def slice_figure(capture_dir: Path, out: Path, calibration: str | Path | None = 
 
     Returns
     -------
-    tuple of (str, Device, str) or None
-        The file name, the capture's device and how it was calibrated; ``None`` when the
-        capture cannot be read.
+    tuple of (str, Device, str) or str
+        The file name, the capture's device and how it was calibrated; where the capture
+        cannot be read, why (one line).
     """
     try:
         cap = read_capture(capture_dir)
-    except Exception:  # noqa: BLE001 - the capture may be gone; the report says so
-        return None
+    except Exception as e:  # noqa: BLE001 - the capture may be gone or damaged: the report says why
+        return one_line(e)
     try:
         cal = workflow.calibration_for(cap.device, calibration, missing="nominal")
         words = f"calibration {Path(calibration).name}" if calibration is not None else "nominal calibration"
@@ -393,13 +394,15 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     items = []
     got = (slice_figure(Path(cap_dir), out, model.metadata.get("calibration"))
            if cap_dir and Path(cap_dir).is_dir() else None)
-    if got:
+    if isinstance(got, tuple):
         items.append((got[0], f"The slices of {html.escape(str(cap_dir))} ({html.escape(got[2])})."))
         dev = got[1]
+    elif isinstance(got, str):
+        numbers["capture slices"] = f"not shown: the capture cannot be read ({got})"
     elif cap_dir or model.metadata.get("capture_not_found"):
         numbers["capture slices"] = ("not shown: the model names the capture "
                                      f"{cap_dir or model.metadata['capture_not_found']}, "
-                                     "which is not a readable capture folder inside the model's folder")
+                                     "which is not a capture folder inside the model's folder")
     cov = plot_coverage(dev.optics, dev.leds, out / "coverage.png")
     items.insert(0, (cov.name, f"Half-vector coverage per LED of device {html.escape(dev.name)} (paper Fig. 2(c)(d))."))
     figs.append(("Capture", items))
