@@ -91,6 +91,30 @@ def as_built(tmp_path_factory):
     return dev, cal, d
 
 
+def test_a_dark_grid_frame_is_named_and_the_others_calibrate(as_built, tmp_path):
+    """A grid frame whose point source did not light (all black): a warning names it, and
+    the geometry comes from the other grid images as well as before."""
+    import shutil
+    import warnings
+
+    from reflecto.errors import ReflectoWarning
+
+    dev, cal, d = as_built
+    calib = tmp_path / "calib"
+    shutil.copytree(d / "calib", calib)
+    dark = calib / "grid_2.png"
+    cv2.imwrite(str(dark), np.zeros((dev.optics.height, dev.optics.width, 3), np.uint16))
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        again = calibrate(calib)
+    named = [w for w in got if issubclass(w.category, ReflectoWarning) and str(dark) in str(w.message)]
+    assert len(named) == 1 and "no pinhole spot" in str(named[0].message)
+    dt, mt = dev.truth.optics.pixel_directions()
+    dc, mc = again.optics.pixel_directions()
+    m = mt & mc
+    assert np.sqrt(np.mean(_angle_deg(dt[m], dc[m]) ** 2)) < 0.05
+
+
 def test_calibration_recovers_the_as_built_device(as_built):
     dev, cal, d = as_built
     truth = dev.truth
