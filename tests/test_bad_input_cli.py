@@ -513,3 +513,15 @@ def test_an_output_name_longer_than_the_system_allows_is_one_line(tmp_path, mode
     _, line = _run(argv, capsys)
     assert "a" * 300 in line and ("too long" in line.lower() or "name" in line.lower())
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("suffix", [".bsdf", ".reflecto", ".npz"])
+def test_a_file_output_named_as_a_folder_is_refused(tmp_path, model, cap, calib, capsys, suffix):
+    """``-o m.bsdf/`` names a folder (the separator is the user's), where the command writes one file."""
+    out = str(tmp_path / f"m{suffix}") + "/"
+    argv = {".bsdf": ["export", str(model), "-o", out, "-q"],
+            ".reflecto": ["reconstruct", str(cap), "-o", out, "-q"],
+            ".npz": ["calibrate", str(calib[0]), "-o", out, "-q"]}[suffix]
+    _, line = _run(argv, capsys)
+    assert "a folder" in line and f"m{suffix}" in line
+    assert list(tmp_path.iterdir()) == []

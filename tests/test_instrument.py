@@ -301,6 +301,8 @@ def _edit_manifest(d, fn):
         (lambda d: _edit_manifest(d, lambda m: m["frames"].append(dict(m["frames"][0]))), "listed twice"),
         (lambda d: _edit_manifest(d, lambda m: m["frames"][1].update(file=m["frames"][0]["file"])),
          "is named for two frames"),
+        (lambda d: cv2.imwrite(str(d / "led3_t1ms.png"), np.full((240, 320, 3), 4096, np.uint16)),
+         "pixel values up to 4096, above the 12-bit camera's 4095"),
         (lambda d: _edit_manifest(d, lambda m: m["image"].update(width=640)), "does not match"),
         (lambda d: _edit_manifest(d, lambda m: (m["device"]["leds"].pop(), m["device"].pop("firing_order", None),
                                                 m["device"].update(check_leds=[0]))),

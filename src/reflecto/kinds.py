@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import tomllib
 import zipfile
 from collections.abc import Iterable
@@ -22,7 +23,8 @@ from pathlib import Path
 
 from .errors import ReflectoError, one_line
 
-__all__ = ["KINDS", "BRDF_KINDS", "Kind", "KindError", "identify", "require", "require_output_suffix"]
+__all__ = ["KINDS", "BRDF_KINDS", "Kind", "KindError", "identify", "require", "require_output_suffix",
+           "require_file_name"]
 
 #: Every kind :func:`identify` names, with the words used in messages.
 KINDS: dict[str, str] = {
@@ -258,6 +260,37 @@ def require(path: str | Path | None, command: str, accept: Iterable[str], need: 
     raise KindError(path, kind.words, command, need, hint or hint_for(path, kind.name))
 
 
+def require_file_name(path: str | Path, command: str, what: str, suffix: str, flag: str = "-o") -> None:
+    """Refuse an output that ends with a path separator (``m.bsdf/``) where the command
+    writes one file: the user named a folder, and :class:`~pathlib.Path` would drop the
+    separator and write a file of that name.
+
+    Parameters
+    ----------
+    path
+        The output path the user gave.
+    command
+        The CLI command, for the message.
+    what
+        What the command writes, in words.
+    suffix
+        The suffix the message suggests (lower case, with the dot).
+    flag
+        The option that names the output, for the message.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    KindError
+        ``PATH is a folder; COMMAND writes WHAT (use -o NAME.SUFFIX)``.
+    """
+    if str(path).endswith(("/", os.sep)):
+        raise KindError(path, "a folder", command, what, f"use {flag} NAME{suffix}", verb="writes")
+
+
 def require_output_suffix(path: str | Path, command: str, suffixes: Iterable[str], what: str,
                           flag: str = "-o") -> None:
     """Refuse an output whose suffix is not one of ``suffixes`` (lower case, with the dot).
@@ -283,6 +316,7 @@ def require_output_suffix(path: str | Path, command: str, suffixes: Iterable[str
     suffixes = tuple(suffixes)
     if not str(path).strip():  # Path("") is ".": the message would name the current folder
         raise ReflectoError(f"{command} {flag}: the argument is empty; expected {what}")
+    require_file_name(path, command, what, suffixes[0], flag)
     p = Path(path)
     if p.suffix.lower() in suffixes:
         return

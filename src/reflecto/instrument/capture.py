@@ -600,6 +600,10 @@ def read_capture(cap_dir: str | Path) -> Capture:
     for (led, t, chk), fpath in paths.items():
         slot = int(np.flatnonzero(times == t)[0])
         img_ = read_image(fpath, (height, width), dtype)
+        top = int(img_.max())
+        if top > device.camera.max_value:  # a frame of another camera, or one scaled to 16 bits
+            raise CaptureError(fpath, f"pixel values up to {top}, above the {device.camera.bits}-bit camera's "
+                               f"{device.camera.max_value}")
         if chk:
             check[check_leds.index(led), slot] = img_  # type: ignore[index]
         else:
