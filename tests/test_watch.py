@@ -284,11 +284,20 @@ def test_an_interrupt_inside_a_compiled_kernel_stops_the_watch(sources: list[Pat
     assert interrupted(SystemError("x")) is False
 
 
+@pytest.fixture(scope="module")
+def first_model(sources: list[Path], tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The model file ``reflecto reconstruct`` writes for the first source capture."""
+    out = tmp_path_factory.mktemp("first") / f"{sources[0].name}.reflecto"
+    reconstruct_folder(sources[0], out)
+    return out
+
+
 @pytest.mark.parametrize("fields", [{"notes": 5}, {"notes": None}, {"seconds": "abc"}, {"seconds": [1]},
                                     {"symmetry_test": "broken"}, {"symmetry_test": [1]}, {"normal_tilt_deg": "x"},
                                     {"shake_detected": True, "motion": 3}])
 def test_a_damaged_summary_of_an_earlier_model_is_listed_not_fatal(sources: list[Path], reference: list[dict],
-                                                                   tmp_path: Path, fields: dict) -> None:
+                                                                   first_model: Path, tmp_path: Path,
+                                                                   fields: dict) -> None:
     """A model made before the watcher started is taken over from its summary; a summary
     whose fields have the wrong types (another program's, or damaged) neither stops the
     watch nor keeps the other captures from being modelled."""
@@ -298,10 +307,28 @@ def test_a_damaged_summary_of_an_earlier_model_is_listed_not_fatal(sources: list
     for s in sources:
         shutil.copytree(s, root / s.name)
     first = sources[0].name
-    (models / f"{first}.reflecto").write_bytes(b"")
+    shutil.copyfile(first_model, models / f"{first}.reflecto")
     (models / f"{first}.json").write_text(json.dumps({**reference[0], **fields}))
     lines: list[str] = []
     w = Watcher(root, models, report=lines.append, thumbnails=False)
     w.run(once=True)
     assert sorted(w.entries) == sorted(s.name for s in sources) and not w.failed, lines
+    assert (models / f"{first}.json").read_text() == json.dumps({**reference[0], **fields})  # taken over, not redone
     assert (models / f"{sources[1].name}.reflecto").exists() and (models / "index.html").exists()
+
+
+def test_an_earlier_model_file_that_does_not_read_is_made_again(sources: list[Path], reference: list[dict],
+                                                                  tmp_path: Path) -> None:
+    """An empty or truncated model file beside a summary (a crash, another program) does
+    not count as done: the capture is modelled again and the file replaced."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    models.mkdir()
+    shutil.copytree(sources[0], root / sources[0].name)
+    name = sources[0].name
+    (models / f"{name}.reflecto").write_bytes(b"")
+    (models / f"{name}.json").write_text(json.dumps(reference[0]))
+    w = Watcher(root, models, report=lambda line: None, thumbnails=False)
+    w.run(once=True)
+    assert list(w.entries) == [name] and not w.failed
+    assert load_model(models / f"{name}.reflecto").kd.shape == (3,)

@@ -24,7 +24,7 @@ from pathlib import Path
 from .errors import ReflectoError, one_line
 
 __all__ = ["KINDS", "BRDF_KINDS", "Kind", "KindError", "identify", "require", "require_output_suffix",
-           "require_file_name"]
+           "require_file_name", "is_model_file"]
 
 #: Every kind :func:`identify` names, with the words used in messages.
 KINDS: dict[str, str] = {
@@ -155,6 +155,23 @@ def _zip_kind(path: Path) -> str:
     if {"meta.npy", "scale.npy"} <= names:
         return "calibration"
     return "unknown"
+
+
+def is_model_file(path: str | Path) -> bool:
+    """Whether ``path`` is a readable zip holding a model's ``meta.json`` (a cheap check of
+    its structure, not of its contents: :func:`reflecto.model.load_model` does that).
+
+    Parameters
+    ----------
+    path
+        A file (it need not exist).
+
+    Returns
+    -------
+    bool
+        ``True`` for a model file's structure; ``False`` for a missing, empty, truncated or other file.
+    """
+    return _zip_kind(Path(path)) == "model"
 
 
 def _folder_kind(path: Path) -> str:

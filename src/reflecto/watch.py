@@ -52,6 +52,7 @@ from .errors import ReflectoError, interrupted, one_line
 from .fresnel import eta_from_json, format_eta
 from .instrument.capture import MANIFEST
 from .io import atomic_write, make_parents, read_json
+from .kinds import is_model_file
 from .model import load_model
 from .reconstruct import Options
 from .render.sphere import composite, render_sphere, sphere_coverage
@@ -297,7 +298,9 @@ class Watcher:
         return [self.root / n for n in names if n not in self.entries and n != self._models_here]
 
     def _done(self, name: str) -> bool:
-        return (self.models / f"{name}.json").exists() and (self.models / f"{name}.reflecto").exists()
+        """A model of ``name`` is in ``models``: its summary, and a model file whose structure
+        reads (an empty or truncated one, left by a crash or another program, is made again)."""
+        return (self.models / f"{name}.json").exists() and is_model_file(self.models / f"{name}.reflecto")
 
     def scan(self, final: bool = False) -> int:
         """Look at ``root`` once: model every complete folder not yet done, report the damaged ones.
