@@ -16,6 +16,10 @@ Timed per capture, after one warm-up round, :data:`REPEATS` rounds, one core:
 * ``total``       :func:`reflecto.workflow.reconstruct_folder` end to end, the path ``reflecto
   reconstruct`` and ``reflecto watch`` run; the stages are its own measurements.
 
+Below ``fit``, its parts (CPU, :class:`reflecto.reconstruct.FitSeconds`): the normal, the
+isotropic fit(s) with the device frame's check, the isotropy test, the shadowing form's
+choice, the model (``k_d``'s ceiling, tint, NDF per node, energy limit), the motion cues.
+
 Prints per stage the median and p90 over all captures × rounds of the process's CPU
 time (the benchmark runs single-threaded on one core; on a shared machine the wall
 time also counts the other processes' turns) and the wall time beside it; then the
@@ -99,6 +103,8 @@ def stages_once(cap_dir: Path, cal_path: Path, out: Path) -> dict[str, tuple[flo
     cpu, wall = summary["stage_cpu_seconds"], summary["stage_seconds"]
     res = {name: (cpu[key], wall[key]) for name, key in STAGE_KEYS.items()}
     res["total"] = total
+    for part, seconds in summary["fit_cpu_seconds"].items():
+        res[f"  {part}"] = (seconds, seconds)  # CPU only: the parts are not timed on the wall clock
     return res
 
 
@@ -127,19 +133,21 @@ def main() -> None:
         out = Path(tmp) / "m.reflecto"
         for c in caps:  # warm-up: compiled kernels, caches, page cache
             stages_once(c, cal_path, out)
-        rows: dict[str, list[tuple[float, float]]] = {s: [] for s in STAGES}
+        rows: dict[str, list[tuple[float, float]]] = {}
         for _ in range(args.repeats):
             for c in caps:
                 for k, v in stages_once(c, cal_path, out).items():
-                    rows[k].append(v)
+                    rows.setdefault(k, []).append(v)
     print(f"capture → model, {len(caps)} measured materials × {args.repeats}, as-built device, calibrated, "
           f"tilted 3–8°, one core (ms per capture, marginal)")
     print(f"  {'stage':12s} {'cpu median':>10s} {'cpu p90':>8s} {'wall median':>11s} {'wall p90':>8s}")
+    parts = [k for k in rows if k.startswith("  ")]
     for s in STAGES:
-        cpu = 1000 * np.array([v[0] for v in rows[s]])
-        wall = 1000 * np.array([v[1] for v in rows[s]])
-        print(f"  {s:12s} {np.median(cpu):10.1f} {np.percentile(cpu, 90):8.1f} {np.median(wall):11.1f} "
-              f"{np.percentile(wall, 90):8.1f}")
+        for name in [s] + (parts if s == "fit" else []):
+            cpu = 1000 * np.array([v[0] for v in rows[name]])
+            wall = "" if name in parts else (f" {np.median(1000 * np.array([v[1] for v in rows[name]])):11.1f} "
+                                             f"{np.percentile(1000 * np.array([v[1] for v in rows[name]]), 90):8.1f}")
+            print(f"  {name:12s} {np.median(cpu):10.1f} {np.percentile(cpu, 90):8.1f}{wall}")
     if args.first:
         t = first_call(caps[0], cal_path, args.first)
         print(f"first call (fresh process, `reflecto reconstruct`): median {np.median(t):.2f} s, "

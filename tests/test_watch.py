@@ -292,6 +292,21 @@ def first_model(sources: list[Path], tmp_path_factory: pytest.TempPathFactory) -
     return out
 
 
+def test_the_path_reports_its_stages_and_the_fits_parts(sources: list[Path], tmp_path: Path) -> None:
+    """``reconstruct_folder`` gives each stage's wall and CPU seconds and the reconstruction's
+    CPU seconds per part (the benchmark's per-stage output): each ≥ 0, the parts within the
+    reconstruct stage's CPU time, the stages within the total."""
+    got = reconstruct_folder(sources[1], tmp_path / "m.reflecto")  # tilted 4°: the normal is estimated
+    cpu, wall, parts = got["stage_cpu_seconds"], got["stage_seconds"], got["fit_cpu_seconds"]
+    assert set(cpu) == set(wall) == {"read", "slices", "reconstruct", "symmetry", "write", "total"}
+    assert set(parts) == {"normal", "fit", "isotropy", "form", "model", "motion"}
+    assert all(v >= 0 for v in (*cpu.values(), *wall.values(), *parts.values()))
+    assert sum(parts.values()) <= cpu["reconstruct"] + 1e-3 and parts["normal"] > 0 and parts["fit"] > 0
+    assert sum(v for k, v in cpu.items() if k != "total") == pytest.approx(cpu["total"])
+    saved = json.loads((tmp_path / "m.json").read_text())  # the file keeps the reconstruction's seconds only
+    assert not {"stage_seconds", "stage_cpu_seconds", "fit_cpu_seconds"} & set(saved)
+
+
 @pytest.mark.parametrize("fields", [{"notes": 5}, {"notes": None}, {"seconds": "abc"}, {"seconds": [1]},
                                     {"symmetry_test": "broken"}, {"symmetry_test": [1]}, {"normal_tilt_deg": "x"},
                                     {"shake_detected": True, "motion": 3}])

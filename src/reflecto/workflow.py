@@ -425,7 +425,8 @@ def reconstruct_folder(capture_dir: str | Path, output: str | Path, calibration:
     dict
         :func:`save_model`'s summary, with ``motion`` (one line, ``""`` when no cue fired),
         ``stage_seconds`` and ``stage_cpu_seconds`` (``read``, ``slices``, ``reconstruct``,
-        ``symmetry``, ``write`` and ``total``, in seconds).
+        ``symmetry``, ``write`` and ``total``, in seconds), and ``fit_cpu_seconds``: the
+        reconstruction's CPU seconds per part (:class:`~reflecto.reconstruct.FitSeconds`).
     """
     result = capture_to_model(capture_dir, calibration, options, missing=missing)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -434,7 +435,8 @@ def reconstruct_folder(capture_dir: str | Path, output: str | Path, calibration:
     cpu = dataclasses.replace(result.cpu_seconds, write=time.process_time() - c0)
     return {**summary, "motion": result.reconstruction.motion.describe(),
             "stage_seconds": {**dataclasses.asdict(wall), "total": wall.total},
-            "stage_cpu_seconds": {**dataclasses.asdict(cpu), "total": cpu.total}}
+            "stage_cpu_seconds": {**dataclasses.asdict(cpu), "total": cpu.total},
+            "fit_cpu_seconds": dataclasses.asdict(result.reconstruction.cpu_seconds)}
 
 
 # ------------------------------------------------------------------ several rotations (§5.5)

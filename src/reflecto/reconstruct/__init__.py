@@ -4,8 +4,8 @@ captures at several rotations → one BRDF that may break eq. 3 (§5.5, :mod:`.a
 from .asymmetric import AsymmetricReconstruction, RotatedCapture, reconstruct_rotations
 from .isotropy import IsotropyTest
 from .motion import MotionReport
-from .pipeline import Options, Reconstruction, reconstruct
+from .pipeline import FitSeconds, Options, Reconstruction, reconstruct
 from .synthesis import SynthesisOptions
 
-__all__ = ["AsymmetricReconstruction", "IsotropyTest", "MotionReport", "Options", "Reconstruction",
+__all__ = ["AsymmetricReconstruction", "FitSeconds", "IsotropyTest", "MotionReport", "Options", "Reconstruction",
            "RotatedCapture", "SynthesisOptions", "reconstruct", "reconstruct_rotations"]

@@ -69,7 +69,8 @@ from .tuning import PIPELINE
 
 Array = NDArray[np.float64]
 
-__all__ = ["Options", "Reconstruction", "reconstruct", "usable_samples", "estimate_frame", "limit_energy"]
+__all__ = ["Options", "Reconstruction", "FitSeconds", "reconstruct", "usable_samples", "estimate_frame",
+           "limit_energy"]
 
 #: Incidence angles (degrees) at which the albedo is checked against 1.
 ALBEDO_ANGLES = PIPELINE.albedo_angles
@@ -184,6 +185,36 @@ MAX_RESOLUTION = 2048
 
 
 @dataclasses.dataclass
+class FitSeconds:
+    """CPU seconds of :func:`reconstruct`'s parts (the process's time, all threads), in order.
+
+    Attributes
+    ----------
+    normal
+        The sample normal (§5.4): the estimate, its refits and uncertainty.
+    fit
+        The isotropic fit in the frame kept (eqs. 5–8), the device frame's check of an
+        estimated tilt, and the hemicube fit of an anisotropic material.
+    isotropy
+        The azimuthal (isotropy) test.
+    form
+        The shadowing form's choice (:func:`.extrapolation.choose_shadowing`).
+    model
+        The model itself: ``k_d``'s ceiling, the Fresnel tint and the NDF per θ_d node, and
+        the energy limit.
+    motion
+        The hidden peaks and the motion cues (§5.1).
+    """
+
+    normal: float = 0.0
+    fit: float = 0.0
+    isotropy: float = 0.0
+    form: float = 0.0
+    model: float = 0.0
+    motion: float = 0.0
+
+
+@dataclasses.dataclass
 class Reconstruction:
     """The result of :func:`reconstruct`.
 
@@ -223,6 +254,8 @@ class Reconstruction:
     shadowing
         The isotropic model's shadowing form and why (:class:`.extrapolation.ShadowingChoice`);
         ``None`` on the anisotropic path (eq. 8's product).
+    cpu_seconds
+        CPU seconds per part (:class:`FitSeconds`).
     """
 
     model: IsotropicMicrofacetBRDF | MicrofacetBRDF
@@ -240,6 +273,7 @@ class Reconstruction:
     normal_source: str = "device"
     normal_estimate: NormalEstimate | None = None
     shadowing: ShadowingChoice | None = None
+    cpu_seconds: FitSeconds = dataclasses.field(default_factory=FitSeconds)
 
     @property
     def isotropic(self) -> bool:
@@ -629,9 +663,12 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     if isinstance(opt.normal, str) and opt.normal == "search":  # the §5.5 set search; one capture: as "auto"
         opt = dataclasses.replace(opt, normal="auto")
     t0 = time.perf_counter()
+    cpu = FitSeconds()
+    clock = time.process_time()
     check_slices(slices)
     valid = usable_samples(slices)
     est = resolve_normal(slices, valid, opt)
+    cpu.normal, clock = time.process_time() - clock, time.process_time()
     frame = est.frame
     sl = slices if est.source == "device" else slices.reframe(frame)
     ok = valid & sl.valid
@@ -654,38 +691,49 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             frame, sl = est.frame, slices
             ok = valid & sl.valid
             iso = device_fit
+    cpu.fit, clock = time.process_time() - clock, time.process_time()
     test = azimuthal_test(sl, ok, iso.least_squares)  # in the frame kept: the device frame's only when it is
     isotropic = _choose_isotropic(opt.isotropic, test)
+    cpu.isotropy, clock = time.process_time() - clock, time.process_time()
     if not isotropic and est.source == "estimated":
         # an anisotropic lobe: the estimate's isotropic fit does not hold; the device axis
         est = dataclasses.replace(est, normal=np.array([0.0, 0.0, 1.0]), uncertainty_deg=0.0, source="device")
         frame, sl = est.frame, slices
         ok = valid & sl.valid
+        refit = time.process_time()
         iso = device_fit if device_fit is not None else _device_frame_fit(slices, valid, opt)
         test = azimuthal_test(sl, ok, iso.least_squares)
+        cpu.fit += time.process_time() - refit  # the device frame's fit (and its test) after all
+        clock = time.process_time()
     fit: IsotropicFit | HemicubeFit = iso
     shadowing = None
     if isotropic:
         iso, shadowing = choose_shadowing(iso, opt.fixed_eta, opt.shadowing)
         fit = iso
+        cpu.form, clock = time.process_time() - clock, time.process_time()
     else:
         fit = fit_hemicube(sl, ok, fixed_eta=opt.fixed_eta, work_resolution=opt.work_resolution,
                            resolution=opt.resolution, kd_bound_max_deg=opt.kd_bound_max_deg)
-    hidden = _hidden_peaks(slices, ok, est, fit.model)
+        cpu.fit, clock = cpu.fit + time.process_time() - clock, time.process_time()
+    built = fit.model  # the ceiling, tint and lobes per node of an isotropic fit are made on first use
+    cpu.model, clock = time.process_time() - clock, time.process_time()
+    hidden = _hidden_peaks(slices, ok, est, built)
     motion = (detect_motion(slices, sl, ok, isotropic, est.uncertainty_deg, [p.led for p in hidden])
               if opt.detect_shake else MotionReport())
     if isinstance(fit, HemicubeFit):
         motion.excluded_leds = fit.excluded_leds
-    model, scale, albedo = limit_energy(fit.model, opt.energy_clamp)
+    cpu.motion, clock = time.process_time() - clock, time.process_time()
+    model, scale, albedo = limit_energy(built, opt.energy_clamp)
     notes = _normal_notes(est, opt, isotropic) + _hidden_peak_notes(hidden)
     notes += _notes(fit, model, isotropic, test, scale)
     shadowing_note = None if shadowing is None else shadowing.note()
     if shadowing_note:
         notes.append(shadowing_note)
+    cpu.model += time.process_time() - clock  # the energy limit
     return Reconstruction(model, fit.eta, test, motion, frame, iso.model_error,
                           fit.fresnel_error if isinstance(fit, HemicubeFit) else math.nan, scale, albedo,
                           notes, time.perf_counter() - t0, est.uncertainty_deg, est.source,
-                          est if isinstance(opt.normal, str) and opt.normal == "auto" else None, shadowing)
+                          est if isinstance(opt.normal, str) and opt.normal == "auto" else None, shadowing, cpu)
 
 
 def _hidden_peaks(slices: Slices, valid: NDArray[np.bool_], est: NormalEstimate, model) -> list[HiddenPeak]:
