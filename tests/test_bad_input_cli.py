@@ -511,7 +511,7 @@ def test_an_output_name_longer_than_the_system_allows_is_one_line(tmp_path, mode
     argv = (["export", str(model), "-o", str(out), "-q"] if suffix == ".bsdf"
             else ["reconstruct", str(cap), "-o", str(out), "-q"])
     _, line = _run(argv, capsys)
-    assert "a" * 300 in line and ("too long" in line.lower() or "name" in line.lower())
+    assert "a" * 300 in line and "too long" in line.lower()
     assert list(tmp_path.iterdir()) == []
 
 

@@ -332,8 +332,10 @@ def test_a_damaged_summary_of_an_earlier_model_is_listed_not_fatal(sources: list
     assert (models / f"{sources[1].name}.reflecto").exists() and (models / "index.html").exists()
 
 
+@pytest.mark.parametrize("damage", ["empty", "truncated"])
 def test_an_earlier_model_file_that_does_not_read_is_made_again(sources: list[Path], reference: list[dict],
-                                                                  tmp_path: Path) -> None:
+                                                                  first_model: Path, tmp_path: Path,
+                                                                  damage: str) -> None:
     """An empty or truncated model file beside a summary (a crash, another program) does
     not count as done: the capture is modelled again and the file replaced."""
     root, models = tmp_path / "root", tmp_path / "models"
@@ -341,7 +343,8 @@ def test_an_earlier_model_file_that_does_not_read_is_made_again(sources: list[Pa
     models.mkdir()
     shutil.copytree(sources[0], root / sources[0].name)
     name = sources[0].name
-    (models / f"{name}.reflecto").write_bytes(b"")
+    data = first_model.read_bytes()
+    (models / f"{name}.reflecto").write_bytes(b"" if damage == "empty" else data[: len(data) // 2])
     (models / f"{name}.json").write_text(json.dumps(reference[0]))
     w = Watcher(root, models, report=lambda line: None, thumbnails=False)
     w.run(once=True)

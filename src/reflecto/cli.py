@@ -582,7 +582,8 @@ def _watch_announcer(args: argparse.Namespace) -> Callable[[Entry, dict[str, Any
 
 def _export_format(args: argparse.Namespace) -> str:
     """``--format``, or the one the ``-o`` suffix names; the two must agree."""
-    kinds.require_file_name(args.output, "export", "an RGL .bsdf or a MERL .binary file", ".bsdf")
+    kinds.require_file_name(args.output, "export", "an RGL .bsdf or a MERL .binary file",
+                            ".binary" if args.format == "merl" else ".bsdf")
     suffix = Path(args.output).suffix.lower()
     by_suffix = {".bsdf": "rgl", ".binary": "merl"}.get(suffix)
     if args.format is None and by_suffix is None:

@@ -758,7 +758,7 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
         spots.append(detect_spots(img, black, min_peak))
         if not len(spots[-1]) and len(grid) > 1:  # a grid frame whose source did not light: the others calibrate
             warnings.warn(f"{g['_path']}: no pinhole spot above {min_peak:g} DN (a dark frame?); the geometry is "
-                          f"fitted to the other {len(grid) - 1} grid images", ReflectoWarning, stacklevel=2)
+                          "fitted to the other grid images", ReflectoWarning, stacklevel=2)
     try:
         optics, geo_report = fit_optics(nominal, dirs, spots)
     except (CaptureError, ParameterError) as e:

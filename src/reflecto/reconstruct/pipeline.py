@@ -191,10 +191,13 @@ class FitSeconds:
     Attributes
     ----------
     normal
-        The sample normal (§5.4): the estimate, its refits and uncertainty.
+        The sample normal (§5.4): the estimate, its refits and uncertainty, after the
+        slices' checks and the usable samples.
     fit
         The isotropic fit in the frame kept (eqs. 5–8), the device frame's check of an
-        estimated tilt, and the hemicube fit of an anisotropic material.
+        estimated tilt, and the hemicube fit of an anisotropic material (with the
+        device frame's fit and isotropy test where an estimated frame's lobe turns out
+        anisotropic).
     isotropy
         The azimuthal (isotropy) test.
     form

@@ -1028,7 +1028,7 @@ class PipelineTuning:
              "search bound, where the constant Fresnel lobe can replace the fit by one of lower ε",
         source="mechanism: the measured materials' fits end at η ≤ 9 or at the bound (the sweeps' tables); "
                "GGX α 0.2 with η 100 climbs 19 → 24 → 40 → 50 in its rounds, and its constant Fresnel fit's ε "
-               "(0.030) lies 1.5× below the round-2 value")
+               "(0.030) lies 1.9× below the round-2 value (0.058), near the margin")
     sharp_lobe_pitches: float = tuned(
         2.0, name="SHARP_LOBE_PITCHES", units="half-vector pitches",
         what="a lobe whose half width at half maximum is at most this many of the camera's half-vector pitches "
