@@ -451,3 +451,9 @@ def test_the_device_frame_check_runs_on_where_eta_may_still_reach_its_bound(monk
     assert ran is not None and ran.model_error == full.model_error and is_constant(ran.eta)
     monkeypatch.setattr(pipeline, "DEVICE_CHECK_ETA", math.inf)  # ε alone would have stopped it
     assert pipeline.device_frame_check(sl, valid, opt, between) is None
+    # a held η is never replaced by the constant lobe: the guard does not keep its check running
+    monkeypatch.setattr(pipeline, "DEVICE_CHECK_ETA", 10.0)
+    held = pipeline.Options(fixed_eta=20.0)
+    full20 = pipeline._device_frame_fit(sl, valid, held)
+    poor = dataclasses.replace(full20, model_error=full20.model_error / 4.0)
+    assert pipeline.device_frame_check(sl, valid, held, poor) is None

@@ -499,18 +499,19 @@ def device_frame_check(slices: Slices, valid: NDArray[np.bool_], opt: Options,
     final value on the hand-held study's captures; where it is still at least
     :data:`DEVICE_CHECK_MARGIN` times the estimated frame's, the check stops there, and
     the rest of the fit (its other rounds, ``k_d``'s ceiling) is not run. That is a
-    measured margin, not a bound: ``ε`` is not monotone in the rounds. Not where η
-    after those rounds exceeds :data:`DEVICE_CHECK_ETA`: it may still climb to the
-    search bound, where :func:`.isotropic.with_constant_fresnel` can replace the fit by
-    one of lower ``ε``. Otherwise the fit runs on to the end: the same fit as
-    :func:`_device_frame_fit`, bit for bit.
+    measured margin, not a bound: ``ε`` is not monotone in the rounds. Not where a
+    free η after those rounds exceeds :data:`DEVICE_CHECK_ETA`: it may still climb to
+    the search bound, where :func:`.isotropic.with_constant_fresnel` can replace the fit
+    by one of lower ``ε`` (a held η, ``opt.fixed_eta``, never is). Otherwise the fit
+    runs on to the end: the same fit as :func:`_device_frame_fit`, bit for bit.
     """
     ok = valid & slices.valid
     nodes = polar_nodes()
     run = LuminanceRun(bin_polar(slices, nodes, ok), nodes, opt.fixed_eta)
     first = min(DEVICE_CHECK_ROUNDS, OUTER_ITERATIONS)
     run.rounds(first)
-    if run.state.eta <= DEVICE_CHECK_ETA and run.model_error() >= DEVICE_CHECK_MARGIN * estimated.model_error:
+    settled = opt.fixed_eta is not None or run.state.eta <= DEVICE_CHECK_ETA  # a held η is never replaced
+    if settled and run.model_error() >= DEVICE_CHECK_MARGIN * estimated.model_error:
         return None
     run.rounds(OUTER_ITERATIONS - first)
     lum = with_constant_fresnel(run.fit(), opt.fixed_eta)
