@@ -74,7 +74,8 @@ from .tuning import ISOTROPIC
 Array = NDArray[np.float64]
 
 __all__ = ["PolarBins", "IsotropicFit", "bin_polar", "fit_isotropic", "LuminanceProblem", "solve",
-           "fit_luminance", "LuminanceRun", "with_constant_fresnel", "channel_scalars", "lobe_log"]
+           "fit_luminance", "LuminanceRun", "with_constant_fresnel", "start_isotropic", "finish_isotropic",
+           "channel_scalars", "lobe_log"]
 
 # Tuned numbers: what, units and provenance are in :mod:`.tuning` (isotropic stage).
 CELLS_PER_INTERVAL = ISOTROPIC.cells_per_interval
@@ -764,7 +765,7 @@ class LuminanceRun:
     already answers its question). η free or held at ``fixed_eta``, from the data's
     initial state or ``start``, with the shadowing form ``correlated``
     (:func:`pair_shadowing`) and the active set ``tied`` (:func:`fit_luminance`).
-    ``rounds(n)`` then :meth:`fit` is the fit of ``n`` outer rounds."""
+    ``rounds(n)`` then :meth:`fit` is the fit of ``n`` outer rounds (:attr:`taken`)."""
 
     def __init__(self, bins: PolarBins, nodes: Array, fixed_eta: float | None, start: LuminanceState | None = None,
                  correlated: bool = False, tied: bool = False) -> None:
@@ -781,6 +782,7 @@ class LuminanceRun:
         self.tie = tied
         self.left = self.held = False
         self.cost = math.inf
+        self.taken = 0  # outer rounds taken
 
     def rounds(self, n: int) -> None:
         """Take ``n`` more outer rounds."""
@@ -800,6 +802,7 @@ class LuminanceRun:
                 s, self.cost = solve(problem, s, fix_eta=fix_eta, tie_ks=True)
             update_shadowing(problem, s)
         self.state = s
+        self.taken += max(n, 0)
 
     def model_error(self) -> float:
         """``ε`` of the current state (:func:`model_error`)."""
@@ -1120,9 +1123,23 @@ def fit_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | N
     """Reconstruct an isotropic material from its slices (see the module docstring), with
     eq. 8's product shadowing (:mod:`.extrapolation` may replace it); ``k_d`` is bounded by
     the samples with θ_i, θ_o ≤ ``kd_bound_max_deg`` (:func:`.samples.kd_median_bound`)."""
+    return finish_isotropic(start_isotropic(slices, valid, fixed_eta), slices, valid, kd_bound_max_deg)
+
+
+def start_isotropic(slices: Slices, valid: NDArray[np.bool_], fixed_eta: float | None = None) -> LuminanceRun:
+    """:func:`fit_isotropic`'s luminance fit before its first outer round: the slices
+    binned on the polar nodes (``valid`` the samples that enter), η free or held."""
     nodes = polar_nodes()
-    bins = bin_polar(slices, nodes, valid)
-    lum = fit_luminance(bins, nodes, fixed_eta)
+    return LuminanceRun(bin_polar(slices, nodes, valid), nodes, fixed_eta)
+
+
+def finish_isotropic(run: LuminanceRun, slices: Slices, valid: NDArray[np.bool_], kd_bound_max_deg: float = 75.0,
+                     outer_iterations: int = OUTER_ITERATIONS) -> IsotropicFit:
+    """:func:`fit_isotropic` from a run of :func:`start_isotropic` that has taken some of
+    its ``outer_iterations`` rounds: the rest, the constant Fresnel lobe's retry
+    (:func:`with_constant_fresnel`), and ``k_d``'s ceiling on demand."""
+    run.rounds(outer_iterations - run.taken)
+    lum = with_constant_fresnel(run.fit(), run.fixed_eta, outer_iterations)
     return isotropic_fit(lum, lambda: kd_median_bound(slices.light, slices.view, slices.values, valid,
                                                       kd_bound_max_deg))
 

@@ -38,19 +38,9 @@ from ..errors import ParameterError, ReflectoError
 from ..fresnel import eta_to_json, is_constant
 from ..instrument.slices import Slices, check_slices
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
-from ..polar import polar_nodes
 from .extrapolation import ShadowingChoice, choose_shadowing
 from .hemicube_fit import HemicubeFit, fit_hemicube
-from .isotropic import (
-    ETA_MAX,
-    OUTER_ITERATIONS,
-    IsotropicFit,
-    LuminanceRun,
-    bin_polar,
-    fit_isotropic,
-    isotropic_fit,
-    with_constant_fresnel,
-)
+from .isotropic import ETA_MAX, OUTER_ITERATIONS, IsotropicFit, finish_isotropic, fit_isotropic, start_isotropic
 from .isotropy import IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
 from .normal import (
@@ -64,7 +54,6 @@ from .normal import (
     hidden_peaks,
     refine_normal,
 )
-from .samples import kd_median_bound
 from .tuning import PIPELINE
 
 Array = NDArray[np.float64]
@@ -506,17 +495,12 @@ def device_frame_check(slices: Slices, valid: NDArray[np.bool_], opt: Options,
     runs on to the end: the same fit as :func:`_device_frame_fit`, bit for bit.
     """
     ok = valid & slices.valid
-    nodes = polar_nodes()
-    run = LuminanceRun(bin_polar(slices, nodes, ok), nodes, opt.fixed_eta)
-    first = min(DEVICE_CHECK_ROUNDS, OUTER_ITERATIONS)
-    run.rounds(first)
+    run = start_isotropic(slices, ok, opt.fixed_eta)
+    run.rounds(min(DEVICE_CHECK_ROUNDS, OUTER_ITERATIONS))
     settled = opt.fixed_eta is not None or run.state.eta <= DEVICE_CHECK_ETA  # a held η is never replaced
     if settled and run.model_error() >= DEVICE_CHECK_MARGIN * estimated.model_error:
         return None
-    run.rounds(OUTER_ITERATIONS - first)
-    lum = with_constant_fresnel(run.fit(), opt.fixed_eta)
-    return isotropic_fit(lum, lambda: kd_median_bound(slices.light, slices.view, slices.values, ok,
-                                                      opt.kd_bound_max_deg))
+    return finish_isotropic(run, slices, ok, opt.kd_bound_max_deg)
 
 
 def _needs_device_check(opt: Options) -> bool:
@@ -669,10 +653,18 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     t0 = time.perf_counter()
     cpu = FitSeconds()
     clock = time.process_time()
+
+    def lap() -> float:
+        """CPU seconds since the last lap."""
+        nonlocal clock
+        now = time.process_time()
+        spent, clock = now - clock, now
+        return spent
+
     check_slices(slices)
     valid = usable_samples(slices)
     est = resolve_normal(slices, valid, opt)
-    cpu.normal, clock = time.process_time() - clock, time.process_time()
+    cpu.normal = lap()
     frame = est.frame
     sl = slices if est.source == "device" else slices.reframe(frame)
     ok = valid & sl.valid
@@ -695,45 +687,43 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             frame, sl = est.frame, slices
             ok = valid & sl.valid
             iso = device_fit
-    cpu.fit, clock = time.process_time() - clock, time.process_time()
+    cpu.fit = lap()
     test = azimuthal_test(sl, ok, iso.least_squares)  # in the frame kept: the device frame's only when it is
     isotropic = _choose_isotropic(opt.isotropic, test)
-    cpu.isotropy, clock = time.process_time() - clock, time.process_time()
+    cpu.isotropy = lap()
     if not isotropic and est.source == "estimated":
         # an anisotropic lobe: the estimate's isotropic fit does not hold; the device axis
         est = dataclasses.replace(est, normal=np.array([0.0, 0.0, 1.0]), uncertainty_deg=0.0, source="device")
         frame, sl = est.frame, slices
         ok = valid & sl.valid
-        refit = time.process_time()
         iso = device_fit if device_fit is not None else _device_frame_fit(slices, valid, opt)
         test = azimuthal_test(sl, ok, iso.least_squares)
-        cpu.fit += time.process_time() - refit  # the device frame's fit (and its test) after all
-        clock = time.process_time()
+        cpu.fit += lap()  # the device frame's fit (and its test) after all
     fit: IsotropicFit | HemicubeFit = iso
     shadowing = None
     if isotropic:
         iso, shadowing = choose_shadowing(iso, opt.fixed_eta, opt.shadowing)
         fit = iso
-        cpu.form, clock = time.process_time() - clock, time.process_time()
+        cpu.form = lap()
     else:
         fit = fit_hemicube(sl, ok, fixed_eta=opt.fixed_eta, work_resolution=opt.work_resolution,
                            resolution=opt.resolution, kd_bound_max_deg=opt.kd_bound_max_deg)
-        cpu.fit, clock = cpu.fit + time.process_time() - clock, time.process_time()
+        cpu.fit += lap()
     built = fit.model  # the ceiling, tint and lobes per node of an isotropic fit are made on first use
-    cpu.model, clock = time.process_time() - clock, time.process_time()
+    cpu.model = lap()
     hidden = _hidden_peaks(slices, ok, est, built)
     motion = (detect_motion(slices, sl, ok, isotropic, est.uncertainty_deg, [p.led for p in hidden])
               if opt.detect_shake else MotionReport())
     if isinstance(fit, HemicubeFit):
         motion.excluded_leds = fit.excluded_leds
-    cpu.motion, clock = time.process_time() - clock, time.process_time()
+    cpu.motion = lap()
     model, scale, albedo = limit_energy(built, opt.energy_clamp)
     notes = _normal_notes(est, opt, isotropic) + _hidden_peak_notes(hidden)
     notes += _notes(fit, model, isotropic, test, scale)
     shadowing_note = None if shadowing is None else shadowing.note()
     if shadowing_note:
         notes.append(shadowing_note)
-    cpu.model += time.process_time() - clock  # the energy limit
+    cpu.model += lap()  # the energy limit
     return Reconstruction(model, fit.eta, test, motion, frame, iso.model_error,
                           fit.fresnel_error if isinstance(fit, HemicubeFit) else math.nan, scale, albedo,
                           notes, time.perf_counter() - t0, est.uncertainty_deg, est.source,
