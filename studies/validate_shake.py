@@ -8,9 +8,10 @@ for both captures, E(η) where the shake test reads it, the largest offset of a 
 LED's symmetry plane from the normal (:mod:`reflecto.reconstruct.symmetry`), the
 isotropy and reciprocity log ratios between LED pairs
 (:mod:`reflecto.reconstruct.consistency`), the check frames' |log ratio| against their
-LEDs' slices (:mod:`reflecto.reconstruct.repeat`), whether the capture was flagged, and the
-moved LEDs and the angle; then the detection rate and the number of false alarms, for
-the four cues together and each alone, and the
+LEDs' slices (:mod:`reflecto.reconstruct.repeat`), the largest angle between the slices'
+compact specular peaks (:func:`reflecto.reconstruct.motion.peak_agreement`), whether the
+capture was flagged, and the moved LEDs and the angle; then the detection rate and the
+number of false alarms, for the cues together and each alone, and the
 detection rate by the firing position of the first moved LED.
 
 Run: ``.venv/bin/python studies/validate_shake.py [--jobs N] [--device as-built]
@@ -33,6 +34,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from conftest import SHARED  # noqa: E402
 from reflecto.reconstruct.consistency import THRESHOLD as PAIR_THRESHOLD  # noqa: E402
+from reflecto.reconstruct.motion import PEAK_AGREEMENT_DEG  # noqa: E402
 from reflecto.reconstruct.symmetry import PLANE_THRESHOLD_DEG  # noqa: E402
 
 
@@ -65,7 +67,8 @@ def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None, tuple[int
                     "pair_flag": any(abs(c["log_ratio"]) > PAIR_THRESHOLD[c["kind"]] for c in s["consistency_checks"]),
                     "repeat": max((abs(c["log_ratio"]) if c["log_ratio"] is not None else float("inf")
                                    for c in s["repeat_checks"]), default=None),
-                    "repeat_flag": any(c["moved"] for c in s["repeat_checks"])}
+                    "repeat_flag": any(c["moved"] for c in s["repeat_checks"]),
+                    "peaks": s["peak_spread_deg"], "peak_flag": s["peak_spread_deg"] > PEAK_AGREEMENT_DEG}
         if shake:
             info = cap.extra["simulation"]["shake"]
             out["from_led"], out["angle_deg"] = info["from_led"], info["angle_deg"]
@@ -104,19 +107,23 @@ def main() -> None:
         def rep(x: dict) -> str:
             return " –   " if x["repeat"] is None else f"{x['repeat']:5.3f}"
 
+        def peaks(x: dict) -> str:
+            return f"{x['peaks']:4.1f}°"
+
         def kind(x: dict) -> str:
             return "iso  " if x["isotropic"] else "ANISO"
 
-        print(f"{r['name']:30s} clean {kind(c)} check {rep(c)} plane {plane(c)} {pairs(c)} "
+        print(f"{r['name']:30s} clean {kind(c)} check {rep(c)} plane {plane(c)} peaks {peaks(c)} {pairs(c)} "
               f"{'FLAG' if c['flagged'] else '    '}   "
               f"shaken (LEDs {','.join(map(str, r['moved']))}, {r['angle_deg']:.1f}°) {kind(s)} "
-              f"check {rep(s)} plane {plane(s)} {pairs(s)} "
+              f"check {rep(s)} plane {plane(s)} peaks {peaks(s)} {pairs(s)} "
               f"{'FLAG' if s['flagged'] else '    '}{'  excluded ' + str(s['excluded']) if s['excluded'] else ''}")
     n = len(rows)
     print(f"detected {sum(r['shaken']['flagged'] for r in rows)}/{n} shaken; "
           f"false alarms {sum(r['clean']['flagged'] for r in rows)}/{n} clean")
     for cue, key in (("check frames alone", "repeat_flag"),
-                     ("symmetry plane alone", "plane"), ("isotropy/reciprocity alone", "pair_flag")):
+                     ("symmetry plane alone", "plane"), ("isotropy/reciprocity alone", "pair_flag"),
+                     ("peaks' agreement alone", "peak_flag")):
         def hit(x: dict, key: str = key) -> bool:
             if key == "plane":
                 return x[key] is not None and x[key] > PLANE_THRESHOLD_DEG

@@ -6,8 +6,13 @@
   symmetric about the plane through their LED and the normal; after a turn, about
   the turned normal.
 * Isotropy and reciprocity between LEDs (:mod:`.consistency`).
+* The peaks' agreement (:func:`peak_agreement`): a sharp lobe's slices peak at one
+  half vector, the lobe's mode; after a turn, the slices fired later peak at the
+  turned one. Where the lobe is sharper than the view hemicube's texel, its mirror
+  planes are not located, and on a dark floor the check frame and the pairs see little:
+  there the peaks tell. The peaks' half vectors need no normal.
 
-The last two hold for isotropic materials only, so they are consulted only when the
+The last three hold for isotropic materials only, so they are consulted only when the
 material was found (or declared) isotropic; and they judge the slices in the sample
 frame, against the sample's normal: the estimated one (§5.4) for a tilted capture.
 An error ``δ`` of that normal turns an LED's mirror plane by up to ``δ / sin θ_l``
@@ -33,13 +38,68 @@ from numpy.typing import NDArray
 from ..instrument.slices import Slices
 from .consistency import THRESHOLD as PAIR_THRESHOLD
 from .consistency import PairCheck, normal_allowance, pair_checks
+from .normal import SlicePeak, slice_peaks
 from .repeat import RepeatCheck, repeat_checks
 from .symmetry import PLANE_THRESHOLD_DEG, plane_offsets
 from .tuning import MOTION
 
 Array = NDArray[np.float64]
 
-__all__ = ["MotionReport", "detect_motion"]
+__all__ = ["MotionReport", "PeakAgreement", "detect_motion", "peak_agreement", "PEAK_RADIUS_DEG",
+           "PEAK_AGREEMENT_DEG"]
+
+#: A slice's peak is compact when its pixels above half its height lie within this of its half vector (degrees) …
+PEAK_RADIUS_DEG = MOTION.peak_radius_deg
+#: … and two compact peaks further apart than this (degrees) flag a shake.
+PEAK_AGREEMENT_DEG = MOTION.peak_agreement_deg
+
+
+@dataclasses.dataclass(frozen=True)
+class PeakAgreement:
+    """Whether the slices' compact peaks share one half vector (:func:`peak_agreement`).
+
+    Attributes
+    ----------
+    leds
+        The LEDs whose slice has a compact peak (:data:`PEAK_RADIUS_DEG`).
+    spread_deg
+        The largest angle between two of their peaks' half vectors (degrees; 0 with
+        fewer than two).
+    pair
+        The two LEDs of that angle, or ``None``.
+    """
+
+    leds: tuple[int, ...] = ()
+    spread_deg: float = 0.0
+    pair: tuple[int, int] | None = None
+
+    @property
+    def moved(self) -> bool:
+        """The peaks lie further apart than :data:`PEAK_AGREEMENT_DEG`."""
+        return self.spread_deg > PEAK_AGREEMENT_DEG
+
+
+def peak_agreement(peaks: Sequence[SlicePeak]) -> PeakAgreement:
+    """The largest angle between the compact peaks' half vectors (:class:`PeakAgreement`).
+
+    A sharp lobe's slice that holds the mirror direction peaks where ``D`` does: at
+    ``h = m``, the lobe's mode (the normal, for an isotropic lobe), within the camera's
+    half-vector sampling and the lobe's small off-specular shift. Every such slice of
+    a steady capture peaks at the same ``m``, whatever the frame; a sample turned by
+    ``δ`` between two LEDs' firings moves the later peaks by ``δ``. Only compact peaks
+    count (their pixels above half height within :data:`PEAK_RADIUS_DEG` of their
+    centroid, :attr:`.normal.SlicePeak.radius_deg`): a slice that misses the mirror
+    direction has its maximum on a ridge of the lobe's flank, placed by the slice's
+    path, not by ``m``. Broad lobes have no compact peak and the cue is silent.
+    """
+    compact = [p for p in peaks if p.radius_deg <= PEAK_RADIUS_DEG]
+    spread, pair = 0.0, None
+    for a in range(len(compact)):
+        for b in range(a + 1, len(compact)):
+            d = math.degrees(math.acos(min(1.0, max(-1.0, float(compact[a].normal @ compact[b].normal)))))
+            if d > spread:
+                spread, pair = d, (compact[a].led, compact[b].led)
+    return PeakAgreement(tuple(p.led for p in compact), spread, pair)
 
 
 @dataclasses.dataclass
@@ -60,6 +120,9 @@ class MotionReport:
     plane_allowance_deg
         Per LED what the normal's uncertainty adds to :data:`PLANE_THRESHOLD_DEG`
         (module docstring; empty: nothing).
+    peaks
+        Whether the slices' compact peaks agree (:func:`peak_agreement`; empty where the
+        test did not apply).
     """
 
     repeat_checks: list[RepeatCheck] = dataclasses.field(default_factory=list)
@@ -67,6 +130,7 @@ class MotionReport:
     pair_checks: list[PairCheck] = dataclasses.field(default_factory=list)
     excluded_leds: list[int] = dataclasses.field(default_factory=list)
     plane_allowance_deg: list[float] = dataclasses.field(default_factory=list)
+    peaks: PeakAgreement = dataclasses.field(default_factory=PeakAgreement)
 
     @property
     def moved_leds(self) -> list[int]:
@@ -89,9 +153,10 @@ class MotionReport:
     @property
     def shake_detected(self) -> bool:
         """Whether any cue fired: a moved check LED, a tilted mirror plane, an inconsistent
-        pair, or an LED excluded from the fit.
+        pair, peaks that disagree, or an LED excluded from the fit.
         """
-        return bool(self.moved_leds or self.tilted_planes or self.inconsistent_pairs or self.excluded_leds)
+        return bool(self.moved_leds or self.tilted_planes or self.inconsistent_pairs or self.peaks.moved
+                    or self.excluded_leds)
 
     def describe(self) -> str:
         """One line naming the cues that fired.
@@ -107,6 +172,9 @@ class MotionReport:
         if self.tilted_planes:
             parts.append(f"LEDs {self.tilted_planes} not symmetric about the normal")
         parts += [f"{c.kind} {c.a}-{c.b} ×{math.exp(c.log_ratio):.2f}" for c in self.inconsistent_pairs]
+        if self.peaks.moved and self.peaks.pair is not None:
+            a, b = self.peaks.pair
+            parts.append(f"LEDs {a} and {b} peak {self.peaks.spread_deg:.1f}° apart")
         if self.excluded_leds:
             parts.append(f"LEDs {self.excluded_leds} excluded")
         return "; ".join(parts)
@@ -118,7 +186,9 @@ class MotionReport:
         -------
         dict
             ``shake_detected``, ``repeat_checks``, ``symmetry_plane_offsets_deg``,
-            ``symmetry_plane_allowance_deg``, ``consistency_checks`` and ``excluded_leds``.
+            ``symmetry_plane_allowance_deg``, ``consistency_checks``, ``peak_spread_deg``
+            (with ``peak_leds``, the LEDs with a compact peak, and ``peak_pair``) and
+            ``excluded_leds``.
         """
         def finite(d: dict[str, Any]) -> dict[str, Any]:
             return {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in d.items()}
@@ -128,6 +198,8 @@ class MotionReport:
                 "symmetry_plane_offsets_deg": self.plane_offsets_deg,
                 "symmetry_plane_allowance_deg": self.plane_allowance_deg,
                 "consistency_checks": [dataclasses.asdict(c) for c in self.pair_checks],
+                "peak_spread_deg": self.peaks.spread_deg, "peak_leds": list(self.peaks.leds),
+                "peak_pair": None if self.peaks.pair is None else list(self.peaks.pair),
                 "excluded_leds": self.excluded_leds}
 
 
@@ -137,7 +209,7 @@ NORMAL_SIGMAS = MOTION.normal_sigmas
 
 def detect_motion(device_frame: Slices, sample_frame: Slices, valid: NDArray[np.bool_],
                   isotropic: bool, normal_uncertainty_deg: float = 0.0,
-                  flank_only: Sequence[int] = ()) -> MotionReport:
+                  flank_only: Sequence[int] = (), peaks: Sequence[SlicePeak] | None = None) -> MotionReport:
     """Run the cues that apply (see the module docstring).
 
     ``device_frame`` carries the check frames (compared where they were taken);
@@ -150,7 +222,9 @@ def detect_motion(device_frame: Slices, sample_frame: Slices, valid: NDArray[np.
     plane located on a flank several half widths from the peak moves by degrees with
     hundredths of a degree of the normal (ideal steel tilted 0.5°, LED 2's nearest view
     3.4 half widths from its mirror direction: 1.6° from the plane through the normal
-    0.05° off the truth, 4.0° from the one 0.01° off).
+    0.05° off the truth, 4.0° from the one 0.01° off). ``peaks``: the device frame's
+    slice peaks where already found (:func:`.normal.slice_peaks` of ``device_frame`` and
+    ``valid``).
     """
     report = MotionReport(repeat_checks=repeat_checks(device_frame))
     if isotropic:
@@ -165,6 +239,7 @@ def detect_motion(device_frame: Slices, sample_frame: Slices, valid: NDArray[np.
         report.pair_checks = [dataclasses.replace(c, allowance=normal_allowance(light, c.a, c.b, u, NORMAL_SIGMAS))
                               for c in pair_checks(light, sample_frame.view, sample_frame.values, meas,
                                                   sample_frame.noise)]
+        report.peaks = peak_agreement(slice_peaks(device_frame, valid) if peaks is None else peaks)
     return report
 
 

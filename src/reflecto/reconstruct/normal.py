@@ -397,22 +397,47 @@ def _angle_deg(a: Array, b: Array) -> float:
     return math.degrees(math.acos(min(1.0, max(-1.0, float(np.dot(a, b))))))
 
 
-def peak_normal(slices, valid: NDArray[np.bool_]) -> Array | None:
-    """First estimate of the normal from the specular peak (module docstring, step 1).
+@dataclasses.dataclass(frozen=True)
+class SlicePeak:
+    """The specular peak of one LED's slice (:func:`slice_peaks`).
 
-    For every LED ``l`` whose slice (luminance ``Y``) peaks at least
-    :data:`PEAK_CONTRAST` times above its median, at least :data:`PEAK_RIM_DEG` inside
-    the rim of the view cone, the half vector of the peak's centroid
-    ``h = normalize(Σ w (l + v)/|l + v|)`` (weights ``w = Y − ½(Y_max + median)`` over
-    the pixels above that level); of these, the steepest LED's (its lobe's
-    off-specular shift is the smallest). ``None`` when no slice has such a peak.
+    Attributes
+    ----------
+    led
+        The LED.
+    normal
+        The half vector of the peak's centroid, ``normalize(Σ w h)`` over the pixels above
+        half the peak's height (``w`` their height above that level, ``h = (l + v)/|l + v|``),
+        in the slices' frame, shape ``(3,)``: the normal of a lobe centred on it.
+    cos_light
+        ``l_z``, the LED's direction cosine to the frame's axis (the steepest LED's peak
+        has the smallest off-specular shift).
+    radius_deg
+        The largest angle between a pixel's half vector above that level and ``normal``
+        (degrees): a lobe's peak a few pixels across, or a ridge or plateau degrees wide
+        where the slice only grazes a lobe's flank.
     """
 
+    led: int
+    normal: Array
+    cos_light: float
+    radius_deg: float
+
+
+def slice_peaks(slices, valid: NDArray[np.bool_]) -> list[SlicePeak]:
+    """The slices' specular peaks (:class:`SlicePeak`), by LED.
+
+    An LED's slice (luminance ``Y`` of its ``valid`` samples, at least 100) has a peak
+    where its largest value is at least :data:`PEAK_CONTRAST` times its median and lies
+    at least :data:`PEAK_RIM_DEG` inside the rim of the view cone (a peak the rim cuts
+    is placed by the rim). The peak's pixels are those above ``½(Y_max + median)``.
+    ``slices`` in any frame (the peaks' half vectors are in it), ``valid`` shape ``(L, P)``.
+    """
     view = slices.view
     axis = geometry.normalize(view.mean(axis=0))
     ang = np.degrees(np.arccos(np.clip(view @ axis, -1.0, 1.0)))
     rim = float(ang.max()) - PEAK_RIM_DEG
-    best: tuple[float, Array] | None = None
+    out = []
     for k in range(slices.n_leds):
         ok = valid[k]
         if np.count_nonzero(ok) < 100:
@@ -427,9 +452,23 @@ def peak_normal(slices, valid: NDArray[np.bool_]) -> Array | None:
         h = slices.light[k] + view[ok][top]
         h /= np.linalg.norm(h, axis=1, keepdims=True)
         n = geometry.normalize(((y[top] - level)[:, None] * h).sum(axis=0))
-        if best is None or slices.light[k, 2] > best[0]:
-            best = (float(slices.light[k, 2]), n)
-    return None if best is None else best[1]
+        radius = math.degrees(math.acos(min(1.0, float(np.min(h @ n)))))
+        out.append(SlicePeak(k, n, float(slices.light[k, 2]), radius))
+    return out
+
+
+def peak_normal(slices, valid: NDArray[np.bool_], peaks: list[SlicePeak] | None = None) -> Array | None:
+    """First estimate of the normal from the specular peak (module docstring, step 1):
+    of the slices' peaks (:func:`slice_peaks`; ``peaks`` where already found in the
+    device frame), the steepest LED's (its lobe's off-specular shift is the smallest).
+    ``None`` when no slice has a peak.
+    """
+    peaks = slice_peaks(slices, valid) if peaks is None else peaks
+    best: SlicePeak | None = None
+    for p in peaks:
+        if best is None or p.cos_light > best.cos_light:
+            best = p
+    return None if best is None else best.normal
 
 
 def _lobe_mask(y: Array, ok: NDArray[np.bool_], level: float, stride: int) -> NDArray[np.bool_]:
@@ -853,15 +892,16 @@ def half_vector_pitch_deg(slices) -> float:
 
 
 def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0,
-                    fixed_eta: float | None = None) -> NormalEstimate:
+                    fixed_eta: float | None = None, peaks: list[SlicePeak] | None = None) -> NormalEstimate:
     """The altered normal of one capture (module docstring): peak, then the tilt refined
     in the isotropic fit's least squares, with its jackknife uncertainty.
 
     ``slices`` in the device frame, ``valid`` the usable samples ``(L, P)``; tilts are
-    held within ``max_tilt_deg`` of the device axis.
+    held within ``max_tilt_deg`` of the device axis; ``peaks`` the slices' peaks where
+    already found (:func:`slice_peaks`).
     """
     z = np.array([0.0, 0.0, 1.0])
-    n0 = peak_normal(slices, valid)
+    n0 = peak_normal(slices, valid, peaks)
     normal = z if n0 is None or _angle_deg(n0, z) > max_tilt_deg else n0
     problem = TiltProblem(slices, valid)
     sd = math.inf

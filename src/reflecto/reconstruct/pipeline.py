@@ -49,10 +49,12 @@ from .normal import (
     IsotropicDistance,
     NormalDistance,
     NormalEstimate,
+    SlicePeak,
     estimate_normal,
     estimate_normal_consistency,
     hidden_peaks,
     refine_normal,
+    slice_peaks,
 )
 from .tuning import PIPELINE
 
@@ -390,7 +392,8 @@ def estimate_frame(slices: Slices, valid: NDArray[np.bool_], max_tilt_deg: float
 DEVICE_AXIS_SIGMAS = PIPELINE.device_axis_sigmas
 
 
-def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> NormalEstimate:
+def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options,
+                   peaks: list[SlicePeak] | None = None) -> NormalEstimate:
     """The sample normal the options ask for: estimated (``"auto"``, :func:`.normal.estimate_normal`,
     the device axis where the tilt is within :data:`DEVICE_AXIS_SIGMAS` uncertainties of 0),
     the device axis (``"device"``) or the given vector.
@@ -404,6 +407,9 @@ def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> No
     opt
         The reconstruction options (``normal``, ``isotropic``, ``max_tilt_deg``, ``fixed_eta``);
         with ``isotropic="no"`` the device axis is kept.
+    peaks
+        The slices' specular peaks where already found (:func:`.normal.slice_peaks` of
+        ``slices`` and ``valid``); ``None``: found here where needed.
 
     Returns
     -------
@@ -418,7 +424,7 @@ def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options) -> No
         return NormalEstimate(np.asarray(opt.normal, dtype=np.float64), 0.0, "given")
     if opt.isotropic == "no":  # the estimate fits an isotropic lobe: not for a declared anisotropic one
         return NormalEstimate(z, 0.0, "device")
-    est = estimate_normal(slices, valid, opt.max_tilt_deg, opt.fixed_eta)
+    est = estimate_normal(slices, valid, opt.max_tilt_deg, opt.fixed_eta, peaks)
     if not (est.tilt_deg > DEVICE_AXIS_SIGMAS * _decision_uncertainty(est)):
         return dataclasses.replace(est, normal=z, source="device", alternative=est.normal)  # not told apart
     return est
@@ -663,7 +669,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
 
     check_slices(slices)
     valid = usable_samples(slices)
-    est = resolve_normal(slices, valid, opt)
+    peaks = slice_peaks(slices, valid)  # the first estimate of the normal and a motion cue
+    est = resolve_normal(slices, valid, opt, peaks)
     cpu.normal = lap()
     frame = est.frame
     sl = slices if est.source == "device" else slices.reframe(frame)
@@ -712,7 +719,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     built = fit.model  # the ceiling, tint and lobes per node of an isotropic fit are made on first use
     cpu.model = lap()
     hidden = _hidden_peaks(slices, ok, est, built)
-    motion = (detect_motion(slices, sl, ok, isotropic, est.uncertainty_deg, [p.led for p in hidden])
+    motion = (detect_motion(slices, sl, ok, isotropic, est.uncertainty_deg, [p.led for p in hidden], peaks)
               if opt.detect_shake else MotionReport())
     if isinstance(fit, HemicubeFit):
         motion.excluded_leds = fit.excluded_leds

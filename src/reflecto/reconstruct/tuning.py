@@ -968,6 +968,23 @@ class MotionTuning:
         what="the mirror-plane and LED-pair thresholds are widened by the normal's error at this many "
              "standard uncertainties (a plane turns by up to δ/sin θ_l, a pair's log ratio by δ(tan θ_a + tan θ_b))",
         source="mechanism: a two-sided 95 % bound on the normal's error (docs/design/normal.md)")
+    peak_radius_deg: float = tuned(
+        1.0, name="PEAK_RADIUS_DEG", units="deg",
+        what="a slice's peak is compact when its pixels above half its height lie within this of their centroid's "
+             "half vector: the peak of a sharp lobe, which places the lobe's mode (a slice that only grazes a "
+             "lobe's flank has a ridge or plateau degrees wide there)",
+        source="measurement: on the hand-held study's captures (ideal, as-built, wide, wide-as-built: 400 steady, "
+               "200 shaken; both halves) 0.5° and 2° flag the same captures as 1°; the plateaus of slices that "
+               "miss the mirror direction span 15–60°")
+    peak_agreement_deg: float = tuned(
+        1.5, name="PEAK_AGREEMENT_DEG", units="deg",
+        what="two compact peaks whose half vectors lie further apart than this flag a shake: the slices of a "
+             "steady sample peak at the same half vector, the lobe's mode",
+        source="measurement: the value of PLANE_THRESHOLD_DEG, not tuned on this cue; on the hand-held study's "
+               "400 steady captures (ideal, as-built, wide, wide-as-built; untilted and tilted 0–10°) compact peaks "
+               "lie at most 0.43° apart (tuning half: steel tilted on wide-as-built; validation half 0.33°), on the "
+               "shaken ones they flag 3.1–7.8° apart (wide: chrome-steel, hematite, tungsten-carbide, which the "
+               "other cues miss, 4.5–7.8°)")
 
 
 @dataclasses.dataclass(frozen=True)
