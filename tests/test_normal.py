@@ -3,6 +3,7 @@ lobes, the device axis kept where it holds, a given normal, and tilt kept apart 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -16,12 +17,16 @@ from reflecto.instrument.simulate import simulate_capture
 from reflecto.instrument.slices import extract_slices
 from reflecto.reconstruct import Options, reconstruct
 from reflecto.reconstruct.eq3 import symmetry_test_slices
-from reflecto.reconstruct.normal import estimate_normal, half_vector_pitch_deg, peak_normal
+from reflecto.reconstruct.normal import estimate_normal, half_vector_pitch_deg, peak_normal, slice_peaks
 from reflecto.reconstruct.pipeline import usable_samples
 from reflecto.sources.analytic import AnalyticBRDF
 
 DEV = Device.builtin("ideal")
 CAL = nominal_calibration(DEV)
+
+
+def _tilted(deg: float) -> np.ndarray:
+    return np.array([math.sin(math.radians(deg)), 0.0, math.cos(math.radians(deg))])
 
 
 def _off(a, b) -> float:
@@ -457,3 +462,36 @@ def test_the_device_frame_check_runs_on_where_eta_may_still_reach_its_bound(monk
     full20 = pipeline._device_frame_fit(sl, valid, held)
     poor = dataclasses.replace(full20, model_error=full20.model_error / 4.0)
     assert pipeline.device_frame_check(sl, valid, held, poor) is None
+
+
+def test_compact_peaks_at_the_estimate_stand_in_for_the_device_frame_check(monkeypatch):
+    """A sharp lobe (GGX α 0.02) tilted 5°: its slices' compact peaks lie at the estimated
+    normal and 5° from the device axis, so the device frame's fit is not made, and the
+    reconstruction is the one the check would have kept, bit for bit. An untilted capture
+    of it (peaks at the axis) and a broad lobe (α 0.1, no compact peak) tilted 5° are
+    still checked."""
+    from reflecto.reconstruct import pipeline
+
+    calls = []
+    check = pipeline.device_frame_check
+    monkeypatch.setattr(pipeline, "device_frame_check", lambda *a: calls.append(1) or check(*a))
+    sharp = AnalyticBRDF(distribution="ggx", alpha=0.02, kd=0.05, ks=0.8, eta=1.5)
+    sl, truth = _capture(sharp, 5.0)
+    peaks = slice_peaks(sl, usable_samples(sl))
+    assert peaks and all(_off(p.normal, truth) < 0.3 for p in peaks if p.radius_deg <= 1.0)
+    res = reconstruct(sl)
+    assert not calls and res.normal_source == "estimated" and _off(res.frame[2], truth) < 0.1
+    monkeypatch.setattr(pipeline, "_peaks_place_tilt", lambda *a: False)
+    checked = reconstruct(sl)
+    assert calls == [1] and np.array_equal(checked.frame, res.frame)
+    assert np.array_equal(checked.model.ndf_table.values, res.model.ndf_table.values)
+    assert np.array_equal(checked.model.ks, res.model.ks) and checked.eta == res.eta
+    monkeypatch.undo()
+    monkeypatch.setattr(pipeline, "device_frame_check", lambda *a: calls.append(2) or check(*a))
+    broad = AnalyticBRDF(distribution="ggx", alpha=0.1, kd=0.05, ks=0.8, eta=1.5)
+    reconstruct(_capture(broad, 5.0)[0])
+    assert calls == [1, 2]
+    sl0, _ = _capture(sharp, 0.0)
+    valid0 = usable_samples(sl0)
+    tilted = dataclasses.replace(estimate_normal(sl0, valid0), normal=_tilted(3.0))
+    assert not pipeline._peaks_place_tilt(tilted, slice_peaks(sl0, valid0))  # its peaks hold the device axis

@@ -42,7 +42,7 @@ from .extrapolation import ShadowingChoice, choose_shadowing
 from .hemicube_fit import HemicubeFit, fit_hemicube
 from .isotropic import ETA_MAX, OUTER_ITERATIONS, IsotropicFit, finish_isotropic, fit_isotropic, start_isotropic
 from .isotropy import IsotropyTest, azimuthal_test
-from .motion import MotionReport, detect_motion
+from .motion import PEAK_AGREEMENT_DEG, MotionReport, detect_motion, peak_agreement
 from .normal import (
     ConsistencyDistance,
     HiddenPeak,
@@ -509,6 +509,22 @@ def device_frame_check(slices: Slices, valid: NDArray[np.bool_], opt: Options,
     return finish_isotropic(run, slices, ok, opt.kd_bound_max_deg)
 
 
+def _peaks_place_tilt(est: NormalEstimate, peaks: list[SlicePeak]) -> bool:
+    """Whether the slices' compact peaks place the estimated tilt without a model: at
+    least one, agreeing (:func:`.motion.peak_agreement`), each within
+    :data:`.motion.PEAK_AGREEMENT_DEG` of the estimated normal and further than that from
+    the device axis. A sharp lobe's slices that hold the mirror direction peak at its
+    mode, the sample's normal, whatever its shape (:mod:`.motion`); where they put it
+    away from the device axis and at the estimate, the device frame's fit
+    (:func:`device_frame_check`) cannot show that the tilt explains nothing."""
+    agree = peak_agreement(peaks)
+    if not agree.leds or agree.moved:
+        return False
+    limit = math.cos(math.radians(PEAK_AGREEMENT_DEG))
+    compact = [p.normal for p in peaks if p.led in agree.leds]
+    return all(float(n @ est.normal) >= limit and float(n[2]) < limit for n in compact)
+
+
 def _needs_device_check(opt: Options) -> bool:
     """Whether an estimated tilt is checked against the device frame's fit
     (:func:`_tilt_explains_nothing`): under ``normal="auto"``, isotropy not imposed as "no"."""
@@ -680,7 +696,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         iso = device_fit = _device_frame_fit(slices, valid, opt)
     else:
         iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
-        if _needs_device_check(opt) and not _within_sampling(est):
+        if _needs_device_check(opt) and not _within_sampling(est) and not _peaks_place_tilt(est, peaks):
             device_fit = device_frame_check(slices, valid, opt, iso)
         if (device_fit is not None and _tilt_explains_nothing(device_fit, iso)
                 and not _fit_frame_explains(slices, valid, opt, est, device_fit)):
