@@ -68,7 +68,8 @@ def one(args: tuple[int, str, str, str | None, tuple[int, ...] | None, tuple[int
                     "repeat": max((abs(c["log_ratio"]) if c["log_ratio"] is not None else float("inf")
                                    for c in s["repeat_checks"]), default=None),
                     "repeat_flag": any(c["moved"] for c in s["repeat_checks"]),
-                    "peaks": s["peak_spread_deg"], "peak_flag": s["peak_spread_deg"] > PEAK_AGREEMENT_DEG}
+                    "peaks": s["peak_spread_deg"],
+                    "peak_flag": s["peak_spread_deg"] is not None and s["peak_spread_deg"] > PEAK_AGREEMENT_DEG}
         if shake:
             info = cap.extra["simulation"]["shake"]
             out["from_led"], out["angle_deg"] = info["from_led"], info["angle_deg"]
@@ -108,7 +109,7 @@ def main() -> None:
             return " –   " if x["repeat"] is None else f"{x['repeat']:5.3f}"
 
         def peaks(x: dict) -> str:
-            return f"{x['peaks']:4.1f}°"
+            return "  –  " if x["peaks"] is None else f"{x['peaks']:4.1f}°"
 
         def kind(x: dict) -> str:
             return "iso  " if x["isotropic"] else "ANISO"

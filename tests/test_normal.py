@@ -195,19 +195,19 @@ def test_motion_thresholds_widen_with_the_normals_uncertainty():
 def test_eq3_looks_in_the_frame_of_a_tilt_the_fit_could_not_rule_out(shared):
     """Where the device axis is kept over an estimated tilt that fitted no better, the
     estimate is the normal's uncertainty and an alternative frame: eq. 3 holds if it holds
-    there (ideal device, red-specular-plastic tilted 1.55°: BROKEN in the device frame)."""
+    there (ideal device, natural-209 tilted 5.6°: BROKEN in the device frame)."""
     from reflecto import load_source, workflow
     from reflecto.reconstruct.eq3 import symmetry_test_slices
 
     # the hand-held study's capture of it (seed from the material's name, tilt drawn from the seed)
-    cap = simulate_capture(load_source(shared / "merl-nbrdf" / "red-specular-plastic.h5"), DEV,
-                           tilt_deg=1.5462947055125875, seed=1573571094)
+    cap = simulate_capture(load_source(shared / "merl-nbrdf" / "natural-209.h5"), DEV,
+                           tilt_deg=5.603334201041704, seed=261493222)
     res = workflow.capture_to_model(cap, nominal_calibration(DEV))
     rec = res.reconstruction
     truth = np.array(cap.extra["simulation"]["normal"])
     assert rec.normal_source == "device" and rec.normal_estimate is not None
     alt = rec.normal_estimate.alternative
-    assert alt is not None and math.degrees(math.acos(min(1.0, float(alt @ truth)))) < 0.3
+    assert alt is not None and math.degrees(math.acos(min(1.0, float(alt @ truth)))) < 0.5
     assert rec.normal_uncertainty_deg >= math.degrees(math.acos(float(alt[2]))) - 1e-9
     device_only = symmetry_test_slices(res.slices, res.slices.valid, rec.model)
     assert device_only.decided and not device_only.symmetric  # the tilt read as an asymmetry

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -76,7 +77,34 @@ def test_a_turn_between_the_firings_moves_the_later_peaks():
 
 
 def test_a_broad_lobe_has_no_compact_peak():
+    """GGX α 0.1 on `wide`, tilted 4°: three slices peak, each over 4° across at half
+    height, so none is compact and the cue is silent."""
     dev = Device.builtin("wide")
-    src = AnalyticBRDF(distribution="ggx", alpha=0.3, kd=0.1, ks=0.7)
-    res = reconstruct(extract_slices(simulate_capture(src, dev, seed=3, tilt_deg=4.0), nominal_calibration(dev)))
-    assert res.motion.peaks.leds == () and not res.motion.peaks.moved and not res.shake_detected
+    src = AnalyticBRDF(distribution="ggx", alpha=0.1, kd=0.02, ks=0.8)
+    sl = extract_slices(simulate_capture(src, dev, seed=3, tilt_deg=4.0), nominal_calibration(dev))
+    peaks = slice_peaks(sl, usable_samples(sl))
+    assert len(peaks) >= 2 and all(p.radius_deg > 2.0 * PEAK_RADIUS_DEG for p in peaks)
+    res = reconstruct(sl)
+    assert res.motion.peaks is not None and res.motion.peaks.leds == () and not res.motion.peaks.moved
+    assert not res.shake_detected
+
+
+def test_the_cue_applies_to_isotropic_materials_only():
+    dev = Device.builtin("ideal")
+    aniso = AnalyticBRDF(distribution="ggx", alpha=(0.2, 0.05), rotation_deg=120, kd=0.1, ks=0.7, eta=1.5)
+    res = reconstruct(extract_slices(simulate_capture(aniso, dev, seed=1), nominal_calibration(dev)))
+    assert not res.isotropic and res.motion.peaks is None
+    summary = res.motion.to_dict()
+    assert summary["peak_spread_deg"] is None and summary["peak_leds"] is None
+
+
+def test_a_slice_with_a_non_finite_value_has_no_peak():
+    dev = Device.builtin("wide")
+    src = AnalyticBRDF(distribution="ggx", alpha=0.01, kd=0.0, ks=0.8)
+    sl = extract_slices(simulate_capture(src, dev, seed=3, tilt_deg=4.0), nominal_calibration(dev))
+    valid = usable_samples(sl)
+    leds = [p.led for p in slice_peaks(sl, valid)]
+    values = sl.values.copy()
+    values[leds[0], np.flatnonzero(valid[leds[0]])[0]] = np.inf
+    broken = dataclasses.replace(sl, values=values)
+    assert [p.led for p in slice_peaks(broken, valid)] == leds[1:]

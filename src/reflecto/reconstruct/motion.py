@@ -121,8 +121,8 @@ class MotionReport:
         Per LED what the normal's uncertainty adds to :data:`PLANE_THRESHOLD_DEG`
         (module docstring; empty: nothing).
     peaks
-        Whether the slices' compact peaks agree (:func:`peak_agreement`; empty where the
-        test did not apply).
+        Whether the slices' compact peaks agree (:func:`peak_agreement`), or ``None``
+        where the cue did not apply (a material not judged isotropic).
     """
 
     repeat_checks: list[RepeatCheck] = dataclasses.field(default_factory=list)
@@ -130,7 +130,7 @@ class MotionReport:
     pair_checks: list[PairCheck] = dataclasses.field(default_factory=list)
     excluded_leds: list[int] = dataclasses.field(default_factory=list)
     plane_allowance_deg: list[float] = dataclasses.field(default_factory=list)
-    peaks: PeakAgreement = dataclasses.field(default_factory=PeakAgreement)
+    peaks: PeakAgreement | None = None
 
     @property
     def moved_leds(self) -> list[int]:
@@ -155,8 +155,8 @@ class MotionReport:
         """Whether any cue fired: a moved check LED, a tilted mirror plane, an inconsistent
         pair, peaks that disagree, or an LED excluded from the fit.
         """
-        return bool(self.moved_leds or self.tilted_planes or self.inconsistent_pairs or self.peaks.moved
-                    or self.excluded_leds)
+        return bool(self.moved_leds or self.tilted_planes or self.inconsistent_pairs
+                    or (self.peaks is not None and self.peaks.moved) or self.excluded_leds)
 
     def describe(self) -> str:
         """One line naming the cues that fired.
@@ -172,7 +172,7 @@ class MotionReport:
         if self.tilted_planes:
             parts.append(f"LEDs {self.tilted_planes} not symmetric about the normal")
         parts += [f"{c.kind} {c.a}-{c.b} ×{math.exp(c.log_ratio):.2f}" for c in self.inconsistent_pairs]
-        if self.peaks.moved and self.peaks.pair is not None:
+        if self.peaks is not None and self.peaks.moved and self.peaks.pair is not None:
             a, b = self.peaks.pair
             parts.append(f"LEDs {a} and {b} peak {self.peaks.spread_deg:.1f}° apart")
         if self.excluded_leds:
@@ -187,8 +187,8 @@ class MotionReport:
         dict
             ``shake_detected``, ``repeat_checks``, ``symmetry_plane_offsets_deg``,
             ``symmetry_plane_allowance_deg``, ``consistency_checks``, ``peak_spread_deg``
-            (with ``peak_leds``, the LEDs with a compact peak, and ``peak_pair``) and
-            ``excluded_leds``.
+            (with ``peak_leds``, the LEDs with a compact peak, and ``peak_pair``; ``None``
+            where the cue did not apply) and ``excluded_leds``.
         """
         def finite(d: dict[str, Any]) -> dict[str, Any]:
             return {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in d.items()}
@@ -198,8 +198,9 @@ class MotionReport:
                 "symmetry_plane_offsets_deg": self.plane_offsets_deg,
                 "symmetry_plane_allowance_deg": self.plane_allowance_deg,
                 "consistency_checks": [dataclasses.asdict(c) for c in self.pair_checks],
-                "peak_spread_deg": self.peaks.spread_deg, "peak_leds": list(self.peaks.leds),
-                "peak_pair": None if self.peaks.pair is None else list(self.peaks.pair),
+                "peak_spread_deg": None if self.peaks is None else self.peaks.spread_deg,
+                "peak_leds": None if self.peaks is None else list(self.peaks.leds),
+                "peak_pair": None if self.peaks is None or self.peaks.pair is None else list(self.peaks.pair),
                 "excluded_leds": self.excluded_leds}
 
 
@@ -223,8 +224,15 @@ def detect_motion(device_frame: Slices, sample_frame: Slices, valid: NDArray[np.
     hundredths of a degree of the normal (ideal steel tilted 0.5°, LED 2's nearest view
     3.4 half widths from its mirror direction: 1.6° from the plane through the normal
     0.05° off the truth, 4.0° from the one 0.01° off). ``peaks``: the device frame's
-    slice peaks where already found (:func:`.normal.slice_peaks` of ``device_frame`` and
-    ``valid``).
+    slice peaks where already found (:func:`.normal.slice_peaks` of ``device_frame``; the
+    reconstruction passes those of its usable samples in the device frame, which the
+    normal's first estimate took); ``None``: those of ``valid``.
+
+    The peaks' agreement assumes calibrated directions (an LED or view direction off by
+    ``δ`` moves its peak's half vector by about ``δ/2``: a device read with its nominal
+    calibration where it needs its own can read that as a turn) and a lobe with one sharp
+    mode (an NDF with two, judged isotropic, puts different slices' peaks on different
+    modes).
     """
     report = MotionReport(repeat_checks=repeat_checks(device_frame))
     if isotropic:

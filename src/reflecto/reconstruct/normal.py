@@ -430,7 +430,8 @@ def slice_peaks(slices, valid: NDArray[np.bool_]) -> list[SlicePeak]:
     An LED's slice (luminance ``Y`` of its ``valid`` samples, at least 100) has a peak
     where its largest value is at least :data:`PEAK_CONTRAST` times its median and lies
     at least :data:`PEAK_RIM_DEG` inside the rim of the view cone (a peak the rim cuts
-    is placed by the rim). The peak's pixels are those above ``½(Y_max + median)``.
+    is placed by the rim). The peak's pixels are those above ``½(Y_max + median)``. A
+    slice with a non-finite value among its ``valid`` samples has none.
     ``slices`` in any frame (the peaks' half vectors are in it), ``valid`` shape ``(L, P)``.
     """
     view = slices.view
@@ -443,6 +444,8 @@ def slice_peaks(slices, valid: NDArray[np.bool_]) -> list[SlicePeak]:
         if np.count_nonzero(ok) < 100:
             continue
         y = slices.values[k, ok] @ LUM
+        if not np.all(np.isfinite(y)):  # a value the usable samples would not hold: no peak to place
+            continue
         med = float(np.median(y))
         j = int(np.argmax(y))
         if not (y[j] > PEAK_CONTRAST * max(med, 1e-300) and ang[ok][j] < rim):
@@ -452,6 +455,8 @@ def slice_peaks(slices, valid: NDArray[np.bool_]) -> list[SlicePeak]:
         h = slices.light[k] + view[ok][top]
         h /= np.linalg.norm(h, axis=1, keepdims=True)
         n = geometry.normalize(((y[top] - level)[:, None] * h).sum(axis=0))
+        if not np.all(np.isfinite(n)):
+            continue
         radius = math.degrees(math.acos(min(1.0, float(np.min(h @ n)))))
         out.append(SlicePeak(k, n, float(slices.light[k, 2]), radius))
     return out

@@ -685,7 +685,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
 
     check_slices(slices)
     valid = usable_samples(slices)
-    peaks = slice_peaks(slices, valid)  # the first estimate of the normal and a motion cue
+    # the first estimate of the normal, the device frame's check and a motion cue take them
+    peaks = slice_peaks(slices, valid) if _needs_device_check(opt) or opt.detect_shake else None
     est = resolve_normal(slices, valid, opt, peaks)
     cpu.normal = lap()
     frame = est.frame
@@ -696,7 +697,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         iso = device_fit = _device_frame_fit(slices, valid, opt)
     else:
         iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
-        if _needs_device_check(opt) and not _within_sampling(est) and not _peaks_place_tilt(est, peaks):
+        if (_needs_device_check(opt) and not _within_sampling(est)
+                and not (peaks is not None and _peaks_place_tilt(est, peaks))):
             device_fit = device_frame_check(slices, valid, opt, iso)
         if (device_fit is not None and _tilt_explains_nothing(device_fit, iso)
                 and not _fit_frame_explains(slices, valid, opt, est, device_fit)):
