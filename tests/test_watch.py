@@ -350,3 +350,16 @@ def test_an_earlier_model_file_that_does_not_read_is_made_again(sources: list[Pa
     w.run(once=True)
     assert list(w.entries) == [name] and not w.failed
     assert load_model(models / f"{name}.reflecto").kd.shape == (3,)
+
+
+def test_warnings_are_what_asks_for_another_capture_and_notes_the_rest():
+    from reflecto.watch import notes_of, warnings_of
+
+    steady = {"shake_detected": False, "notes": ["sample normal tilted 4.00° from the device axis (±0.20°, §5.4)"],
+              "symmetry_test": {"decided": True, "symmetric": True}}
+    assert warnings_of(steady) == [] and notes_of(steady) == steady["notes"]
+    shaken = {"shake_detected": True, "motion": "LEDs 2 and 8 peak 7.8° apart",
+              "symmetry_test": {"decided": True, "symmetric": False}, "notes": "damaged"}
+    assert warnings_of(shaken) == ["shake detected (LEDs 2 and 8 peak 7.8° apart)",
+                                   "symmetry of eq. 3 broken (capture rotations for §5.5)"]
+    assert notes_of(shaken) == []

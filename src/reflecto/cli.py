@@ -571,6 +571,7 @@ def _watch_announcer(args: argparse.Namespace) -> Callable[[Entry, dict[str, Any
             keys = ("normal_tilt_deg", "normal_uncertainty_deg", "normal_source", "eta", "model_error")
             print(json.dumps({"capture": entry.name, "model": str(Path(args.output) / f"{entry.name}.reflecto"),
                               **{k: summary.get(k) for k in keys}, "warnings": entry.warnings,
+                              "notes": entry.notes,
                               "latency_s": round(latency_s, 3)}), flush=True)
             return
         shown = _tilt_text(summary)

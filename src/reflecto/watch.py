@@ -19,7 +19,7 @@ the code path of ``reflecto reconstruct``), into ``MODELS/<name>.reflecto`` and 
 ``.json`` summary, both written atomically (:func:`reflecto.io.atomic_write`). After
 each model a thumbnail (``MODELS/thumbs/<name>.png``, a lit sphere,
 :func:`thumbnail`) and the index page ``MODELS/index.html`` (name, tilt, η, thumbnail,
-warnings; the skipped folders with their problem) are rewritten atomically. A capture
+warnings and notes; the skipped folders with their problem) are rewritten atomically. A capture
 whose ``.json`` summary already exists in ``MODELS`` counts as done (a restarted watcher
 carries on); a model without its summary is redone.
 
@@ -195,7 +195,8 @@ def thumbnail(model: BRDFSource, size: int = THUMB_PX) -> bytes:
 
 
 def warnings_of(summary: dict[str, Any]) -> list[str]:
-    """The warnings a summary carries, as plain lines.
+    """The warnings a summary carries, as plain lines: what asks the operator to capture
+    again or differently.
 
     Parameters
     ----------
@@ -205,7 +206,7 @@ def warnings_of(summary: dict[str, Any]) -> list[str]:
     Returns
     -------
     list of str
-        Shake detected, symmetry of eq. 3 broken, and the summary's notes.
+        Shake detected, symmetry of eq. 3 broken.
     """
     out = []
     if summary.get("shake_detected") is True:
@@ -214,10 +215,25 @@ def warnings_of(summary: dict[str, Any]) -> list[str]:
     sym = summary.get("symmetry_test")
     if isinstance(sym, dict) and sym.get("decided") is True and sym.get("symmetric") is False:
         out.append("symmetry of eq. 3 broken (capture rotations for §5.5)")
+    return out
+
+
+def notes_of(summary: dict[str, Any]) -> list[str]:
+    """The summary's notes (the tilt found, parameters at a bound, a hidden peak, ...), as plain lines.
+
+    Parameters
+    ----------
+    summary
+        A reconstruction summary (the model's ``.json``).
+
+    Returns
+    -------
+    list of str
+        Its ``notes``; none where they are not a list.
+    """
     notes = summary.get("notes")
     # a summary written by another program, or damaged, may hold anything: only a list of notes is read
-    out += [str(n) for n in notes] if isinstance(notes, list) else []
-    return out
+    return [str(n) for n in notes] if isinstance(notes, list) else []
 
 
 def _number(value: Any, default: float = math.nan) -> float:
@@ -236,6 +252,7 @@ class Entry:
     eta: str
     warnings: list[str]
     seconds: float
+    notes: list[str] = dataclasses.field(default_factory=list)
 
 
 class Watcher:
@@ -364,7 +381,7 @@ class Watcher:
     def _entry(self, name: str, summary: dict[str, Any]) -> Entry:
         eta = eta_from_json(summary)
         return Entry(name, _number(summary.get("normal_tilt_deg")), "?" if eta is None else format_eta(eta),
-                     warnings_of(summary), _number(summary.get("seconds"), 0.0))
+                     warnings_of(summary), _number(summary.get("seconds"), 0.0), notes_of(summary))
 
     def _model(self, folder: Path, found: float) -> bool:
         """Reconstruct one capture; a refused one is reported and remembered."""
@@ -422,7 +439,7 @@ class Watcher:
             img = (f'<img src="thumbs/{esc(url_quote(e.name))}.png" width="{THUMB_PX}" height="{THUMB_PX}" alt="">'
                    if thumb.exists() else "")
             tilt = "–" if not math.isfinite(e.tilt_deg) else f"{e.tilt_deg:.2f}°"
-            warn = "<br>".join(esc(w) for w in e.warnings) or "–"
+            warn = "<br>".join([f"<strong>{esc(w)}</strong>" for w in e.warnings] + [esc(n) for n in e.notes]) or "–"
             rows.append(f'<tr><td><a href="{esc(url_quote(e.name))}.json">{esc(e.name)}</a></td><td>{tilt}</td>'
                         f"<td>{esc(e.eta)}</td><td>{img}</td><td>{warn}</td></tr>")
         skipped = "".join(f"<li>{esc(n)}: {esc(p)}</li>" for n, p in sorted(self.failed.items()))
@@ -431,7 +448,7 @@ class Watcher:
                 "vertical-align:middle}</style></head><body>\n"
                 f"<h1>Models of {esc(str(self.root))}</h1>\n<p>{len(self.entries)} models, {len(self.failed)} "
                 "skipped.</p>\n<table>\n<tr><th>capture</th><th>tilt</th><th>η</th><th>sphere</th>"
-                "<th>warnings</th></tr>\n" + "\n".join(rows) + "\n</table>\n"
+                "<th>warnings and notes</th></tr>\n" + "\n".join(rows) + "\n</table>\n"
                 + (f"<h2>Skipped</h2>\n<ul>{skipped}</ul>\n" if skipped else "") + "</body></html>\n")
         make_parents(self.models)
         with atomic_write(self.models / "index.html", "w") as fh:
