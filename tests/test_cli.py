@@ -133,7 +133,13 @@ def test_reconstruct_without_the_calibration_its_device_needs(tmp_path, capsys):
     assert not list(tmp_path.glob("m*"))
     assert main(["reconstruct", str(tmp_path / "ab"), "--nominal", "--eta", "1.5", "-o", str(tmp_path / "m.reflecto"),
                  "--json"]) == 0
-    assert json_out(capsys)["models"][0]["summary"]["calibration"] == "nominal (--nominal)"
+    summary = json_out(capsys)["models"][0]["summary"]
+    assert summary["calibration"] == "nominal (--nominal)"
+    assert any(n.startswith("read with the nominal calibration of a device that needs") for n in summary["notes"])
+    assert main(["simulate", str(PLASTIC), "-o", str(tmp_path / "ideal"), "-q"]) == 0
+    assert main(["reconstruct", str(tmp_path / "ideal"), "-o", str(tmp_path / "i.reflecto"), "--json"]) == 0
+    summary = json_out(capsys)["models"][0]["summary"]
+    assert "calibration" not in summary and not any("nominal calibration" in n for n in summary["notes"])
     with pytest.raises(SystemExit):  # one or the other
         main(["reconstruct", str(tmp_path / "ab"), "--nominal", "--calibration", "x.npz", "-o", "y.reflecto"])
 

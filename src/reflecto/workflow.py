@@ -20,6 +20,9 @@ nominal optics, LEDs and vignetting in ways only a calibration recovers), ``"nom
 (the CLI's ``--nominal``, and studies that simulate with a device whose nominal
 description is exact, e.g. ``wide``), or ``"simulate"`` (studies of a simulated
 device with hidden imperfections: the virtual calibration procedure, §4.2, is run).
+A device that needs its calibration, read with the nominal one, gets a note
+(:data:`NOMINAL_NOTE`): its directions may be off by degrees, which the normal's
+estimate and the motion cues read as a tilt or a turn.
 """
 
 from __future__ import annotations
@@ -273,6 +276,12 @@ def _symmetry(slices: Slices, res: Reconstruction) -> SymmetryTest:
     return test
 
 
+#: The note of a capture read with the nominal calibration of a device that needs its own.
+NOMINAL_NOTE = ("read with the nominal calibration of a device that needs its own (--nominal): its LED and view "
+                "directions may be off by degrees, which the normal's estimate and the motion cues read as a tilt "
+                "or a turn")
+
+
 def _calibration_label(calibration: str | Path | Calibration | None, missing: Missing, device: Device) -> str:
     if isinstance(calibration, Calibration):
         return "given"
@@ -329,7 +338,10 @@ def capture_to_model(capture: Capture | str | Path, calibration: str | Path | Ca
     t3, c3 = time.perf_counter(), time.process_time()
     sym = _symmetry(slices, res)
     t4, c4 = time.perf_counter(), time.process_time()
-    return CaptureModel(res, slices, sym, _calibration_label(calibration, missing, capture.device),
+    label = _calibration_label(calibration, missing, capture.device)
+    if label == "nominal (--nominal)":
+        res.notes.append(NOMINAL_NOTE)
+    return CaptureModel(res, slices, sym, label,
                         StageSeconds(read=t1 - t0, slices=t2 - t1, reconstruct=t3 - t2, symmetry=t4 - t3),
                         StageSeconds(read=c1 - c0, slices=c2 - c1, reconstruct=c3 - c2, symmetry=c4 - c3),
                         provenance(capture))
