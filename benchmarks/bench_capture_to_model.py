@@ -19,6 +19,9 @@ Timed per capture, after one warm-up round, :data:`REPEATS` rounds, one core:
 Below ``fit``, its parts (CPU, :class:`reflecto.reconstruct.FitSeconds`): the normal, the
 isotropic fit(s) with the device frame's check, the isotropy test, the shadowing form's
 choice, the model (``k_d``'s ceiling, tint, NDF per node, energy limit), the motion cues.
+Then the same path for the preview ``reflecto watch`` writes first
+(``reconstruct_folder(..., preview=True)``, :mod:`reflecto.reconstruct.preview`), timed in
+the same rounds, capture by capture beside the full one.
 
 Prints per stage the median and p90 over all captures × rounds of the process's CPU
 time (the benchmark runs single-threaded on one core; on a shared machine the wall
@@ -94,11 +97,12 @@ def prepare(work: Path) -> tuple[list[Path], Path]:
     return caps, cal_path
 
 
-def stages_once(cap_dir: Path, cal_path: Path, out: Path) -> dict[str, tuple[float, float]]:
+def stages_once(cap_dir: Path, cal_path: Path, out: Path, preview: bool = False) -> dict[str, tuple[float, float]]:
     """(CPU s, wall s) of each stage for one capture, as :func:`reflecto.workflow.reconstruct_folder`
-    (the path of ``reflecto reconstruct`` and ``reflecto watch``) measures them."""
+    (the path of ``reflecto reconstruct`` and ``reflecto watch``) measures them; ``preview``:
+    the preview's path."""
     c0, t0 = time.process_time(), time.perf_counter()
-    summary = workflow.reconstruct_folder(cap_dir, out, str(cal_path))
+    summary = workflow.reconstruct_folder(cap_dir, out, str(cal_path), preview=preview)
     total = (time.process_time() - c0, time.perf_counter() - t0)
     cpu, wall = summary["stage_cpu_seconds"], summary["stage_seconds"]
     res = {name: (cpu[key], wall[key]) for name, key in STAGE_KEYS.items()}
@@ -133,11 +137,15 @@ def main() -> None:
         out = Path(tmp) / "m.reflecto"
         for c in caps:  # warm-up: compiled kernels, caches, page cache
             stages_once(c, cal_path, out)
+            stages_once(c, cal_path, out, preview=True)
         rows: dict[str, list[tuple[float, float]]] = {}
+        previews: dict[str, list[tuple[float, float]]] = {}
         for _ in range(args.repeats):
             for c in caps:
                 for k, v in stages_once(c, cal_path, out).items():
                     rows.setdefault(k, []).append(v)
+                for k, v in stages_once(c, cal_path, out, preview=True).items():
+                    previews.setdefault(k, []).append(v)
     print(f"capture → model, {len(caps)} measured materials × {args.repeats}, as-built device, calibrated, "
           f"tilted 3–8°, one core (ms per capture, marginal)")
     print(f"  {'stage':12s} {'cpu median':>10s} {'cpu p90':>8s} {'wall median':>11s} {'wall p90':>8s}")
@@ -148,6 +156,12 @@ def main() -> None:
             wall = "" if name in parts else (f" {np.median(1000 * np.array([v[1] for v in rows[name]])):11.1f} "
                                              f"{np.percentile(1000 * np.array([v[1] for v in rows[name]]), 90):8.1f}")
             print(f"  {name:12s} {np.median(cpu):10.1f} {np.percentile(cpu, 90):8.1f}{wall}")
+    pv = 1000 * np.array([v[0] for v in previews["total"]])
+    full = 1000 * np.array([v[0] for v in rows["total"]])
+    print(f"  preview (`watch` writes it first; same rounds): total CPU median {np.median(pv):.1f}, p90 "
+          f"{np.percentile(pv, 90):.1f}; per capture {np.median(pv / full):.3f}x the full path's "
+          f"({np.min(pv / full):.3f}-{np.max(pv / full):.3f}); its fit "
+          f"{np.median(1000 * np.array([v[0] for v in previews['fit']])):.1f} ms median")
     if args.first:
         t = first_call(caps[0], cal_path, args.first)
         print(f"first call (fresh process, `reflecto reconstruct`): median {np.median(t):.2f} s, "

@@ -31,7 +31,11 @@ Reported per half of the generalization split (:mod:`reflecto.evaluate.split`):
   (the model error ``ε`` of :func:`reflecto.reconstruct.isotropic.model_error`, the
   capture's own misfit, not the reference's): there the data, not the estimate, put the
   normal elsewhere;
-* time per default reconstruction (median, p90), one process.
+* time per default reconstruction (median, p90), one process;
+* the preview of each capture (:func:`reflecto.reconstruct.preview.preview`, what ``reflecto
+  watch`` shows first): where its compact peaks place the normal, its error; the shaken
+  captures it flags and the steady ones it flags falsely; its eq. 10 error over the full
+  reconstruction's (median, p90).
 
 Records go to ``OUT/records.jsonl`` as each material finishes (a rerun skips finished
 ones), the summary to ``OUT/summary.json`` and stdout.
@@ -63,6 +67,7 @@ from reflecto.polar import lobe_half_width_deg
 from reflecto.reconstruct import Options, reconstruct
 from reflecto.reconstruct.normal import half_vector_pitch_deg
 from reflecto.reconstruct.pipeline import usable_samples
+from reflecto.reconstruct.preview import preview
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
@@ -140,9 +145,14 @@ def run_material(path: Path, device: str, cal, max_tilt: float, stride: int) -> 
         r = {"normal_error_deg": angle_deg(res.frame[2], truth), "tilt_found_deg": res.normal_tilt_deg,
              "uncertainty_deg": res.normal_uncertainty_deg, "normal_source": res.normal_source,
              "shake_detected": bool(res.shake_detected), "motion": res.motion.describe(), "seconds": res.seconds}
+        t0 = time.perf_counter()
+        pv = preview(sl)
+        r["preview"] = {"seconds": time.perf_counter() - t0, "normal_source": pv.normal_source,
+                        "normal_error_deg": angle_deg(pv.frame[2], truth), "shake_detected": bool(pv.shake_detected)}
         if not shake:
             r["symmetric"] = bool(result.symmetry.symmetric)  # as `reflecto reconstruct` reports it
             r["error"] = error(res.model)
+            r["preview"]["error"] = error(pv.model)
         if not shake:
             usable = usable_samples(sl)
             true_frame = sl.reframe(geometry.frame_from_normal(truth, np.array([1.0, 0.0, 0.0])))
@@ -191,6 +201,20 @@ def summarize(records: list[dict]) -> dict:
                          if s["normal_error_deg"] > 0.5]
         ratio_misses = [t["model_error"] <= t["model_error_true_normal"] for t in tilted
                         if "model_error_true_normal" in t and t["error"] > 1.1 * t["error_true_normal"]]
+        pv_steady = [s["preview"] for s in steady if "preview" in s]
+        placed = [p["normal_error_deg"] for p in pv_steady if p["normal_source"] == "estimated"]
+        pv_ratio = [s["preview"]["error"] / max(s["error"], 1e-12) for s in steady if "preview" in s]
+        pv_extra = {} if not pv_steady else {
+            "preview_normal_placed_by_peaks": share([p["normal_source"] == "estimated" for p in pv_steady]),
+            "preview_placed_normal_within_0.5": share([e <= 0.5 for e in placed]),
+            "preview_placed_normal_error_max_deg": float(max(placed)) if placed else None,
+            "preview_false_shake_steady": share([p["shake_detected"] for p in pv_steady]),
+            "preview_shaken_detected": share([r["shaken"]["preview"]["shake_detected"] for r in rs]),
+            "preview_error_vs_full_median": float(np.median(pv_ratio)),
+            "preview_error_vs_full_p90": float(np.percentile(pv_ratio, 90)),
+            "preview_error_vs_full_within_1.25": share([x <= 1.25 for x in pv_ratio]),
+            "preview_seconds_median": float(np.median([p["seconds"] for p in pv_steady])),
+        }
         out[h] = {
             "materials": len(rs),
             "normal_within_0.5": share([e <= 0.5 for e in nerr]),
@@ -213,6 +237,7 @@ def summarize(records: list[dict]) -> dict:
             "error_vs_true_misses_fitting_the_capture_better": share(ratio_misses),
             "untilted_normal_source_device": share([r["flat"]["normal_source"] == "device" for r in rs]),
             "seconds_median": float(np.median(secs)), "seconds_p90": float(np.percentile(secs, 90)),
+            **pv_extra,
         }
     return out
 

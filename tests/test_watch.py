@@ -25,7 +25,7 @@ from reflecto.instrument.capture import MANIFEST, read_capture, write_capture
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
 from reflecto.model import load_model
-from reflecto.watch import READY, WAITING, Watcher, capture_state
+from reflecto.watch import READY, WAITING, Entry, Watcher, capture_state, default_previewer
 from reflecto.workflow import reconstruct_folder
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -182,6 +182,63 @@ def test_watch_models_every_good_capture_once(sources: list[Path], reference: li
     assert set(w2.entries) == good and len(again) == 1
 
 
+def test_previews_land_first_and_full_models_replace_them(sources: list[Path], reference: list[dict],
+                                                         tmp_path: Path) -> None:
+    """With previews, each capture copied in at the device's rate gets its preview model and
+    summary first; once no capture lands for ``refine_idle_s`` the full models replace them,
+    oldest first, with the summaries ``reflecto reconstruct`` writes; a restarted watcher
+    finishes the previews another left."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    names = [f"cap{k:02d}" for k in range(4)]
+    done = threading.Event()
+
+    def device() -> None:
+        try:
+            for k, name in enumerate(names):
+                _copy_in(sources[k % 2], root / name, "atomic", pause=0.0)
+                time.sleep(INTERVAL_S)
+        finally:
+            done.set()
+
+    seen: list[tuple[str, bool]] = []
+
+    def announce(entry: Entry, summary: dict, latency: float) -> None:
+        assert summary["preview"] is entry.preview
+        seen.append((entry.name, entry.preview))
+
+    watcher = Watcher(root, models, preview_one=default_previewer(), refine_idle_s=0.3, announce=announce,
+                      report=lambda line: pytest.fail(line))
+    writer = threading.Thread(target=device)
+    writer.start()
+    deadline = time.monotonic() + 30.0
+    watcher.run(stop=lambda: (done.is_set() and len(watcher.full_latency) == len(names))
+                or time.monotonic() > deadline)
+    writer.join()
+    assert [n for n, p in seen if p] == names and [n for n, p in seen if not p] == names
+    assert all(seen.index((n, True)) < seen.index((n, False)) for n in names)
+    assert not watcher.previews and set(watcher.latency) == set(watcher.full_latency) == set(names)
+    for k, name in enumerate(names):
+        summary = json.loads((models / f"{name}.json").read_text())
+        ref = reference[k % 2]
+        assert {k: v for k, v in summary.items() if k not in VOLATILE} == \
+            {k: v for k, v in ref.items() if k not in VOLATILE}
+    page = (models / "index.html").read_text()
+    assert page.count("<td>full</td>") == len(names) and "<td>preview</td>" not in page
+    # previews left by a watcher that stopped before its full models: a restarted one makes them
+    models2 = tmp_path / "models2"
+    first = Watcher(root, models2, preview_one=default_previewer(), thumbnails=False)
+    first.scan()
+    for name in names:
+        assert json.loads((models2 / f"{name}.json").read_text())["preview"] is True
+    second = Watcher(root, models2, thumbnails=False,
+                     announce=lambda e, s, t: seen.append((e.name, e.preview)))
+    second.run(once=True)
+    for name in names:
+        assert json.loads((models2 / f"{name}.json").read_text())["preview"] is False
+    assert "<td>preview</td>" not in (models2 / "index.html").read_text()
+
+
 def test_once_reports_an_incomplete_folder_and_exits_1(sources: list[Path], tmp_path: Path) -> None:
     root, models = tmp_path / "root", tmp_path / "models"
     root.mkdir()
@@ -197,7 +254,7 @@ def test_once_reports_an_incomplete_folder_and_exits_1(sources: list[Path], tmp_
     assert "Traceback" not in proc.stderr
     assert (models / "good.reflecto").exists() and (models / "good.json").exists()
     shown = proc.stdout.strip().splitlines()  # one line per modelled capture
-    assert len(shown) == 1 and shown[0].startswith("good: tilt ") and " ms" in shown[0]
+    assert len(shown) == 1 and shown[0].startswith("good (full): tilt ") and " ms" in shown[0]
 
 
 def test_interrupt_leaves_no_partial_model(sources: list[Path], tmp_path: Path) -> None:
@@ -226,6 +283,39 @@ def test_interrupt_leaves_no_partial_model(sources: list[Path], tmp_path: Path) 
         json.loads((models / f"{name}.json").read_text())
     leftovers = [p for p in models.rglob("*") if p.name.startswith(".") or p.name.endswith(".part")]
     assert not leftovers
+
+
+def test_the_cli_previews_first_unless_told_not_to(sources: list[Path], tmp_path: Path) -> None:
+    """``reflecto watch`` (until Ctrl-C) writes a preview, then the full model once the captures
+    stop landing; ``--no-preview`` the full model at once. One JSON line per model written."""
+    root = tmp_path / "root"
+    root.mkdir()
+    shutil.copytree(sources[1], root / "rough")
+
+    def lines_until(argv: list[str], n: int) -> list[dict]:
+        proc = subprocess.Popen([sys.executable, "-m", "reflecto.cli", *argv], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+        out: list[dict] = []
+        try:
+            assert proc.stdout is not None
+            while len(out) < n:
+                line = proc.stdout.readline()
+                assert line, proc.stderr.read() if proc.stderr else "no output"
+                out.append(json.loads(line))
+            proc.send_signal(signal.SIGINT)
+            proc.communicate(timeout=60)
+        finally:
+            proc.kill()
+        assert proc.returncode == 130
+        return out
+
+    first, full = lines_until(["watch", str(root), "-o", str(tmp_path / "m1"), "--nominal", "--json"], 2)
+    assert first["capture"] == full["capture"] == "rough"
+    assert first["preview"] is True and full["preview"] is False
+    assert json.loads((tmp_path / "m1" / "rough.json").read_text())["preview"] is False
+    assert abs(full["normal_tilt_deg"] - 4.0) < 0.5
+    (only,) = lines_until(["watch", str(root), "-o", str(tmp_path / "m2"), "--nominal", "--json", "--no-preview"], 1)
+    assert only["preview"] is False and only["eta"] == full["eta"]
 
 
 def test_watch_options_reach_the_reconstruction(sources: list[Path], tmp_path: Path, capsys) -> None:

@@ -65,7 +65,7 @@ from .reconstruct.eq3 import SymmetryTest
 from .render.mitsuba import DEFAULT_SPP, SCENES, compare, comparison_image, render, save_image, titled, to_srgb8
 from .render.mitsuba import MAX_SEED as RENDER_MAX_SEED
 from .sources import merl
-from .watch import Entry, Watcher, default_reconstructor
+from .watch import Entry, Watcher, default_previewer, default_reconstructor
 
 _SHOW_WARNING = warnings.showwarning
 
@@ -548,9 +548,13 @@ def cmd_watch(args: argparse.Namespace) -> int:
     _refuse_inside(args.output, [args.root], "watched folder")
     if args.calibration:  # one line for a bad file, before the output folder is made
         read_calibration(args.calibration)
-    recon = default_reconstructor(args.calibration, _options(args), _missing(args))
+    options = _options(args)
+    recon = default_reconstructor(args.calibration, options, _missing(args))
+    # a preview is an isotropic light fit: not for a material declared anisotropic
+    previews = not args.no_preview and options.isotropic != "no"
     watcher = Watcher(args.root, args.output, recon, settle_s=args.settle,
-                      announce=None if args.quiet and not args.json else _watch_announcer(args))
+                      announce=None if args.quiet and not args.json else _watch_announcer(args),
+                      preview_one=default_previewer(args.calibration, options, _missing(args)) if previews else None)
     watcher.run(once=args.once)
     return 1 if args.once and watcher.failed else 0
 
@@ -564,19 +568,21 @@ def _tilt_text(summary: dict[str, Any]) -> str:
 
 
 def _watch_announcer(args: argparse.Namespace) -> Callable[[Entry, dict[str, Any], float], None]:
-    """One line per modelled capture on stdout: a JSON object with ``--json`` (JSON Lines),
-    else name, tilt, η, the model's misfit, latency and warnings."""
+    """One line per model written (a capture's preview, then its full model) on stdout: a JSON
+    object with ``--json`` (JSON Lines), else name, preview or full, tilt, η, the model's
+    misfit, latency and warnings."""
     def announce(entry: Entry, summary: dict[str, Any], latency_s: float) -> None:
         if args.json:
             keys = ("normal_tilt_deg", "normal_uncertainty_deg", "normal_source", "eta", "model_error")
             print(json.dumps({"capture": entry.name, "model": str(Path(args.output) / f"{entry.name}.reflecto"),
-                              **{k: summary.get(k) for k in keys}, "warnings": entry.warnings,
+                              "preview": entry.preview, **{k: summary.get(k) for k in keys}, "warnings": entry.warnings,
                               "notes": entry.notes,
                               "latency_s": round(latency_s, 3)}), flush=True)
             return
         shown = _tilt_text(summary)
         warn = f", {len(entry.warnings)} warning(s)" if entry.warnings else ""
-        print(f"{entry.name}: tilt {shown}, η {entry.eta}, ε {summary.get('model_error', float('nan')):.4f}, "
+        kind = "preview" if entry.preview else "full"
+        print(f"{entry.name} ({kind}): tilt {shown}, η {entry.eta}, ε {summary.get('model_error', float('nan')):.4f}, "
               f"{1000 * latency_s:.0f} ms{warn}", flush=True)
     return announce
 
@@ -960,6 +966,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--settle", type=_SECONDS, default=5.0,
                    help="seconds an incomplete capture folder may stay unchanged before it is reported and skipped")
     q.add_argument("--once", action="store_true", help="process the capture folders there now and exit")
+    q.add_argument("--no-preview", action="store_true",
+                   help="make each capture's full model at once instead of a preview first (the full models then "
+                        "fall behind a sweep at the device's rate)")
     q.add_argument("-q", "--quiet", action="store_true",
                    help="no line per modelled capture (problems are still reported)")
     q.add_argument("--json", action="store_true", help="one JSON object per modelled capture (JSON Lines) on stdout")

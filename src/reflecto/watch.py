@@ -13,15 +13,27 @@ a manifest that does not fit the device, a saturated capture), is reported once
 (one line naming the folder and the problem) and skipped; if it changes later it is
 looked at again.
 
-Each good capture is reconstructed once, by the function given as ``reconstruct_one``
+Each good capture is reconstructed by the function given as ``reconstruct_one``
 (capture folder, model path → summary dict; default :func:`default_reconstructor`,
 the code path of ``reflecto reconstruct``), into ``MODELS/<name>.reflecto`` and its
 ``.json`` summary, both written atomically (:func:`reflecto.io.atomic_write`). After
 each model a thumbnail (``MODELS/thumbs/<name>.png``, a lit sphere,
 :func:`thumbnail`) and the index page ``MODELS/index.html`` (name, tilt, η, thumbnail,
-warnings and notes; the skipped folders with their problem) are rewritten atomically. A capture
-whose ``.json`` summary already exists in ``MODELS`` counts as done (a restarted watcher
-carries on); a model without its summary is redone.
+warnings and notes; the skipped folders with their problem) are rewritten atomically.
+
+**Previews first.** The full reconstruction takes about twice the device's 117 ms per
+capture on one core, so a watcher that made only full models would fall further behind
+with every capture of a sweep. With ``preview_one`` (:func:`default_previewer`,
+:func:`reflecto.reconstruct.preview.preview`: the normal from the compact specular peaks,
+one light fit, the motion cues that need no frame) each capture first gets a preview
+model, summary (``"preview": true``) and index row, at the device's rate; the full
+reconstruction replaces each preview, oldest first, once no capture has landed for
+``refine_idle_s`` seconds (:data:`REFINE_IDLE_S`: the operator has stopped sweeping, and
+a full model started then delays the next capture's preview by at most its own time).
+
+A capture whose ``.json`` summary exists in ``MODELS`` counts as done (a restarted watcher
+carries on; a preview's summary queues its full reconstruction); a model without its
+summary is redone.
 
 Ctrl-C (SIGINT), or SIGTERM, stops the watcher between two files: every file in
 ``MODELS`` is complete, and a model whose summary was not yet written is removed.
@@ -55,6 +67,7 @@ from .io import atomic_write, make_parents, read_json
 from .kinds import is_model_file
 from .model import load_model
 from .reconstruct import Options
+from .reconstruct.preview import NO_PEAK_NOTE, PREVIEW_NOTE
 from .render.sphere import composite, render_sphere, sphere_coverage
 
 #: Seconds between two looks at ROOT while nothing is ready.
@@ -63,6 +76,9 @@ POLL_S = 0.02
 SETTLE_S = 5.0
 #: Side of the index page's thumbnails (pixels).
 THUMB_PX = 48
+#: Seconds without a new capture after which the previews are replaced by full models: ten
+#: of the device's capture periods (117 ms), a pause in the sweep rather than a gap in it.
+REFINE_IDLE_S = 1.0
 #: The last 12 bytes of every complete PNG file: the empty IEND chunk with its CRC.
 PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 
@@ -72,8 +88,48 @@ READY, WAITING = "ready", "waiting"
 Reconstructor = Callable[[Path, Path], dict]
 
 
+class FolderReconstructor:
+    """Capture folder, model path → summary: :func:`reflecto.workflow.reconstruct_folder` with
+    fixed settings, which writes the model and its ``.json`` summary; it keeps the model it
+    wrote last (:attr:`last`), so that the watcher's thumbnail need not read the file back.
+
+    Parameters
+    ----------
+    calibration, options, missing, preview
+        As for :func:`reflecto.workflow.reconstruct_folder`.
+    """
+
+    def __init__(self, calibration: str | None = None, options: Options | None = None,
+                 missing: workflow.Missing = "refuse", preview: bool = False) -> None:
+        self.calibration, self.options, self.missing, self.preview = calibration, options, missing, preview
+        #: The model file written last and its model (``None`` before the first).
+        self.last: tuple[Path, BRDFSource] | None = None
+
+    def __call__(self, cap_dir: Path, out: Path) -> dict:
+        """Reconstruct one capture folder into a model file and its ``.json`` summary.
+
+        Parameters
+        ----------
+        cap_dir
+            The capture folder.
+        out
+            The model file to write (the summary goes beside it).
+
+        Returns
+        -------
+        dict
+            The summary (:func:`reflecto.workflow.reconstruct_folder`); the model is kept in
+            :attr:`last`.
+        """
+        self.last = None
+        summary, result = workflow.folder_to_model(cap_dir, out, self.calibration, self.options, self.missing,
+                                                   self.preview)
+        self.last = (Path(out), result.model)
+        return summary
+
+
 def default_reconstructor(calibration: str | None = None, options: Options | None = None,
-                          missing: workflow.Missing = "refuse") -> Reconstructor:
+                          missing: workflow.Missing = "refuse") -> FolderReconstructor:
     """The per-capture reconstruction of ``reflecto reconstruct`` with these settings.
 
     Parameters
@@ -88,15 +144,29 @@ def default_reconstructor(calibration: str | None = None, options: Options | Non
 
     Returns
     -------
-    callable
+    FolderReconstructor
         ``run(cap_dir, out) -> summary``: :func:`reflecto.workflow.reconstruct_folder`,
         which writes the model and its ``.json`` summary.
     """
+    return FolderReconstructor(calibration, options, missing)
 
-    def run(cap_dir: Path, out: Path) -> dict:
-        return workflow.reconstruct_folder(cap_dir, out, calibration, options, missing)
 
-    return run
+def default_previewer(calibration: str | None = None, options: Options | None = None,
+                      missing: workflow.Missing = "refuse") -> FolderReconstructor:
+    """The preview of each capture (:func:`reflecto.reconstruct.preview.preview`) with these settings.
+
+    Parameters
+    ----------
+    calibration, options, missing
+        As for :func:`default_reconstructor`.
+
+    Returns
+    -------
+    FolderReconstructor
+        ``run(cap_dir, out) -> summary``: :func:`reflecto.workflow.reconstruct_folder` with
+        ``preview=True``, which writes the preview model and its ``.json`` summary.
+    """
+    return FolderReconstructor(calibration, options, missing, preview=True)
 
 
 def _png_complete(path: Path) -> bool:
@@ -245,7 +315,24 @@ def _number(value: Any, default: float = math.nan) -> float:
 
 @dataclasses.dataclass
 class Entry:
-    """One modelled capture on the index page."""
+    """One modelled capture on the index page.
+
+    Attributes
+    ----------
+    name
+        The capture folder's name.
+    tilt_deg
+        The sample normal's tilt from the device axis (degrees; NaN where not known yet).
+    eta
+        η as the page shows it.
+    warnings, notes
+        :func:`warnings_of` and :func:`notes_of` of its summary (a preview's without the
+        note that says it is one).
+    seconds
+        The reconstruction's wall time.
+    preview
+        Whether the model is a preview (module docstring).
+    """
 
     name: str
     tilt_deg: float
@@ -253,6 +340,7 @@ class Entry:
     warnings: list[str]
     seconds: float
     notes: list[str] = dataclasses.field(default_factory=list)
+    preview: bool = False
 
 
 class Watcher:
@@ -273,16 +361,25 @@ class Watcher:
         Render the index page's thumbnails.
     announce
         Receives each capture's entry, summary and latency (seconds) once its model,
-        summary and index are written (default: nothing).
+        summary and index are written, the preview's and then the full model's (default:
+        nothing).
+    preview_one
+        Capture folder, model path → summary of a preview (module docstring, *Previews
+        first*); ``None``: every capture gets its full model at once.
+    refine_idle_s
+        Seconds without a new capture before previews are replaced by full models.
     """
 
     def __init__(self, root: str | Path, models: str | Path, reconstruct_one: Reconstructor | None = None,
                  settle_s: float = SETTLE_S, report: Callable[[str], None] | None = None,
                  thumbnails: bool = True,
-                 announce: Callable[[Entry, dict[str, Any], float], None] | None = None) -> None:
+                 announce: Callable[[Entry, dict[str, Any], float], None] | None = None,
+                 preview_one: Reconstructor | None = None, refine_idle_s: float = REFINE_IDLE_S) -> None:
         self.root = Path(root)
         self.models = Path(models)
         self.reconstruct_one = reconstruct_one or default_reconstructor()
+        self.preview_one = preview_one
+        self.refine_idle_s = refine_idle_s
         self.settle_s = settle_s
         self.report = report or (lambda line: print(f"reflecto: watch: {line}", file=sys.stderr, flush=True))
         self.thumbnails = thumbnails
@@ -297,10 +394,16 @@ class Watcher:
         self.failed: dict[str, str] = {}
         self._failed_sig: dict[str, tuple] = {}
         self._waiting: dict[str, tuple[tuple, float, str]] = {}
-        #: Seconds from a capture found complete to its model, summary and index written.
+        #: Seconds from a capture found complete to its first model (the preview, or the
+        #: full model without previews), summary and index written.
         self.latency: dict[str, float] = {}
-        #: ``time.monotonic()`` at which each capture's model, summary and index were written.
+        #: ``time.monotonic()`` at which each capture's first model, summary and index were written.
         self.finished_at: dict[str, float] = {}
+        #: Seconds from a capture found complete to its full model (after its preview), summary and index.
+        self.full_latency: dict[str, float] = {}
+        #: Captures whose model is a preview, oldest first, with ``time.monotonic()`` when found complete.
+        self.previews: dict[str, float] = {}
+        self._busy_at = time.monotonic()  # when the last capture was found complete
 
     # ------------------------------------------------------------------ scanning
     def _candidates(self) -> list[Path]:
@@ -341,7 +444,7 @@ class Watcher:
                     continue
                 del self.failed[name]  # changed since it was reported: look again
             if self._done(name) and name not in self._waiting:
-                self._adopt(name)
+                self._adopt(name, now=time.monotonic())
                 continue
             state, why = capture_state(folder)
             now = time.monotonic()
@@ -355,7 +458,8 @@ class Watcher:
                     self._fail(folder, f"incomplete capture: {why} (unchanged{held})", sig)
                 continue
             self._waiting.pop(name, None)
-            if self._model(folder, now):
+            self._busy_at = now
+            if self._model(folder, now, preview=self.preview_one is not None and not final):
                 made += 1
             if self._interrupted:  # a Ctrl-C that something on the way swallowed: stop between captures
                 raise KeyboardInterrupt
@@ -369,29 +473,56 @@ class Watcher:
         self.report(one_line(f"{folder}: {problem}" if not problem.startswith(str(folder)) else problem))
         self._write_index()
 
-    def _adopt(self, name: str) -> None:
-        """A model made before this watcher started: listed on the page, not redone."""
+    def _adopt(self, name: str, now: float) -> None:
+        """A model made before this watcher started: listed on the page, not redone (a
+        preview is queued for its full model)."""
         try:  # the checking reader: a damaged summary (huge numbers, not an object) is not listed, nor fatal
             summary = read_json(self.models / f"{name}.json")
         except ReflectoError:
             return
         if isinstance(summary, dict):
             self.entries[name] = self._entry(name, summary)
+            if self.entries[name].preview:
+                self.previews[name] = now
 
     def _entry(self, name: str, summary: dict[str, Any]) -> Entry:
         eta = eta_from_json(summary)
-        return Entry(name, _number(summary.get("normal_tilt_deg")), "?" if eta is None else format_eta(eta),
-                     warnings_of(summary), _number(summary.get("seconds"), 0.0), notes_of(summary))
+        preview = summary.get("preview") is True
+        notes = notes_of(summary)
+        tilt = _number(summary.get("normal_tilt_deg"))
+        if preview:  # the page's model column says it is a preview; a tilt no peak placed is not known yet
+            notes = [n for n in notes if n != PREVIEW_NOTE]
+            if NO_PEAK_NOTE in notes:
+                tilt = math.nan
+        return Entry(name, tilt, "?" if eta is None else format_eta(eta), warnings_of(summary),
+                     _number(summary.get("seconds"), 0.0), notes, preview)
 
-    def _model(self, folder: Path, found: float) -> bool:
-        """Reconstruct one capture; a refused one is reported and remembered."""
+    def refine(self) -> bool:
+        """Replace the oldest preview by the capture's full model (module docstring).
+
+        Returns
+        -------
+        bool
+            Whether a full model was written (``False``: no preview waits, or the capture
+            was refused and reported; its preview stays).
+        """
+        if not self.previews:
+            return False
+        name = next(iter(self.previews))
+        found = self.previews.pop(name)
+        return self._model(self.root / name, found, preview=False)
+
+    def _model(self, folder: Path, found: float, preview: bool = False) -> bool:
+        """Reconstruct one capture (its preview, or its full model); a refused one is reported and remembered."""
 
         name = folder.name
         out = self.models / f"{name}.reflecto"
         summary_path = out.with_suffix(".json")
+        had_summary = summary_path.exists()  # a preview's: a full model interrupted before its summary stays
         make_parents(self.models)
+        make = self.preview_one if preview and self.preview_one is not None else self.reconstruct_one
         try:
-            summary = self.reconstruct_one(folder, out)
+            summary = make(folder, out)
         except ReflectoError as e:
             self._fail(folder, one_line(e))
             return False
@@ -402,30 +533,36 @@ class Watcher:
             self._fail(folder, f"{e.filename or folder}: {one_line(e.strerror or e)}")
             return False
         except Exception as e:  # a fault of one capture's reconstruction must not stop the watch
-            if not summary_path.exists():
+            if not had_summary and not summary_path.exists():
                 out.unlink(missing_ok=True)
             if interrupted(e):  # Ctrl-C inside a compiled kernel: an interrupt, not the capture's fault
                 raise KeyboardInterrupt from e
             self._fail(folder, f"reconstruction failed ({type(e).__name__}: {one_line(e)})")
             return False
         except BaseException:
-            if not summary_path.exists():  # interrupted between the model and its summary
+            if not had_summary and not summary_path.exists():  # interrupted between the model and its summary
                 out.unlink(missing_ok=True)
             raise
         self.entries[name] = self._entry(name, summary)
         if self.thumbnails:
             try:
-
-                png = thumbnail(load_model(out))
+                kept = getattr(make, "last", None)  # a FolderReconstructor's model: not read back
+                png = thumbnail(kept[1] if isinstance(kept, tuple) and kept[0] == out else load_model(out))
                 with atomic_write(self.models / "thumbs" / f"{name}.png") as fh:
                     fh.write(png)
             except ReflectoError as e:
                 self.entries[name].warnings.append(f"no thumbnail ({one_line(e)})")
         self._write_index()
-        self.finished_at[name] = time.monotonic()
-        self.latency[name] = self.finished_at[name] - found
+        done = time.monotonic()
+        if name in self.latency:  # the full model after its preview
+            self.full_latency[name] = done - found
+        else:
+            self.finished_at[name] = done
+            self.latency[name] = done - found
+        if self.entries[name].preview:
+            self.previews[name] = found
         if self.announce is not None:
-            self.announce(self.entries[name], summary, self.latency[name])
+            self.announce(self.entries[name], summary, done - found)
         return True
 
     # ------------------------------------------------------------------ the page
@@ -439,15 +576,19 @@ class Watcher:
             img = (f'<img src="thumbs/{esc(url_quote(e.name))}.png" width="{THUMB_PX}" height="{THUMB_PX}" alt="">'
                    if thumb.exists() else "")
             tilt = "–" if not math.isfinite(e.tilt_deg) else f"{e.tilt_deg:.2f}°"
+            model = "preview" if e.preview else "full"
             warn = "<br>".join([f"<strong>{esc(w)}</strong>" for w in e.warnings] + [esc(n) for n in e.notes]) or "–"
-            rows.append(f'<tr><td><a href="{esc(url_quote(e.name))}.json">{esc(e.name)}</a></td><td>{tilt}</td>'
-                        f"<td>{esc(e.eta)}</td><td>{img}</td><td>{warn}</td></tr>")
+            rows.append(f'<tr><td><a href="{esc(url_quote(e.name))}.json">{esc(e.name)}</a></td><td>{model}</td>'
+                        f"<td>{tilt}</td><td>{esc(e.eta)}</td><td>{img}</td><td>{warn}</td></tr>")
         skipped = "".join(f"<li>{esc(n)}: {esc(p)}</li>" for n, p in sorted(self.failed.items()))
+        waiting = sum(e.preview for e in self.entries.values())
+        pending = f" ({waiting} previews, their full models to follow)" if waiting else ""
         page = ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>reflecto watch: "
                 f"{esc(str(self.root))}</title>\n<style>body{{font-family:sans-serif}}td{{padding:2px 8px;"
                 "vertical-align:middle}</style></head><body>\n"
-                f"<h1>Models of {esc(str(self.root))}</h1>\n<p>{len(self.entries)} models, {len(self.failed)} "
-                "skipped.</p>\n<table>\n<tr><th>capture</th><th>tilt</th><th>η</th><th>sphere</th>"
+                f"<h1>Models of {esc(str(self.root))}</h1>\n<p>{len(self.entries)} models{pending}, "
+                f"{len(self.failed)} skipped.</p>\n<table>\n<tr><th>capture</th><th>model</th><th>tilt</th>"
+                "<th>η</th><th>sphere</th>"
                 "<th>warnings and notes</th></tr>\n" + "\n".join(rows) + "\n</table>\n"
                 + (f"<h2>Skipped</h2>\n<ul>{skipped}</ul>\n" if skipped else "") + "</body></html>\n")
         make_parents(self.models)
@@ -461,7 +602,8 @@ class Watcher:
         Parameters
         ----------
         once
-            One scan that reports the incomplete folders instead of waiting for them.
+            One scan that reports the incomplete folders instead of waiting for them, and
+            makes full models only (the previews waiting from an earlier watch are replaced).
         stop
             Checked between scans; the watch ends when it returns True.
         poll_s
@@ -469,6 +611,8 @@ class Watcher:
         """
         if once:
             self.scan(final=True)
+            while self.previews:
+                self.refine()
             return
 
         def interrupt(signum: int, frame: object) -> None:
@@ -482,7 +626,13 @@ class Watcher:
         previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)} if main else {}
         try:
             while stop is None or not stop():
-                if self.scan() == 0:
+                if self.scan():
+                    continue
+                if self.previews and time.monotonic() - self._busy_at >= self.refine_idle_s:
+                    self.refine()
+                    if self._interrupted:  # swallowed on the way (scan's comment)
+                        raise KeyboardInterrupt
+                else:
                     time.sleep(poll_s)
         finally:
             for sig, handler in previous.items():

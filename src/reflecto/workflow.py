@@ -51,6 +51,7 @@ from .io import atomic_write
 from .reconstruct import Options, Reconstruction, reconstruct
 from .reconstruct.asymmetric import AsymmetricReconstruction, RotatedCapture, reconstruct_rotations, sample_frames
 from .reconstruct.eq3 import SymmetryTest, symmetry_test_slices
+from .reconstruct.preview import preview as preview_reconstruction
 
 __all__ = ["CaptureModel", "Missing", "StageSeconds", "calibration_file", "calibration_for", "capture_to_model",
            "measure", "reconstruct_folder", "rotations_to_model", "save_model", "save_rotations_model"]
@@ -254,6 +255,10 @@ def measure(capture: Capture, calibration: Calibration, where: str | Path | None
         raise CaptureError(where, str(e).removeprefix("capture: ")) from None
 
 
+#: The eq. 3 test of a preview, which does not run it: no pairs, undecided.
+NOT_TESTED = SymmetryTest(0.0, 0.0, 0.0, 0, 0)
+
+
 def _symmetry(slices: Slices, res: Reconstruction) -> SymmetryTest:
     """The eq. 3 test (:mod:`reflecto.reconstruct.eq3`) of one capture in its sample frame.
 
@@ -293,7 +298,8 @@ def _calibration_label(calibration: str | Path | Calibration | None, missing: Mi
 
 
 def capture_to_model(capture: Capture | str | Path, calibration: str | Path | Calibration | None = None,
-                     options: Options | None = None, *, missing: Missing = "refuse", seed: int = 1) -> CaptureModel:
+                     options: Options | None = None, *, missing: Missing = "refuse", seed: int = 1,
+                     preview: bool = False) -> CaptureModel:
     """Turn one capture into a model: calibration, slices (§4.3), reconstruction (§5), eq. 3 test.
 
     Parameters
@@ -304,6 +310,10 @@ def capture_to_model(capture: Capture | str | Path, calibration: str | Path | Ca
         The calibration choice (:func:`calibration_for`).
     options
         Reconstruction settings (:class:`~reflecto.reconstruct.Options`).
+    preview
+        Make the first model of :func:`reflecto.reconstruct.preview.preview` instead of the
+        full reconstruction (with the ``options`` it follows; the eq. 3 test is not run and
+        reads undecided).
 
     Returns
     -------
@@ -329,14 +339,14 @@ def capture_to_model(capture: Capture | str | Path, calibration: str | Path | Ca
         slices = slices.reframe(sample_frames([capture.rotation_deg])[0])
     t2, c2 = time.perf_counter(), time.process_time()
     try:
-        res = reconstruct(slices, options)
+        res = preview_reconstruction(slices, options) if preview else reconstruct(slices, options)
     except CaptureError:
         raise
     except ReflectoError as e:  # the reconstruction's own errors do not know the capture's folder
         cal_note = f" (calibration {calibration})" if isinstance(calibration, (str, Path)) else ""
         raise CaptureError(where, str(e).removeprefix("capture: ") + cal_note) from None
     t3, c3 = time.perf_counter(), time.process_time()
-    sym = _symmetry(slices, res)
+    sym = NOT_TESTED if preview else _symmetry(slices, res)
     t4, c4 = time.perf_counter(), time.process_time()
     label = _calibration_label(calibration, missing, capture.device)
     if label == "nominal (--nominal)":
@@ -412,7 +422,8 @@ def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path
 
 
 def reconstruct_folder(capture_dir: str | Path, output: str | Path, calibration: str | Path | None = None,
-                       options: Options | None = None, missing: Missing = "refuse") -> dict[str, Any]:
+                       options: Options | None = None, missing: Missing = "refuse",
+                       preview: bool = False) -> dict[str, Any]:
     """A capture folder → its model file and ``.json`` summary (:func:`capture_to_model`, :func:`save_model`).
 
     Returns the summary, with the motion cues described (``motion``) and the stages'
@@ -431,6 +442,9 @@ def reconstruct_folder(capture_dir: str | Path, output: str | Path, calibration:
         Reconstruction settings (:class:`~reflecto.reconstruct.Options`).
     missing
         What to do for a device that needs a calibration and has none (:data:`Missing`).
+    preview
+        Write the first model (:func:`reflecto.reconstruct.preview.preview`) instead of the
+        full reconstruction; its summary says ``"preview": true``.
 
     Returns
     -------
@@ -440,7 +454,26 @@ def reconstruct_folder(capture_dir: str | Path, output: str | Path, calibration:
         ``symmetry``, ``write`` and ``total``, in seconds), and ``fit_cpu_seconds``: the
         reconstruction's CPU seconds per part (:class:`~reflecto.reconstruct.FitSeconds`).
     """
-    result = capture_to_model(capture_dir, calibration, options, missing=missing)
+    return folder_to_model(capture_dir, output, calibration, options, missing, preview)[0]
+
+
+def folder_to_model(capture_dir: str | Path, output: str | Path, calibration: str | Path | None = None,
+                    options: Options | None = None, missing: Missing = "refuse",
+                    preview: bool = False) -> tuple[dict[str, Any], CaptureModel]:
+    """:func:`reconstruct_folder`'s summary and the :class:`CaptureModel` whose model it wrote
+    (a caller that shows the model, as ``reflecto watch``'s thumbnail, need not read it back).
+
+    Parameters
+    ----------
+    capture_dir, output, calibration, options, missing, preview
+        As for :func:`reconstruct_folder`.
+
+    Returns
+    -------
+    tuple of (dict, CaptureModel)
+        The summary :func:`reconstruct_folder` returns, and the result behind it.
+    """
+    result = capture_to_model(capture_dir, calibration, options, missing=missing, preview=preview)
     t0, c0 = time.perf_counter(), time.process_time()
     summary = save_model(result, output, capture_dir, calibration if isinstance(calibration, (str, Path)) else None)
     wall = dataclasses.replace(result.seconds, write=time.perf_counter() - t0)
@@ -448,7 +481,7 @@ def reconstruct_folder(capture_dir: str | Path, output: str | Path, calibration:
     return {**summary, "motion": result.reconstruction.motion.describe(),
             "stage_seconds": {**dataclasses.asdict(wall), "total": wall.total},
             "stage_cpu_seconds": {**dataclasses.asdict(cpu), "total": cpu.total},
-            "fit_cpu_seconds": dataclasses.asdict(result.reconstruction.cpu_seconds)}
+            "fit_cpu_seconds": dataclasses.asdict(result.reconstruction.cpu_seconds)}, result
 
 
 # ------------------------------------------------------------------ several rotations (§5.5)

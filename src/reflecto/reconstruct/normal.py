@@ -440,19 +440,19 @@ def slice_peaks(slices, valid: NDArray[np.bool_]) -> list[SlicePeak]:
     rim = float(ang.max()) - PEAK_RIM_DEG
     out = []
     for k in range(slices.n_leds):
-        ok = valid[k]
-        if np.count_nonzero(ok) < 100:
+        idx = np.flatnonzero(valid[k])  # the valid samples' pixels: gathered once, not as masked copies
+        if len(idx) < 100:
             continue
-        y = slices.values[k, ok] @ LUM
+        y = slices.values[k, idx] @ LUM
         if not np.all(np.isfinite(y)):  # a value the usable samples would not hold: no peak to place
             continue
         med = float(np.median(y))
         j = int(np.argmax(y))
-        if not (y[j] > PEAK_CONTRAST * max(med, 1e-300) and ang[ok][j] < rim):
+        if not (y[j] > PEAK_CONTRAST * max(med, 1e-300) and ang[idx[j]] < rim):
             continue
         level = 0.5 * (y[j] + med)
         top = y > level
-        h = slices.light[k] + view[ok][top]
+        h = slices.light[k] + view[idx[top]]
         h /= np.linalg.norm(h, axis=1, keepdims=True)
         n = geometry.normalize(((y[top] - level)[:, None] * h).sum(axis=0))
         if not np.all(np.isfinite(n)):

@@ -250,6 +250,8 @@ class Reconstruction:
         ``None`` on the anisotropic path (eq. 8's product).
     cpu_seconds
         CPU seconds per part (:class:`FitSeconds`).
+    preview
+        Whether this is :func:`.preview.preview`'s first model rather than the full reconstruction.
     """
 
     model: IsotropicMicrofacetBRDF | MicrofacetBRDF
@@ -268,6 +270,7 @@ class Reconstruction:
     normal_estimate: NormalEstimate | None = None
     shadowing: ShadowingChoice | None = None
     cpu_seconds: FitSeconds = dataclasses.field(default_factory=FitSeconds)
+    preview: bool = False
 
     @property
     def isotropic(self) -> bool:
@@ -297,9 +300,9 @@ class Reconstruction:
             ``isotropy_test`` (:meth:`IsotropyTest.to_dict`); the motion cues
             (:meth:`MotionReport.to_dict`: ``shake_detected``, …); ``shadowing``
             (:meth:`.extrapolation.ShadowingChoice.to_dict`, ``None`` on the anisotropic path); ``model_error``,
-            ``fresnel_error``, ``energy_scale``, ``albedo_max``, ``notes`` and ``seconds``.
-            Non-finite ``normal_uncertainty_deg``, ``model_error`` and ``fresnel_error`` are
-            ``None``.
+            ``fresnel_error``, ``energy_scale``, ``albedo_max``, ``notes``, ``seconds`` and
+            ``preview`` (:attr:`preview`). Non-finite ``normal_uncertainty_deg``, ``model_error``
+            and ``fresnel_error`` are ``None``.
         """
         nan = (lambda x: x if math.isfinite(x) else None)
         tint = self.model.tint
@@ -313,7 +316,7 @@ class Reconstruction:
                 "model_error": nan(self.model_error), "fresnel_error": nan(self.fresnel_error),
                 "shadowing": None if self.shadowing is None else self.shadowing.to_dict(),
                 "energy_scale": self.energy_scale, "albedo_max": self.albedo_max, "notes": self.notes,
-                "seconds": self.seconds}
+                "seconds": self.seconds, "preview": self.preview}
 
 
 def usable_samples(slices: Slices) -> NDArray[np.bool_]:
