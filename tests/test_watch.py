@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from reflecto import load_source
+from reflecto.errors import ReflectoError
 from reflecto.instrument.capture import MANIFEST, read_capture, write_capture
 from reflecto.instrument.device import Device
 from reflecto.instrument.simulate import simulate_capture
@@ -283,6 +284,82 @@ def test_interrupt_leaves_no_partial_model(sources: list[Path], tmp_path: Path) 
         json.loads((models / f"{name}.json").read_text())
     leftovers = [p for p in models.rglob("*") if p.name.startswith(".") or p.name.endswith(".part")]
     assert not leftovers
+
+
+def test_a_full_model_that_fails_keeps_the_preview_until_the_folder_changes(sources: list[Path],
+                                                                            tmp_path: Path) -> None:
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[1], root / "a")
+    lines: list[str] = []
+    w = Watcher(root, models, preview_one=default_previewer(), thumbnails=False, report=lines.append)
+    assert w.scan() == 1 and list(w.previews) == ["a"]
+    frame = root / "a" / _frames(sources[1])[2]
+    good = frame.read_bytes()
+    bad = bytearray(good)
+    bad[200] ^= 0x55
+    frame.write_bytes(bytes(bad))
+    assert w.refine() is False
+    assert len(lines) == 1 and "CRC" in lines[0]
+    assert json.loads((models / "a.json").read_text())["preview"] is True
+    assert any(x.startswith("no full model:") and "CRC" in x for x in w.entries["a"].warnings)
+    page = (models / "index.html").read_text()
+    assert "<td>preview</td>" in page and "full models to follow" not in page
+    assert w.scan() == 0 and not w.previews  # unchanged: not tried again
+    frame.write_bytes(good)  # the folder changes: looked at again
+    w.scan()
+    assert list(w.previews) == ["a"] and w.refine() is True
+    assert json.loads((models / "a.json").read_text())["preview"] is False and not w.entries["a"].warnings
+
+
+def test_an_interrupt_between_a_full_model_and_its_summary_removes_the_preview(sources: list[Path],
+                                                                               tmp_path: Path) -> None:
+    """The model file written, its summary not: the preview's summary and thumbnail would
+    describe another model, so all three go and the next watch makes the capture again; an
+    interrupt before the model file leaves the preview whole."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "a")
+
+    def before_model(cap: Path, out: Path) -> dict:
+        raise KeyboardInterrupt
+
+    def after_model(cap: Path, out: Path) -> dict:
+        out.write_bytes(b"the full model")
+        raise KeyboardInterrupt
+
+    w = Watcher(root, models, before_model, preview_one=default_previewer())
+    w.scan()
+    kept = {p.name: p.read_bytes() for p in [models / "a.reflecto", models / "a.json", models / "thumbs" / "a.png"]}
+    with pytest.raises(KeyboardInterrupt):
+        w.refine()
+    assert {p.name: p.read_bytes() for p in [models / "a.reflecto", models / "a.json",
+                                            models / "thumbs" / "a.png"]} == kept
+    w.reconstruct_one = after_model
+    w.previews["a"] = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        w.refine()
+    assert not (models / "a.reflecto").exists() and not (models / "a.json").exists()
+    assert not (models / "thumbs" / "a.png").exists()
+    again = Watcher(root, models, thumbnails=False)
+    again.run(once=True)
+    assert json.loads((models / "a.json").read_text())["preview"] is False
+
+
+def test_a_preview_that_fails_gives_way_to_the_full_model(sources: list[Path], reference: list[dict],
+                                                          tmp_path: Path) -> None:
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "a")
+
+    def failing(cap: Path, out: Path) -> dict:
+        raise ReflectoError("capture: the light fit found no usable bins")
+
+    w = Watcher(root, models, preview_one=failing, thumbnails=False, report=lambda line: pytest.fail(line))
+    assert w.scan() == 1 and not w.previews
+    summary = json.loads((models / "a.json").read_text())
+    assert {k: v for k, v in summary.items() if k not in VOLATILE} == \
+        {k: v for k, v in reference[0].items() if k not in VOLATILE}
 
 
 def test_the_cli_previews_first_unless_told_not_to(sources: list[Path], tmp_path: Path) -> None:

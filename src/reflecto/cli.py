@@ -62,6 +62,7 @@ from .load import load_source
 from .reconstruct import Options
 from .reconstruct.asymmetric import MIN_CAPTURES
 from .reconstruct.eq3 import SymmetryTest
+from .reconstruct.preview import UNPLACED
 from .render.mitsuba import DEFAULT_SPP, SCENES, compare, comparison_image, render, save_image, titled, to_srgb8
 from .render.mitsuba import MAX_SEED as RENDER_MAX_SEED
 from .sources import merl
@@ -262,8 +263,13 @@ def cmd_info(args: argparse.Namespace) -> int:
         unc = meta.get("normal_uncertainty_deg")
         info["normal"] = {k: meta.get(k) for k in workflow.NORMAL_KEYS}
         detail = f"±{unc:.2f}°, " if isinstance(unc, (int, float)) and unc > 0 else ""
-        lines.append(f"  normal      tilted {meta['normal_tilt_deg']:.2f}° from the device axis "
-                     f"({detail}{meta.get('normal_source')})")
+        if meta.get("normal_source") == UNPLACED:
+            lines.append("  normal      not placed: a preview, read in the device frame (the full model places it)")
+        else:
+            lines.append(f"  normal      tilted {meta['normal_tilt_deg']:.2f}° from the device axis "
+                         f"({detail}{meta.get('normal_source')})")
+        if meta.get("preview") is True:
+            lines.append("  preview     a first model (reflecto watch); reflecto reconstruct makes the full one")
     lines.append("  directional albedo (RGB) at θ_i:")
     lines += [f"    {k:>6}  {v[0]:.4f} {v[1]:.4f} {v[2]:.4f}" for k, v in info["albedo"].items()]
     lines.append(f"  albedo range [{info['albedo_range'][0]:.4f}, {info['albedo_range'][1]:.4f}]")
@@ -562,6 +568,8 @@ def cmd_watch(args: argparse.Namespace) -> int:
 def _tilt_text(summary: dict[str, Any]) -> str:
     """The tilt found and its uncertainty, as a summary gives them (``"2.00° ± 0.21°"``)."""
     tilt, unc = summary.get("normal_tilt_deg"), summary.get("normal_uncertainty_deg")
+    if summary.get("normal_source") == UNPLACED:
+        return "not placed yet"
     if not isinstance(tilt, (int, float)):
         return "?"
     return f"{tilt:.2f}°" + (f" ± {unc:.2f}°" if isinstance(unc, (int, float)) and unc > 0 else "")

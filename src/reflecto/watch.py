@@ -25,18 +25,23 @@ warnings and notes; the skipped folders with their problem) are rewritten atomic
 capture on one core, so a watcher that made only full models would fall further behind
 with every capture of a sweep. With ``preview_one`` (:func:`default_previewer`,
 :func:`reflecto.reconstruct.preview.preview`: the normal from the compact specular peaks,
-one light fit, the motion cues that need no frame) each capture first gets a preview
-model, summary (``"preview": true``) and index row, at the device's rate; the full
-reconstruction replaces each preview, oldest first, once no capture has landed for
-``refine_idle_s`` seconds (:data:`REFINE_IDLE_S`: the operator has stopped sweeping, and
-a full model started then delays the next capture's preview by at most its own time).
+one light fit, the motion cues that need no frame; about a third of the full path's
+CPU) each capture first gets a preview model, summary (``"preview": true``) and index
+row; the full reconstruction replaces each preview, oldest first, once no capture has
+landed for ``refine_idle_s`` seconds (:data:`REFINE_IDLE_S`: the operator has stopped
+sweeping, and a full model started then delays the next capture's preview by at most its
+own time). A preview that fails gives way to the full reconstruction; a full model that
+fails leaves the preview, says why on the page, and is tried again when the folder
+changes.
 
 A capture whose ``.json`` summary exists in ``MODELS`` counts as done (a restarted watcher
-carries on; a preview's summary queues its full reconstruction); a model without its
-summary is redone.
+carries on; a preview's summary queues its full reconstruction, ``--once`` too); a model
+without its summary is redone.
 
 Ctrl-C (SIGINT), or SIGTERM, stops the watcher between two files: every file in
-``MODELS`` is complete, and a model whose summary was not yet written is removed.
+``MODELS`` is complete, and a model whose summary was not yet written is removed (with
+the preview's summary and thumbnail where it replaced a preview: the capture is made
+again).
 """
 
 from __future__ import annotations
@@ -67,7 +72,7 @@ from .io import atomic_write, make_parents, read_json
 from .kinds import is_model_file
 from .model import load_model
 from .reconstruct import Options
-from .reconstruct.preview import NO_PEAK_NOTE, PREVIEW_NOTE
+from .reconstruct.preview import PREVIEW_NOTE, UNPLACED
 from .render.sphere import composite, render_sphere, sphere_coverage
 
 #: Seconds between two looks at ROOT while nothing is ready.
@@ -227,6 +232,15 @@ def capture_state(folder: Path) -> tuple[str, str]:
         if not _png_complete(p):
             return WAITING, f"frame {name} is incomplete (no PNG end chunk)"
     return READY, ""
+
+
+def _stat(path: Path) -> tuple[int, int, int] | None:
+    """Inode, size and modification time of a file (``None`` where there is none): a change means it was rewritten."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns
 
 
 def _signature(folder: Path) -> tuple:
@@ -415,7 +429,9 @@ class Watcher:
             return []
         except OSError as e:
             raise ReflectoError(f"{self.root}: cannot list the folder ({e.strerror or e})") from None
-        return [self.root / n for n in names if n not in self.entries and n != self._models_here]
+        # a capture with a model is looked at again only where its full model failed (a preview
+        # stays): once its folder changes
+        return [self.root / n for n in names if (n not in self.entries or n in self.failed) and n != self._models_here]
 
     def _done(self, name: str) -> bool:
         """A model of ``name`` is in ``models``: its summary, and a model file whose structure
@@ -470,6 +486,8 @@ class Watcher:
         self._waiting.pop(name, None)
         self.failed[name] = problem
         self._failed_sig[name] = _signature(folder) if sig is None else sig
+        if name in self.entries:  # its preview stays, and says why no full model follows
+            self.entries[name].warnings.append(f"no full model: {one_line(problem)}")
         self.report(one_line(f"{folder}: {problem}" if not problem.startswith(str(folder)) else problem))
         self._write_index()
 
@@ -484,6 +502,21 @@ class Watcher:
             self.entries[name] = self._entry(name, summary)
             if self.entries[name].preview:
                 self.previews[name] = now
+            if self.thumbnails:
+                self._refresh_thumbnail(name)
+
+    def _refresh_thumbnail(self, name: str) -> None:
+        """Render the thumbnail of an earlier model where it is missing or older than the
+        summary (a watch stopped between a full model's summary and its thumbnail)."""
+        thumb, summary = self.models / "thumbs" / f"{name}.png", self.models / f"{name}.json"
+        try:
+            if thumb.exists() and thumb.stat().st_mtime_ns >= summary.stat().st_mtime_ns:
+                return
+            png = thumbnail(load_model(self.models / f"{name}.reflecto"))
+            with atomic_write(thumb) as fh:
+                fh.write(png)
+        except (ReflectoError, OSError) as e:
+            self.entries[name].warnings.append(f"no thumbnail ({one_line(e)})")
 
     def _entry(self, name: str, summary: dict[str, Any]) -> Entry:
         eta = eta_from_json(summary)
@@ -492,38 +525,80 @@ class Watcher:
         tilt = _number(summary.get("normal_tilt_deg"))
         if preview:  # the page's model column says it is a preview; a tilt no peak placed is not known yet
             notes = [n for n in notes if n != PREVIEW_NOTE]
-            if NO_PEAK_NOTE in notes:
+            if summary.get("normal_source") == UNPLACED:
                 tilt = math.nan
         return Entry(name, tilt, "?" if eta is None else format_eta(eta), warnings_of(summary),
                      _number(summary.get("seconds"), 0.0), notes, preview)
 
-    def refine(self) -> bool:
+    def refine(self, final: bool = False) -> bool:
         """Replace the oldest preview by the capture's full model (module docstring).
+
+        A capture folder being rewritten since its preview waits at the end of the queue,
+        and is reported (its preview stays) once incomplete and unchanged for ``settle_s``
+        seconds, or at once with ``final``. A refused capture is reported and keeps its
+        preview, with the reason among its warnings; it is looked at again when its folder
+        changes.
+
+        Parameters
+        ----------
+        final
+            Report a folder that is incomplete now instead of waiting for it (``--once``).
 
         Returns
         -------
         bool
-            Whether a full model was written (``False``: no preview waits, or the capture
-            was refused and reported; its preview stays).
+            Whether a full model was written (``False``: no preview waits, the capture waits
+            for its writer, or it was refused and reported).
         """
         if not self.previews:
             return False
         name = next(iter(self.previews))
         found = self.previews.pop(name)
-        return self._model(self.root / name, found, preview=False)
+        folder = self.root / name
+        state, why = capture_state(folder)
+        if state == WAITING:
+            now, sig = time.monotonic(), _signature(folder)
+            seen = self._waiting.get(name)
+            if seen is None or seen[0] != sig:
+                self._waiting[name] = (sig, now, why)
+            if final or now - self._waiting[name][1] >= self.settle_s:
+                held = "" if final else f" for {self.settle_s:g} s"
+                self._fail(folder, f"incomplete capture: {why} (unchanged{held})", sig)
+            else:
+                self.previews[name] = found  # back in the queue, behind the others
+            return False
+        self._waiting.pop(name, None)
+        return self._model(folder, found, preview=False, refining=True)
 
-    def _model(self, folder: Path, found: float, preview: bool = False) -> bool:
-        """Reconstruct one capture (its preview, or its full model); a refused one is reported and remembered."""
+    def _model(self, folder: Path, found: float, preview: bool = False, refining: bool = False) -> bool:
+        """Reconstruct one capture (its preview, or its full model; ``refining``: the full
+        model that replaces its preview); a refused one is reported and remembered. A
+        preview that fails gives way to the full reconstruction at once."""
 
         name = folder.name
         out = self.models / f"{name}.reflecto"
         summary_path = out.with_suffix(".json")
-        had_summary = summary_path.exists()  # a preview's: a full model interrupted before its summary stays
+        had_summary = summary_path.exists()  # a preview's, which the full model replaces
+        before = (_stat(out), _stat(summary_path))
         make_parents(self.models)
         make = self.preview_one if preview and self.preview_one is not None else self.reconstruct_one
+
+        def discard_half_written() -> None:
+            # a model written without its summary is removed; where it replaced a preview whose summary
+            # is still there, the preview's summary, model and thumbnail go too (they would contradict each
+            # other): the capture is made again by the next watch
+            if not had_summary:
+                if not summary_path.exists():
+                    out.unlink(missing_ok=True)
+            elif _stat(out) != before[0] and _stat(summary_path) == before[1]:
+                for p in (out, summary_path, self.models / "thumbs" / f"{name}.png"):
+                    p.unlink(missing_ok=True)
+
         try:
             summary = make(folder, out)
         except ReflectoError as e:
+            if make is not self.reconstruct_one:  # the preview failed: the full reconstruction may not
+                return self._model(folder, found)
             self._fail(folder, one_line(e))
             return False
         except MemoryError:
@@ -533,15 +608,13 @@ class Watcher:
             self._fail(folder, f"{e.filename or folder}: {one_line(e.strerror or e)}")
             return False
         except Exception as e:  # a fault of one capture's reconstruction must not stop the watch
-            if not had_summary and not summary_path.exists():
-                out.unlink(missing_ok=True)
+            discard_half_written()
             if interrupted(e):  # Ctrl-C inside a compiled kernel: an interrupt, not the capture's fault
                 raise KeyboardInterrupt from e
             self._fail(folder, f"reconstruction failed ({type(e).__name__}: {one_line(e)})")
             return False
-        except BaseException:
-            if not had_summary and not summary_path.exists():  # interrupted between the model and its summary
-                out.unlink(missing_ok=True)
+        except BaseException:  # interrupted, possibly between the model and its summary
+            discard_half_written()
             raise
         self.entries[name] = self._entry(name, summary)
         if self.thumbnails:
@@ -554,7 +627,7 @@ class Watcher:
                 self.entries[name].warnings.append(f"no thumbnail ({one_line(e)})")
         self._write_index()
         done = time.monotonic()
-        if name in self.latency:  # the full model after its preview
+        if refining:  # the full model after its preview
             self.full_latency[name] = done - found
         else:
             self.finished_at[name] = done
@@ -581,7 +654,7 @@ class Watcher:
             rows.append(f'<tr><td><a href="{esc(url_quote(e.name))}.json">{esc(e.name)}</a></td><td>{model}</td>'
                         f"<td>{tilt}</td><td>{esc(e.eta)}</td><td>{img}</td><td>{warn}</td></tr>")
         skipped = "".join(f"<li>{esc(n)}: {esc(p)}</li>" for n, p in sorted(self.failed.items()))
-        waiting = sum(e.preview for e in self.entries.values())
+        waiting = sum(e.preview and e.name not in self.failed for e in self.entries.values())
         pending = f" ({waiting} previews, their full models to follow)" if waiting else ""
         page = ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>reflecto watch: "
                 f"{esc(str(self.root))}</title>\n<style>body{{font-family:sans-serif}}td{{padding:2px 8px;"
@@ -612,7 +685,7 @@ class Watcher:
         if once:
             self.scan(final=True)
             while self.previews:
-                self.refine()
+                self.refine(final=True)
             return
 
         def interrupt(signum: int, frame: object) -> None:
@@ -629,11 +702,12 @@ class Watcher:
                 if self.scan():
                     continue
                 if self.previews and time.monotonic() - self._busy_at >= self.refine_idle_s:
-                    self.refine()
+                    refined = self.refine()
                     if self._interrupted:  # swallowed on the way (scan's comment)
                         raise KeyboardInterrupt
-                else:
-                    time.sleep(poll_s)
+                    if refined:
+                        continue
+                time.sleep(poll_s)
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)

@@ -415,6 +415,8 @@ def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path
         result.model.metadata.update({"calibration": rel_cal})
     result.model.metadata.update({**result.provenance, "model_error": summary["model_error"],
                                   **{k: summary[k] for k in NORMAL_KEYS}})
+    if result.reconstruction.preview:  # `reflecto info` and the report say so
+        result.model.metadata["preview"] = True
     result.model.save(out)
     with atomic_write(out.with_suffix(".json"), "w") as fh:
         fh.write(json.dumps(summary, indent=1))

@@ -10,8 +10,9 @@ model and no estimated frame, and one light fit:
   (:func:`.motion.peak_agreement`), their mean direction: a sharp lobe's slices that
   hold the mirror direction peak at the lobe's mode, the sample normal, with no model
   (on the hand-held study's 400 steady captures every compact peak lies within 0.30° of
-  the true normal); otherwise the device axis, and the summary says the tilt is left to
-  the full reconstruction;
+  the true normal); otherwise (or beyond ``max_tilt_deg``) the device axis, with
+  ``normal_source`` :data:`UNPLACED` and no uncertainty: the tilt is not known until the
+  full reconstruction;
 * **the fit**: the normal estimate's light isotropic fit (:func:`.normal.light_fit`:
   every second pixel, θ_d cells of 3°) in that frame, its ``D``, ``S`` and ``η``, with
   ``k_d`` and ``k_s`` per channel by :func:`.isotropic.channel_scalars` under the
@@ -22,9 +23,11 @@ model and no estimated frame, and one light fit:
   cues that read the sample frame (mirror planes, isotropy and reciprocity pairs)
   wait for the full reconstruction, whose estimated frame keeps a tilt from reading as
   a turn;
-* no isotropy or eq. 3 test: both are reported undecided (the model is isotropic).
+* no isotropy or eq. 3 test: both are reported undecided (the model is isotropic; a
+  material declared anisotropic, ``isotropic="no"``, gets no preview).
 
-:attr:`.pipeline.Reconstruction.notes` starts with :data:`PREVIEW_NOTE`.
+:attr:`.pipeline.Reconstruction.notes` starts with :data:`PREVIEW_NOTE`; the parameters
+at a bound are noted as in the full path (:func:`.pipeline.bound_notes`).
 """
 
 from __future__ import annotations
@@ -35,21 +38,25 @@ import time
 import numpy as np
 
 from .. import geometry
+from ..errors import ParameterError
 from ..instrument.slices import Slices, check_slices
 from ..model import IsotropicMicrofacetBRDF
 from .isotropic import channel_scalars
 from .isotropy import IsotropyTest
 from .motion import MotionReport, PeakAgreement, peak_agreement
 from .normal import SlicePeak, half_vector_pitch_deg, light_fit, slice_peaks
-from .pipeline import FitSeconds, Options, Reconstruction, limit_energy, usable_samples
+from .pipeline import FitSeconds, Options, Reconstruction, bound_notes, limit_energy, usable_samples
 from .repeat import repeat_checks
 from .samples import kd_median_bound
 
-__all__ = ["NO_PEAK_NOTE", "PREVIEW_NOTE", "preview"]
+__all__ = ["NO_PEAK_NOTE", "PREVIEW_NOTE", "UNPLACED", "preview"]
 
 #: The first note of every preview's summary.
 PREVIEW_NOTE = ("preview: a light fit with the normal from the specular peaks or the device axis; "
                 "the full reconstruction replaces it")
+#: ``normal_source`` of a preview whose normal no compact peak places: read in the device
+#: frame, the tilt not known.
+UNPLACED = "unplaced"
 #: The note of a preview whose normal no compact peak places (read in the device frame).
 NO_PEAK_NOTE = "preview: the tilt is left to the full reconstruction (no compact specular peak places the normal)"
 def peaks_normal(peaks: list[SlicePeak], agreement: PeakAgreement) -> tuple[np.ndarray | None, float]:
@@ -89,24 +96,31 @@ def preview(slices: Slices, options: Options | None = None) -> Reconstruction:
         The capture's BRDF slices, device frame (:func:`reflecto.workflow.measure`).
     options
         The reconstruction's settings that the preview follows: ``normal`` (``"device"``
-        or a known vector replaces the peaks' normal), ``fixed_eta``, ``kd_bound_max_deg``,
-        ``energy_clamp`` and ``detect_shake``; the others are the full reconstruction's.
+        or a known vector replaces the peaks' normal), ``max_tilt_deg``, ``fixed_eta``,
+        ``kd_bound_max_deg``, ``energy_clamp`` and ``detect_shake``; the others are the full
+        reconstruction's.
 
     Returns
     -------
     Reconstruction
         An isotropic model (:class:`reflecto.model.IsotropicMicrofacetBRDF`, sr⁻¹), its η,
         the frame (the compact peaks' normal, ``normal_source`` ``"estimated"`` with the
-        uncertainty ``max(pitch, spread)``, or the device axis, ``"device"``), the
+        uncertainty ``max(pitch, spread)``; the device axis, :data:`UNPLACED` with a NaN
+        uncertainty; or as the options impose, ``"device"`` or ``"given"``), the
         frame-free motion cues, the light fit's model error ``ε``, the energy limit, and
         notes (:data:`PREVIEW_NOTE` first). The isotropy test is undecided (no rings).
 
     Raises
     ------
+    reflecto.errors.ParameterError
+        With ``isotropic="no"``: the preview is an isotropic fit.
     reflecto.errors.ReflectoError
         For slices with too few usable samples to fit.
     """
     opt = options or Options()
+    if opt.isotropic == "no":
+        raise ParameterError("preview: the preview is an isotropic fit, not for a material declared anisotropic "
+                             "(isotropic='no')")
     t0, c0 = time.perf_counter(), time.process_time()
     check_slices(slices)
     valid = usable_samples(slices)
@@ -119,8 +133,8 @@ def preview(slices: Slices, options: Options | None = None) -> Reconstruction:
         normal, source, sd = np.array([0.0, 0.0, 1.0]), "device", 0.0
     else:
         found, spread = peaks_normal(peaks, agreement)
-        if found is None:
-            normal, source, sd = np.array([0.0, 0.0, 1.0]), "device", 0.0
+        if found is None or math.degrees(math.acos(min(1.0, float(found[2])))) > opt.max_tilt_deg:
+            normal, source, sd = np.array([0.0, 0.0, 1.0]), UNPLACED, math.nan
             notes.append(NO_PEAK_NOTE)
         else:
             normal, source, sd = found, "estimated", max(half_vector_pitch_deg(slices), spread)
@@ -133,6 +147,7 @@ def preview(slices: Slices, options: Options | None = None) -> Reconstruction:
     fitted = IsotropicMicrofacetBRDF((lum.problem.nodes, np.exp(lum.state.z - lum.state.z.max())), kd, ks,
                                      lum.state.eta)
     model, scale, albedo = limit_energy(fitted, opt.energy_clamp)
+    notes += bound_notes(bool(np.any(ks >= 1.0)), float(lum.state.eta), model, scale)
     c2 = time.process_time()
     motion = MotionReport()
     if opt.detect_shake:
