@@ -159,6 +159,10 @@ def test_peak_first_estimate_and_pitch():
     n0 = peak_normal(sl, usable_samples(sl))
     assert n0 is not None and _off(n0, truth) < 1.0
     assert 0.1 < half_vector_pitch_deg(sl) < 0.4
+    # the pixels in any order give the same pitch (they are sorted where they come unsorted)
+    perm = np.random.default_rng(3).permutation(len(sl.view))
+    shuffled = dataclasses.replace(sl, view=sl.view[perm], pixels=sl.pixels[perm])
+    assert half_vector_pitch_deg(shuffled) == half_vector_pitch_deg(sl)
     est = estimate_normal(sl, usable_samples(sl))
     assert _off(est.normal, truth) < 0.1 and est.refits <= 3
 

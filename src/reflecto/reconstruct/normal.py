@@ -886,13 +886,16 @@ def half_vector_pitch_deg(slices) -> float:
     """Half the median angle between horizontally adjacent pixels' view directions
     (degrees): how finely the camera samples the half vector of one LED's slice
     (≈ 0.21° on the default optics). The tilt is reported no better than this."""
-    rows, cols = slices.pixels[:, 0], slices.pixels[:, 1]
-    order = np.lexsort((cols, rows))
-    nxt = (rows[order][1:] == rows[order][:-1]) & (cols[order][1:] == cols[order][:-1] + 1)
+    rows, cols, view = slices.pixels[:, 0], slices.pixels[:, 1], slices.view
+    # the pixels of a capture's slices come in row-major order: sorted again (and gathered) only where not
+    if not np.all((rows[1:] > rows[:-1]) | ((rows[1:] == rows[:-1]) & (cols[1:] > cols[:-1]))):
+        order = np.lexsort((cols, rows))
+        rows, cols, view = rows[order], cols[order], view[order]
+    nxt = (rows[1:] == rows[:-1]) & (cols[1:] == cols[:-1] + 1)
     if not nxt.any():
         return 0.0
-    a, b = slices.view[order][:-1][nxt], slices.view[order][1:][nxt]
-    cos = np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0)
+    # every neighbour's dot product, then the horizontal ones: no gathered copies of the directions
+    cos = np.clip(np.einsum("ij,ij->i", view[:-1], view[1:])[nxt], -1.0, 1.0)
     return 0.5 * math.degrees(float(np.median(np.arccos(cos))))
 
 
