@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -806,13 +806,18 @@ def light_subset(slices: Slices, valid: NDArray[np.bool_]) -> tuple[Slices, NDAr
     """Every :data:`FIT_STRIDE`-th pixel of the slices (device frame) and of ``valid``,
     the samples of :func:`light_fit` (taken once per estimate, refitted in each frame)."""
     px = np.arange(0, slices.view.shape[0], FIT_STRIDE)
-    sub = dataclasses.replace(slices, view=slices.view[px], values=slices.values[:, px], valid=slices.valid[:, px],
-                              pixels=slices.pixels[px],
-                              censored=None if slices.censored is None else slices.censored[:, px],
-                              noise=None if slices.noise is None else slices.noise[:, px],
-                              limit=None if slices.limit is None else slices.limit[:, px],
+
+    def columns(a: NDArray[Any]) -> NDArray[Any]:
+        # in C order once here: the compiled binning of every refit takes them so, not as copies of its own
+        return np.ascontiguousarray(a[:, px])
+
+    sub = dataclasses.replace(slices, view=slices.view[px], values=columns(slices.values),
+                              valid=columns(slices.valid), pixels=slices.pixels[px],
+                              censored=None if slices.censored is None else columns(slices.censored),
+                              noise=None if slices.noise is None else columns(slices.noise),
+                              limit=None if slices.limit is None else columns(slices.limit),
                               check_leds=(), check_values=None, check_valid=None)
-    return sub, valid[:, px]
+    return sub, columns(valid)
 
 
 def _light_fit_of(sub: Slices, valid_sub: NDArray[np.bool_], frame: Array,
