@@ -102,6 +102,28 @@ def peak_agreement(peaks: Sequence[SlicePeak]) -> PeakAgreement:
     return PeakAgreement(tuple(p.led for p in compact), spread, pair)
 
 
+def agreeing_normals(peaks: Sequence[SlicePeak], agreement: PeakAgreement) -> list[Array]:
+    """The half vectors of the compact peaks where they agree: each places the lobe's mode
+    (:func:`peak_agreement`) without a model.
+
+    Parameters
+    ----------
+    peaks
+        The slices' peaks (:func:`.normal.slice_peaks`).
+    agreement
+        Their agreement, :func:`peak_agreement` of ``peaks``.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        Unit vectors (shape ``(3,)``, the peaks' frame), one per compact peak; empty where
+        there is none or where they lie further apart than :data:`PEAK_AGREEMENT_DEG` (a turn).
+    """
+    if not agreement.leds or agreement.moved:
+        return []
+    return [p.normal for p in peaks if p.led in agreement.leds]
+
+
 @dataclasses.dataclass
 class MotionReport:
     """The shake cues of one capture and their verdict.

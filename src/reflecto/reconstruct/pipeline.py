@@ -42,7 +42,7 @@ from .extrapolation import ShadowingChoice, choose_shadowing
 from .hemicube_fit import HemicubeFit, fit_hemicube
 from .isotropic import ETA_MAX, OUTER_ITERATIONS, IsotropicFit, finish_isotropic, fit_isotropic, start_isotropic
 from .isotropy import IsotropyTest, azimuthal_test
-from .motion import PEAK_AGREEMENT_DEG, MotionReport, detect_motion, peak_agreement
+from .motion import PEAK_AGREEMENT_DEG, MotionReport, agreeing_normals, detect_motion, peak_agreement
 from .normal import (
     ConsistencyDistance,
     HiddenPeak,
@@ -520,12 +520,9 @@ def _peaks_place_tilt(est: NormalEstimate, peaks: list[SlicePeak]) -> bool:
     mode, the sample's normal, whatever its shape (:mod:`.motion`); where they put it
     away from the device axis and at the estimate, the device frame's fit
     (:func:`device_frame_check`) cannot show that the tilt explains nothing."""
-    agree = peak_agreement(peaks)
-    if not agree.leds or agree.moved:
-        return False
+    compact = agreeing_normals(peaks, peak_agreement(peaks))
     limit = math.cos(math.radians(PEAK_AGREEMENT_DEG))
-    compact = [p.normal for p in peaks if p.led in agree.leds]
-    return all(float(n @ est.normal) >= limit and float(n[2]) < limit for n in compact)
+    return bool(compact) and all(float(n @ est.normal) >= limit and float(n[2]) < limit for n in compact)
 
 
 def _needs_device_check(opt: Options) -> bool:

@@ -43,7 +43,7 @@ from ..instrument.slices import Slices, check_slices
 from ..model import IsotropicMicrofacetBRDF
 from .isotropic import channel_scalars
 from .isotropy import IsotropyTest
-from .motion import MotionReport, PeakAgreement, peak_agreement
+from .motion import MotionReport, PeakAgreement, agreeing_normals, peak_agreement
 from .normal import SlicePeak, half_vector_pitch_deg, light_fit, slice_peaks
 from .pipeline import FitSeconds, Options, Reconstruction, bound_notes, limit_energy, usable_samples
 from .repeat import repeat_checks
@@ -78,9 +78,10 @@ def peaks_normal(peaks: list[SlicePeak], agreement: PeakAgreement) -> tuple[np.n
     spread_deg : float
         The largest angle of one compact peak from it (degrees; NaN without a normal).
     """
-    if not agreement.leds or agreement.moved:
+    compact = agreeing_normals(peaks, agreement)
+    if not compact:
         return None, math.nan
-    normals = np.array([p.normal for p in peaks if p.led in agreement.leds])
+    normals = np.array(compact)
     n = normals.sum(axis=0)
     n = n / np.linalg.norm(n)
     spread = max(math.degrees(math.acos(min(1.0, float(m @ n)))) for m in normals)
