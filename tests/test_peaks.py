@@ -108,3 +108,25 @@ def test_a_slice_with_a_non_finite_value_has_no_peak():
     values[leds[0], np.flatnonzero(valid[leds[0]])[0]] = np.inf
     broken = dataclasses.replace(sl, values=values)
     assert [p.led for p in slice_peaks(broken, valid)] == leds[1:]
+
+
+def test_the_peaks_are_the_same_whether_or_not_every_sample_is_valid():
+    """An LED whose samples are all valid is read without gathering them; masking a fifth
+    of the samples far from every peak (below each peak's level) gathers the rest, and the
+    peaks stay where they were (the median of the floor moves their level a little)."""
+    src = AnalyticBRDF(distribution="ggx", alpha=0.05, kd=0.05, ks=0.8)
+    dev = Device.builtin("ideal")
+    sl = extract_slices(simulate_capture(src, dev, seed=3, tilt_deg=2.0), nominal_calibration(dev))
+    valid = usable_samples(sl)
+    whole = slice_peaks(sl, valid)
+    assert whole and any(valid[p.led].all() for p in whole)
+    far = np.ones(len(sl.view), dtype=bool)
+    for p in whole:  # keep every pixel within 10° of a peak's mirror direction
+        mirror = 2.0 * (sl.light[p.led] @ p.normal) * p.normal - sl.light[p.led]
+        far &= sl.view @ mirror < math.cos(math.radians(10.0))
+    drop = far & (np.arange(len(sl.view)) % 5 == 0)
+    masked = slice_peaks(sl, valid & ~drop[None, :])
+    assert [p.led for p in masked] == [p.led for p in whole]
+    for a, b in zip(whole, masked):
+        assert math.degrees(math.acos(min(1.0, float(a.normal @ b.normal)))) < 0.01
+        assert b.radius_deg == pytest.approx(a.radius_deg, abs=0.05)

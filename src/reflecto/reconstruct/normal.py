@@ -436,23 +436,29 @@ def slice_peaks(slices, valid: NDArray[np.bool_]) -> list[SlicePeak]:
     """
     view = slices.view
     axis = geometry.normalize(view.mean(axis=0))
-    ang = np.degrees(np.arccos(np.clip(view @ axis, -1.0, 1.0)))
-    rim = float(ang.max()) - PEAK_RIM_DEG
+    cos_axis = view @ axis
+
+    def angle_deg(i: int) -> float:  # the angle of pixel i from the axis: taken where a peak asks for it
+        return float(np.degrees(np.arccos(np.clip(cos_axis[i:i + 1], -1.0, 1.0)))[0])
+
+    rim = angle_deg(int(np.argmin(cos_axis))) - PEAK_RIM_DEG  # the widest view (arccos decreases)
     out = []
     for k in range(slices.n_leds):
-        idx = np.flatnonzero(valid[k])  # the valid samples' pixels: gathered once, not as masked copies
-        if len(idx) < 100:
+        # the valid samples' pixels, gathered once (not as masked copies), and not at all where all are valid
+        n_valid = int(np.count_nonzero(valid[k]))
+        if n_valid < 100:
             continue
-        y = slices.values[k, idx] @ LUM
+        idx = None if n_valid == len(view) else np.flatnonzero(valid[k])
+        y = (slices.values[k] if idx is None else slices.values[k, idx]) @ LUM
         if not np.all(np.isfinite(y)):  # a value the usable samples would not hold: no peak to place
             continue
         med = float(np.median(y))
         j = int(np.argmax(y))
-        if not (y[j] > PEAK_CONTRAST * max(med, 1e-300) and ang[idx[j]] < rim):
+        if not (y[j] > PEAK_CONTRAST * max(med, 1e-300) and angle_deg(j if idx is None else int(idx[j])) < rim):
             continue
         level = 0.5 * (y[j] + med)
         top = y > level
-        h = slices.light[k] + view[idx[top]]
+        h = slices.light[k] + view[top if idx is None else idx[top]]
         h /= np.linalg.norm(h, axis=1, keepdims=True)
         n = geometry.normalize(((y[top] - level)[:, None] * h).sum(axis=0))
         if not np.all(np.isfinite(n)):
@@ -805,14 +811,14 @@ def light_fit(slices, valid: NDArray[np.bool_], frame: Array, fixed_eta: float |
 def light_subset(slices: Slices, valid: NDArray[np.bool_]) -> tuple[Slices, NDArray[np.bool_]]:
     """Every :data:`FIT_STRIDE`-th pixel of the slices (device frame) and of ``valid``,
     the samples of :func:`light_fit` (taken once per estimate, refitted in each frame)."""
-    px = np.arange(0, slices.view.shape[0], FIT_STRIDE)
+    px = slice(0, None, FIT_STRIDE)  # a strided view, copied once (a gather of index arrays is 4× slower)
 
     def columns(a: NDArray[Any]) -> NDArray[Any]:
         # in C order once here: the compiled binning of every refit takes them so, not as copies of its own
         return np.ascontiguousarray(a[:, px])
 
-    sub = dataclasses.replace(slices, view=slices.view[px], values=columns(slices.values),
-                              valid=columns(slices.valid), pixels=slices.pixels[px],
+    sub = dataclasses.replace(slices, view=np.ascontiguousarray(slices.view[px]), values=columns(slices.values),
+                              valid=columns(slices.valid), pixels=np.ascontiguousarray(slices.pixels[px]),
                               censored=None if slices.censored is None else columns(slices.censored),
                               noise=None if slices.noise is None else columns(slices.noise),
                               limit=None if slices.limit is None else columns(slices.limit),

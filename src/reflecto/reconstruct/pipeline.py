@@ -337,7 +337,9 @@ def usable_samples(slices: Slices) -> NDArray[np.bool_]:
     ReflectoError
         Fewer than :data:`MIN_SAMPLES` samples are usable.
     """
-    ok = slices.valid & np.all(np.isfinite(slices.values), axis=-1)  # a NaN or ±inf channel poisons the sum
+    finite = np.isfinite(slices.values)  # a NaN or ±inf channel poisons the sum
+    # the three channels' flags combined by hand: np.all over a last axis of 3 is 4× slower
+    ok = slices.valid & finite[..., 0] & finite[..., 1] & finite[..., 2]
     ok &= (slices.light[:, 2] > 0)[:, None] & (slices.view[:, 2] > 0)[None, :]
     if int(ok.sum()) < MIN_SAMPLES:
         raise ReflectoError(f"capture: fewer than {MIN_SAMPLES} valid samples "
