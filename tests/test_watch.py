@@ -530,3 +530,27 @@ def test_warnings_are_what_asks_for_another_capture_and_notes_the_rest():
     assert warnings_of(shaken) == ["shake detected (LEDs 2 and 8 peak 7.8° apart)",
                                    "symmetry of eq. 3 broken (capture rotations for §5.5)"]
     assert notes_of(shaken) == []
+
+
+def test_the_page_shows_each_change_of_a_row(tmp_path: Path) -> None:
+    """The page's rows are formatted once and remembered; a row whose entry changes (a warning,
+    the full model after the preview, a thumbnail written) is formatted again."""
+    models = tmp_path / "models"
+    w = Watcher(tmp_path / "root", models, lambda c, o: {}, thumbnails=False)
+    for k in range(3):
+        w.entries[f"c{k}"] = Entry(f"c{k}", float("nan") if k == 0 else 2.0 + k, "1.5", [], 0.1, ["a note"], True)
+    w._write_index()
+    first = (models / "index.html").read_text()
+    assert first.count("<td>preview</td>") == 3 and "<td>–</td>" in first and "<td>3.00°</td>" in first
+    assert "<img" not in first
+    w._write_index()
+    assert (models / "index.html").read_text() == first  # the same rows, from memory
+    w.entries["c1"].warnings.append("no full model: <damaged>")
+    w.entries["c2"] = Entry("c2", 4.5, "2.1", [], 0.2, [], False)
+    (models / "thumbs").mkdir()
+    (models / "thumbs" / "c0.png").write_bytes(b"png")
+    w._write_index()
+    page = (models / "index.html").read_text()
+    assert "<strong>no full model: &lt;damaged&gt;</strong>" in page
+    assert page.count("<td>preview</td>") == 2 and "<td>full</td><td>4.50°</td><td>2.1</td>" in page
+    assert page.count("<img") == 1 and 'src="thumbs/c0.png"' in page

@@ -418,6 +418,7 @@ class Watcher:
         #: Captures whose model is a preview, oldest first, with ``time.monotonic()`` when found complete.
         self.previews: dict[str, float] = {}
         self._busy_at = time.monotonic()  # when the last capture was found complete
+        self._rows: dict[str, tuple[tuple, str]] = {}  # the page's rows by capture: (their content, HTML)
 
     # ------------------------------------------------------------------ scanning
     def _candidates(self) -> list[Path]:
@@ -639,20 +640,34 @@ class Watcher:
         return True
 
     # ------------------------------------------------------------------ the page
+    def _row(self, e: Entry, thumb: bool) -> str:
+        """One capture's row of the page, remembered by its content: a sweep of many captures
+        rewrites the page after each, and formats only the rows that changed."""
+        tilt = "–" if not math.isfinite(e.tilt_deg) else f"{e.tilt_deg:.2f}°"
+        key = (e.name, tilt, e.eta, tuple(e.warnings), tuple(e.notes), e.preview, thumb)
+        row = self._rows.get(e.name)
+        if row is not None and row[0] == key:
+            return row[1]
+        esc = html.escape
+        img = (f'<img src="thumbs/{esc(url_quote(e.name))}.png" width="{THUMB_PX}" height="{THUMB_PX}" alt="">'
+               if thumb else "")
+        model = "preview" if e.preview else "full"
+        warn = "<br>".join([f"<strong>{esc(w)}</strong>" for w in e.warnings] + [esc(n) for n in e.notes]) or "–"
+        text = (f'<tr><td><a href="{esc(url_quote(e.name))}.json">{esc(e.name)}</a></td><td>{model}</td>'
+                f"<td>{tilt}</td><td>{esc(e.eta)}</td><td>{img}</td><td>{warn}</td></tr>")
+        self._rows[e.name] = (key, text)
+        return text
+
     def _write_index(self) -> None:
         """Rewrite ``MODELS/index.html`` atomically: one row per model, then the skipped folders."""
 
+        try:  # the thumbnails there are: one listing, not a look-up per row
+            with os.scandir(self.models / "thumbs") as it:
+                thumbs = {d.name for d in it}
+        except OSError:
+            thumbs = set()
+        rows = [self._row(e, f"{e.name}.png" in thumbs) for e in sorted(self.entries.values(), key=lambda e: e.name)]
         esc = html.escape
-        rows = []
-        for e in sorted(self.entries.values(), key=lambda e: e.name):
-            thumb = self.models / "thumbs" / f"{e.name}.png"
-            img = (f'<img src="thumbs/{esc(url_quote(e.name))}.png" width="{THUMB_PX}" height="{THUMB_PX}" alt="">'
-                   if thumb.exists() else "")
-            tilt = "–" if not math.isfinite(e.tilt_deg) else f"{e.tilt_deg:.2f}°"
-            model = "preview" if e.preview else "full"
-            warn = "<br>".join([f"<strong>{esc(w)}</strong>" for w in e.warnings] + [esc(n) for n in e.notes]) or "–"
-            rows.append(f'<tr><td><a href="{esc(url_quote(e.name))}.json">{esc(e.name)}</a></td><td>{model}</td>'
-                        f"<td>{tilt}</td><td>{esc(e.eta)}</td><td>{img}</td><td>{warn}</td></tr>")
         skipped = "".join(f"<li>{esc(n)}: {esc(p)}</li>" for n, p in sorted(self.failed.items()))
         waiting = sum(e.preview and e.name not in self.failed for e in self.entries.values())
         pending = f" ({waiting} previews, their full models to follow)" if waiting else ""
