@@ -554,3 +554,19 @@ def test_the_page_shows_each_change_of_a_row(tmp_path: Path) -> None:
     assert "<strong>no full model: &lt;damaged&gt;</strong>" in page
     assert page.count("<td>preview</td>") == 2 and "<td>full</td><td>4.50°</td><td>2.1</td>" in page
     assert page.count("<img") == 1 and 'src="thumbs/c0.png"' in page
+
+
+def test_the_page_reloads_itself_while_the_watch_runs(tmp_path: Path, sources: list[Path]) -> None:
+    """A browser showing the page follows the sweep; the page a stopped watch leaves is still."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "a")
+    pages: list[str] = []
+    w = Watcher(root, models, thumbnails=False,
+                announce=lambda entry, summary, latency: pages.append((models / "index.html").read_text()))
+    w.run(stop=lambda: bool(pages), poll_s=0.01)
+    assert pages and '<meta http-equiv="refresh"' in pages[0]
+    assert '<meta http-equiv="refresh"' not in (models / "index.html").read_text()
+    assert ">a</a>" in (models / "index.html").read_text()
+    w.run(once=True)  # --once: no reload at any time
+    assert '<meta http-equiv="refresh"' not in (models / "index.html").read_text()

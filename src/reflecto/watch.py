@@ -20,6 +20,8 @@ the code path of ``reflecto reconstruct``), into ``MODELS/<name>.reflecto`` and 
 each model a thumbnail (``MODELS/thumbs/<name>.png``, a lit sphere,
 :func:`thumbnail`) and the index page ``MODELS/index.html`` (name, tilt, η, thumbnail,
 warnings and notes; the skipped folders with their problem) are rewritten atomically.
+While the watch runs the page reloads itself every :data:`PAGE_REFRESH_S` seconds in a
+browser; the page a finished or interrupted watch leaves does not.
 
 **Previews first.** The full reconstruction takes about twice the device's 117 ms per
 capture on one core, so a watcher that made only full models would fall further behind
@@ -77,6 +79,8 @@ from .render.sphere import composite, render_sphere, sphere_coverage
 
 #: Seconds between two looks at ROOT while nothing is ready.
 POLL_S = 0.02
+#: Seconds between two reloads of the index page in a browser while the watch runs.
+PAGE_REFRESH_S = 2
 #: A folder incomplete and unchanged for this long (seconds) is reported as damaged.
 SETTLE_S = 5.0
 #: Side of the index page's thumbnails (pixels).
@@ -419,6 +423,7 @@ class Watcher:
         self.previews: dict[str, float] = {}
         self._busy_at = time.monotonic()  # when the last capture was found complete
         self._rows: dict[str, tuple[tuple, str]] = {}  # the page's rows by capture: (their content, HTML)
+        self._live = False  # the watch loop runs: the page reloads itself
 
     # ------------------------------------------------------------------ scanning
     def _candidates(self) -> list[Path]:
@@ -671,7 +676,8 @@ class Watcher:
         skipped = "".join(f"<li>{esc(n)}: {esc(p)}</li>" for n, p in sorted(self.failed.items()))
         waiting = sum(e.preview and e.name not in self.failed for e in self.entries.values())
         pending = f" ({waiting} previews, their full models to follow)" if waiting else ""
-        page = ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>reflecto watch: "
+        reload = f'<meta http-equiv="refresh" content="{PAGE_REFRESH_S}">' if self._live else ""
+        page = (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\">{reload}<title>reflecto watch: "
                 f"{esc(str(self.root))}</title>\n<style>body{{font-family:sans-serif}}td{{padding:2px 8px;"
                 "vertical-align:middle}</style></head><body>\n"
                 f"<h1>Models of {esc(str(self.root))}</h1>\n<p>{len(self.entries)} models{pending}, "
@@ -712,6 +718,7 @@ class Watcher:
         # a service manager's SIGTERM stops the watch as Ctrl-C does: between two files
         main = threading.current_thread() is threading.main_thread()
         previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)} if main else {}
+        self._live = True
         try:
             while stop is None or not stop():
                 if self.scan():
@@ -724,5 +731,12 @@ class Watcher:
                         continue
                 time.sleep(poll_s)
         finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
+            self._live = False
+            try:  # the page left behind stops reloading itself
+                if self.entries or self.failed:
+                    self._write_index()
+            except (ReflectoError, OSError):  # a page that cannot be written now keeps its reload, nothing worse
+                pass
+            finally:
+                for sig, handler in previous.items():
+                    signal.signal(sig, handler)
