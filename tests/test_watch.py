@@ -258,12 +258,15 @@ def test_once_reports_an_incomplete_folder_and_exits_1(sources: list[Path], tmp_
     assert len(shown) == 1 and shown[0].startswith("good (full): tilt ") and " ms" in shown[0]
 
 
-def test_interrupt_leaves_no_partial_model(sources: list[Path], tmp_path: Path) -> None:
+@pytest.mark.parametrize("once, signum", [(False, signal.SIGINT), (True, signal.SIGTERM)])
+def test_interrupt_leaves_no_partial_model(sources: list[Path], tmp_path: Path, once: bool, signum: int) -> None:
+    """Ctrl-C, or a service manager's SIGTERM (``--once`` as well), stops the watch between two files."""
     root, models = tmp_path / "root", tmp_path / "models"
     root.mkdir()
     for k in range(12):
         shutil.copytree(sources[k % 2], root / f"cap{k:02d}")
-    proc = subprocess.Popen([sys.executable, "-m", "reflecto.cli", "watch", str(root), "-o", str(models)],
+    proc = subprocess.Popen([sys.executable, "-m", "reflecto.cli", "watch", str(root), "-o", str(models),
+                             *(["--once"] if once else [])],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
     try:
@@ -271,7 +274,7 @@ def test_interrupt_leaves_no_partial_model(sources: list[Path], tmp_path: Path) 
         while not list(models.glob("*.json")) and time.monotonic() < deadline:
             time.sleep(0.01)
         time.sleep(0.05)  # mid-way through a later capture
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         _, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
@@ -570,3 +573,73 @@ def test_the_page_reloads_itself_while_the_watch_runs(tmp_path: Path, sources: l
     assert ">a</a>" in (models / "index.html").read_text()
     w.run(once=True)  # --once: no reload at any time
     assert '<meta http-equiv="refresh"' not in (models / "index.html").read_text()
+
+
+def test_a_full_model_that_crashes_after_writing_its_file_is_listed_as_skipped(sources: list[Path],
+                                                                              tmp_path: Path) -> None:
+    """A fault of the full reconstruction after its model file replaced the preview's: the
+    preview's summary and thumbnail go with it, its row leaves the page, the capture is listed
+    as skipped with the fault, and a later watch makes it again."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "a")
+
+    def crashes(cap: Path, out: Path) -> dict:
+        out.write_bytes(b"half a full model")
+        raise RuntimeError("a bug")
+
+    lines: list[str] = []
+    w = Watcher(root, models, crashes, preview_one=default_previewer(), report=lines.append)
+    assert w.scan() == 1 and w.refine() is False
+    assert not (models / "a.reflecto").exists() and not (models / "a.json").exists()
+    assert "a" not in w.entries and not w.previews and len(lines) == 1 and "a bug" in lines[0]
+    page = (models / "index.html").read_text()
+    assert ">a</a>" not in page and "<li>a: reconstruction failed (RuntimeError: a bug)</li>" in page
+    Watcher(root, models, thumbnails=False).run(once=True)
+    assert json.loads((models / "a.json").read_text())["preview"] is False
+
+
+def test_a_thumbnail_that_cannot_be_written_leaves_the_model_and_a_warning(sources: list[Path], tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    import reflecto.watch as watch
+
+    def full_disk(model: object) -> bytes:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(watch, "thumbnail", full_disk)
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "a")
+    w = Watcher(root, models, preview_one=default_previewer())
+    assert w.scan() == 1
+    assert (models / "a.json").exists() and not (models / "thumbs" / "a.png").exists()
+    assert w.entries["a"].warnings == ["no thumbnail (No space left on device)"]
+    assert "no thumbnail (No space left on device)" in (models / "index.html").read_text()
+
+
+def test_a_folder_finished_while_its_reading_failed_is_looked_at_again(sources: list[Path],
+                                                                      tmp_path: Path) -> None:
+    """The folder's writer finishes while the reader refuses its half-rewritten frame: the
+    refusal remembers the folder as it was found, so the finished folder is read again."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "a")
+    frame = root / "a" / _frames(sources[0])[1]
+    good = frame.read_bytes()
+    frame.write_bytes(good[:-40] + bytes(28) + good[-12:])  # whole in form, damaged inside (a CRC fails)
+    calls: list[int] = []
+
+    def read_while_written(cap: Path, out: Path) -> dict:
+        calls.append(1)
+        if len(calls) == 1:
+            try:
+                return reconstruct_folder(cap, out)
+            finally:
+                frame.write_bytes(good)  # the writer ends its rewrite meanwhile
+        return reconstruct_folder(cap, out)
+
+    lines: list[str] = []
+    w = Watcher(root, models, read_while_written, thumbnails=False, report=lines.append)
+    assert w.scan() == 0 and len(lines) == 1 and "a" in w.failed
+    assert w.scan() == 1 and len(calls) == 2 and "a" not in w.failed
+    assert json.loads((models / "a.json").read_text())["preview"] is False

@@ -34,7 +34,8 @@ landed for ``refine_idle_s`` seconds (:data:`REFINE_IDLE_S`: the operator has st
 sweeping, and a full model started then delays the next capture's preview by at most its
 own time). A preview that fails gives way to the full reconstruction; a full model that
 fails leaves the preview, says why on the page, and is tried again when the folder
-changes.
+changes (one that failed after its file had replaced the preview's takes the preview
+with it: the capture is listed as skipped, and made again by the next watch).
 
 A capture whose ``.json`` summary exists in ``MODELS`` counts as done (a restarted watcher
 carries on; a preview's summary queues its full reconstruction, ``--once`` too); a model
@@ -457,7 +458,7 @@ class Watcher:
         int
             The number of models written.
         """
-        made = 0
+        made = adopted = 0
         for folder in self._candidates():
             name = folder.name
             if name in self.failed:
@@ -467,6 +468,7 @@ class Watcher:
                 del self.failed[name]  # changed since it was reported: look again
             if self._done(name) and name not in self._waiting:
                 self._adopt(name, now=time.monotonic())
+                adopted += 1
                 continue
             state, why = capture_state(folder)
             now = time.monotonic()
@@ -481,10 +483,15 @@ class Watcher:
                 continue
             self._waiting.pop(name, None)
             self._busy_at = now
-            if self._model(folder, now, preview=self.preview_one is not None and not final):
+            # the folder as it was found complete: a refusal is looked at again once it differs
+            # (a writer that finishes while the reader refuses its half-written frame)
+            sig = _signature(folder)
+            if self._model(folder, now, preview=self.preview_one is not None and not final, sig=sig):
                 made += 1
             if self._interrupted:  # a Ctrl-C that something on the way swallowed: stop between captures
                 raise KeyboardInterrupt
+        if adopted and not made:  # an earlier watch's models: the page lists them as they are now
+            self._write_index()
         return made
 
     def _fail(self, folder: Path, problem: str, sig: tuple | None = None) -> None:
@@ -574,12 +581,14 @@ class Watcher:
                 self.previews[name] = found  # back in the queue, behind the others
             return False
         self._waiting.pop(name, None)
-        return self._model(folder, found, preview=False, refining=True)
+        return self._model(folder, found, preview=False, refining=True, sig=_signature(folder))
 
-    def _model(self, folder: Path, found: float, preview: bool = False, refining: bool = False) -> bool:
+    def _model(self, folder: Path, found: float, preview: bool = False, refining: bool = False,
+               sig: tuple | None = None) -> bool:
         """Reconstruct one capture (its preview, or its full model; ``refining``: the full
-        model that replaces its preview); a refused one is reported and remembered. A
-        preview that fails gives way to the full reconstruction at once."""
+        model that replaces its preview); a refused one is reported and remembered with the
+        folder's signature ``sig`` as it was found complete. A preview that fails gives way
+        to the full reconstruction at once."""
 
         name = folder.name
         out = self.models / f"{name}.reflecto"
@@ -592,32 +601,37 @@ class Watcher:
         def discard_half_written() -> None:
             # a model written without its summary is removed; where it replaced a preview whose summary
             # is still there, the preview's summary, model and thumbnail go too (they would contradict each
-            # other): the capture is made again by the next watch
+            # other), and its row: the capture is made again once its folder changes, or by the next watch
             if not had_summary:
                 if not summary_path.exists():
                     out.unlink(missing_ok=True)
             elif _stat(out) != before[0] and _stat(summary_path) == before[1]:
                 for p in (out, summary_path, self.models / "thumbs" / f"{name}.png"):
                     p.unlink(missing_ok=True)
+                self.entries.pop(name, None)
+                self.previews.pop(name, None)
 
         try:
             summary = make(folder, out)
         except ReflectoError as e:
+            discard_half_written()
             if make is not self.reconstruct_one:  # the preview failed: the full reconstruction may not
-                return self._model(folder, found)
-            self._fail(folder, one_line(e))
+                return self._model(folder, found, sig=sig)
+            self._fail(folder, one_line(e), sig)
             return False
         except MemoryError:
-            self._fail(folder, "out of memory (see docs/limits.md for the input limits)")
+            discard_half_written()
+            self._fail(folder, "out of memory (see docs/limits.md for the input limits)", sig)
             return False
         except OSError as e:
-            self._fail(folder, f"{e.filename or folder}: {one_line(e.strerror or e)}")
+            discard_half_written()
+            self._fail(folder, f"{e.filename or folder}: {one_line(e.strerror or e)}", sig)
             return False
         except Exception as e:  # a fault of one capture's reconstruction must not stop the watch
             discard_half_written()
             if interrupted(e):  # Ctrl-C inside a compiled kernel: an interrupt, not the capture's fault
                 raise KeyboardInterrupt from e
-            self._fail(folder, f"reconstruction failed ({type(e).__name__}: {one_line(e)})")
+            self._fail(folder, f"reconstruction failed ({type(e).__name__}: {one_line(e)})", sig)
             return False
         except BaseException:  # interrupted, possibly between the model and its summary
             discard_half_written()
@@ -631,6 +645,12 @@ class Watcher:
                     fh.write(png)
             except ReflectoError as e:
                 self.entries[name].warnings.append(f"no thumbnail ({one_line(e)})")
+            except OSError as e:  # a full disk: the model stands, without its sphere
+                self.entries[name].warnings.append(f"no thumbnail ({one_line(e.strerror or e)})")
+            except Exception as e:  # a fault of the renderer must not stop the watch either
+                if interrupted(e):
+                    raise KeyboardInterrupt from e
+                self.entries[name].warnings.append(f"no thumbnail ({type(e).__name__}: {one_line(e)})")
         self._write_index()
         done = time.monotonic()
         if refining:  # the full model after its preview
@@ -703,23 +723,22 @@ class Watcher:
         poll_s
             Seconds between scans.
         """
-        if once:
-            self.scan(final=True)
-            while self.previews:
-                self.refine(final=True)
-            return
-
         def interrupt(signum: int, frame: object) -> None:
             # remembered as well as raised: a compiled kernel that catches errors can swallow the
             # KeyboardInterrupt raised inside it, and the watch then stops after that capture
             self._interrupted = True
             raise KeyboardInterrupt
 
-        # a service manager's SIGTERM stops the watch as Ctrl-C does: between two files
+        # a service manager's SIGTERM stops the watch as Ctrl-C does: between two files (--once too)
         main = threading.current_thread() is threading.main_thread()
         previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)} if main else {}
-        self._live = True
+        self._live = not once
         try:
+            if once:
+                self.scan(final=True)
+                while self.previews:
+                    self.refine(final=True)
+                return
             while stop is None or not stop():
                 if self.scan():
                     continue
@@ -732,7 +751,7 @@ class Watcher:
                 time.sleep(poll_s)
         finally:
             self._live = False
-            try:  # the page left behind stops reloading itself
+            try:  # the page left behind: every model there is (an earlier watch's too), and no reload
                 if self.entries or self.failed:
                     self._write_index()
             except (ReflectoError, OSError):  # a page that cannot be written now keeps its reload, nothing worse

@@ -449,7 +449,8 @@ def slice_peaks(slices, valid: NDArray[np.bool_]) -> list[SlicePeak]:
         if n_valid < 100:
             continue
         idx = None if n_valid == len(view) else np.flatnonzero(valid[k])
-        y = (slices.values[k] if idx is None else slices.values[k, idx]) @ LUM
+        # C order, as a gathered copy is: the product then runs the same code whatever the layout
+        y = (np.ascontiguousarray(slices.values[k]) if idx is None else slices.values[k, idx]) @ LUM
         if not np.all(np.isfinite(y)):  # a value the usable samples would not hold: no peak to place
             continue
         med = float(np.median(y))
