@@ -31,6 +31,7 @@ from .. import _kernels, geometry
 from ..brdf import BRDFSource
 from ..errors import ParameterError
 from ..hemicube import hemicube
+from ..instrument.slices import finite_rgb
 from ..reconstruct.samples import bin_samples
 from .metrics import evaluate_on_grid, metric_grid
 
@@ -270,6 +271,6 @@ def fit_cook_torrance_capture(slices: Any) -> CookTorrance:
         The fitted model.
     """
 
-    ok = slices.valid & np.all(np.isfinite(slices.values), axis=-1)
+    ok = slices.valid & finite_rgb(slices.values)
     bins = bin_samples(slices.light, slices.view, slices.values, ok, hemicube(128))
     return fit_cook_torrance_samples(bins.i, bins.o, bins.f, bins.count)

@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..colour import LUM
-from ..instrument.slices import Slices
+from ..instrument.slices import Slices, finite_rgb
 from .tuning import REPEAT
 
 Array = NDArray[np.float64]
@@ -147,8 +147,8 @@ def repeat_checks(slices: Slices) -> list[RepeatCheck]:
     n_blocks = int(block.max()) + 1
     out = []
     for c, k in enumerate(slices.check_leds):
-        both = (slices.valid[k] & slices.check_valid[c] & np.all(np.isfinite(slices.values[k]), axis=-1)
-                & np.all(np.isfinite(slices.check_values[c]), axis=-1))  # a NaN pixel is no evidence
+        both = (slices.valid[k] & slices.check_valid[c] & finite_rgb(slices.values[k])
+                & finite_rgb(slices.check_values[c]))  # a NaN pixel is no evidence
         ya = (slices.values[k] @ LUM)[both]
         yb = (slices.check_values[c] @ LUM)[both]
         blk = block[both]
