@@ -643,3 +643,103 @@ def test_a_folder_finished_while_its_reading_failed_is_looked_at_again(sources: 
     assert w.scan() == 0 and len(lines) == 1 and "a" in w.failed
     assert w.scan() == 1 and len(calls) == 2 and "a" not in w.failed
     assert json.loads((models / "a.json").read_text())["preview"] is False
+
+
+def _copies(sources: list[Path], root: Path, n: int) -> list[str]:
+    root.mkdir()
+    names = [f"c{k}" for k in range(n)]
+    for k, name in enumerate(names):
+        shutil.copytree(sources[k % 2], root / name)
+    return names
+
+
+def test_full_models_made_in_worker_processes_are_the_same(sources: list[Path], reference: list[dict],
+                                                           tmp_path: Path) -> None:
+    """``jobs=2``: the previews are replaced two at a time by full models made in worker
+    processes, renamed into place here: the summaries ``reflecto reconstruct`` writes, the
+    thumbnails, no hidden file left."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    names = _copies(sources, root, 3)
+    w = Watcher(root, models, preview_one=default_previewer(), jobs=2)
+    assert w.scan() == 3 and list(w.previews) == names
+    assert w.refine() is True and list(w.previews) == ["c2"]  # two at once
+    assert w.refine() is True and not w.previews
+    for k, name in enumerate(names):
+        summary = json.loads((models / f"{name}.json").read_text())
+        assert {a: b for a, b in summary.items() if a not in VOLATILE} == \
+            {a: b for a, b in reference[k % 2].items() if a not in VOLATILE}
+        load_model(models / f"{name}.reflecto")
+        assert (models / "thumbs" / f"{name}.png").stat().st_size > 100 and name in w.full_latency
+    assert "<td>preview</td>" not in (models / "index.html").read_text()
+    assert not [p for p in models.iterdir() if p.name.startswith(".")]
+
+
+def test_a_worker_that_refuses_a_capture_leaves_its_preview(sources: list[Path], tmp_path: Path) -> None:
+    root, models = tmp_path / "root", tmp_path / "models"
+    _copies(sources, root, 2)
+    lines: list[str] = []
+    w = Watcher(root, models, preview_one=default_previewer(), thumbnails=False, report=lines.append, jobs=2)
+    assert w.scan() == 2
+    frame = root / "c1" / _frames(sources[1])[2]
+    bad = bytearray(frame.read_bytes())
+    bad[200] ^= 0x55
+    frame.write_bytes(bytes(bad))
+    assert w.refine() is True  # c0's full model
+    assert len(lines) == 1 and "c1" in lines[0] and "CRC" in lines[0]
+    assert json.loads((models / "c0.json").read_text())["preview"] is False
+    assert json.loads((models / "c1.json").read_text())["preview"] is True
+    assert any(x.startswith("no full model:") for x in w.entries["c1"].warnings)
+    assert not [p for p in models.iterdir() if p.name.startswith(".")]
+
+
+def test_an_interrupt_while_a_workers_model_is_renamed_into_place(sources: list[Path], tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """Between the model's rename and its summary's: the preview's files go (they would
+    describe another model), the hidden files too; the other capture keeps its preview."""
+    import reflecto.watch as watch
+
+    root, models = tmp_path / "root", tmp_path / "models"
+    _copies(sources, root, 2)
+    w = Watcher(root, models, preview_one=default_previewer(), thumbnails=False, jobs=2)
+    assert w.scan() == 2
+    rename, here = os.replace, os.getpid()
+
+    def interrupted_rename(a: Path, b: Path) -> None:
+        # this process's rename of a summary into place (the workers inherit the patch: they write as usual)
+        if os.getpid() == here and Path(b).parent == models and Path(b).suffix == ".json":
+            raise KeyboardInterrupt
+        rename(a, b)
+
+    monkeypatch.setattr(watch.os, "replace", interrupted_rename)
+    with pytest.raises(KeyboardInterrupt):
+        w.refine()
+    monkeypatch.setattr(watch.os, "replace", rename)
+    done = {p.name for p in models.iterdir() if p.is_file()}
+    assert "index.html" in done and not [n for n in done if n.startswith(".")]
+    first = sorted(n for n in ("c0", "c1") if f"{n}.reflecto" not in done)
+    assert len(first) == 1 and f"{first[0]}.json" not in done  # the one interrupted: made again later
+    other = ({"c0", "c1"} - set(first)).pop()
+    assert json.loads((models / f"{other}.json").read_text())["preview"] is True
+    Watcher(root, models, thumbnails=False, jobs=2).run(once=True)
+    assert all(json.loads((models / f"{n}.json").read_text())["preview"] is False for n in ("c0", "c1"))
+
+
+def test_jobs_must_be_a_positive_number(tmp_path: Path) -> None:
+    with pytest.raises(ReflectoError, match="jobs must be a positive number"):
+        Watcher(tmp_path, tmp_path / "m", jobs=0)
+
+
+def test_the_cli_replaces_previews_in_worker_processes(sources: list[Path], tmp_path: Path, capsys) -> None:
+    """``watch --once --jobs 2`` over an earlier watch's previews: full models made two at a time."""
+    from reflecto.cli import main
+
+    root, models = tmp_path / "root", tmp_path / "models"
+    _copies(sources, root, 2)
+    assert Watcher(root, models, preview_one=default_previewer(), thumbnails=False).scan() == 2
+    assert main(["watch", str(root), "-o", str(models), "--once", "--jobs", "2", "-q"]) == 0
+    assert all(json.loads((models / f"c{k}.json").read_text())["preview"] is False for k in range(2))
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main(["watch", str(root), "-o", str(models), "--once", "--jobs", "-1", "-q"])
+    assert e.value.code == 1
+    assert capsys.readouterr().err.strip().startswith("reflecto: error: argument --jobs: must be 0")

@@ -560,7 +560,8 @@ def cmd_watch(args: argparse.Namespace) -> int:
     previews = not args.no_preview and options.isotropic != "no"
     watcher = Watcher(args.root, args.output, recon, settle_s=args.settle,
                       announce=None if args.quiet and not args.json else _watch_announcer(args),
-                      preview_one=default_previewer(args.calibration, options, _missing(args)) if previews else None)
+                      preview_one=default_previewer(args.calibration, options, _missing(args)) if previews else None,
+                      jobs=args.jobs or os.cpu_count() or 1)
     watcher.run(once=args.once)
     return 1 if args.once and watcher.failed else 0
 
@@ -977,6 +978,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--no-preview", action="store_true",
                    help="make each capture's full model at once instead of a preview first (the full models then "
                         "fall behind a sweep at the device's rate)")
+    q.add_argument("--jobs", type=_JOBS, default=1,
+                   help="worker processes that replace the previews by full models, several at once, when the "
+                        "sweep pauses (default 1: one at a time in the watcher; 0: one per core)")
     q.add_argument("-q", "--quiet", action="store_true",
                    help="no line per modelled capture (problems are still reported)")
     q.add_argument("--json", action="store_true", help="one JSON object per modelled capture (JSON Lines) on stdout")

@@ -32,7 +32,9 @@ CPU) each capture first gets a preview model, summary (``"preview": true``) and 
 row; the full reconstruction replaces each preview, oldest first, once no capture has
 landed for ``refine_idle_s`` seconds (:data:`REFINE_IDLE_S`: the operator has stopped
 sweeping, and a full model started then delays the next capture's preview by at most its
-own time). A preview that fails gives way to the full reconstruction; a full model that
+own time; with ``jobs`` worker processes, ``watch --jobs N``, N full models at a time, each
+renamed into place here as its worker ends). A preview that fails gives way to the full
+reconstruction; a full model that
 fails leaves the preview, says why on the page, and is tried again when the folder
 changes (one that failed after its file had replaced the preview's takes the preview
 with it: the capture is listed as skipped, and made again by the next watch).
@@ -67,8 +69,9 @@ import cv2
 import numpy as np
 
 from . import workflow
+from .batch import run_batch
 from .brdf import BRDFSource
-from .errors import ReflectoError, interrupted, one_line
+from .errors import ParameterError, ReflectoError, interrupted, one_line
 from .fresnel import eta_from_json, format_eta
 from .instrument.capture import MANIFEST
 from .io import atomic_write, make_parents, read_json
@@ -136,6 +139,16 @@ class FolderReconstructor:
                                                    self.preview)
         self.last = (Path(out), result.model)
         return summary
+
+    def __getstate__(self) -> dict[str, Any]:
+        # sent to a worker process (``watch --jobs``) without the model it kept
+        return {**self.__dict__, "last": None}
+
+
+def _full_model(reconstruct_one: Reconstructor, cap_dir: Path, out: Path) -> dict:
+    """One full model in a worker process (:meth:`Watcher.refine` with ``jobs > 1``): the
+    model and its summary written to ``out`` (a hidden name the watcher renames)."""
+    return reconstruct_one(cap_dir, out)
 
 
 def default_reconstructor(calibration: str | None = None, options: Options | None = None,
@@ -387,13 +400,21 @@ class Watcher:
         first*); ``None``: every capture gets its full model at once.
     refine_idle_s
         Seconds without a new capture before previews are replaced by full models.
+    jobs
+        Worker processes that make the full models replacing the previews, several at once
+        (``reconstruct_one`` must then be picklable, as :class:`FolderReconstructor` is);
+        1: one at a time in this process.
     """
 
     def __init__(self, root: str | Path, models: str | Path, reconstruct_one: Reconstructor | None = None,
                  settle_s: float = SETTLE_S, report: Callable[[str], None] | None = None,
                  thumbnails: bool = True,
                  announce: Callable[[Entry, dict[str, Any], float], None] | None = None,
-                 preview_one: Reconstructor | None = None, refine_idle_s: float = REFINE_IDLE_S) -> None:
+                 preview_one: Reconstructor | None = None, refine_idle_s: float = REFINE_IDLE_S,
+                 jobs: int = 1) -> None:
+        if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+            raise ParameterError(f"watch: jobs must be a positive number of processes, got {jobs!r}")
+        self.jobs = jobs
         self.root = Path(root)
         self.models = Path(models)
         self.reconstruct_one = reconstruct_one or default_reconstructor()
@@ -563,25 +584,82 @@ class Watcher:
             Whether a full model was written (``False``: no preview waits, the capture waits
             for its writer, or it was refused and reported).
         """
-        if not self.previews:
-            return False
-        name = next(iter(self.previews))
-        found = self.previews.pop(name)
-        folder = self.root / name
-        state, why = capture_state(folder)
-        if state == WAITING:
-            now, sig = time.monotonic(), _signature(folder)
-            seen = self._waiting.get(name)
-            if seen is None or seen[0] != sig:
-                self._waiting[name] = (sig, now, why)
-            if final or now - self._waiting[name][1] >= self.settle_s:
-                held = "" if final else f" for {self.settle_s:g} s"
-                self._fail(folder, f"incomplete capture: {why} (unchanged{held})", sig)
+        batch = self._ready_previews(final)
+        if self.jobs == 1 or len(batch) == 1:
+            return any([self._model(self.root / name, found, preview=False, refining=True, sig=sig)
+                        for name, found, sig in batch])
+        return self._refine_in_workers(batch)
+
+    def _ready_previews(self, final: bool) -> list[tuple[str, float, tuple]]:
+        """The oldest previews whose folders are complete, at most :attr:`jobs` (name, when found,
+        the folder's signature); a folder being rewritten goes back to the end of the queue or,
+        incomplete and unchanged for ``settle_s`` (or at once with ``final``), is reported."""
+        batch: list[tuple[str, float, tuple]] = []
+        back: list[tuple[str, float]] = []
+        while self.previews and len(batch) < self.jobs:
+            name = next(iter(self.previews))
+            found = self.previews.pop(name)
+            folder = self.root / name
+            state, why = capture_state(folder)
+            sig = _signature(folder)
+            if state == WAITING:
+                now = time.monotonic()
+                seen = self._waiting.get(name)
+                if seen is None or seen[0] != sig:
+                    self._waiting[name] = (sig, now, why)
+                if final or now - self._waiting[name][1] >= self.settle_s:
+                    held = "" if final else f" for {self.settle_s:g} s"
+                    self._fail(folder, f"incomplete capture: {why} (unchanged{held})", sig)
+                else:
+                    back.append((name, found))
+                continue
+            self._waiting.pop(name, None)
+            batch.append((name, found, sig))
+        self.previews.update(back)  # behind the others
+        return batch
+
+    def _refine_in_workers(self, batch: list[tuple[str, float, tuple]]) -> bool:
+        """The full models of ``batch`` made in :attr:`jobs` worker processes
+        (:func:`reflecto.batch.run_batch`), each written under a hidden name and renamed into
+        place here, model first, as its worker ends (an interrupt between the two renames is
+        handled as in :meth:`_model`); the hidden files are removed whatever happens."""
+        hidden = [self.models / f".{name}.full.reflecto" for name, _, _ in batch]
+        made = []
+        make_parents(self.models)
+
+        def arrived(k: int, ok: bool, value: Any, seconds: float) -> None:
+            name, found, sig = batch[k]
+            folder = self.root / name
+            if not ok:  # the worker's one-line message (a refusal, or an internal error)
+                self._fail(folder, str(value), sig)
+            elif _signature(folder) != sig:  # rewritten meanwhile: made again from what is there now
+                self.previews[name] = found
             else:
-                self.previews[name] = found  # back in the queue, behind the others
-            return False
-        self._waiting.pop(name, None)
-        return self._model(folder, found, preview=False, refining=True, sig=_signature(folder))
+                made.append(self._install(name, found, value, hidden[k]))
+
+        try:
+            run_batch(_full_model, [(self.reconstruct_one, self.root / name, h) for (name, _, _), h in
+                                    zip(batch, hidden)], [name for name, _, _ in batch], self.jobs, arrived)
+        finally:
+            for h in hidden:
+                h.unlink(missing_ok=True)
+                h.with_suffix(".json").unlink(missing_ok=True)
+        return any(made)
+
+    def _install(self, name: str, found: float, summary: dict, hidden: Path) -> bool:
+        """Rename a full model made by a worker (``hidden`` and its summary) into place, then
+        thumbnail, page and announcement as :meth:`_model` does."""
+        out = self.models / f"{name}.reflecto"
+        summary_path = out.with_suffix(".json")
+        before = (_stat(out), _stat(summary_path))
+        try:
+            os.replace(hidden, out)
+            os.replace(hidden.with_suffix(".json"), summary_path)
+        except BaseException:
+            self._discard_half_written(name, True, before)
+            raise
+        self._finish(name, summary, out, found, True, None)
+        return True
 
     def _model(self, folder: Path, found: float, preview: bool = False, refining: bool = False,
                sig: tuple | None = None) -> bool:
@@ -598,49 +676,61 @@ class Watcher:
         make_parents(self.models)
         make = self.preview_one if preview and self.preview_one is not None else self.reconstruct_one
 
-        def discard_half_written() -> None:
-            # a model written without its summary is removed; where it replaced a preview whose summary
-            # is still there, the preview's summary, model and thumbnail go too (they would contradict each
-            # other), and its row: the capture is made again once its folder changes, or by the next watch
-            if not had_summary:
-                if not summary_path.exists():
-                    out.unlink(missing_ok=True)
-            elif _stat(out) != before[0] and _stat(summary_path) == before[1]:
-                for p in (out, summary_path, self.models / "thumbs" / f"{name}.png"):
-                    p.unlink(missing_ok=True)
-                self.entries.pop(name, None)
-                self.previews.pop(name, None)
-
         try:
             summary = make(folder, out)
         except ReflectoError as e:
-            discard_half_written()
+            self._discard_half_written(name, had_summary, before)
             if make is not self.reconstruct_one:  # the preview failed: the full reconstruction may not
                 return self._model(folder, found, sig=sig)
             self._fail(folder, one_line(e), sig)
             return False
         except MemoryError:
-            discard_half_written()
+            self._discard_half_written(name, had_summary, before)
             self._fail(folder, "out of memory (see docs/limits.md for the input limits)", sig)
             return False
         except OSError as e:
-            discard_half_written()
+            self._discard_half_written(name, had_summary, before)
             self._fail(folder, f"{e.filename or folder}: {one_line(e.strerror or e)}", sig)
             return False
         except Exception as e:  # a fault of one capture's reconstruction must not stop the watch
-            discard_half_written()
+            self._discard_half_written(name, had_summary, before)
             if interrupted(e):  # Ctrl-C inside a compiled kernel: an interrupt, not the capture's fault
                 raise KeyboardInterrupt from e
             self._fail(folder, f"reconstruction failed ({type(e).__name__}: {one_line(e)})", sig)
             return False
         except BaseException:  # interrupted, possibly between the model and its summary
-            discard_half_written()
+            self._discard_half_written(name, had_summary, before)
             raise
+        kept = getattr(make, "last", None)  # a FolderReconstructor's model: not read back
+        self._finish(name, summary, out, found, refining, kept[1] if isinstance(kept, tuple) and kept[0] == out
+                     else None)
+        return True
+
+    def _discard_half_written(self, name: str, had_summary: bool, before: tuple) -> None:
+        """After a failed or interrupted model of ``name``: a model written without its summary
+        is removed; where it replaced a preview whose summary (``before``: the model's and the
+        summary's stat) is still there, the preview's summary, model and thumbnail go too (they
+        would contradict each other), and its row: the capture is made again once its folder
+        changes, or by the next watch."""
+        out = self.models / f"{name}.reflecto"
+        summary_path = out.with_suffix(".json")
+        if not had_summary:
+            if not summary_path.exists():
+                out.unlink(missing_ok=True)
+        elif _stat(out) != before[0] and _stat(summary_path) == before[1]:
+            for p in (out, summary_path, self.models / "thumbs" / f"{name}.png"):
+                p.unlink(missing_ok=True)
+            self.entries.pop(name, None)
+            self.previews.pop(name, None)
+
+    def _finish(self, name: str, summary: dict, out: Path, found: float, refining: bool,
+                model: BRDFSource | None) -> None:
+        """A model and its summary written: the page's row, the thumbnail (of ``model``, or of the
+        file read back), the page, the latency and the announcement; a preview joins the queue."""
         self.entries[name] = self._entry(name, summary)
         if self.thumbnails:
             try:
-                kept = getattr(make, "last", None)  # a FolderReconstructor's model: not read back
-                png = thumbnail(kept[1] if isinstance(kept, tuple) and kept[0] == out else load_model(out))
+                png = thumbnail(model if model is not None else load_model(out))
                 with atomic_write(self.models / "thumbs" / f"{name}.png") as fh:
                     fh.write(png)
             except ReflectoError as e:
@@ -662,7 +752,6 @@ class Watcher:
             self.previews[name] = found
         if self.announce is not None:
             self.announce(self.entries[name], summary, done - found)
-        return True
 
     # ------------------------------------------------------------------ the page
     def _row(self, e: Entry, thumb: bool) -> str:
