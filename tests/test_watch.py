@@ -743,3 +743,30 @@ def test_the_cli_replaces_previews_in_worker_processes(sources: list[Path], tmp_
         main(["watch", str(root), "-o", str(models), "--once", "--jobs", "-1", "-q"])
     assert e.value.code == 1
     assert capsys.readouterr().err.strip().startswith("reflecto: error: argument --jobs: must be 0")
+
+
+def test_ctrl_c_to_the_process_group_stops_the_workers_quietly(sources: list[Path], tmp_path: Path) -> None:
+    """A terminal's Ctrl-C reaches the watcher and its worker processes: the workers ignore it,
+    the watcher stops them after the models running (exit 130, one line, no traceback), and
+    every capture keeps a model and its summary that agree, with no hidden file left."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    names = _copies(sources, root, 6)
+    assert Watcher(root, models, preview_one=default_previewer(), thumbnails=False).scan() == 6
+    proc = subprocess.Popen([sys.executable, "-m", "reflecto.cli", "watch", str(root), "-o", str(models), "--once",
+                             "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and all(json.loads((models / f"{n}.json").read_text())["preview"]
+                                                  for n in names):
+            time.sleep(0.01)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and "Traceback" not in err and err.strip().endswith("reflecto: interrupted")
+    previews = [json.loads((models / f"{n}.json").read_text())["preview"] for n in names]
+    assert False in previews and True in previews
+    for n in names:
+        load_model(models / f"{n}.reflecto")
+    assert not [p for p in models.iterdir() if p.name.startswith(".")]

@@ -81,14 +81,20 @@ class Progress:
             self.bar.close()
 
 
-def _watch_parent(parent: int) -> None:
+def _watch_parent(parent: int, ignore_interrupt: bool = False) -> None:
     """Pool initializer: end this worker as soon as its parent process is gone.
 
     Linux kills the worker when its parent dies (``PR_SET_PDEATHSIG``, SIGKILL, set
     by ``prctl``); elsewhere, and as a fallback, a thread polls ``os.getppid()``
     twice a second. Without this a SIGKILLed parent leaves its workers waiting on
-    their task queue for ever.
+    their task queue for ever. With ``ignore_interrupt`` the worker ignores SIGINT (a
+    terminal's Ctrl-C reaches the whole process group): its parent stops the batch, and
+    the item running ends first (no traceback from a worker interrupted while it waits);
+    SIGTERM ends it at once, as by default (a parent's handler is not inherited).
     """
+    if ignore_interrupt:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
@@ -125,7 +131,8 @@ def _guarded(fn: Callable[..., Any], args: tuple[Any, ...], label: str) -> tuple
 
 
 def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: Sequence[str], jobs: int,
-              on_result: Callable[[int, bool, Any, float], None], scheduler: str | None = None) -> None:
+              on_result: Callable[[int, bool, Any, float], None], scheduler: str | None = None,
+              ignore_interrupt: bool = False) -> None:
     """Run ``fn(*items[k])`` for every ``k``, in ``jobs`` worker processes (1: in this one),
     or on the Dask cluster whose scheduler listens at ``scheduler`` (:func:`run_on_dask`).
 
@@ -150,6 +157,9 @@ def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: 
         ``on_result(k, ok, value_or_message, seconds)``.
     scheduler
         A Dask scheduler's address, to run there instead.
+    ignore_interrupt
+        The worker processes ignore SIGINT (:func:`_watch_parent`): a Ctrl-C stops this
+        process, which waits for the items running to end.
     """
     if scheduler:
         run_on_dask(fn, items, labels, scheduler, on_result)
@@ -160,7 +170,7 @@ def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: 
         return
     unfinished: list[int] = []
     with ProcessPoolExecutor(max_workers=min(jobs, len(items)), initializer=_watch_parent,
-                             initargs=(os.getpid(),)) as ex:
+                             initargs=(os.getpid(), ignore_interrupt)) as ex:
         futs = {ex.submit(_guarded, fn, args, labels[k]): k for k, args in enumerate(items)}
         pending = set(futs)
         while pending:
@@ -172,7 +182,7 @@ def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: 
                     unfinished.append(futs[f])
                     continue
                 on_result(futs[f], *res)
-    _run_isolated(fn, items, labels, sorted(unfinished), jobs, on_result)
+    _run_isolated(fn, items, labels, sorted(unfinished), jobs, on_result, ignore_interrupt)
 
 
 #: How long (s) to try to reach a Dask scheduler before giving up.
@@ -235,14 +245,15 @@ def run_on_dask(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels
 
 
 def _run_isolated(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: Sequence[str], which: list[int],
-                  jobs: int, on_result: Callable[[int, bool, Any, float], None]) -> None:
+                  jobs: int, on_result: Callable[[int, bool, Any, float], None],
+                  ignore_interrupt: bool = False) -> None:
     """Run the items ``which`` each in a worker process of its own, ``jobs`` at a time."""
     queue = list(which)
     active: dict[Any, tuple[int, ProcessPoolExecutor, float]] = {}
     while queue or active:
         while queue and len(active) < jobs:
             k = queue.pop(0)
-            ex = ProcessPoolExecutor(max_workers=1, initializer=_watch_parent, initargs=(os.getpid(),))
+            ex = ProcessPoolExecutor(max_workers=1, initializer=_watch_parent, initargs=(os.getpid(), ignore_interrupt))
             active[ex.submit(_guarded, fn, items[k], labels[k])] = (k, ex, time.perf_counter())
         done, _ = wait(set(active), return_when=FIRST_COMPLETED)
         for f in done:

@@ -638,8 +638,8 @@ class Watcher:
                 made.append(self._install(name, found, value, hidden[k]))
 
         try:
-            run_batch(_full_model, [(self.reconstruct_one, self.root / name, h) for (name, _, _), h in
-                                    zip(batch, hidden)], [name for name, _, _ in batch], self.jobs, arrived)
+            items = [(self.reconstruct_one, self.root / name, h) for (name, _, _), h in zip(batch, hidden)]
+            run_batch(_full_model, items, [name for name, _, _ in batch], self.jobs, arrived, ignore_interrupt=True)
         finally:
             for h in hidden:
                 h.unlink(missing_ok=True)
