@@ -770,3 +770,9 @@ def test_ctrl_c_to_the_process_group_stops_the_workers_quietly(sources: list[Pat
     for n in names:
         load_model(models / f"{n}.reflecto")
     assert not [p for p in models.iterdir() if p.name.startswith(".")]
+
+
+def test_jobs_need_a_reconstruction_the_workers_can_take(tmp_path: Path) -> None:
+    with pytest.raises(ReflectoError, match="must be picklable"):
+        Watcher(tmp_path, tmp_path / "m", lambda c, o: {}, jobs=2)
+    Watcher(tmp_path, tmp_path / "m", lambda c, o: {}, jobs=1)  # in this process: anything callable

@@ -87,14 +87,15 @@ def _watch_parent(parent: int, ignore_interrupt: bool = False) -> None:
     Linux kills the worker when its parent dies (``PR_SET_PDEATHSIG``, SIGKILL, set
     by ``prctl``); elsewhere, and as a fallback, a thread polls ``os.getppid()``
     twice a second. Without this a SIGKILLed parent leaves its workers waiting on
-    their task queue for ever. With ``ignore_interrupt`` the worker ignores SIGINT (a
-    terminal's Ctrl-C reaches the whole process group): its parent stops the batch, and
-    the item running ends first (no traceback from a worker interrupted while it waits);
-    SIGTERM ends it at once, as by default (a parent's handler is not inherited).
+    their task queue for ever. With ``ignore_interrupt`` the worker ignores SIGINT and
+    SIGTERM (a terminal's Ctrl-C, or a service manager's SIGTERM, reaches the whole process
+    group): its parent stops the batch, and the item running ends whole first (no
+    traceback from a worker interrupted while it waits, no half-written file of one
+    killed while it writes).
     """
     if ignore_interrupt:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
@@ -158,8 +159,10 @@ def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: 
     scheduler
         A Dask scheduler's address, to run there instead.
     ignore_interrupt
-        The worker processes ignore SIGINT (:func:`_watch_parent`): a Ctrl-C stops this
-        process, which waits for the items running to end.
+        The worker processes ignore SIGINT and SIGTERM (:func:`_watch_parent`): a Ctrl-C
+        stops this process, which cancels the items not started and waits for the running
+        ones to end, with SIGINT and SIGTERM held meanwhile (a second Ctrl-C is taken once
+        the workers are gone: it cannot leave them running).
     """
     if scheduler:
         run_on_dask(fn, items, labels, scheduler, on_result)
@@ -169,8 +172,9 @@ def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: 
             on_result(k, *_guarded(fn, args, labels[k]))
         return
     unfinished: list[int] = []
-    with ProcessPoolExecutor(max_workers=min(jobs, len(items)), initializer=_watch_parent,
-                             initargs=(os.getpid(), ignore_interrupt)) as ex:
+    ex = ProcessPoolExecutor(max_workers=min(jobs, len(items)), initializer=_watch_parent,
+                             initargs=(os.getpid(), ignore_interrupt))
+    try:
         futs = {ex.submit(_guarded, fn, args, labels[k]): k for k, args in enumerate(items)}
         pending = set(futs)
         while pending:
@@ -182,7 +186,24 @@ def run_batch(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: 
                     unfinished.append(futs[f])
                     continue
                 on_result(futs[f], *res)
+    except BaseException:
+        _shut_down(ex, ignore_interrupt, cancel=True)
+        raise
+    _shut_down(ex, ignore_interrupt)
     _run_isolated(fn, items, labels, sorted(unfinished), jobs, on_result, ignore_interrupt)
+
+
+def _shut_down(ex: ProcessPoolExecutor, hold_signals: bool, cancel: bool = False) -> None:
+    """End a pool once its running items have ended (``cancel``: the queued ones dropped);
+    with ``hold_signals`` SIGINT and SIGTERM wait meanwhile (workers that ignore them
+    would otherwise outlive an interrupted wait)."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held) if hold_signals else None
+    try:
+        ex.shutdown(wait=True, cancel_futures=cancel)
+    finally:
+        if old is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 #: How long (s) to try to reach a Dask scheduler before giving up.

@@ -52,10 +52,12 @@ again).
 from __future__ import annotations
 
 import dataclasses
+import glob
 import html
 import json
 import math
 import os
+import pickle
 import signal
 import sys
 import threading
@@ -416,8 +418,15 @@ class Watcher:
             raise ParameterError(f"watch: jobs must be a positive number of processes, got {jobs!r}")
         self.jobs = jobs
         self.root = Path(root)
-        self.models = Path(models)
         self.reconstruct_one = reconstruct_one or default_reconstructor()
+        if jobs > 1:  # sent to the worker processes
+            try:
+                pickle.dumps(self.reconstruct_one)
+            except Exception as e:  # noqa: BLE001 — any pickling failure says the same
+                raise ParameterError(f"watch: with jobs > 1 the reconstruction must be picklable (a module-level "
+                                     f"function or a FolderReconstructor), not {self.reconstruct_one!r} "
+                                     f"({type(e).__name__})") from None
+        self.models = Path(models)
         self.preview_one = preview_one
         self.refine_idle_s = refine_idle_s
         self.settle_s = settle_s
@@ -624,12 +633,13 @@ class Watcher:
         place here, model first, as its worker ends (an interrupt between the two renames is
         handled as in :meth:`_model`); the hidden files are removed whatever happens."""
         hidden = [self.models / f".{name}.full.reflecto" for name, _, _ in batch]
-        made = []
+        made, handled = [], set()
         make_parents(self.models)
 
         def arrived(k: int, ok: bool, value: Any, seconds: float) -> None:
             name, found, sig = batch[k]
             folder = self.root / name
+            handled.add(name)
             if not ok:  # the worker's one-line message (a refusal, or an internal error)
                 self._fail(folder, str(value), sig)
             elif _signature(folder) != sig:  # rewritten meanwhile: made again from what is there now
@@ -639,11 +649,15 @@ class Watcher:
 
         try:
             items = [(self.reconstruct_one, self.root / name, h) for (name, _, _), h in zip(batch, hidden)]
-            run_batch(_full_model, items, [name for name, _, _ in batch], self.jobs, arrived, ignore_interrupt=True)
+            run_batch(_full_model, items, [str(self.root / name) for name, _, _ in batch], self.jobs, arrived,
+                      ignore_interrupt=True)
         finally:
-            for h in hidden:
-                h.unlink(missing_ok=True)
-                h.with_suffix(".json").unlink(missing_ok=True)
+            for name, found, _ in batch:  # the workers are gone: their hidden files, whole or not, go too
+                stem = glob.escape(f".{name}.full.")
+                for h in [*self.models.glob(stem + "*"), *self.models.glob("." + stem + "*")]:
+                    h.unlink(missing_ok=True)
+                if name not in handled and name not in self.failed:  # not made: still a preview
+                    self.previews.setdefault(name, found)
         return any(made)
 
     def _install(self, name: str, found: float, summary: dict, hidden: Path) -> bool:
