@@ -776,3 +776,30 @@ def test_jobs_need_a_reconstruction_the_workers_can_take(tmp_path: Path) -> None
     with pytest.raises(ReflectoError, match="must be picklable"):
         Watcher(tmp_path, tmp_path / "m", lambda c, o: {}, jobs=2)
     Watcher(tmp_path, tmp_path / "m", lambda c, o: {}, jobs=1)  # in this process: anything callable
+
+
+def test_a_workers_model_that_cannot_be_renamed_into_place_is_reported(sources: list[Path], tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """A rename refused by the file system (a full or read-only disk) is that capture's failure,
+    reported in one line as in the watcher's own process; the watch goes on."""
+    import reflecto.watch as watch
+
+    root, models = tmp_path / "root", tmp_path / "models"
+    _copies(sources, root, 2)
+    lines: list[str] = []
+    w = Watcher(root, models, preview_one=default_previewer(), thumbnails=False, report=lines.append, jobs=2)
+    assert w.scan() == 2
+    rename, here = os.replace, os.getpid()
+
+    def refused(a: Path, b: Path) -> None:
+        if os.getpid() == here and Path(b) == models / "c0.reflecto":
+            raise OSError(30, "Read-only file system", str(b))
+        rename(a, b)
+
+    monkeypatch.setattr(watch.os, "replace", refused)
+    assert w.refine() is True  # c1
+    monkeypatch.setattr(watch.os, "replace", rename)
+    assert len(lines) == 1 and "c0.reflecto: Read-only file system" in lines[0]
+    assert json.loads((models / "c0.json").read_text())["preview"] is True
+    assert json.loads((models / "c1.json").read_text())["preview"] is False
+    assert not [p for p in models.iterdir() if p.name.startswith(".")]

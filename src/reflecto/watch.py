@@ -503,13 +503,7 @@ class Watcher:
             state, why = capture_state(folder)
             now = time.monotonic()
             if state == WAITING:
-                sig = _signature(folder)
-                seen = self._waiting.get(name)
-                if seen is None or seen[0] != sig:
-                    self._waiting[name] = (sig, now, why)
-                if final or now - self._waiting[name][1] >= self.settle_s:
-                    held = "" if final else f" for {self.settle_s:g} s"
-                    self._fail(folder, f"incomplete capture: {why} (unchanged{held})", sig)
+                self._still_incomplete(folder, why, _signature(folder), final)
                 continue
             self._waiting.pop(name, None)
             self._busy_at = now
@@ -523,6 +517,20 @@ class Watcher:
         if adopted and not made:  # an earlier watch's models: the page lists them as they are now
             self._write_index()
         return made
+
+    def _still_incomplete(self, folder: Path, why: str, sig: tuple, final: bool) -> bool:
+        """An incomplete folder (``why``, its signature ``sig``): waited for while it changes,
+        reported once unchanged for ``settle_s`` seconds (at once with ``final``). Returns
+        whether it is still waited for."""
+        name, now = folder.name, time.monotonic()
+        seen = self._waiting.get(name)
+        if seen is None or seen[0] != sig:
+            self._waiting[name] = (sig, now, why)
+        if final or now - self._waiting[name][1] >= self.settle_s:
+            held = "" if final else f" for {self.settle_s:g} s"
+            self._fail(folder, f"incomplete capture: {why} (unchanged{held})", sig)
+            return False
+        return True
 
     def _fail(self, folder: Path, problem: str, sig: tuple | None = None) -> None:
         name = folder.name
@@ -612,14 +620,7 @@ class Watcher:
             state, why = capture_state(folder)
             sig = _signature(folder)
             if state == WAITING:
-                now = time.monotonic()
-                seen = self._waiting.get(name)
-                if seen is None or seen[0] != sig:
-                    self._waiting[name] = (sig, now, why)
-                if final or now - self._waiting[name][1] >= self.settle_s:
-                    held = "" if final else f" for {self.settle_s:g} s"
-                    self._fail(folder, f"incomplete capture: {why} (unchanged{held})", sig)
-                else:
+                if self._still_incomplete(folder, why, sig, final):
                     back.append((name, found))
                 continue
             self._waiting.pop(name, None)
@@ -669,6 +670,10 @@ class Watcher:
         try:
             os.replace(hidden, out)
             os.replace(hidden.with_suffix(".json"), summary_path)
+        except OSError as e:  # as a reconstruction in this process that cannot write its files
+            self._discard_half_written(name, True, before)
+            self._fail(self.root / name, f"{e.filename or out}: {one_line(e.strerror or e)}")
+            return False
         except BaseException:
             self._discard_half_written(name, True, before)
             raise
@@ -735,6 +740,7 @@ class Watcher:
             for p in (out, summary_path, self.models / "thumbs" / f"{name}.png"):
                 p.unlink(missing_ok=True)
             self.entries.pop(name, None)
+            self._rows.pop(name, None)
             self.previews.pop(name, None)
 
     def _finish(self, name: str, summary: dict, out: Path, found: float, refining: bool,
