@@ -201,6 +201,90 @@ def test_fresnel_tint_interpolates_holds_and_refuses_impossible_tables():
             FresnelTint(theta, values)
 
 
+def test_fresnel_tint_continues_the_trend_of_its_nodes_beyond_the_last():
+    from reflecto.fresnel import MAX_TINT, FresnelTint
+
+    values = [[1.0, 0.5, 0.0], [0.5, 1.0, 1.0]]
+    nodes = np.radians([30.0, 60.0])
+    held, trend = FresnelTint(nodes, values), FresnelTint(nodes, values, "trend")
+    inside = np.cos(np.radians([0.0, 30.0, 45.0, 60.0]))
+    assert np.allclose(trend(inside), held(inside), rtol=1e-12)  # the nodes and below: unchanged
+    td = np.radians([70.0, 80.0, 89.0])
+    u = np.minimum((math.cos(nodes[1]) - np.cos(td)) / (math.cos(nodes[0]) - math.cos(nodes[1])), 1.0)
+    assert 0 < u[0] < u[1] < 1 and u[2] == 1  # no further than the nodes' own span (0.37 in cos θ_d)
+    # τ_K r^u with r = τ_K/τ_1 per channel: R falls by half per unit of u, G doubles; B starts at 0, held
+    assert np.allclose(trend(np.cos(td)), np.stack([0.5 * 0.5 ** u, 2.0 ** u, np.ones(3)], 1), rtol=1e-12)
+    assert np.allclose(held(np.cos(td)), [[0.5, 1.0, 1.0]] * 3)
+    extreme = FresnelTint(np.radians([0.0, 1e-7]), [[1e-310, 1, 1], [4e6, 1, 1]], "trend")  # no span, huge ratio
+    assert np.all(np.isfinite(extreme(np.cos(np.radians([0.0, 45.0, 89.0])))))
+    steep = FresnelTint(nodes, [[1e-6, 1, 1], [MAX_TINT, 1, 1]], "trend")
+    assert steep(np.cos(np.radians(89.0)))[0] == MAX_TINT  # bounded
+    with pytest.raises(ParameterError, match="continuation"):
+        FresnelTint(nodes, values, "linear")
+    later = FresnelTint(nodes, values, "trend", trend_from=np.radians(75.0))  # held to 75°, the trend from there
+    assert np.allclose(later(np.cos(np.radians([60.0, 70.0, 75.0]))), [[0.5, 1.0, 1.0]] * 3)
+    u89 = (math.cos(np.radians(75.0)) - math.cos(np.radians(89.0))) / (math.cos(nodes[0]) - math.cos(nodes[1]))
+    assert np.allclose(later(math.cos(np.radians(89.0)))[1], 2.0 ** u89)
+    for bad in (dict(beyond="trend", trend_from=np.radians(50.0)), dict(trend_from=np.radians(70.0))):
+        with pytest.raises(ParameterError, match="trend_from"):
+            FresnelTint(nodes, values, **bad)
+
+
+def test_a_tint_that_continues_its_trend_round_trips_and_a_bad_form_is_refused(tmp_path):
+    import json
+    import zipfile
+
+    from reflecto.fresnel import FresnelTint
+    from reflecto.io import content_digest
+
+    src = _ggx(0.15)
+    th = polar_nodes()
+    ndf = (th, src.ndf(np.stack([np.sin(th), 0 * th, np.cos(th)], 1)))
+    tint = (np.radians([37.0, 67.0]), [[1.0, 0.6, 0.2], [0.5, 1.0, 1.0]])
+    m = IsotropicMicrofacetBRDF(ndf, 0.1, 0.8, 1.5, tint=FresnelTint(*tint, beyond="trend", trend_from=tint[0][-1]))
+    held = IsotropicMicrofacetBRDF(m.ndf_table, 0.1, 0.8, 1.5, tint=tint)
+    td = np.radians(80.0)
+    i, o = np.array([np.sin(td), 0.0, np.cos(td)]), np.array([-np.sin(td), 0.0, np.cos(td)])
+    ratio = (m.eval(i, o) - 0.1 / math.pi) / (held.eval(i, o) - 0.1 / math.pi)
+    u = (math.cos(np.radians(67.0)) - math.cos(td)) / (math.cos(np.radians(37.0)) - math.cos(np.radians(67.0)))
+    assert np.allclose(ratio, [0.5 ** u, (1 / 0.6) ** u, 5.0 ** u], rtol=1e-3)
+    path = m.save(tmp_path / "m.reflecto")
+    with zipfile.ZipFile(path) as z:
+        meta = json.loads(z.read("meta.json"))
+    assert meta["version"] == 6 and meta["tint_beyond"] == "trend"  # a version-5 reader refuses it
+    back = load_model(path)
+    assert back.tint.beyond == "trend" and back.tint.trend_from == m.tint.trend_from
+    assert np.array_equal(back.eval(i, o), m.eval(i, o))
+    assert back.parameters()["fresnel_tint"]["beyond the last node"] == "trend from 67.0°"
+    with zipfile.ZipFile(held.save(tmp_path / "h.reflecto")) as z:
+        assert "tint_beyond" not in json.loads(z.read("meta.json"))  # constant: the version-4 file as before
+    for bad, message in (("sideways", "invalid tint_beyond"), (None, None), (5, "needs model format version 6"),
+                         ({"tint_trend_from": "far"}, "invalid tint_trend_from"),
+                         ({"tint_trend_from": 0.1}, "between its last node")):
+        members = {n: zipfile.ZipFile(path).read(n) for n in zipfile.ZipFile(path).namelist()}
+        meta = json.loads(members["meta.json"])
+        if bad is None:  # a continuation without a tint
+            for name in ("tint", "tint_theta"):
+                members.pop(f"{name}.npy")
+                meta["arrays"].pop(name)
+            message = "without a Fresnel tint"
+        elif isinstance(bad, int):  # an older version that a version-5 reader would read without it
+            meta["version"] = bad
+        elif isinstance(bad, dict):
+            meta.update(bad)
+        else:
+            meta["tint_beyond"] = bad
+        meta.pop("sha256")
+        meta["sha256"] = content_digest(meta)
+        members["meta.json"] = json.dumps(meta).encode()
+        out = tmp_path / "bad.reflecto"
+        with zipfile.ZipFile(out, "w") as z:
+            for n, data in members.items():
+                z.writestr(n, data)
+        with pytest.raises(FileFormatError, match=message):
+            load_model(out)
+
+
 def test_tinted_model_evaluates_file_round_trips_and_refuses_a_damaged_tint(tmp_path):
 
     from reflecto.fresnel import fresnel
@@ -285,6 +369,26 @@ def test_a_tint_peak_between_fixed_angles_is_held_to_albedo_one(tmp_path):
     path = limited.save(tmp_path / "m.reflecto")
     with zipfile.ZipFile(path) as z:
         assert json.loads(z.read("meta.json"))["version"] == 4  # a version-3 reader refuses it
+
+
+def test_a_rising_trend_that_would_create_energy_is_held_instead_of_scaling_the_model():
+    """Continuing a rising tint toward grazing can push the albedo above 1; the trend is an
+    extrapolation, so it gives way (the tint held at its last node) rather than scaling the
+    model at every angle."""
+    from reflecto.fresnel import FresnelTint
+    from reflecto.reconstruct.pipeline import limit_energy, limit_energy_of_the_trend
+
+    th = polar_nodes()
+    ndf = (th, _ggx(0.1).ndf(np.stack([np.sin(th), 0 * th, np.cos(th)], 1)))
+    nodes, values = np.radians([38.0, 67.0]), [[0.3] * 3, [1.0] * 3]
+    rising = IsotropicMicrofacetBRDF(ndf, 0.5, 1.0, 1.5, tint=FresnelTint(nodes, values, "trend"))
+    assert rising.albedo(np.array([89.0])).max() > 1.05
+    assert limit_energy(rising)[1] < 0.95  # scaling would lower it everywhere
+    model, scale, albedo = limit_energy_of_the_trend(rising)
+    assert model.tint.beyond == "constant" and scale == 1.0 and albedo < 0.9
+    assert np.array_equal(model.tint.values, rising.tint.values) and model.kd[0] == 0.5
+    falling = IsotropicMicrofacetBRDF(ndf, 0.5, 1.0, 1.5, tint=FresnelTint(nodes, values[::-1], "trend"))
+    assert limit_energy_of_the_trend(falling)[0] is falling  # within 1: kept as it is
 
 
 def _ggx_lobe(alpha):

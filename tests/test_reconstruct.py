@@ -44,7 +44,8 @@ def test_cli_reconstruct_writes_model_and_summary(tmp_path):
     assert summary["eta"] == [1.8, 1.8, 1.8] and not summary["shake_detected"] and summary["isotropic"]
     assert abs(summary["ks"][0] - 0.9) < 0.02
     tint = summary["fresnel_tint"]  # a grey lobe: the tint, where there is one, is 1 within 2 %
-    assert tint is None or (len(tint["theta_d_deg"]) == len(tint["tau"]) and np.allclose(tint["tau"], 1, atol=0.02))
+    assert tint is None or (len(tint["theta_d_deg"]) == len(tint["tau"]) and np.allclose(tint["tau"], 1, atol=0.02)
+                            and tint["beyond"] == "trend")
     assert main(["reconstruct", str(tmp_path / "nothing"), "-o", str(tmp_path / "x.reflecto")]) == 1
     assert not (tmp_path / "x.reflecto").exists()
 

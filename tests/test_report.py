@@ -18,7 +18,7 @@ import pytest
 from conftest import require
 from reflecto.cli import main
 from reflecto.evaluate.report import write_index, write_report
-from reflecto.model import MicrofacetBRDF
+from reflecto.model import MicrofacetBRDF, load_model
 from reflecto.sources.analytic import AnalyticBRDF
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -97,3 +97,13 @@ def test_report_shows_the_specular_colour_of_a_fresnel_tint(tmp_path):
     page = write_report(model.save(tmp_path / "m.reflecto"), tmp_path / "r", render=False)
     text = page.read_text()
     assert "specular colour" in text and "[0.5, 0.25, 0.1]" in text and "67.0°" in text
+    assert "trend" not in text  # held beyond the last node: nothing to say
+    from reflecto.fresnel import FresnelTint
+
+    trend = MicrofacetBRDF.from_ndf_function(a.ndf, resolution=16, kd=a.kd, ks=0.5, eta=a.eta,
+                                             tint=FresnelTint(np.radians([38.0, 67.0]), [[1.0, 0.5, 0.2],
+                                                                                         [0.5, 1.0, 1.0]], "trend"))
+    back = load_model(trend.save(tmp_path / "t.reflecto"))  # a hemicube model keeps the continuation too
+    assert back.tint.beyond == "trend"
+    text = write_report(back.path, tmp_path / "t", render=False).read_text()
+    assert "beyond 67.0°: the nodes&#x27; trend continued" in text

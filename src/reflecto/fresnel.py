@@ -231,9 +231,20 @@ class FresnelTint:
 
     The colour of a specular reflection that changes with angle in a way one η's curve
     cannot (a metallic or colour-shifting paint, a coloured metal). ``τ`` is linear in
-    ``θ_d`` between its nodes and constant beyond the first and the last, so past the
-    largest ``θ_d`` the device observed the Fresnel curve keeps η's shape (eq. 4). The
-    product is clipped at 1 (:class:`FresnelTable`): a reflectance.
+    ``θ_d`` between its nodes and constant below the first. Beyond the last node
+    (``θ_K``, the largest ``θ_d`` at which the device saw the mirror direction) it is
+
+    - ``"constant"``: ``τ_K``, so the Fresnel curve keeps η's shape (eq. 4);
+    - ``"trend"``: ``τ_K`` up to ``θ_T = trend_from`` (≥ ``θ_K``: where the data that
+      fitted the tint end), then the departure from η's curve that the nodes measure,
+      continued log-linearly in ``cos θ_d``: ``τ_c(θ_d) = τ_{c,K} r_c^u`` with
+      ``r_c = τ_{c,K}/τ_{c,1}`` (1 where either is 0) and
+      ``u = min(1, (cos θ_T − cos θ_d)/(cos θ_1 − cos θ_K))``: no further than the nodes'
+      own span, so at most the change from the first node to the last once more (at
+      ``θ_d = 90°`` on the paper's layout, nodes ≈ 38° and 67°: ``u`` ≈ 0.97); at most
+      :data:`MAX_TINT`.
+
+    The product is clipped at 1 (:class:`FresnelTable`): a reflectance.
 
     Parameters
     ----------
@@ -241,11 +252,25 @@ class FresnelTint:
         The nodes ``θ_d`` (radians), increasing, in ``[0, π/2]``; shape ``(K,)``, ``K ≥ 2``.
     values
         ``τ`` at the nodes, shape ``(K, 3)``, each ≥ 0.
+    beyond
+        ``"constant"`` or ``"trend"`` (above).
+    trend_from
+        ``θ_T`` (radians) in ``[θ_K, π/2]``; ``None``: ``θ_K``. Only with ``"trend"``.
     """
 
-    def __init__(self, theta: ArrayLike, values: ArrayLike) -> None:
+    #: How ``τ`` continues beyond the last node.
+    BEYOND = ("constant", "trend")
+
+    def __init__(self, theta: ArrayLike, values: ArrayLike, beyond: str = "constant",
+                 trend_from: float | None = None) -> None:
         self.theta = np.asarray(theta, dtype=np.float64)
         self.values = np.asarray(values, dtype=np.float64)
+        if beyond not in self.BEYOND:
+            raise ParameterError(f"the Fresnel tint's continuation must be one of {self.BEYOND}, got {beyond!r}")
+        self.beyond = beyond
+        if trend_from is not None and beyond != "trend":
+            raise ParameterError("a Fresnel tint's trend_from needs beyond='trend'")
+        self.trend_from = None if trend_from is None else float(trend_from)
         if (self.theta.ndim != 1 or len(self.theta) < 2 or self.values.shape != (len(self.theta), 3)
                 or not np.all(np.isfinite(self.theta)) or not np.all(np.isfinite(self.values))):
             raise ParameterError("a Fresnel tint needs K >= 2 finite nodes and a (K, 3) table of finite values")
@@ -253,6 +278,8 @@ class FresnelTint:
             raise ParameterError("the Fresnel tint's nodes must increase within [0, pi/2]")
         if np.any(self.values < 0) or np.any(self.values > MAX_TINT):
             raise ParameterError(f"the Fresnel tint's values must lie in [0, {MAX_TINT:g}]")
+        if self.trend_from is not None and not self.theta[-1] <= self.trend_from <= math.pi / 2 + 1e-12:
+            raise ParameterError("the Fresnel tint's trend_from must lie between its last node and pi/2")
 
     def angles_deg(self) -> list[float]:
         """The nodes and the midpoints between them: where the tinted specular level can peak.
@@ -278,8 +305,24 @@ class FresnelTint:
         ndarray, shape ``c.shape + (3,)``
             The tint per RGB channel.
         """
-        th = np.arccos(np.minimum(np.abs(np.asarray(c, dtype=np.float64)), 1.0))
-        return np.stack([np.interp(th, self.theta, self.values[:, k]) for k in range(3)], axis=-1)
+        c = np.minimum(np.abs(np.asarray(c, dtype=np.float64)), 1.0)
+        th = np.arccos(c)
+        tau = np.stack([np.interp(th, self.theta, self.values[:, k]) for k in range(3)], axis=-1)
+        if self.beyond == "trend":
+            tau = np.minimum(tau * self._trend(c), MAX_TINT)
+        return tau
+
+    def _trend(self, c: Array) -> Array:
+        """``r_c^u`` beyond ``θ_T`` (``u`` at most 1), 1 elsewhere; shape ``c.shape + (3,)``."""
+        first, last = self.values[0], self.values[-1]
+        ok = (first > 0) & (last > 0)
+        log_r = np.where(ok, np.log(np.where(ok, last, 1.0)) - np.log(np.where(ok, first, 1.0)), 0.0)
+        span = math.cos(self.theta[0]) - math.cos(self.theta[-1])
+        if not span > 1e-9:  # nodes too close to measure a trend between them
+            return np.ones(np.shape(c) + (3,))
+        start = math.cos(self.theta[-1] if self.trend_from is None else self.trend_from)
+        u = np.minimum(np.maximum(start - c, 0.0) / span, 1.0)
+        return np.where(u[..., None] > 0, np.exp(u[..., None] * log_r), 1.0)
 
 
 class FresnelTable:

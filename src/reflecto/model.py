@@ -59,10 +59,11 @@ Array = NDArray[np.float64]
 
 #: Format identifier and version of reflecto model files.
 MODEL_FORMAT = "reflecto-model"
-#: The newest format version read; an isotropic model with an NDF per θ_d node is
-#: written as version 5, one with a Fresnel tint as version 4 (a reader of an older
-#: version would ignore their arrays), any other as version 3.
-MODEL_VERSION = 5
+#: The newest format version read; a model whose Fresnel tint continues its trend
+#: beyond the last node is written as version 6, an isotropic model with an NDF per
+#: θ_d node as version 5, one with a Fresnel tint as version 4 (a reader of an older
+#: version would ignore their arrays or keys), any other as version 3.
+MODEL_VERSION = 6
 MODEL_SUFFIX = ".reflecto"
 
 __all__ = ["MicrofacetBRDF", "IsotropicMicrofacetBRDF", "load_model", "MODEL_SUFFIX"]
@@ -97,6 +98,19 @@ def _tinted_fresnel(model, c: ArrayLike) -> Array:
     return f if model.tint is None else np.minimum(f * model.tint(c), 1.0)
 
 
+def _tint_meta(model) -> dict[str, Any]:
+    """The Fresnel tint's continuation beyond its last node for ``meta.json`` (none for ``"constant"``)."""
+    if model.tint is None or model.tint.beyond == "constant":
+        return {}
+    return {"tint_beyond": model.tint.beyond, **({} if model.tint.trend_from is None else
+                                                 {"tint_trend_from": model.tint.trend_from})}
+
+
+def _tint_version(model, version: int) -> int:
+    """The file version: 6 where the tint continues its trend (:func:`_tint_meta`), else ``version``."""
+    return 6 if _tint_meta(model) else version
+
+
 def _tint_arrays(model) -> dict[str, NDArray[Any]]:
     """The Fresnel tint's arrays of a model file (none without a tint)."""
     if model.tint is None:
@@ -104,17 +118,32 @@ def _tint_arrays(model) -> dict[str, NDArray[Any]]:
     return {"tint": model.tint.values.astype("<f8"), "tint_theta": model.tint.theta.astype("<f8")}
 
 
-def _tint_from_arrays(path: Path, arrays: dict[str, NDArray[Any]]) -> FresnelTint | None:
-    """The Fresnel tint of a model file's arrays, checked (``None`` when it has none)."""
+def _tint_from_arrays(path: Path, arrays: dict[str, NDArray[Any]], meta: dict[str, Any]) -> FresnelTint | None:
+    """The Fresnel tint of a model file's arrays and its continuation in ``meta``, checked
+    (``None`` when it has none)."""
     values, theta = arrays.get("tint"), arrays.get("tint_theta")
+    beyond = meta.get("tint_beyond", "constant")
+    if beyond not in FresnelTint.BEYOND:
+        raise FileFormatError(path, f"invalid tint_beyond {short_repr(beyond)} "
+                                    f"(one of {', '.join(FresnelTint.BEYOND)})")
+    if "tint_beyond" in meta and meta.get("version", 0) < 6:
+        raise FileFormatError(path, f"a Fresnel tint's continuation (tint_beyond) needs model format version 6, "
+                                    f"the file says {meta.get('version')}")
+    trend_from = meta.get("tint_trend_from")
+    if trend_from is not None and (beyond != "trend" or not isinstance(trend_from, (int, float))
+                                   or isinstance(trend_from, bool) or not math.isfinite(trend_from)):
+        raise FileFormatError(path, f"invalid tint_trend_from {short_repr(trend_from)} (a number of radians, "
+                                    "with tint_beyond \"trend\")")
     if values is None and theta is None:
+        if "tint_beyond" in meta:
+            raise FileFormatError(path, "tint_beyond without a Fresnel tint (tint.npy, tint_theta.npy)")
         return None
     if values is None or theta is None or values.dtype != np.dtype("<f8") or theta.dtype != np.dtype("<f8") \
             or theta.ndim != 1 or not 2 <= len(theta) <= MAX_TINT_NODES:
         raise FileFormatError(path, f"a Fresnel tint needs 2 to {MAX_TINT_NODES} float64 nodes (tint_theta.npy) "
                                     "and a table of as many RGB float64 rows (tint.npy)")
     try:
-        return FresnelTint(theta, values)
+        return FresnelTint(theta, values, beyond, trend_from)
     except ParameterError as e:
         raise FileFormatError(path, f"invalid Fresnel tint ({e})") from None
 
@@ -421,7 +450,7 @@ class MicrofacetBRDF(BRDFSource):
         path = Path(path)
         meta = {
             "format": MODEL_FORMAT,
-            "version": 4 if self.tint is not None else 3,
+            "version": _tint_version(self, 4 if self.tint is not None else 3),
             "ndf_kind": "hemicube",
             "resolution": self.cube.n,
             "kd": self.kd.tolist(),
@@ -429,6 +458,7 @@ class MicrofacetBRDF(BRDFSource):
             **eta_to_json(self.eta),
             "correlated": self.correlated,
             "metadata": self.metadata,
+            **_tint_meta(self),
         }
         arrays = {"ndf": self.ndf_values.astype("<f4"), **_tint_arrays(self)}
         try:
@@ -487,7 +517,7 @@ class MicrofacetBRDF(BRDFSource):
             raise FileFormatError(path, f"NDF array is {got}, expected (3·{n}²,) float32")
         try:
             model = cls(ndf, kd, ks, eta, normalize=False, correlated=correlated, metadata=metadata, path=path,
-                        tint=_tint_from_arrays(path, arrays))
+                        tint=_tint_from_arrays(path, arrays, meta))
         except ParameterError as e:
             raise FileFormatError(path, f"invalid model parameters ({e})") from None
         _check_model(path, model)
@@ -508,11 +538,15 @@ NDF_NORM_TOLERANCE = 1e-4
 
 
 def _tint_parameters(model) -> dict[str, Any]:
-    """``fresnel_tint`` for ``reflecto info``: ``τ`` per channel at its nodes (degrees), when there is a tint."""
+    """``fresnel_tint`` for ``reflecto info``: ``τ`` per channel at each node (keyed by its
+    angle in degrees) and ``"beyond the last node"``, the continuation, when there is a tint."""
     if model.tint is None:
         return {}
-    return {"fresnel_tint": {f"{math.degrees(t):.1f}°": np.round(v, 3).tolist()
-                             for t, v in zip(model.tint.theta, model.tint.values)}}
+    tint = model.tint
+    beyond = tint.beyond if tint.trend_from is None else f"{tint.beyond} from {math.degrees(tint.trend_from):.1f}°"
+    return {"fresnel_tint": {**{f"{math.degrees(t):.1f}°": np.round(v, 3).tolist()
+                                for t, v in zip(tint.theta, tint.values)},
+                             "beyond the last node": beyond}}
 
 
 def _lobe_term(ndf: IsotropicNDF, theta_h: Array, ci: Array, co: Array, correlated: bool, keep: NDArray[np.bool_]
@@ -1016,7 +1050,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         path = Path(path)
         meta = {
             "format": MODEL_FORMAT,
-            "version": 5 if self.lobes is not None else 4 if self.tint is not None else 3,
+            "version": _tint_version(self, 5 if self.lobes is not None else 4 if self.tint is not None else 3),
             "ndf_kind": "isotropic",
             "resolution": self.resolution,
             "kd": self.kd.tolist(),
@@ -1024,6 +1058,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
             **eta_to_json(self.eta),
             "correlated": self.correlated,
             "metadata": self.metadata,
+            **_tint_meta(self),
         }
         arrays = {"ndf": self.ndf_table.values.astype("<f4"), "ndf_theta": self.ndf_table.nodes.astype("<f8"),
                   **_tint_arrays(self)}
@@ -1056,7 +1091,7 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         try:
             ndf = IsotropicNDF(nodes, values.astype(np.float64), normalize=False)
             model = cls(ndf, kd, ks, eta, correlated=correlated, metadata=metadata, path=path,
-                        tint=_tint_from_arrays(path, arrays), lobes=_lobes_from_arrays(path, arrays, ndf))
+                        tint=_tint_from_arrays(path, arrays, meta), lobes=_lobes_from_arrays(path, arrays, ndf))
         except ParameterError as e:
             raise FileFormatError(path, f"invalid model parameters ({e})") from None
         _check_model(path, model)

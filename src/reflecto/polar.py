@@ -289,8 +289,8 @@ class NodeNDFs:
     """An isotropic NDF that changes with ``θ_d``: one normalized ``D_j(θ_h)`` per ``θ_d`` node.
 
     ``D(θ_h; θ_d) = Σ_j H_j(θ_d) D_j(θ_h)`` with ``H_j`` the hat functions of the
-    nodes, constant beyond the first and the last (the Fresnel tint's interpolation,
-    :class:`reflecto.fresnel.FresnelTint`). Each ``D_j`` is normalized (AR 1.2) and the
+    nodes, constant beyond the first and the last (the Fresnel tint's interpolation
+    between its nodes, :class:`reflecto.fresnel.FresnelTint`). Each ``D_j`` is normalized (AR 1.2) and the
     weights sum to 1, so ``∫ D(h; θ_d) cos θ_h dω_h = 1`` at every ``θ_d``; ``D`` is
     symmetric in ``i`` and ``o`` (``θ_h`` and ``θ_d`` are), so a BRDF built on it stays
     reciprocal.

@@ -357,7 +357,10 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
         **({} if model.tint is None else {
             "specular colour k_s·τ (R, G, B) at θ_d": "; ".join(
                 f"{np.degrees(t):.1f}°: {np.round(model.ks * v, 4).tolist()}"
-                for t, v in zip(model.tint.theta, model.tint.values))}),
+                for t, v in zip(model.tint.theta, model.tint.values))
+            + ("" if model.tint.beyond == "constant" else
+               f"; beyond {np.degrees(model.tint.trend_from or model.tint.theta[-1]):.1f}°: "
+               "the nodes' trend continued")}),
         "NDF": model.parameters().get("resolution", "isotropic" if model.isotropic else "anisotropic"),
         "max directional albedo": round(float(model.albedo(np.array(
             albedo_angles(model, (0.0, 30.0, 60.0, 80.0)))).max()), 4),

@@ -18,7 +18,7 @@ Then::
            S from the NDF (eq. 8), k_s ≤ 1 per channel
            the holes no rotation covered: microfacet synthesis       synthesis.py
     the symmetry test of eq. 3 on the merged data, with the model's S, F
-    albedo ≤ 1                                                       pipeline.limit_energy
+    albedo ≤ 1                                                       pipeline.limit_energy_of_the_trend
 
 η, k_d, k_s and S are fitted jointly over all captures: the bins of capture ``c``
 carry LED indices ``c·L … c·L + L − 1`` of one set of ``C·L`` lights in the sample
@@ -71,7 +71,7 @@ from .isotropic import fit_isotropic
 from .isotropy import CONDITIONAL_EXPLAINED, IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
 from .normal import MIN_PAIRS, estimate_normal_consistency, tilt_frame
-from .pipeline import Options, bound_notes, limit_energy, usable_samples
+from .pipeline import Options, bound_notes, held_tint_notes, limit_energy_of_the_trend, usable_samples
 from .samples import Bins, bin_samples, kd_bound
 from .synthesis import SynthesisFill, SynthesisOptions
 from .tuning import ASYMMETRIC
@@ -612,11 +612,13 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
                                         captures=len(captures))
     motion = ([detect_motion(c.slices, s, ok, False) for c, s, ok in zip(captures, sls, oks)]
               if opt.detect_shake else [MotionReport() for _ in captures])
-    model, scale, albedo = limit_energy(model, opt.energy_clamp)
+    built = model
+    model, scale, albedo = limit_energy_of_the_trend(model, opt.energy_clamp)
     synthesized = _cap_fraction(sb.cube, fill.synthesized_work) if fill else 0.0
     holes = _cap_fraction(sb.cube, fill.holes_work) if fill else 0.0
     return AsymmetricReconstruction(
         model, eta, [float(c.rotation_deg) for c in captures], normal, tests, symmetry, consistency, motion,
         synthesized, holes, fresnel_error, scale, albedo,
-        _notes(model, isotropic, ks_bound, eta, symmetry, scale, synthesized, holes), time.perf_counter() - t0,
+        _notes(model, isotropic, ks_bound, eta, symmetry, scale, synthesized, holes) + held_tint_notes(built, model),
+        time.perf_counter() - t0,
         fill, excluded)

@@ -91,6 +91,10 @@ OUTER_ITERATIONS = ISOTROPIC.outer_iterations
 LM_TOLERANCE = ISOTROPIC.lm_tolerance
 LM_MAX_ITERATIONS = ISOTROPIC.lm_max_iterations
 NODE_ROUNDS = ISOTROPIC.node_rounds
+#: How the Fresnel tint continues beyond its last node (:class:`reflecto.fresnel.FresnelTint`):
+#: a form, not a number; chosen on the tuning half by ``studies/tint_beyond.py``
+#: (docs/design/reconstruction.md, *Beyond the last node*).
+TINT_BEYOND = "trend"
 MIRROR_THETA_H = ISOTROPIC.mirror_theta_h
 
 
@@ -1007,16 +1011,18 @@ def tinted_scalars(fit: LuminanceFit, kd_max: Array | None = None, per_node: boo
     """``k_d``, ``k_s`` and the Fresnel tint per channel with the fitted ``D``, ``S`` and ``η``.
 
     The specular scale becomes a function of ``θ_d``, piecewise linear between the
-    nodes of :func:`tint_nodes` (where the data measure it) and constant beyond the
-    first and the last: per channel
+    nodes of :func:`tint_nodes` (where the data measure it) and, in this fit, constant
+    beyond the first and the last: per channel
 
     ``f_c = k_{d,c}/π + g_c(θ_d) F(θ_d; η) D S S / (4 cos θ_i cos θ_o)``,  ``g_c = Σ_j g_{c,j} H_j(θ_d)``
 
     (``H_j`` the hat functions of the nodes), fitted by linear least squares over the
     measured bins with the luminance fit's weights (eq. 10's), on the box
     ``0 ≤ g_{c,j} ≤ 1/F(θ_j; η)`` (the specular reflectance ``k_s F_c`` is at most 1)
-    and ``0 ≤ k_d ≤ k_d,max`` (:func:`channel_scalars`). Past the largest measured
-    ``θ_d`` the Fresnel curve keeps η's shape (eq. 4).
+    and ``0 ≤ k_d ≤ k_d,max`` (:func:`channel_scalars`). Past the last node the tint
+    continues as :data:`TINT_BEYOND` says (:class:`~reflecto.fresnel.FresnelTint`): the
+    fit's bins there are fitted with the last node's value, so a trend starts where they
+    end (``trend_from``: about a degree past the last node on the paper's layout).
 
     Where there are two nodes or more (and ``per_node``), ``D`` is the lobe's per node
     (:func:`node_ndfs`) and interpolated between them as the tint is.
@@ -1047,7 +1053,9 @@ def tinted_scalars(fit: LuminanceFit, kd_max: Array | None = None, per_node: boo
     if len(nodes) < 2:
         return kd, ks, None, None
     tau = np.divide(g, ks, out=np.ones_like(g), where=ks > 0)
-    return kd, ks, FresnelTint(nodes, np.clip(tau, 0.0, MAX_TINT)), lobes
+    # the trend starts where the bins this fit held at the last node's value end
+    trend_from = max(float(nodes[-1]), float(td.max())) if TINT_BEYOND == "trend" else None
+    return kd, ks, FresnelTint(nodes, np.clip(tau, 0.0, MAX_TINT), TINT_BEYOND, trend_from), lobes
 
 
 def _box_least_squares(m: Array, v: Array, xb: tuple[float, float], yb: tuple[float, float]) -> tuple[float, float]:

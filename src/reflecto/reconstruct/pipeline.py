@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from .. import geometry
 from ..brdf import albedo_angles
 from ..errors import ParameterError, ReflectoError
-from ..fresnel import eta_to_json, is_constant
+from ..fresnel import FresnelTint, eta_to_json, is_constant
 from ..instrument.slices import Slices, check_slices, finite_rgb
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
 from .extrapolation import ShadowingChoice, choose_shadowing
@@ -61,7 +61,7 @@ from .tuning import PIPELINE
 Array = NDArray[np.float64]
 
 __all__ = ["Options", "Reconstruction", "FitSeconds", "reconstruct", "usable_samples", "estimate_frame",
-           "limit_energy"]
+           "limit_energy", "limit_energy_of_the_trend"]
 
 #: Incidence angles (degrees) at which the albedo is checked against 1.
 ALBEDO_ANGLES = PIPELINE.albedo_angles
@@ -294,8 +294,10 @@ class Reconstruction:
         -------
         dict
             ``isotropic``; ``fresnel`` and ``eta`` (:func:`reflecto.fresnel.eta_to_json`);
-            ``kd``, ``ks`` (RGB lists); ``fresnel_tint`` (``theta_d_deg``, the nodes, and ``tau``,
-            one RGB row per node; ``None`` without a tint); ``normal`` (unit vector, device frame),
+            ``kd``, ``ks`` (RGB lists); ``fresnel_tint`` (``theta_d_deg``, the nodes, ``tau``,
+            one RGB row per node, ``beyond``, its continuation past the last node, and
+            ``trend_from_deg``, :class:`reflecto.fresnel.FresnelTint`; ``None`` without a tint);
+            ``normal`` (unit vector, device frame),
             ``normal_tilt_deg``, ``normal_uncertainty_deg`` (degrees), ``normal_source``;
             ``isotropy_test`` (:meth:`IsotropyTest.to_dict`); the motion cues
             (:meth:`MotionReport.to_dict`: ``shake_detected``, …); ``shadowing``
@@ -309,7 +311,9 @@ class Reconstruction:
         return {"isotropic": self.isotropic, **eta_to_json(self.model.eta), "kd": self.model.kd.tolist(),
                 "ks": self.model.ks.tolist(),
                 "fresnel_tint": None if tint is None else {"theta_d_deg": np.degrees(tint.theta).tolist(),
-                                                           "tau": tint.values.tolist()},
+                                                           "tau": tint.values.tolist(), "beyond": tint.beyond,
+                                                           "trend_from_deg": None if tint.trend_from is None
+                                                           else math.degrees(tint.trend_from)},
                 "normal": self.frame[2].tolist(), "normal_tilt_deg": self.normal_tilt_deg,
                 "normal_uncertainty_deg": nan(self.normal_uncertainty_deg), "normal_source": self.normal_source,
                 "isotropy_test": self.isotropy.to_dict(), **self.motion.to_dict(),
@@ -594,6 +598,62 @@ def limit_energy(model: IsotropicMicrofacetBRDF | MicrofacetBRDF, clamp: bool = 
     return model.scaled(scale), scale, 1.0
 
 
+def limit_energy_of_the_trend(model: IsotropicMicrofacetBRDF | MicrofacetBRDF, clamp: bool = True
+                              ) -> tuple[IsotropicMicrofacetBRDF | MicrofacetBRDF, float, float]:
+    """:func:`limit_energy`, holding the Fresnel tint beyond its last node where continuing
+    its trend (:class:`reflecto.fresnel.FresnelTint`, ``"trend"``) alone is what would make
+    the surface reflect more than it receives.
+
+    The trend is an extrapolation into the grazing band the device does not observe; a
+    scale that it alone forces would lower the model at every angle, the observed ones
+    included. So where :func:`limit_energy` must scale a model whose tint continues its
+    trend and the same model with the tint held at its last node's value (``"constant"``)
+    needs no scaling, the held one is kept; otherwise the trend is kept and scaled.
+
+    Parameters
+    ----------
+    model
+        The fitted BRDF.
+    clamp
+        Whether to scale (:func:`limit_energy`).
+
+    Returns
+    -------
+    tuple of (model, float, float)
+        As :func:`limit_energy`.
+    """
+    limited = limit_energy(model, clamp)
+    tint = model.tint
+    if limited[1] >= 1.0 or tint is None or tint.beyond == "constant" or not isinstance(model, IsotropicMicrofacetBRDF):
+        return limited
+    held = IsotropicMicrofacetBRDF(model.ndf_table, model.kd, model.ks, model.eta, normalize=False,
+                                   correlated=model.correlated, metadata=model.metadata,
+                                   tint=FresnelTint(tint.theta, tint.values), lobes=model.lobes)
+    other = limit_energy(held, clamp)
+    return other if other[1] == 1.0 else limited
+
+
+def held_tint_notes(built, model) -> list[str]:
+    """A note where :func:`limit_energy_of_the_trend` held the Fresnel tint beyond its last node.
+
+    Parameters
+    ----------
+    built
+        The model before the energy limit.
+    model
+        The model after it.
+
+    Returns
+    -------
+    list of str
+        One note, or none.
+    """
+    if built.tint is None or model.tint is None or built.tint.beyond == model.tint.beyond:
+        return []
+    return [f"Fresnel tint held beyond its last node (θ_d {math.degrees(model.tint.theta[-1]):.1f}°): "
+            "continuing its trend toward grazing would reflect more light than the surface receives"]
+
+
 def _choose_isotropic(option: str, test: IsotropyTest) -> bool:
     return option == "yes" or (option == "auto" and test.isotropic)
 
@@ -742,9 +802,9 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     if isinstance(fit, HemicubeFit):
         motion.excluded_leds = fit.excluded_leds
     cpu.motion = lap()
-    model, scale, albedo = limit_energy(built, opt.energy_clamp)
+    model, scale, albedo = limit_energy_of_the_trend(built, opt.energy_clamp)
     notes = _normal_notes(est, opt, isotropic) + _hidden_peak_notes(hidden)
-    notes += _notes(fit, model, isotropic, test, scale)
+    notes += _notes(fit, model, isotropic, test, scale) + held_tint_notes(built, model)
     shadowing_note = None if shadowing is None else shadowing.note()
     if shadowing_note:
         notes.append(shadowing_note)
