@@ -341,8 +341,18 @@ def test_tint_nodes_stand_where_a_slice_holds_the_mirror_direction():
     info = np.r_[np.ones(100), np.full(100, 1e-3)]
     assert np.allclose(np.degrees(isotropic.tint_nodes(td, th, info, led)), [38, 67], atol=0.2)
     # LED 2 sees only the flank (θ_h ≥ 20°): no node of its own, whatever its θ_d
+    # a broad lobe: the spreads overlap, but the two LEDs still measure the scale's slope
     broad = np.radians(np.r_[rng.normal(40, 15, 50), rng.normal(50, 15, 50)])
-    assert len(isotropic.tint_nodes(broad, th[:100], np.ones(100), led[:100])) == 1  # the spreads overlap: pooled
+    assert np.allclose(np.degrees(isotropic.tint_nodes(broad, th[:100], np.ones(100), led[:100])),
+                       np.degrees([broad[:50].mean(), broad[50:].mean()]))
+    same = np.radians(np.r_[rng.normal(50, 15, 50), rng.normal(50.5, 15, 50)])
+    same[50:] += same[:50].mean() - same[50:].mean() + np.radians(0.5)  # means 0.5° apart: one θ_d cell
+    assert len(isotropic.tint_nodes(same, th[:100], np.ones(100), led[:100])) == 1
+    # five LEDs whose spreads overlap pairwise chain across 24°: pooled into two nodes, not one
+    means, spreads = [49.1, 56.2, 57.5, 65.9, 73.3], [9.7, 8.8, 8.7, 7.6, 6.6]
+    chain = np.radians(np.concatenate([m + s * rng.standard_normal(200) for m, s in zip(means, spreads)]))
+    nodes = np.degrees(isotropic.tint_nodes(chain, np.zeros(1000), np.ones(1000), np.repeat(np.arange(5), 200)))
+    assert len(nodes) == 2 and nodes[0] < 57 < 65 < nodes[1]
     assert len(isotropic.tint_nodes(td[100:], th[100:], info[100:], led[100:])) == 0  # no mirror direction
 
 

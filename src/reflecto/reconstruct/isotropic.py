@@ -879,10 +879,15 @@ def tint_nodes(theta_d: Array, theta_h: Array, information: Array, led: NDArray[
     extrapolates, and sets no node (its bins still enter the fit). Clusters whose
     means lie closer than the sum of their spreads measure the same part of the
     Fresnel curve and are pooled (closest first), so nodes stand only where the data
-    tell the scale at one ``θ_d`` from the scale at another.
+    tell the scale at one ``θ_d`` from the scale at another. The pooling stops at two
+    clusters whose means are more than a ``θ_d`` cell (:data:`TD_STEP`) apart: LEDs
+    that overlap pairwise can chain across tens of degrees (a broad lobe on a layout
+    with many LEDs: means 49°, 56°, 58°, 66°, 73°, spreads 7–10°), and the bins of the
+    whole chain still measure the scale's slope across it, which one node would drop.
 
-    Returns the nodes (radians, increasing; one node, or none where no slice holds the
-    mirror direction: the tint is constant).
+    Returns the nodes (radians, increasing; one node where every LED that holds the
+    mirror direction measures the same ``θ_d`` cell, or none where no slice holds it:
+    the tint is constant).
     """
     return np.array([mean for mean, _ in tint_clusters(theta_d, theta_h, information, led)])
 
@@ -906,7 +911,7 @@ def tint_clusters(theta_d: Array, theta_h: Array, information: Array,
         spread = [math.sqrt(max(c[2] - c[1] ** 2, 0.0)) for c in clusters]
         gaps = [clusters[i + 1][1] - clusters[i][1] - spread[i] - spread[i + 1] for i in range(len(clusters) - 1)]
         i = int(np.argmin(gaps))
-        if gaps[i] > 0:
+        if gaps[i] > 0 or (len(clusters) == 2 and clusters[1][1] - clusters[0][1] > TD_STEP):
             break
         a, b = clusters[i], clusters[i + 1]
         total = a[0] + b[0]
