@@ -67,6 +67,25 @@ def test_rgl_with_one_flipped_byte_is_refused_by_tabulate_export_and_info(shared
     assert sorted(p.name for p in tmp_path.iterdir()) == ["flipped.bsdf"]
 
 
+@pytest.mark.parametrize("value, refused", [(1e9, True), (100.0, False)])
+def test_a_damaged_node_of_a_large_ndf_table_is_found_by_its_bound(tmp_path, value, refused):
+    """Tables of more than 2¹⁶ (sigma, ndf) node pairs: an ``ndf`` node is evaluated where
+    ``max(rgb) · D / (4 min σ)`` could exceed the bound, and one below it cannot."""
+    from reflecto.export.rgl import export_rgl, write_tensor_file
+    from reflecto.sources.rgl import RGLBRDF, read_tensor_file
+
+    good = export_rgl(AnalyticBRDF(distribution="ggx", alpha=0.2, kd=0.3, ks=0.5, eta=1.5), tmp_path / "good.bsdf")
+    fields = {k: np.array(v) for k, v in read_tensor_file(good).items()}
+    assert fields["sigma"].size * fields["ndf"].size > 1 << 16
+    fields["ndf"][1, 1500] = value  # a half vector 12° from the normal
+    bad = write_tensor_file(tmp_path / "node.bsdf", fields)
+    if refused:
+        with pytest.raises(FileFormatError, match=r"node\.bsdf: its tables: f·cos θ_i·cos θ_o reaches"):
+            RGLBRDF(bad)
+    else:
+        assert RGLBRDF(bad).projected_at_nodes().max() < brdf.MAX_PROJECTED_BRDF
+
+
 def test_every_shared_rgl_file_passes_its_table_checks(shared):
     from reflecto.sources.rgl import RGLBRDF
 

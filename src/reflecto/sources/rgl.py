@@ -28,7 +28,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..brdf import ALBEDO_RANGE, BRDFSource, Reader, check_plausible, check_projected, read_file_bytes, register_reader
+from ..brdf import (
+    ALBEDO_RANGE,
+    MAX_PROJECTED_BRDF,
+    BRDFSource,
+    Reader,
+    check_plausible,
+    check_projected,
+    read_file_bytes,
+    register_reader,
+)
 from ..errors import FileFormatError
 
 Array = NDArray[np.float64]
@@ -495,25 +504,37 @@ class RGLBRDF(BRDFSource):
 
     def _ndf_sigma_pairs(self) -> tuple[Array, Array]:
         """Direction pairs at every node of the ``sigma`` (incident) and ``ndf`` (half-vector)
-        tables, each with each: where a damaged node of those tables shows."""
+        tables, each with each: where a damaged node of those tables shows.
 
-        def directions(table: Marginal2D) -> Array:
+        Where that is more than 2¹⁶ pairs, each ``sigma`` node meets the 32 densest half
+        vectors, and an ``ndf`` node ``m`` is visited, by its retro-reflection pair
+        ``i = o = m`` (whose half vector is ``m`` itself), only where its value could
+        exceed :data:`~reflecto.brdf.MAX_PROJECTED_BRDF`: ``f·cos θ_i·cos θ_o =
+        rgb · D(m) / (4 σ(i)) · cos θ_i`` is at most ``max(rgb) · D(m) / (4 min σ)``
+        (the plugin's bilinear lookups stay within their nodes' range), so a node below
+        that bound cannot give a value the check refuses, at any incidence. An anisotropic
+        export's 2048² ``ndf`` table then costs a few pairs instead of 33 million.
+        """
+
+        def directions(table: Marginal2D, nodes: NDArray[np.intp] | None = None) -> Array:
+            """Directions of the table's nodes (all, or the flat indices ``nodes``)."""
             h, w = table.h, table.w
-            yy, xx = np.meshgrid(np.linspace(0, 1, h), np.linspace(0, 1, w), indexing="ij")
-            theta = xx.ravel() ** 2 * (0.5 * math.pi)
-            phi = yy.ravel() * (2 * math.pi) - math.pi
+            flat = np.arange(h * w) if nodes is None else nodes
+            theta = (flat % w / (w - 1)) ** 2 * (0.5 * math.pi)
+            phi = (flat // w / (h - 1)) * (2 * math.pi) - math.pi
             return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
 
-        wi, m = directions(self._sigma), directions(self._ndf)
-        if len(wi) * len(m) > 1 << 16:
-            # every node of each table, with a few of the other's: the ndf nodes under 8
-            # incident directions, the sigma nodes with the 32 densest half vectors
+        wi = directions(self._sigma)
+        if len(wi) * self._ndf.h * self._ndf.w > 1 << 16:
             ndf_values = np.asarray(self._ndf.data, dtype=np.float64).reshape(-1)
-            some_wi = wi[np.linspace(0, len(wi) - 1, 8).astype(np.intp)]
-            top_m = m[np.argsort(ndf_values)[-32:]]
-            i = np.concatenate([np.repeat(some_wi, len(m), 0), np.repeat(wi, len(top_m), 0)])
-            mm = np.concatenate([np.tile(m, (len(some_wi), 1)), np.tile(top_m, (len(wi), 1))])
+            top_m = directions(self._ndf, np.argpartition(ndf_values, len(ndf_values) - 32)[-32:])
+            rgb_max = max(float(np.max(t.data)) for t in self._rgb)
+            bound = rgb_max * ndf_values / (4.0 * float(np.min(self._sigma.data)))
+            near = directions(self._ndf, np.flatnonzero(bound > MAX_PROJECTED_BRDF))
+            i = np.concatenate([near, np.repeat(wi, len(top_m), 0)])
+            mm = np.concatenate([near, np.tile(top_m, (len(wi), 1))])
         else:
+            m = directions(self._ndf)
             i = np.repeat(wi, len(m), 0)
             mm = np.tile(m, (len(wi), 1))
         o = 2.0 * np.sum(i * mm, -1)[:, None] * mm - i
