@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import html
 import math
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -41,8 +42,7 @@ from ..io import atomic_path, atomic_write, read_json
 from ..load import load_source
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF, load_model
 from ..plotting import pyplot, save_figure
-from ..render.mitsuba import compare, comparison_image, default_envmap, titled, to_srgb8
-from ..render.mitsuba import render as mi_render
+from ..render.mitsuba import bsdf_file, compare_files, comparison_image, default_envmap, render_file, titled, to_srgb8
 from .metrics import brdf_error
 from .viewer import write_viewer
 
@@ -285,16 +285,28 @@ def render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, ref: BRDFSou
         (``sphere-env``, ``sphere-point``; empty without a reference).
     """
 
+    with tempfile.TemporaryDirectory(prefix="reflecto-report-") as tmp:  # each BRDF exported once for both scenes
+        folder = Path(tmp)
+        (folder / "model").mkdir()
+        (folder / "ref").mkdir()
+        model_file = bsdf_file(model, folder / "model")
+        ref_file = None if ref is None else bsdf_file(ref, folder / "ref")
+        return _render_figures(model, model_file, ref, ref_file, out, spp)
+
+
+def _render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, model_file: Path, ref: BRDFSource | None,
+                    ref_file: Path | None, out: Path, spp: int | None
+                    ) -> tuple[list[tuple[str, str]], dict[str, Any]]:
     items, comparisons = [], {}
     for scene, what in (("sphere-env", "Sphere under the studio map"),
                         ("sphere-point", "Sphere under a key and a fill point light")):
-        if ref is None:
-            r = mi_render(model, scene, spp=spp)
+        if ref is None or ref_file is None:
+            r = render_file(model_file, scene, spp=spp)
             items.append((_save_png(titled(to_srgb8(r.image()), f"model {model.name}: {what.lower()}"),
                                     out / f"render_{scene}.png"),
                           f"{what} (Mitsuba 3, {r.variant}, {r.spp} spp)."))
             continue
-        c = comparisons[scene] = compare(ref, model, scene, spp=spp)
+        c = comparisons[scene] = compare_files(ref_file, model_file, scene, spp=spp)
         items.append((_save_png(titled(to_srgb8(c.test.image()), f"model {model.name}: {what.lower()}"),
                                 out / f"render_{scene}.png"),
                       f"{what} (Mitsuba 3, {c.test.variant}, {c.test.spp} spp)."))

@@ -641,10 +641,37 @@ def compare(reference: BRDFSource, test: BRDFSource, scene: str = "sphere-env", 
         folder = Path(tmp)
         (folder / "t").mkdir()
         (folder / "r").mkdir()
-        t_path, r_path = bsdf_file(test, folder / "t"), bsdf_file(reference, folder / "r")
-        t = render_file(t_path, scene, envmap, resolution, spp, seed)
-        r = render_file(r_path, scene, envmap, resolution, spp, seed + 1)
-        r2 = render_file(r_path, scene, envmap, resolution, spp, seed + 2)
+        return compare_files(bsdf_file(reference, folder / "r"), bsdf_file(test, folder / "t"), scene, envmap,
+                             resolution, spp, seed, smoothing)
+
+
+def compare_files(reference: Path, test: Path, scene: str = "sphere-env", envmap: str | Path | None = None,
+                  resolution: int = 256, spp: int | None = None, seed: int = 0,
+                  smoothing: float = SMOOTHING_PX) -> Comparison:
+    """:func:`compare` of two RGL files (:func:`bsdf_file`): several scenes of the same pair
+    need each file written once.
+
+    Parameters
+    ----------
+    reference, test
+        The ``.bsdf`` files to render.
+    scene, envmap, resolution, spp, seed, smoothing
+        As :func:`compare`.
+
+    Returns
+    -------
+    Comparison
+        As :func:`compare`.
+
+    Raises
+    ------
+    ParameterError
+        As :func:`compare`.
+    """
+    _check(scene, resolution, spp, seed)
+    t = render_file(test, scene, envmap, resolution, spp, seed)
+    r = render_file(reference, scene, envmap, resolution, spp, seed + 1)
+    r2 = render_file(reference, scene, envmap, resolution, spp, seed + 2)
     mask = object_mask(t, r, r2)
     diff = image_difference(r.radiance, t.radiance, mask, smoothing)
     floor = image_difference(r.radiance, r2.radiance, mask, smoothing)

@@ -23,7 +23,7 @@ import math
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Iterator
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -284,8 +284,8 @@ class Marginal2D:
         return np.stack([ux, uy], axis=-1)
 
 
-    def sample(self, u: Array, slice_index: int) -> Array:
-        """Forward continuous warp of one parameter slice: uniform ``u`` → point in [0,1]².
+    def sample(self, u: Array, slice_index: int | NDArray[np.intp]) -> Array:
+        """Forward continuous warp of parameter slices: uniform ``u`` → point in [0,1]².
 
         The exact inverse of :meth:`invert` (at a grid node of the parameters): the
         marginal and conditional CDFs are piecewise quadratic, each solved in closed form.
@@ -295,55 +295,69 @@ class Marginal2D:
         u : ndarray, shape (..., 2)
             Uniform samples in [0, 1]² (clipped).
         slice_index
-            Flat parameter slice ``k·n_theta + j``.
+            Flat parameter slice ``k·n_theta + j``: one, or one per sample (an integer
+            array broadcast with ``u[..., 0]``).
 
         Returns
         -------
         ndarray, shape (..., 2)
             The warped points in [0, 1]².
         """
-        d, c = self.norm_data[slice_index], self.cond[slice_index]
-        marg = self.marg[slice_index]
         ux = np.clip(u[..., 0], 0.0, 1.0)
-        uy = np.clip(u[..., 1], 0.0, 1.0)
-        rows_tot = c[:, self.w - 1]
-        py = np.clip(np.searchsorted(marg, uy, side="right") - 1, 0, self.h - 2)
-        r0, r1 = rows_tot[py], rows_tot[py + 1]
-        sy = _solve_quadratic(r0, r1, uy - marg[py])
+        shape = np.broadcast_shapes(ux.shape, np.shape(slice_index))
+        k = np.broadcast_to(np.asarray(slice_index, dtype=np.intp), shape)
+        ux = np.broadcast_to(ux, shape)
+        uy = np.broadcast_to(np.clip(u[..., 1], 0.0, 1.0), shape)
+        h, w = self.h, self.w
+        # flat indices into the (slice, row, column) tables: one gather each (np.take)
+        d, c, marg = self.norm_data.reshape(-1), self.cond.reshape(-1), self.marg.reshape(-1)
+        # the row: the last node of the (nondecreasing) marginal CDF at or below uy, by bisection
+        py = np.clip(_last_at_or_below(lambda row: marg.take(k * h + row), h, uy), 0, h - 2)
+        row0 = (k * h + py) * w
+        row1 = row0 + w
+        r0, r1 = c.take(row0 + (w - 1)), c.take(row1 + (w - 1))
+        sy = _solve_quadratic(r0, r1, uy - marg.take(k * h + py))
         # the conditional CDF of the row interpolated at sy: the last column at or below the
-        # target, by bisection (the interpolated row is nondecreasing, as both rows are)
+        # target (the interpolated row is nondecreasing, as both rows are)
         total = (1 - sy) * r0 + sy * r1
         target = ux * total
 
         def cond(col: NDArray[np.intp]) -> Array:
-            return (1 - sy) * c[py, col] + sy * c[py + 1, col]
+            return (1 - sy) * c.take(row0 + col) + sy * c.take(row1 + col)
 
-        lo = np.full(np.shape(target), -1, dtype=np.intp)  # cond(lo) <= target (-1: none)
-        hi = np.full(np.shape(target), self.w, dtype=np.intp)  # cond(hi) > target (w: none)
-        while np.any(hi - lo > 1):
-            mid = (lo + hi) // 2
-            below = cond(np.clip(mid, 0, self.w - 1)) <= target
-            lo = np.where(below, mid, lo)
-            hi = np.where(below, hi, mid)
-        px = np.clip(lo, 0, self.w - 2)
-        c0 = (1 - sy) * d[py, px] + sy * d[py + 1, px]
-        c1 = (1 - sy) * d[py, px + 1] + sy * d[py + 1, px + 1]
+        px = np.clip(_last_at_or_below(cond, w, target), 0, w - 2)
+        c0 = (1 - sy) * d.take(row0 + px) + sy * d.take(row1 + px)
+        c1 = (1 - sy) * d.take(row0 + px + 1) + sy * d.take(row1 + px + 1)
         base = cond(px)
         sx = _solve_quadratic(c0, c1, target - base)
-        return np.stack([(px + sx) / (self.w - 1), (py + sy) / (self.h - 1)], axis=-1)
+        return np.stack([(px + sx) / (w - 1), (py + sy) / (h - 1)], axis=-1)
+
+
+def _last_at_or_below(values: Callable[[NDArray[np.intp]], Array], n: int, target: Array) -> NDArray[np.intp]:
+    """Per element, the last index ``i < n`` of a nondecreasing sequence with
+    ``values(i) ≤ target`` (−1 where there is none), by bisection over all elements at once."""
+    lo = np.full(np.shape(target), -1, dtype=np.intp)  # values(lo) <= target (-1: none)
+    hi = np.full(np.shape(target), n, dtype=np.intp)  # values(hi) > target (n: none)
+    while np.any(hi - lo > 1):
+        mid = (lo + hi) // 2
+        below = values(np.clip(mid, 0, n - 1)) <= target
+        lo = np.where(below, mid, lo)
+        hi = np.where(below, hi, mid)
+    return lo
 
 
 def _bilinear(table: Array, pos: Array) -> Array:
-    """Bilinear interpolation of ``table`` (rows × columns) at ``pos`` in [0,1]² (x: column, y: row)."""
-    h, w = table.shape
+    """Bilinear interpolation of ``table`` (rows × columns, or a stack ``(S, rows, columns)``)
+    at ``pos`` in [0,1]² (x: column, y: row), shape ``(N,)`` or ``(S, N)``."""
+    h, w = table.shape[-2:]
     x = np.clip(pos[:, 0], 0.0, 1.0) * (w - 1)
     y = np.clip(pos[:, 1], 0.0, 1.0) * (h - 1)
     x0 = np.clip(np.floor(x).astype(np.intp), 0, w - 2)
     y0 = np.clip(np.floor(y).astype(np.intp), 0, h - 2)
     fx, fy = x - x0, y - y0
     t = np.asarray(table, dtype=np.float64)
-    return ((1 - fy) * ((1 - fx) * t[y0, x0] + fx * t[y0, x0 + 1])
-            + fy * ((1 - fx) * t[y0 + 1, x0] + fx * t[y0 + 1, x0 + 1]))
+    return ((1 - fy) * ((1 - fx) * t[..., y0, x0] + fx * t[..., y0, x0 + 1])
+            + fy * ((1 - fx) * t[..., y0 + 1, x0] + fx * t[..., y0 + 1, x0 + 1]))
 
 
 def _solve_quadratic(v0: Array, v1: Array, y: Array) -> Array:
@@ -437,43 +451,51 @@ class RGLBRDF(BRDFSource):
         ndarray, shape (n_φi · n_θi, 3)
             RGB albedo (dimensionless) per incident slice, φ_i-major.
         """
-        nphi, nth = len(self.phi_i), len(self.theta_i)
         h, w = self._rgb[0].h, self._rgb[0].w
         hr, wr = refine * (h - 1) + 1, refine * (w - 1) + 1
         yy, xx = np.meshgrid(np.linspace(0, 1, hr), np.linspace(0, 1, wr), indexing="ij")
         nodes = np.stack([xx.ravel(), yy.ravel()], -1)
         out = []
-        for k in range(nphi):
-            for j in range(nth):
-                o, g = self._slice_values(k, j, nodes, refine)
-                o = o.reshape(hr, wr, 3)
-                g = g.reshape(hr, wr, 3)
-                d1 = o[1:, 1:] - o[:-1, :-1]
-                d2 = o[1:, :-1] - o[:-1, 1:]
-                area = 0.5 * np.linalg.norm(np.cross(d1, d2), axis=-1)
-                mean = 0.25 * (g[1:, 1:] + g[:-1, :-1] + g[1:, :-1] + g[:-1, 1:])
-                out.append(np.sum(area[..., None] * mean, axis=(0, 1)))
+        for k, j in self._slice_batches(len(nodes)):
+            o, g = self._slice_values(k, j, nodes)
+            o = o.reshape(len(k), hr, wr, 3)
+            g = g.reshape(len(k), hr, wr, 3)
+            d1 = o[:, 1:, 1:] - o[:, :-1, :-1]
+            d2 = o[:, 1:, :-1] - o[:, :-1, 1:]
+            area = 0.5 * np.linalg.norm(np.cross(d1, d2), axis=-1)
+            mean = 0.25 * (g[:, 1:, 1:] + g[:, :-1, :-1] + g[:, 1:, :-1] + g[:, :-1, 1:])
+            out.extend(np.sum(area[..., None] * mean, axis=(1, 2)))
         return np.array(out)
 
-    def _slice_values(self, k: int, j: int, nodes: Array, refine: int = 1) -> tuple[Array, Array]:
-        """Outgoing directions and ``f·cos θ_o`` at sample positions ``nodes`` of slice ``(k, j)``
-        (values bilinear in the ``rgb`` grid, exact at its nodes); 0 below the horizon."""
+    def _slice_values(self, k: NDArray[np.intp], j: NDArray[np.intp], nodes: Array) -> tuple[Array, Array]:
+        """Outgoing directions and ``f·cos θ_o`` at sample positions ``nodes`` (shape ``(N, 2)``)
+        of the slices ``(k, j)`` (shape ``(S,)`` each), shapes ``(S, N, 3)``: values bilinear in
+        the ``rgb`` grid (exact at its nodes); 0 below the horizon."""
         nth = len(self.theta_i)
-        u_m = self._vndf.sample(nodes, k * nth + j)
-        theta_m = u_m[:, 0] ** 2 * (0.5 * math.pi)
-        phi_m = u_m[:, 1] * (2 * math.pi) - math.pi + (self.phi_i[k] if self.isotropic else 0.0)
-        ti, pi_ = self.theta_i[j], self.phi_i[k]
-        i = np.array([math.sin(ti) * math.cos(pi_), math.sin(ti) * math.sin(pi_), math.cos(ti)])
+        u_m = self._vndf.sample(nodes[None], (k * nth + j)[:, None])
+        theta_m = u_m[..., 0] ** 2 * (0.5 * math.pi)
+        phi_m = u_m[..., 1] * (2 * math.pi) - math.pi + (self.phi_i[k][:, None] if self.isotropic else 0.0)
+        angles = [(float(self.theta_i[b]), float(self.phi_i[a])) for a, b in zip(k, j)]
+        i = np.array([[math.sin(ti) * math.cos(pi_), math.sin(ti) * math.sin(pi_), math.cos(ti)] for ti, pi_ in angles])
         m = np.stack([np.sin(theta_m) * np.cos(phi_m), np.sin(theta_m) * np.sin(phi_m), np.cos(theta_m)], -1)
-        o = 2.0 * (m @ i)[:, None] * m - i
+        o = 2.0 * np.stack([m_s @ i_s for m_s, i_s in zip(m, i)])[..., None] * m - i[:, None]
         spec = np.stack([_bilinear(t.data[k, j], nodes) for t in self._rgb], -1)
         if self.jacobian:
-            zero = np.zeros(len(nodes))
-            u_wi = np.array([[math.sqrt(ti * 2 / math.pi), (pi_ + math.pi) / (2 * math.pi)]])
+            zero = np.zeros(theta_m.shape)
+            u_wi = np.array([[math.sqrt(ti * 2 / math.pi), (pi_ + math.pi) / (2 * math.pi)] for ti, pi_ in angles])
             ndf = self._ndf.eval(u_m, zero, zero)
-            sig = self._sigma.eval(np.repeat(u_wi, len(nodes), 0), zero, zero)
-            spec = spec * (ndf / (4.0 * sig))[:, None]
-        return o, np.where((o[:, 2] > 0)[:, None], spec, 0.0)
+            sig = self._sigma.eval(np.broadcast_to(u_wi[:, None], u_m.shape), zero, zero)
+            spec = spec * (ndf / (4.0 * sig))[..., None]
+        return o, np.where((o[..., 2] > 0)[..., None], spec, 0.0)
+
+    def _slice_batches(self, n_nodes: int) -> Iterator[tuple[NDArray[np.intp], NDArray[np.intp]]]:
+        """The incident slices ``(k, j)`` (φ_i-major), in batches of about 2¹⁸ samples at ``n_nodes`` each."""
+        nth = len(self.theta_i)
+        flat = np.arange(len(self.phi_i) * nth)
+        step = max(1, (1 << 18) // max(n_nodes, 1))
+        for s in range(0, len(flat), step):
+            k, j = np.divmod(flat[s : s + step], nth)
+            yield k, j
 
     def projected_at_nodes(self) -> Array:
         """``f·cos θ_i·cos θ_o`` (sr⁻¹) at every node of the ``rgb`` tables, shape ``(N, 3)``.
@@ -489,15 +511,13 @@ class RGLBRDF(BRDFSource):
             RGB values in sr⁻¹: every ``rgb`` node of every slice, then direction pairs at
             the nodes of the ``ndf`` and ``sigma`` tables.
         """
-        nphi, nth = len(self.phi_i), len(self.theta_i)
         h, w = self._rgb[0].h, self._rgb[0].w
         yy, xx = np.meshgrid(np.linspace(0, 1, h), np.linspace(0, 1, w), indexing="ij")
         nodes = np.stack([xx.ravel(), yy.ravel()], -1)
-        out = []
-        for k in range(nphi):
-            for j in range(nth):
-                _, g = self._slice_values(k, j, nodes)
-                out.append(g * math.cos(self.theta_i[j]))
+        out: list[Array] = []
+        for k, j in self._slice_batches(len(nodes)):
+            _, g = self._slice_values(k, j, nodes)
+            out.extend(g * np.cos(self.theta_i[j])[:, None, None])
         i, o = self._ndf_sigma_pairs()
         out.append(self.eval_cosine(i, o) * i[:, 2:3])
         return np.concatenate(out)
