@@ -70,20 +70,42 @@ def test_rgl_with_one_flipped_byte_is_refused_by_tabulate_export_and_info(shared
 @pytest.mark.parametrize("value, refused", [(1e9, True), (100.0, False)])
 def test_a_damaged_node_of_a_large_ndf_table_is_found_by_its_bound(tmp_path, value, refused):
     """Tables of more than 2¹⁶ (sigma, ndf) node pairs: an ``ndf`` node is evaluated where
-    ``max(rgb) · D / (4 min σ)`` could exceed the bound, and one below it cannot."""
+    ``max|rgb| · D / (4 min σ)`` could exceed the bound; a node below it is not, and cannot."""
     from reflecto.export.rgl import export_rgl, write_tensor_file
-    from reflecto.sources.rgl import RGLBRDF, read_tensor_file
+    from reflecto.sources.rgl import RGLBRDF, Marginal2D, read_tensor_file
 
     good = export_rgl(AnalyticBRDF(distribution="ggx", alpha=0.2, kd=0.3, ks=0.5, eta=1.5), tmp_path / "good.bsdf")
     fields = {k: np.array(v) for k, v in read_tensor_file(good).items()}
     assert fields["sigma"].size * fields["ndf"].size > 1 << 16
-    fields["ndf"][1, 1500] = value  # a half vector 12° from the normal
+    node = (1, 1500)  # a half vector 12° from the normal
+    fields["ndf"][node] = value
+    # the nodes the check visits under 8 incident directions: the damaged one only where it could exceed the bound
+    src = RGLBRDF(good)
+    assert len(src._ndf_nodes_at_risk()) == 0
+    one = np.zeros(1)
+    src._ndf = Marginal2D(fields["ndf"][None, None].astype(np.float64), one, one, build_cdf=False)
+    assert list(src._ndf_nodes_at_risk()) == ([node[0] * fields["ndf"].shape[1] + node[1]] if refused else [])
     bad = write_tensor_file(tmp_path / "node.bsdf", fields)
     if refused:
         with pytest.raises(FileFormatError, match=r"node\.bsdf: its tables: f·cos θ_i·cos θ_o reaches"):
             RGLBRDF(bad)
     else:
         assert RGLBRDF(bad).projected_at_nodes().max() < brdf.MAX_PROJECTED_BRDF
+
+
+def test_a_small_ndf_table_beside_a_large_sigma_table_is_read(tmp_path):
+    """Fewer than 32 ``ndf`` nodes in a table of more than 2¹⁶ node pairs: all are the densest."""
+    from reflecto.export.rgl import export_rgl, write_tensor_file
+    from reflecto.sources.rgl import RGLBRDF, read_tensor_file
+
+    good = export_rgl(AnalyticBRDF(distribution="ggx", alpha=0.2, kd=0.3, ks=0.5, eta=1.5), tmp_path / "good.bsdf")
+    fields = {k: np.array(v) for k, v in read_tensor_file(good).items()}
+    fields["ndf"] = np.full((3, 3), fields["ndf"].mean(), dtype=np.float32)
+    fields["sigma"] = np.repeat(fields["sigma"], 16, axis=1)  # 2 × 4096: 9 × 8192 pairs
+    try:
+        RGLBRDF(write_tensor_file(tmp_path / "small.bsdf", fields))
+    except FileFormatError as e:  # its albedo may be refused; never an internal error
+        assert "small.bsdf" in str(e)
 
 
 def test_every_shared_rgl_file_passes_its_table_checks(shared):

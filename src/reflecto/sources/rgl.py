@@ -527,13 +527,9 @@ class RGLBRDF(BRDFSource):
         tables, each with each: where a damaged node of those tables shows.
 
         Where that is more than 2¹⁶ pairs, each ``sigma`` node meets the 32 densest half
-        vectors, and an ``ndf`` node ``m`` is visited, by its retro-reflection pair
-        ``i = o = m`` (whose half vector is ``m`` itself), only where its value could
-        exceed :data:`~reflecto.brdf.MAX_PROJECTED_BRDF`: ``f·cos θ_i·cos θ_o =
-        rgb · D(m) / (4 σ(i)) · cos θ_i`` is at most ``max(rgb) · D(m) / (4 min σ)``
-        (the plugin's bilinear lookups stay within their nodes' range), so a node below
-        that bound cannot give a value the check refuses, at any incidence. An anisotropic
-        export's 2048² ``ndf`` table then costs a few pairs instead of 33 million.
+        vectors, and an ``ndf`` node meets 8 incident directions only where its value could
+        exceed :data:`~reflecto.brdf.MAX_PROJECTED_BRDF` (:meth:`_ndf_nodes_at_risk`): an
+        anisotropic export's 2048² ``ndf`` table then costs a few pairs, not 33 million.
         """
 
         def directions(table: Marginal2D, nodes: NDArray[np.intp] | None = None) -> Array:
@@ -547,12 +543,11 @@ class RGLBRDF(BRDFSource):
         wi = directions(self._sigma)
         if len(wi) * self._ndf.h * self._ndf.w > 1 << 16:
             ndf_values = np.asarray(self._ndf.data, dtype=np.float64).reshape(-1)
-            top_m = directions(self._ndf, np.argpartition(ndf_values, len(ndf_values) - 32)[-32:])
-            rgb_max = max(float(np.max(t.data)) for t in self._rgb)
-            bound = rgb_max * ndf_values / (4.0 * float(np.min(self._sigma.data)))
-            near = directions(self._ndf, np.flatnonzero(bound > MAX_PROJECTED_BRDF))
-            i = np.concatenate([near, np.repeat(wi, len(top_m), 0)])
-            mm = np.concatenate([near, np.tile(top_m, (len(wi), 1))])
+            top_m = directions(self._ndf, np.argpartition(ndf_values, max(len(ndf_values) - 32, 0))[-32:])
+            m = directions(self._ndf, self._ndf_nodes_at_risk())
+            some_wi = wi[np.linspace(0, len(wi) - 1, 8).astype(np.intp)]
+            i = np.concatenate([np.repeat(some_wi, len(m), 0), np.repeat(wi, len(top_m), 0)])
+            mm = np.concatenate([np.tile(m, (len(some_wi), 1)), np.tile(top_m, (len(wi), 1))])
         else:
             m = directions(self._ndf)
             i = np.repeat(wi, len(m), 0)
@@ -560,6 +555,21 @@ class RGLBRDF(BRDFSource):
         o = 2.0 * np.sum(i * mm, -1)[:, None] * mm - i
         keep = (i[:, 2] > 1e-4) & (o[:, 2] > 1e-4)
         return i[keep], o[keep]
+
+    def _ndf_nodes_at_risk(self) -> NDArray[np.intp]:
+        """Flat indices of the ``ndf`` nodes through which a value could exceed the projected bound.
+
+        The plugin's value is ``f·cos θ_i·cos θ_o = rgb · D(m) / (4 σ(i)) · cos θ_i``, each
+        table read by bilinear interpolation between its nodes (and between slices, with
+        weights in [0, 1] that sum to 1), so ``|f·cos θ_i·cos θ_o| ≤ max|rgb| · D_k / (4 min σ)``
+        with ``D_k`` the largest of the four ``ndf`` nodes around ``m``. Where no node reaches
+        :data:`~reflecto.brdf.MAX_PROJECTED_BRDF` by this bound, no pair of directions can:
+        the nodes that do are the ones to visit.
+        """
+        ndf_values = np.asarray(self._ndf.data, dtype=np.float64).reshape(-1)
+        rgb_max = max(float(np.max(np.abs(t.data))) for t in self._rgb)
+        bound = rgb_max * ndf_values / (4.0 * float(np.min(self._sigma.data)))
+        return np.flatnonzero(bound > MAX_PROJECTED_BRDF)
 
     def eval_cosine(self, i: ArrayLike, o: ArrayLike) -> Array:
         """The plugin's value ``f(i, o)·cos θ_o`` (what Mitsuba's ``eval`` returns).
