@@ -241,3 +241,14 @@ def test_round_trip_of_a_reconstruction(tmp_path, capsys, shared, material):
     assert summary["calibration"].endswith("cal.npz") and summary["kd"]
     t = merl.read_merl_table(tmp_path / "m.binary")
     assert (np.maximum(t, 0) * merl._cos_cos()[..., None]).max() < brdf.MAX_PROJECTED_BRDF / 100
+
+
+def test_a_black_reference_has_no_normalized_error(tmp_path, capsys):
+    """Eq. 10's error is normalized by the reference's largest albedo: a black reference gets one
+    line, not a number of 10¹⁰ %."""
+    black = tmp_path / "black.json"
+    black.write_text(json.dumps({"type": "analytic", "distribution": "ggx", "alpha": 0.15, "kd": [0, 0, 0],
+                                 "ks": 0, "eta": 1.5}))
+    assert main(["compare", str(black), str(PLASTIC)]) == 1
+    assert "the reference black reflects (almost) nothing" in _err(capsys)
+    assert main(["compare", str(PLASTIC), str(black)]) == 0  # a black test against a real reference: its error

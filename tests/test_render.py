@@ -153,3 +153,5 @@ def test_spp_to_resolve_asks_for_a_floor_a_third_of_the_corrected_difference():
     assert not c.resolved and not c.within_noise
     assert c.spp_to_resolve() == 1024  # 64 × 5.06 = 324, rounded up to the sampler's power of 4
     assert Comparison(0.03, 0.03, 0.0, r, r, r).within_noise
+    black = Comparison(0.0, 0.0, 0.0, r, r, r)  # two black renders: alike, and no spp to name
+    assert black.within_noise and black.spp_to_resolve() == 64

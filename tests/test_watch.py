@@ -121,6 +121,22 @@ def test_capture_state_waits_for_manifest_and_whole_frames(sources: list[Path], 
     assert np.array_equal(read_capture(dst).raw, read_capture(src).raw)
 
 
+def test_a_fifo_or_folder_in_a_capture_is_the_readers_to_refuse_not_waited_on(sources: list[Path],
+                                                                             tmp_path: Path) -> None:
+    """Opening a FIFO blocks: the state never opens one, and reports such a folder ready
+    (the reader then refuses it in one line naming the file)."""
+    src = sources[0]
+    first = _frames(src)[0]
+    for what, name in (("fifo", first), ("fifo", MANIFEST), ("folder", first)):
+        dst = tmp_path / f"{what}-{name}"
+        shutil.copytree(src, dst)
+        (dst / name).unlink()
+        os.mkfifo(dst / name) if what == "fifo" else (dst / name).mkdir()
+        assert capture_state(dst) == (READY, "")
+        with pytest.raises(ReflectoError, match="not a regular file|a folder|directory"):
+            read_capture(dst)
+
+
 def test_watch_models_every_good_capture_once(sources: list[Path], reference: list[dict], tmp_path: Path) -> None:
     root, models = tmp_path / "root", tmp_path / "models"
     root.mkdir()

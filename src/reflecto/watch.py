@@ -59,6 +59,7 @@ import math
 import os
 import pickle
 import signal
+import stat
 import sys
 import threading
 import time
@@ -194,6 +195,18 @@ def default_previewer(calibration: str | None = None, options: Options | None = 
     return FolderReconstructor(calibration, options, missing, preview=True)
 
 
+def _regular(path: Path) -> bool | None:
+    """Whether ``path`` is a regular file (``None``: nothing there yet). Something else that
+    is there (a FIFO, a device, a folder, a link loop) is not waited for: opening a FIFO
+    would block the watch, and the reader refuses all of them with a line naming them."""
+    try:
+        return stat.S_ISREG(os.stat(path).st_mode)
+    except FileNotFoundError:
+        return None
+    except OSError:
+        return False
+
+
 def _png_complete(path: Path) -> bool:
     """Whether the file ends with the PNG end chunk (a frame still being written does not)."""
     try:
@@ -213,7 +226,8 @@ def capture_state(folder: Path) -> tuple[str, str]:
     Complete: ``manifest.json`` exists and parses as a JSON object, and every frame its
     ``frames`` list names (as a plain file name) exists and ends with the PNG end chunk.
     Whatever else is wrong with the folder (a damaged frame, a manifest that does not
-    fit its device) is the reader's to say: such a folder is ready, and refused there.
+    fit its device, a manifest or frame that is not a regular file) is the reader's to
+    say: such a folder is ready, and refused there.
 
     Parameters
     ----------
@@ -229,6 +243,11 @@ def capture_state(folder: Path) -> tuple[str, str]:
     """
 
     mpath = folder / MANIFEST
+    regular = _regular(mpath)
+    if regular is None:
+        return WAITING, f"no {MANIFEST} yet"
+    if not regular:
+        return READY, ""
     try:
         raw = mpath.read_bytes()
     except FileNotFoundError:
@@ -247,8 +266,11 @@ def capture_state(folder: Path) -> tuple[str, str]:
         if not isinstance(name, str) or not name or Path(name).name != name:
             continue
         p = folder / name
-        if not p.exists():
+        regular = _regular(p)
+        if regular is None:
             return WAITING, f"frame {name} is missing"
+        if not regular:
+            return READY, ""
         if not _png_complete(p):
             return WAITING, f"frame {name} is incomplete (no PNG end chunk)"
     return READY, ""

@@ -224,6 +224,9 @@ def _accumulate(sums: _Sums, grid: Grid, r: Array, m: Array, name: str) -> None:
 #: albedo of an anisotropic lobe varies with φ_i, so that the φ_i = 0 plane alone would
 #: make the normalized error depend on how the reference is turned about n.
 ALBEDO_AZIMUTHS = 12
+#: The smallest largest-albedo of a reference that eq. 10's normalized error divides by:
+#: below it the reference is black (10⁻⁶ is far below any measured material's, ≳ 10⁻²).
+MIN_ALBEDO_REF = 1e-6
 
 
 def _error(sums: _Sums, reference: BRDFSource, albedo_ref: float | None, form: str, azimuths: int) -> Error:
@@ -235,7 +238,10 @@ def _error(sums: _Sums, reference: BRDFSource, albedo_ref: float | None, form: s
         a = max_albedo(reference, azimuths=ALBEDO_AZIMUTHS)
     else:
         a = max_albedo(reference)
-    return Error(rmse, float(rmse.mean() / max(a, 1e-12)), float(log_rmse.mean()), a, form, azimuths)
+    if not a > MIN_ALBEDO_REF:  # a black reference: the error relative to what it reflects has no meaning
+        raise ParameterError(f"eq. 10: the reference {reference.name} reflects (almost) nothing (largest directional "
+                             f"albedo {a:.3g}), so the error normalized by it is undefined")
+    return Error(rmse, float(rmse.mean() / a), float(log_rmse.mean()), a, form, azimuths)
 
 
 def brdf_error(reference: BRDFSource, test: BRDFSource, stride: int = 1, albedo_ref: float | None = None,

@@ -570,8 +570,9 @@ class Comparison:
 
     @property
     def within_noise(self) -> bool:
-        """Whether the difference is no larger than two independent noisy renders would give (``corrected < floor``)."""
-        return self.corrected < self.noise_floor
+        """Whether the difference is no larger than two independent noisy renders would give
+        (``corrected ≤ floor``; two black renders, both 0, are alike)."""
+        return self.corrected <= self.noise_floor
 
     def spp_to_resolve(self) -> int:
         """The spp at which the floor would be a third of the corrected difference.
