@@ -290,23 +290,24 @@ def render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, ref: BRDFSou
         (folder / "model").mkdir()
         (folder / "ref").mkdir()
         model_file = bsdf_file(model, folder / "model")
-        ref_file = None if ref is None else bsdf_file(ref, folder / "ref")
-        return _render_figures(model, model_file, ref, ref_file, out, spp)
+        ref_file = None if ref is None else (ref.name, bsdf_file(ref, folder / "ref"))
+        return _render_figures(model, model_file, ref_file, out, spp)
 
 
-def _render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, model_file: Path, ref: BRDFSource | None,
-                    ref_file: Path | None, out: Path, spp: int | None
+def _render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, model_file: Path,
+                    ref_file: tuple[str, Path] | None, out: Path, spp: int | None
                     ) -> tuple[list[tuple[str, str]], dict[str, Any]]:
     items, comparisons = [], {}
     for scene, what in (("sphere-env", "Sphere under the studio map"),
                         ("sphere-point", "Sphere under a key and a fill point light")):
-        if ref is None or ref_file is None:
+        if ref_file is None:
             r = render_file(model_file, scene, spp=spp)
             items.append((_save_png(titled(to_srgb8(r.image()), f"model {model.name}: {what.lower()}"),
                                     out / f"render_{scene}.png"),
                           f"{what} (Mitsuba 3, {r.variant}, {r.spp} spp)."))
             continue
-        c = comparisons[scene] = compare_files(ref_file, model_file, scene, spp=spp)
+        ref_name, ref_path = ref_file
+        c = comparisons[scene] = compare_files(ref_path, model_file, scene, spp=spp)
         items.append((_save_png(titled(to_srgb8(c.test.image()), f"model {model.name}: {what.lower()}"),
                                 out / f"render_{scene}.png"),
                       f"{what} (Mitsuba 3, {c.test.variant}, {c.test.spp} spp)."))
@@ -315,7 +316,7 @@ def _render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, model_file:
                 if c.within_noise else " The noise floor is more than a third of the difference: render with more "
                 f"samples (about {c.spp_to_resolve()} spp) to resolve it.")
         items.append((_save_png(comparison_image(c.reference.radiance, c.test.radiance,
-                                                 ("reference\n" + ref.name, "model\n" + model.name),
+                                                 ("reference\n" + ref_name, "model\n" + model.name),
                                                  alpha=c.reference.alpha, alpha_test=c.test.alpha,
                                                  difference=c.difference),
                                 out / f"compare_{scene}.png"),
