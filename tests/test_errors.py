@@ -716,3 +716,19 @@ def test_capture_named_in_model_metadata_resolves_only_inside_its_folder(tmp_pat
     (tmp_path / "sub" / "link").symlink_to(tmp_path / "cap")  # a link out of the model's folder
     m.metadata = {"capture": "link"}
     assert "capture" not in MicrofacetBRDF.load(m.save(tmp_path / "sub" / "m.reflecto")).metadata
+
+
+def test_folder_output_refuses_a_file_or_a_capture_folder(model_file, capture, tmp_path, capsys):
+    """A folder output is not written over a file, nor into a capture folder, whose
+    reader would then find the report's files among its frames; ``simulate`` may
+    replace its own kind of folder."""
+    blocker = tmp_path / "page.html"
+    blocker.write_text("mine")
+    assert main(["report", str(model_file), "-o", str(blocker), "--no-render"]) == 1
+    assert "page.html: is a file, and report writes a report folder" in _err(capsys)
+    assert blocker.read_text() == "mine"
+    before = sorted(p.name for p in capture.iterdir())
+    assert main(["report", str(model_file), "-o", str(capture), "--no-render"]) == 1
+    assert "is a capture folder (manifest.json and frames); report writes a report folder" in _err(capsys)
+    assert sorted(p.name for p in capture.iterdir()) == before
+    assert main(["simulate", str(PLASTIC), "-o", str(capture), "-q"]) == 0

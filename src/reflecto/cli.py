@@ -212,6 +212,25 @@ def check_inputs(args: argparse.Namespace) -> None:
     elif Path(out).suffix.lower() in _FILE_SUFFIXES and not Path(out).is_dir():
         raise kinds.KindError(out, f"a {Path(out).suffix} file name", command, what,
                               f"use -o {Path(out).with_suffix('')}", verb="writes")
+    else:
+        _refuse_other_folder(out, command, what)
+
+
+#: Folders an output folder must not be written into (their readers would take the
+#: output's files for their own) unless the command writes that kind of folder.
+_INPUT_FOLDER_KINDS = {"capture": "simulate", "calibration-folder": "simulate-calibration"}
+
+
+def _refuse_other_folder(out: str | Path, command: str, what: str) -> None:
+    """Refuse a folder output (``what``) where a file is in the way, or into a capture or
+    calibration folder (the report's images beside a capture's frames would make it
+    another capture's folder for ``watch``, and a sweep's results inside one a damaged one)."""
+    path = Path(out)
+    if _exists(path) and not path.is_dir():
+        raise OutputError(out, f"is a file, and {command} writes {what}: name a folder")
+    kind = kinds.identify(path).name if path.is_dir() else "folder"
+    if kind in _INPUT_FOLDER_KINDS and _INPUT_FOLDER_KINDS[kind] != command:
+        raise OutputError(out, f"is {kinds.KINDS[kind]}; {command} writes {what}: name another folder")
 
 
 def _within(path: str | Path, folder: str | Path) -> bool:
