@@ -162,3 +162,40 @@ def test_protocol_split_is_the_documented_draw(shared):
     assert not TUNING & VALIDATION and len(TUNING) == len(VALIDATION) == 25
     assert len(TUNING & set(rgl)) == 5 and len(VALIDATION & set(merl)) == 20
     assert draw_split([rgl, merl]) == (set(TUNING), set(VALIDATION))
+
+
+def test_handheld_control_makes_a_reference_mirror_symmetric():
+    """studies/validate_handheld.py --mirror-symmetric: an analytic isotropic BRDF is
+    mirror-symmetric (asymmetry 0, the symmetric part equal to it), a source with an odd
+    part in the relative azimuth is not, and its symmetric part is again, with the odd
+    part gone and the even part kept."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "studies"))
+    import validate_handheld as vh
+    from reflecto.brdf import BRDFSource
+
+    src = AnalyticBRDF(distribution="ggx", alpha=0.3, kd=0.2, ks=0.5, eta=1.5)
+    assert vh.mirror_asymmetry(src) < 1e-12
+
+    class Chiral(BRDFSource):
+        """``f (1 + 0.3 sin(φ_o − φ_i))``: invariant under rotation about ``n``, not under a reflection."""
+
+        def eval(self, i, o):
+            i, o = np.asarray(i, float), np.asarray(o, float)
+            dphi = np.arctan2(o[:, 1], o[:, 0]) - np.arctan2(i[:, 1], i[:, 0])
+            return src.eval(i, o) * (1.0 + 0.3 * np.sin(dphi))[:, None]
+
+    chiral = Chiral()
+    assert vh.mirror_asymmetry(chiral) > 0.1
+    sym = vh.MirrorSymmetric(chiral)
+    assert vh.mirror_asymmetry(sym) < 1e-12
+    rng = np.random.default_rng(3)
+    i = rng.normal(size=(500, 3))
+    o = rng.normal(size=(500, 3))
+    i[:, 2], o[:, 2] = np.abs(i[:, 2]), np.abs(o[:, 2])
+    i /= np.linalg.norm(i, axis=1, keepdims=True)
+    o /= np.linalg.norm(o, axis=1, keepdims=True)
+    assert np.allclose(sym.eval(i, o), src.eval(i, o), rtol=1e-12, atol=1e-15)
+    assert np.allclose(vh.MirrorSymmetric(src).eval(i, o), src.eval(i, o), rtol=1e-12, atol=1e-15)

@@ -914,7 +914,7 @@ def half_vector_pitch_deg(slices) -> float:
 def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0,
                     fixed_eta: float | None = None, peaks: list[SlicePeak] | None = None) -> NormalEstimate:
     """The altered normal of one capture (module docstring): peak, then the tilt refined
-    in the isotropic fit's least squares, with its jackknife uncertainty.
+    in the isotropic fit's least squares, with its cluster-robust (sandwich) uncertainty.
 
     ``slices`` in the device frame, ``valid`` the usable samples ``(L, P)``; tilts are
     held within ``max_tilt_deg`` of the device axis; ``peaks`` the slices' peaks where
