@@ -499,3 +499,37 @@ def test_compact_peaks_at_the_estimate_stand_in_for_the_device_frame_check(monke
     valid0 = usable_samples(sl0)
     tilted = dataclasses.replace(estimate_normal(sl0, valid0), normal=_tilted(3.0))
     assert not pipeline._peaks_place_tilt(tilted, slice_peaks(sl0, valid0))  # its peaks hold the device axis
+
+
+def _planes_through(delta, alphas_deg):
+    """Unit normals of planes through the normal ``(δ_t, δ_b, 1)``, turned by ``α`` about it."""
+    al = np.radians(alphas_deg)
+    m = np.stack([np.cos(al), np.sin(al), -(np.cos(al) * delta[0] + np.sin(al) * delta[1])], axis=1)
+    return m / np.linalg.norm(m, axis=1, keepdims=True)
+
+
+def test_plane_floor_is_propagated_through_the_planes_geometry():
+    """``solve_planes``: exact planes spread evenly in azimuth give the normal exactly,
+    with each axis known to the per-plane floor over √(n/2). Two precise planes 10° apart
+    (the paper's layout: the two LEDs that see the mirror direction), one of them 0.12°
+    off, beside four weak planes off by up to 0.5°: the normal's error along the precise
+    planes' common direction is ≈ 0.12° / sin 10°, and the covariance says so (its
+    Mahalanobis distance stays below 3σ), where the two precise planes fit exactly and
+    the scatter alone would claim a few hundredths of a degree."""
+    from reflecto.reconstruct.symmetry import PLANE_FLOOR_DEG, solve_planes
+
+    delta = np.array([0.01, -0.02])
+    floor = math.radians(PLANE_FLOOR_DEG)
+    m = _planes_through(delta, np.arange(6) * 30.0)
+    offset, cov, n_in = solve_planes(m, np.ones(6))
+    assert n_in == 6 and np.allclose(offset, delta, atol=1e-12)
+    assert np.allclose(np.sqrt(np.linalg.eigvalsh(cov)), floor / math.sqrt(3.0), rtol=1e-3)
+
+    alphas = np.array([0.0, 10.0, 45.0, 80.0, 130.0, 170.0])
+    shift = np.radians([0.0, 0.12, 0.5, -0.4, 0.3, -0.5])  # each plane moved along its own normal
+    normals = np.stack([np.cos(np.radians(alphas)), np.sin(np.radians(alphas))], axis=1)
+    m = np.stack([_planes_through(delta + s_k * n_k, [a_k])[0] for a_k, s_k, n_k in zip(alphas, shift, normals)])
+    offset, cov, n_in = solve_planes(m, np.array([300.0, 300.0, 0.5, 0.5, 0.5, 0.5]))
+    err = offset - delta
+    assert math.degrees(float(np.hypot(*err))) > 0.3  # the precise pair's 0.12° grows along their common direction
+    assert float(err @ np.linalg.solve(cov, err)) < 9.0

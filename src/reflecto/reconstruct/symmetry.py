@@ -150,10 +150,10 @@ def plane_normal(light: Array, view: Array, values: Array, valid: NDArray[np.boo
     squares weighted by each plane's precision, the symmetry distance's curvature ``c``
     over ``sin² ∠(l, z)`` (a turn ``ψ`` of the plane moves it by ``ψ sin ∠(l, z)`` at the
     normal), with Huber's weights (:data:`HUBER_K`) iterated against planes that a cut
-    or a rim biases. The covariance is ``s² (Aᵀ W A)⁻¹`` with ``s²`` the weighted
-    residual variance on ``n − 2`` degrees of freedom (the planes' own scatter, so a cue
-    whose planes disagree says so) plus :data:`PLANE_FLOOR_DEG`² per axis, the bias all
-    planes share from the texel grid they are located on.
+    or a rim biases; each plane's variance is then its share of the planes' own scatter
+    (so a cue whose planes disagree says so) plus :data:`PLANE_FLOOR_DEG`², the bias a
+    plane located on the texel grid carries, and the system is solved again with those
+    (:func:`solve_planes`).
 
     ``light`` (L, 3) and ``view`` (P, 3) in the frame of the current normal, ``values``
     (L, P, 3) in sr⁻¹, ``valid`` (L, P). Every LED enters (grazing ones too: their planes
@@ -180,9 +180,32 @@ def plane_normal(light: Array, view: Array, values: Array, valid: NDArray[np.boo
         prec.append(r[1] / sin2)
     if len(rows) < MIN_PLANES:
         return None
-    m = np.array(rows)
+    solved = solve_planes(np.array(rows), np.array(prec))
+    if solved is None:
+        return None
+    offset, cov, n_in = solved
+    return PlaneNormal(offset, cov, len(rows), n_in)
+
+
+def solve_planes(m: Array, precision: Array) -> tuple[Array, Array, int] | None:
+    """The normal's tangent offset ``δ`` that planes of unit normals ``m`` (N, 3) share,
+    ``m · (δ_t, δ_b, 1) = 0``, with its covariance (rad²) and the number of inliers.
+
+    Rows are weighted by their relative ``precision`` (N,) (the symmetry distance's
+    curvature over ``sin² ∠(l, z)``) times Huber's weights (:data:`HUBER_K`), iterated;
+    ``s²`` is the weighted residual variance on ``n_in − 2`` degrees of freedom. Each
+    plane's variance is then its share of that scatter plus the floor every plane located
+    on the texel grid carries, ``v_k = s²/w_k + PLANE_FLOOR_DEG²``, and ``δ`` is solved
+    again with weights ``1/v_k`` (generalized least squares), covariance
+    ``(Aᵀ V⁻¹ A)⁻¹``. The floor enters per plane, not per axis: where two precise planes
+    nearly coincide (the paper's layout: the two LEDs that see the mirror direction lie
+    on the far side of the camera, their planes ≈ 10° apart), the scatter of the others
+    cannot show how little they fix the normal along their common direction, and the
+    floor propagated through their geometry does (`PLANE_FLOOR_DEG` / sin 10° ≈ 0.17°).
+    ``None`` with fewer than :data:`MIN_PLANES` inliers or planes that fix one angle only.
+    """
     a, b = m[:, :2], -m[:, 2]
-    c = np.array(prec) / float(np.mean(prec))
+    c = precision / float(np.mean(precision))
     w = c.copy()
     for _ in range(50):
         offset = _weighted_lstsq(a, b, w)
@@ -197,12 +220,13 @@ def plane_normal(light: Array, view: Array, values: Array, valid: NDArray[np.boo
     n_in = int(np.count_nonzero(inliers))
     if n_in < MIN_PLANES:
         return None
-    normal_matrix = (a * w[:, None]).T @ a
-    if not np.all(np.isfinite(normal_matrix)) or np.linalg.cond(normal_matrix) > 1e10:
+    weighted = a.T @ (a * w[:, None])
+    if not np.all(np.isfinite(weighted)) or np.linalg.cond(weighted) > 1e10:
         return None  # the weighted planes are (nearly) parallel: they fix one of the two angles only
     var = float(np.sum(w * res**2)) / (n_in - 2)
-    cov = var * np.linalg.inv(normal_matrix) + math.radians(PLANE_FLOOR_DEG) ** 2 * np.eye(2)
-    return PlaneNormal(offset, cov, len(rows), n_in)
+    gls = 1.0 / (var / w + math.radians(PLANE_FLOOR_DEG) ** 2)
+    offset = _weighted_lstsq(a, b, gls)
+    return offset, np.asarray(np.linalg.inv((a * gls[:, None]).T @ a), dtype=np.float64), n_in
 
 
 def _weighted_lstsq(a: Array, b: Array, w: Array) -> Array:
