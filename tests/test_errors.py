@@ -725,7 +725,7 @@ def test_folder_output_refuses_a_file_or_a_capture_folder(model_file, capture, t
     blocker = tmp_path / "page.html"
     blocker.write_text("mine")
     assert main(["report", str(model_file), "-o", str(blocker), "--no-render"]) == 1
-    assert "page.html: is a file, and report writes a report folder" in _err(capsys)
+    assert "page.html: exists and is not a folder; report writes a report folder" in _err(capsys)
     assert blocker.read_text() == "mine"
     before = sorted(p.name for p in capture.iterdir())
     assert main(["report", str(model_file), "-o", str(capture), "--no-render"]) == 1

@@ -227,7 +227,7 @@ def _refuse_other_folder(out: str | Path, command: str, what: str) -> None:
     another capture's folder for ``watch``, and a sweep's results inside one a damaged one)."""
     path = Path(out)
     if _exists(path) and not path.is_dir():
-        raise OutputError(out, f"is a file, and {command} writes {what}: name a folder")
+        raise OutputError(out, f"exists and is not a folder; {command} writes {what}: name a folder")
     kind = kinds.identify(path).name if path.is_dir() else "folder"
     if kind in _INPUT_FOLDER_KINDS and _INPUT_FOLDER_KINDS[kind] != command:
         raise OutputError(out, f"is {kinds.KINDS[kind]}; {command} writes {what}: name another folder")
