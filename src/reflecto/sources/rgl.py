@@ -39,6 +39,7 @@ from ..brdf import (
     register_reader,
 )
 from ..errors import FileFormatError
+from . import _rgl_kernels
 
 Array = NDArray[np.float64]
 
@@ -228,6 +229,14 @@ class Marginal2D:
         ndarray, shape (...)
             The interpolated data.
         """
+        if self.norm_data.shape[0] == 1:  # one parameter slice (the ndf and sigma tables): one compiled loop
+            shape = np.broadcast_shapes(pos.shape[:-1], np.shape(phi_i), np.shape(theta_i))
+            px = np.ascontiguousarray(np.broadcast_to(pos[..., 0], shape), dtype=np.float64).reshape(-1)
+            py = np.ascontiguousarray(np.broadcast_to(pos[..., 1], shape), dtype=np.float64).reshape(-1)
+            flat = np.empty(px.shape)
+            _rgl_kernels.bilinear_one_slice(np.ascontiguousarray(self.norm_data).reshape(-1), self.h, self.w,
+                                            px, py, flat)
+            return flat.reshape(shape)
         x = np.clip(pos[..., 0], 0.0, 1.0) * (self.w - 1)
         y = np.clip(pos[..., 1], 0.0, 1.0) * (self.h - 1)
         x0 = np.minimum(x.astype(np.intp), self.w - 2)
@@ -289,6 +298,8 @@ class Marginal2D:
 
         The exact inverse of :meth:`invert` (at a grid node of the parameters): the
         marginal and conditional CDFs are piecewise quadratic, each solved in closed form.
+        One compiled loop over the samples (:func:`._rgl_kernels.warp_sample`), equal to
+        :meth:`sample_numpy` bit for bit.
 
         Parameters
         ----------
@@ -303,6 +314,20 @@ class Marginal2D:
         ndarray, shape (..., 2)
             The warped points in [0, 1]².
         """
+        ux = np.clip(u[..., 0], 0.0, 1.0)
+        shape = np.broadcast_shapes(ux.shape, np.shape(slice_index))
+        k = np.ascontiguousarray(np.broadcast_to(np.asarray(slice_index, dtype=np.intp), shape)).reshape(-1)
+        ux = np.ascontiguousarray(np.broadcast_to(ux, shape), dtype=np.float64).reshape(-1)
+        uy = np.ascontiguousarray(np.broadcast_to(np.clip(u[..., 1], 0.0, 1.0), shape), dtype=np.float64).reshape(-1)
+        out = np.empty((len(k), 2))
+        _rgl_kernels.warp_sample(np.ascontiguousarray(self.norm_data).reshape(-1),
+                                 np.ascontiguousarray(self.cond).reshape(-1),
+                                 np.ascontiguousarray(self.marg).reshape(-1), self.h, self.w, k, ux, uy, out)
+        return out.reshape(shape + (2,))
+
+    def sample_numpy(self, u: Array, slice_index: int | NDArray[np.intp]) -> Array:
+        """NumPy reference of :meth:`sample` (same arguments and result), vectorized over
+        the samples: each bisection step gathers every sample's node at once."""
         ux = np.clip(u[..., 0], 0.0, 1.0)
         shape = np.broadcast_shapes(ux.shape, np.shape(slice_index))
         k = np.broadcast_to(np.asarray(slice_index, dtype=np.intp), shape)
