@@ -53,7 +53,7 @@ Run::
 
     PYTHONPATH=src .venv/bin/python studies/validate_handheld.py --materials 6   # quick subset
     PYTHONPATH=src .venv/bin/python studies/validate_handheld.py                 # all 50 (≈ 15 min)
-    PYTHONPATH=src .venv/bin/python studies/validate_handheld.py --mirror-symmetric -o out/handheld-mirror
+    PYTHONPATH=src .venv/bin/python studies/validate_handheld.py --mirror-symmetric     # out/handheld-mirror
 """
 
 from __future__ import annotations
@@ -301,11 +301,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--device", default="as-built", help="built-in device (default as-built, calibrated)")
     ap.add_argument("--max-tilt", type=float, default=10.0, help="tilts are drawn in [0, MAX] degrees")
     ap.add_argument("--metric-stride", type=int, default=2, help="θ_d/φ_d stride of the eq. 10 grid")
-    ap.add_argument("-o", "--out", default=str(ROOT / "out" / "handheld"), help="output folder")
+    ap.add_argument("-o", "--out",
+                    help="output folder (default out/handheld; with --mirror-symmetric out/handheld-mirror)")
     ap.add_argument("--data", default=str(SHARED), help="the shared data folder")
     ap.add_argument("--mirror-symmetric", action="store_true",
                     help="replace each reference by its mirror-symmetric part (a control; MirrorSymmetric)")
     args = ap.parse_args(argv)
+    if args.out is None:
+        args.out = str(ROOT / "out" / ("handheld-mirror" if args.mirror_symmetric else "handheld"))
     out = Path(args.out) / args.device
     out.mkdir(parents=True, exist_ok=True)
     materials = pick(find_materials([Path(args.data) / "rgl", Path(args.data) / "merl-nbrdf"]), args.materials)
@@ -317,7 +320,8 @@ def main(argv: list[str] | None = None) -> int:
         for line in rec_file.read_text().splitlines():
             try:
                 r = json.loads(line)
-                done[r["name"]] = r
+                if bool(r.get("mirror_symmetric", False)) == args.mirror_symmetric:  # the other control's: redone
+                    done[r["name"]] = r
             except (json.JSONDecodeError, KeyError):
                 continue
     records = []

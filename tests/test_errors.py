@@ -727,6 +727,11 @@ def test_folder_output_refuses_a_file_or_a_capture_folder(model_file, capture, t
     assert main(["report", str(model_file), "-o", str(blocker), "--no-render"]) == 1
     assert "page.html: exists and is not a folder; report writes a report folder" in _err(capsys)
     assert blocker.read_text() == "mine"
+    dangling = tmp_path / "gone"
+    dangling.symlink_to(tmp_path / "nowhere")
+    assert main(["report", str(model_file), "-o", str(dangling), "--no-render"]) == 1
+    assert "gone: exists and is not a folder; report writes a report folder" in _err(capsys)
+    assert dangling.is_symlink() and not (tmp_path / "nowhere").exists()
     before = sorted(p.name for p in capture.iterdir())
     assert main(["report", str(model_file), "-o", str(capture), "--no-render"]) == 1
     assert "is a capture folder (manifest.json and frames); report writes a report folder" in _err(capsys)

@@ -533,3 +533,7 @@ def test_plane_floor_is_propagated_through_the_planes_geometry():
     err = offset - delta
     assert math.degrees(float(np.hypot(*err))) > 0.3  # the precise pair's 0.12° grows along their common direction
     assert float(err @ np.linalg.solve(cov, err)) < 9.0
+    # a plane of no precision carries no information: the same as without it
+    empty_row = _planes_through(delta, [60.0])
+    with_empty = solve_planes(np.vstack([m, empty_row]), np.r_[300.0, 300.0, 0.5, 0.5, 0.5, 0.5, 0.0])
+    assert with_empty is not None and np.array_equal(with_empty[0], offset) and np.array_equal(with_empty[1], cov)

