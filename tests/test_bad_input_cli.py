@@ -102,7 +102,8 @@ def test_an_earlier_output_of_the_same_kind_and_an_empty_folder_are_replaced(tmp
     assert main(["simulate", str(PLASTIC), "-o", str(tmp_path / "empty"), "-q"]) == 0
     # a capture folder is not a calibration folder: not replaced by one
     _, line = _run(["simulate-calibration", "--device", "ideal", "-o", str(again), "-q"], capsys)
-    assert "no calibration.json" in line and (again / "manifest.json").is_file()
+    assert "is a capture folder" in line and "simulate-calibration writes a calibration folder" in line
+    assert (again / "manifest.json").is_file()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 

@@ -737,3 +737,8 @@ def test_folder_output_refuses_a_file_or_a_capture_folder(model_file, capture, t
     assert "is a capture folder (manifest.json and frames); report writes a report folder" in _err(capsys)
     assert sorted(p.name for p in capture.iterdir()) == before
     assert main(["simulate", str(PLASTIC), "-o", str(capture), "-q"]) == 0
+    link = tmp_path / "cap-link"
+    link.symlink_to(capture)
+    assert main(["simulate", str(PLASTIC), "-o", str(link), "-q"]) == 1
+    assert "cap-link: is a link; this output folder is replaced as a whole: name the folder itself" in _err(capsys)
+    assert link.is_symlink() and sorted(p.name for p in capture.iterdir()) == before

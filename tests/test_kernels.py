@@ -71,6 +71,7 @@ INLINED_INTO = {
     "reflecto.reconstruct._polar_kernels._lm_system": ("luminance_lm",),
     "reflecto.reconstruct._normal_kernels._projected_area": ("_cosines",),
     "reflecto.reconstruct._normal_kernels._cosines": ("tilt_pass",),
+    "reflecto.sources._rgl_kernels._solve_quadratic": ("warp_sample",),
 }
 
 
@@ -1124,3 +1125,40 @@ def test_luminance_lm_is_the_numpy_solve(case):
         assert fast.g == 1.0
     # the pass buffers hold a pass the normal equations can start from, as the reference's do
     assert np.all(np.isfinite(pa._r))
+
+
+# ----------------------------------------------------------------------------- RGL reader
+@twin("reflecto.sources._rgl_kernels.warp_sample", "reflecto.sources._rgl_kernels.bilinear_one_slice")
+def test_rgl_warp_and_one_slice_lookup(shared, rng):
+    """The compiled warp (:meth:`Marginal2D.sample`) equals its NumPy reference
+    (:meth:`Marginal2D.sample_numpy`) bit for bit, on a shared file's ``vndf`` (every
+    incident slice) and on a table with flat stretches, rows of no mass, corners and
+    clipped samples; the compiled lookup of a one-slice table equals the interpolation
+    between two slices at the first one's parameter."""
+    from reflecto.sources.rgl import Marginal2D
+
+    u = np.concatenate([rng.random((20000, 2)), [[0, 0], [1, 1], [0, 1], [1, 0], [-0.5, 0.3], [0.4, 1.5]]])
+    from reflecto.load import load_source
+
+    vndf = load_source(sorted((shared / "rgl").glob("*.bsdf"))[0])._vndf
+    k = rng.integers(0, vndf.norm_data.shape[0], len(u))
+    assert np.array_equal(vndf.sample(u, k), vndf.sample_numpy(u, k))
+    data = rng.random((1, 2, 9, 13))
+    data[0, 0, :, 3:7] = 0.0
+    data[0, 1, 2:5, :] = 0.0
+    m = Marginal2D(data, np.zeros(1), np.array([0.1, 0.6]))
+    for k in (0, 1):
+        assert np.array_equal(m.sample(u, k), m.sample_numpy(u, k))
+    nodes = rng.random((40, 2))
+    both = np.array([[0], [1]])
+    assert np.array_equal(m.sample(nodes[None], both), m.sample_numpy(nodes[None], both))
+    for bad in (2, -3, 10**8):  # the compiled loop reads only inside the tables
+        with pytest.raises(IndexError):
+            m.sample(u[:3], bad)
+    assert np.array_equal(m.sample(u, -1), m.sample_numpy(u, -1))
+    table = rng.random((7, 11))
+    one = Marginal2D(table[None, None], np.zeros(1), np.zeros(1), build_cdf=False)
+    two = Marginal2D(np.stack([table, rng.random((7, 11))])[None], np.zeros(1), np.array([0.0, 1.0]), build_cdf=False)
+    zero = np.zeros(len(u))
+    assert np.array_equal(one.eval(u, zero, zero), two.eval(u, zero, zero))
+    assert one.eval(u.reshape(2, -1, 2), zero.reshape(2, -1), zero.reshape(2, -1)).shape == (2, len(u) // 2)

@@ -927,6 +927,8 @@ def atomic_folder(path: str | Path, marker: str = PAGE_MARKER) -> Iterator[Path]
         current folder or a parent of it, or it cannot be written.
     """
     path = Path(path)
+    if path.is_symlink():  # refused before the work, not after it: the rename would replace the link, not its target
+        raise OutputError(path, "is a link; this output folder is replaced as a whole: name the folder itself")
     _replaceable(path, folder=True)
     _replaceable_folder(path, marker)
     created = make_parents(path.parent)

@@ -208,7 +208,20 @@ def solve_planes(m: Array, precision: Array) -> tuple[Array, Array, int] | None:
     on the far side of the camera, their planes ≈ 10° apart), the scatter of the others
     cannot show how little they fix the normal along their common direction, and the
     floor propagated through their geometry does (`PLANE_FLOOR_DEG` / sin 10° ≈ 0.17°).
-    ``None`` with fewer than :data:`MIN_PLANES` inliers or planes that fix one angle only.
+
+    Parameters
+    ----------
+    m : ndarray, shape (N, 3)
+        The planes' unit normals in the frame of the current normal.
+    precision : ndarray, shape (N,)
+        Their relative precisions (0: the plane takes no part).
+
+    Returns
+    -------
+    tuple or None
+        The offset ``(δ_t, δ_b)`` (radians, shape (2,)), its covariance (rad², shape
+        (2, 2)) and the number of inliers; ``None`` with fewer than :data:`MIN_PLANES`
+        inliers or planes that fix one angle only.
     """
     keep = precision > 0.0  # a plane of no precision carries no information
     if np.count_nonzero(keep) < MIN_PLANES:

@@ -330,8 +330,21 @@ class Marginal2D:
         return out.reshape(shape + (2,))
 
     def sample_numpy(self, u: Array, slice_index: int | NDArray[np.intp]) -> Array:
-        """NumPy reference of :meth:`sample` (same arguments and result), vectorized over
-        the samples: each bisection step gathers every sample's node at once."""
+        """NumPy reference of :meth:`sample`, vectorized over the samples: each bisection
+        step gathers every sample's node at once.
+
+        Parameters
+        ----------
+        u : ndarray, shape (..., 2)
+            Uniform samples in [0, 1]² (clipped).
+        slice_index
+            Flat parameter slice ``k·n_theta + j``: one, or one per sample.
+
+        Returns
+        -------
+        ndarray, shape (..., 2)
+            The warped points in [0, 1]².
+        """
         ux = np.clip(u[..., 0], 0.0, 1.0)
         shape = np.broadcast_shapes(ux.shape, np.shape(slice_index))
         k = np.broadcast_to(np.asarray(slice_index, dtype=np.intp), shape)
