@@ -868,3 +868,21 @@ def test_flat_fresnel_data_take_the_constant_fresnel_lobe_not_the_eta_bound(tmp_
     # a dielectric of large η is still a dielectric: the constant lobe is not a default
     res2 = reconstruct(_capture(AnalyticBRDF(distribution="ggx", alpha=0.08, kd=0.02, ks=0.6, eta=8.0), seed=5))
     assert math.isfinite(res2.eta) and res2.eta < ETA_MAX
+
+
+def test_ks_at_its_bound_is_noted_wherever_it_binds(shared):
+    """k_s ≤ 1 can bind in a channel's scalars (the tint's bounded least squares) where the
+    luminance fit left it free: the summary says so there too. delrin on the ``wide``
+    device (the sweep's seed) ends with k_s = 1 in every channel that way."""
+    from reflecto import workflow
+    from reflecto.evaluate.sweep import material_seed
+    from reflecto.instrument.device import load_device
+    from reflecto.instrument.simulate import simulate_capture
+    from reflecto.load import load_source
+
+    src = load_source(shared / "merl-nbrdf" / "delrin.h5")
+    cap = simulate_capture(src, load_device("wide"), seed=material_seed("delrin"))
+    rec = workflow.capture_to_model(cap).reconstruction
+    noted = any(n.startswith("k_s at its physical bound 1") for n in rec.notes)
+    assert np.all(rec.model.ks <= 1.0) and np.any(rec.model.ks >= 1.0), rec.model.ks
+    assert noted, rec.notes

@@ -659,13 +659,13 @@ def _choose_isotropic(option: str, test: IsotropyTest) -> bool:
 
 
 def _notes(fit: IsotropicFit | HemicubeFit, model, isotropic: bool, test: IsotropyTest,
-           energy_scale: float) -> list[str]:
+           energy_scale: float, ks_at_bound: bool) -> list[str]:
     notes = []
     if not isotropic:
         notes.append(f"anisotropic: a second azimuthal harmonic explains {100 * test.anisotropy:.0f} % of the "
                      f"partial NDF's ring-wise variance ({100 * test.conditional:.0f} % of what θ_d and φ_d "
                      "leave); hemicube NDF")
-    return notes + bound_notes(fit.ks_at_bound, fit.eta, model, energy_scale)
+    return notes + bound_notes(ks_at_bound, fit.eta, model, energy_scale)
 
 
 def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> list[str]:
@@ -804,7 +804,9 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     cpu.motion = lap()
     model, scale, albedo = limit_energy_of_the_trend(built, opt.energy_clamp)
     notes = _normal_notes(est, opt, isotropic) + _hidden_peak_notes(hidden)
-    notes += _notes(fit, model, isotropic, test, scale) + held_tint_notes(built, model)
+    # k_s ≤ 1 binds in the luminance fit, or in a channel's scalars after it (the tint's bounded least squares)
+    ks_bound = fit.ks_at_bound or bool(np.any(np.asarray(built.ks) >= 1.0))
+    notes += _notes(fit, model, isotropic, test, scale, ks_bound) + held_tint_notes(built, model)
     shadowing_note = None if shadowing is None else shadowing.note()
     if shadowing_note:
         notes.append(shadowing_note)
