@@ -659,13 +659,13 @@ def _choose_isotropic(option: str, test: IsotropyTest) -> bool:
 
 
 def _notes(fit: IsotropicFit | HemicubeFit, model, isotropic: bool, test: IsotropyTest,
-           energy_scale: float, ks_at_bound: bool) -> list[str]:
+           energy_scale: float) -> list[str]:
     notes = []
     if not isotropic:
         notes.append(f"anisotropic: a second azimuthal harmonic explains {100 * test.anisotropy:.0f} % of the "
                      f"partial NDF's ring-wise variance ({100 * test.conditional:.0f} % of what θ_d and φ_d "
                      "leave); hemicube NDF")
-    return notes + bound_notes(ks_at_bound, fit.eta, model, energy_scale)
+    return notes + bound_notes(fit.ks_at_bound, fit.eta, model, energy_scale)
 
 
 def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> list[str]:
@@ -676,7 +676,8 @@ def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> li
     Parameters
     ----------
     ks_at_bound
-        Whether the fit held ``k_s`` at 1.
+        Whether the fit held ``k_s`` at 1 (the note is also made where the model's ``k_s``
+        before the energy limit reaches 1 in some channel).
     eta
         The fitted relative index (or :data:`reflecto.fresnel.CONSTANT`).
     model
@@ -690,7 +691,9 @@ def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> li
         One sentence per bound met (empty when none).
     """
     notes = []
-    if ks_at_bound:
+    # the bound binds in the fit, or in a channel's scalars after it (the tint's bounded least
+    # squares): the model before the energy limit (``model.ks / energy_scale``) reaches 1
+    if ks_at_bound or bool(np.any(np.asarray(model.ks) >= (1.0 - 1e-9) * energy_scale)):
         notes.append("k_s at its physical bound 1 (a microfacet reflects at most F): the specular level fixes η")
     if is_constant(eta):
         notes.append(f"constant Fresnel (F ≡ 1, the η → ∞ limit of eq. 4): the data ask for a flatter curve than "
@@ -804,9 +807,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     cpu.motion = lap()
     model, scale, albedo = limit_energy_of_the_trend(built, opt.energy_clamp)
     notes = _normal_notes(est, opt, isotropic) + _hidden_peak_notes(hidden)
-    # k_s ≤ 1 binds in the luminance fit, or in a channel's scalars after it (the tint's bounded least squares)
-    ks_bound = fit.ks_at_bound or bool(np.any(np.asarray(built.ks) >= 1.0))
-    notes += _notes(fit, model, isotropic, test, scale, ks_bound) + held_tint_notes(built, model)
+    notes += _notes(fit, model, isotropic, test, scale) + held_tint_notes(built, model)
     shadowing_note = None if shadowing is None else shadowing.note()
     if shadowing_note:
         notes.append(shadowing_note)

@@ -314,11 +314,10 @@ class Marginal2D:
         ndarray, shape (..., 2)
             The warped points in [0, 1]².
         """
-        ux = np.clip(u[..., 0], 0.0, 1.0)
-        shape = np.broadcast_shapes(ux.shape, np.shape(slice_index))
-        k = np.ascontiguousarray(np.broadcast_to(np.asarray(slice_index, dtype=np.intp), shape)).reshape(-1)
-        ux = np.ascontiguousarray(np.broadcast_to(ux, shape), dtype=np.float64).reshape(-1)
-        uy = np.ascontiguousarray(np.broadcast_to(np.clip(u[..., 1], 0.0, 1.0), shape), dtype=np.float64).reshape(-1)
+        k_b, ux_b, uy_b = _warp_inputs(u, slice_index)
+        shape = k_b.shape
+        k = np.ascontiguousarray(k_b).reshape(-1)
+        ux, uy = np.ascontiguousarray(ux_b).reshape(-1), np.ascontiguousarray(uy_b).reshape(-1)
         n = self.norm_data.shape[0]
         if k.size and (int(k.min()) < -n or int(k.max()) >= n):  # the compiled loop does not check its reads
             raise IndexError(f"slice index out of range for {n} parameter slices")
@@ -345,11 +344,7 @@ class Marginal2D:
         ndarray, shape (..., 2)
             The warped points in [0, 1]².
         """
-        ux = np.clip(u[..., 0], 0.0, 1.0)
-        shape = np.broadcast_shapes(ux.shape, np.shape(slice_index))
-        k = np.broadcast_to(np.asarray(slice_index, dtype=np.intp), shape)
-        ux = np.broadcast_to(ux, shape)
-        uy = np.broadcast_to(np.clip(u[..., 1], 0.0, 1.0), shape)
+        k, ux, uy = _warp_inputs(u, slice_index)
         h, w = self.h, self.w
         # flat indices into the (slice, row, column) tables: one gather each (np.take)
         d, c, marg = self.norm_data.reshape(-1), self.cond.reshape(-1), self.marg.reshape(-1)
@@ -373,6 +368,16 @@ class Marginal2D:
         base = cond(px)
         sx = _solve_quadratic(c0, c1, target - base)
         return np.stack([(px + sx) / (w - 1), (py + sy) / (h - 1)], axis=-1)
+
+
+def _warp_inputs(u: Array, slice_index: int | NDArray[np.intp]) -> tuple[NDArray[np.intp], Array, Array]:
+    """The slice index and the two uniform coordinates (clipped to [0, 1], float64) of
+    :meth:`Marginal2D.sample`, broadcast to one shape (read-only views)."""
+    ux = np.clip(np.asarray(u[..., 0], dtype=np.float64), 0.0, 1.0)
+    uy = np.clip(np.asarray(u[..., 1], dtype=np.float64), 0.0, 1.0)
+    shape = np.broadcast_shapes(ux.shape, np.shape(slice_index))
+    k = np.broadcast_to(np.asarray(slice_index, dtype=np.intp), shape)
+    return k, np.broadcast_to(ux, shape), np.broadcast_to(uy, shape)
 
 
 def _last_at_or_below(values: Callable[[NDArray[np.intp]], Array], n: int, target: Array) -> NDArray[np.intp]:
