@@ -526,3 +526,32 @@ def test_a_file_output_named_as_a_folder_is_refused(tmp_path, model, cap, calib,
     _, line = _run(argv, capsys)
     assert "a folder" in line and f"m{suffix}" in line
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_summary_that_cannot_be_written_leaves_no_model(tmp_path, cap, capsys):
+    """``reconstruct -o m.reflecto`` where ``m.json`` is a folder: refused in one line before the
+    work, and no model file left without its summary."""
+    (tmp_path / "m.json").mkdir()
+    _, line = _run(["reconstruct", str(cap), "-o", str(tmp_path / "m.reflecto"), "-q"], capsys)
+    assert "m.json: is a folder" in line
+    assert not (tmp_path / "m.reflecto").exists()
+
+
+def test_a_capture_given_as_dot_names_its_model_after_the_folder(tmp_path, cap, capsys, monkeypatch):
+    """``reconstruct . -o FOLDER`` from inside a capture writes ``FOLDER/<capture>.reflecto``, not a hidden
+    ``.reflecto``; the file system's root has no name to give and is refused in one line."""
+    monkeypatch.chdir(cap)
+    assert main(["reconstruct", ".", "-o", str(tmp_path / "models"), "-q"]) == 0
+    assert sorted(p.name for p in (tmp_path / "models").iterdir()) == [f"{cap.name}.json", f"{cap.name}.reflecto"]
+    _, line = _run(["reconstruct", "/", str(cap), "-o", str(tmp_path / "more"), "-q"], capsys)
+    assert "has no name to give its model" in line
+
+
+def test_a_negative_length_in_an_npy_header_is_a_damaged_file(tmp_path):
+    """An ``.npy`` header whose shape has a negative length (with the same element count as its
+    data) is refused as damaged, naming the file and the member, not by NumPy's reshape."""
+    good = rio.npy_bytes(np.zeros((2, 4)))
+    bad = good.replace(b"(2, 4), }", b"(-2,-4),}")  # the header keeps its length
+    assert len(bad) == len(good) and bad != good
+    with pytest.raises(FileFormatError, match=r"x\.npz: meta\.npy: damaged \.npy header \(shape \(-2, -4\)"):
+        rio.npy_array(bad, tmp_path / "x.npz", "meta.npy")

@@ -107,7 +107,8 @@ def test_capture_state_waits_for_manifest_and_whole_frames(sources: list[Path], 
     assert capture_state(dst)[0] == WAITING
     text = (src / MANIFEST).read_text()
     (dst / MANIFEST).write_text(text[: len(text) // 2])
-    assert capture_state(dst) == (WAITING, "manifest.json is not complete JSON")
+    state, why = capture_state(dst)  # waited for, with the parser's own words
+    assert state == WAITING and why.startswith("manifest.json: not valid JSON: ") and "line " in why
     (dst / MANIFEST).write_text(text)
     assert capture_state(dst)[0] == WAITING  # no frame yet
     for name in _frames(src):
@@ -819,3 +820,184 @@ def test_a_workers_model_that_cannot_be_renamed_into_place_is_reported(sources: 
     assert json.loads((models / "c0.json").read_text())["preview"] is True
     assert json.loads((models / "c1.json").read_text())["preview"] is False
     assert not [p for p in models.iterdir() if p.name.startswith(".")]
+
+
+def _fake_model(cap: Path, out: Path) -> dict:
+    """A stand-in reconstruction that reads the capture as ``reconstruct`` does (its refusals)
+    and writes a model file and its summary without fitting (the real model of the plastic,
+    copied): the watcher's bookkeeping is what is tested."""
+    read_capture(cap)
+    shutil.copyfile(_fake_model.model, out)  # type: ignore[attr-defined]
+    summary = {"capture": str(cap), "eta": 1.5, "normal_tilt_deg": 0.0, "notes": [], "seconds": 0.0,
+               "manifest": json.loads((cap / MANIFEST).read_text()).get("note", "")}
+    out.with_suffix(".json").write_text(json.dumps(summary))
+    return summary
+
+
+@pytest.fixture()
+def fake(first_model: Path):
+    _fake_model.model = first_model  # type: ignore[attr-defined]
+    return _fake_model
+
+
+def test_names_the_models_cannot_carry_are_reported_and_skipped(sources: list[Path], tmp_path: Path,
+                                                                  fake) -> None:
+    """A folder name that is not valid UTF-8, or too long for the models' file names beside it,
+    is reported in one line and skipped; the page lists it (escaped) and the other captures
+    are modelled."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "good")
+    bad = os.fsdecode(b"bad\xff")
+    shutil.copytree(sources[0], root / bad)
+    long = "c" * 240
+    shutil.copytree(sources[0], root / long)
+    lines: list[str] = []
+    w = Watcher(root, models, fake, thumbnails=False, report=lines.append)
+    w.run(once=True)
+    assert list(w.entries) == ["good"] and sorted(w.failed) == sorted([bad, long])
+    assert len(lines) == 2 and all("\n" not in x and x.isprintable() for x in lines)
+    assert any("bad\\udcff" in x and "not valid UTF-8" in x for x in lines)
+    assert any("240 bytes" in x for x in lines)
+    page = (models / "index.html").read_text()
+    assert "bad\\udcff" in page and "not valid UTF-8" in page
+
+
+@pytest.mark.parametrize("manifest", ["deep", "nul", "huge", "syntax"])
+def test_a_damaged_manifest_is_reported_in_one_line(sources: list[Path], tmp_path: Path, fake,
+                                                    manifest: str) -> None:
+    """A manifest nested too deep, naming a frame with a NUL, larger than the reader's limit
+    or with a syntax error is reported in the reader's words (the syntax error once it stays
+    unchanged), and the watch carries on with the other captures."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "good")
+    bad = root / "bad"
+    shutil.copytree(sources[0], bad)
+    text = (bad / MANIFEST).read_text()
+    if manifest == "deep":
+        (bad / MANIFEST).write_text("[" * 100_000 + "]" * 100_000)
+    elif manifest == "nul":
+        (bad / MANIFEST).write_text(json.dumps({**json.loads(text), "frames": [{"file": "a\u0000b.png"}]}))
+    elif manifest == "huge":
+        with open(bad / MANIFEST, "wb") as fh:  # sparse: no disk used
+            fh.truncate(17 << 20)
+    else:
+        (bad / MANIFEST).write_text(text.replace(",", ",,", 1))
+    lines: list[str] = []
+    w = Watcher(root, models, fake, thumbnails=False, report=lines.append)
+    w.run(once=True)
+    assert list(w.entries) == ["good"] and list(w.failed) == ["bad"] and len(lines) == 1
+    expected = {"deep": "nested deeper", "nul": "a\\x00b.png", "huge": "bytes allowed", "syntax": "not valid JSON"}
+    assert expected[manifest] in lines[0], lines
+
+
+def test_a_summary_that_is_not_an_object_is_made_again_not_adopted_over_and_over(
+        sources: list[Path], tmp_path: Path, fake) -> None:
+    """An earlier model whose summary the checking reader refuses (not an object) does not
+    count as done: the capture is modelled again, once, and the watcher does not rewrite
+    its page on every look."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    models.mkdir()
+    shutil.copytree(sources[0], root / "a")
+    shutil.copyfile(fake.model, models / "a.reflecto")
+    (models / "a.json").write_text("[1]")
+    w = Watcher(root, models, fake, thumbnails=False, report=lambda line: None)
+    assert w.scan() == 1
+    assert isinstance(json.loads((models / "a.json").read_text()), dict)
+    page = (models / "index.html").stat().st_mtime_ns
+    for _ in range(3):
+        assert w.scan() == 0
+    assert (models / "index.html").stat().st_mtime_ns == page
+
+
+@pytest.mark.parametrize("preview", [False, True])
+def test_a_folder_rewritten_while_its_model_is_made_is_made_again(sources: list[Path], tmp_path: Path,
+                                                                   first_model: Path, preview: bool) -> None:
+    """The folder is replaced by another capture while its model is made (one process, with
+    or without a preview first): the model is made again from what the folder holds now."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "a")
+    made: list[str] = []
+
+    def swapped(cap: Path, out: Path) -> dict:
+        made.append(json.loads((cap / MANIFEST).read_text())["simulation"]["source"])
+        summary = reconstruct_folder(cap, out, preview=preview and len(made) == 1)
+        if len(made) == 1:
+            tmp = root / ".a.part"
+            shutil.copytree(sources[1], tmp)
+            shutil.rmtree(root / "a")
+            os.replace(tmp, root / "a")
+        return summary
+
+    w = Watcher(root, models, swapped, thumbnails=False, report=lambda line: None, refine_idle_s=0.0)
+    w.run(once=True)
+    assert len(made) == 2 and made[0] != made[1]
+    summary = json.loads((models / "a.json").read_text())
+    assert summary["preview"] is False and abs(summary["normal_tilt_deg"] - 4.0) < 0.5  # the rough one, tilted
+
+
+def test_folders_that_are_gone_are_forgotten(sources: list[Path], tmp_path: Path, fake) -> None:
+    """A folder reported (or waited for) and then removed or renamed by its writer leaves the
+    watcher's state and the page's skipped list."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    (root / "incoming").mkdir()  # a writer's folder, no manifest yet
+    w = Watcher(root, models, fake, thumbnails=False, report=lambda line: None, settle_s=0.0)
+    w.scan()
+    assert "incoming" in w.failed and "incoming" in (models / "index.html").read_text()
+    shutil.copytree(sources[0], root / "incoming-done")
+    shutil.rmtree(root / "incoming")
+    w.scan()
+    assert not w.failed and not w._waiting and list(w.entries) == ["incoming-done"]
+    assert "Skipped" not in (models / "index.html").read_text()
+
+
+def test_a_dangling_link_in_a_refused_folder_does_not_hide_its_repair(sources: list[Path], tmp_path: Path,
+                                                                        fake) -> None:
+    """A refused folder holding a dangling link is looked at again once its manifest is fixed
+    (the folder's signature still sees the other files change)."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    cap = root / "a"
+    shutil.copytree(sources[0], cap)
+    good = (cap / MANIFEST).read_text()
+    (cap / MANIFEST).write_text(good.replace(",", ",,", 1))
+    os.symlink(tmp_path / "nowhere.jpg", cap / "preview.jpg")
+    w = Watcher(root, models, fake, thumbnails=False, report=lambda line: None, settle_s=0.0)
+    w.scan()
+    assert "a" in w.failed
+    time.sleep(0.01)
+    (cap / MANIFEST).write_text(good)
+    w.scan()
+    assert list(w.entries) == ["a"] and not w.failed
+
+
+def test_a_folder_named_like_a_part_file_is_a_capture(sources: list[Path], tmp_path: Path, fake) -> None:
+    """Only hidden names are a writer's unfinished folders; ``spare.part`` is modelled."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "spare.part")
+    shutil.copytree(sources[0], root / ".a.copy.part")
+    w = Watcher(root, models, fake, thumbnails=False, report=lambda line: None)
+    w.run(once=True)
+    assert list(w.entries) == ["spare.part"] and not w.failed
+
+
+def test_the_cli_prints_one_line_per_model_whatever_the_name(sources: list[Path], tmp_path: Path, capsys) -> None:
+    """A newline in a capture's name is written escaped in the CLI's line for its model; a
+    capture folder given as the folder to watch is refused in one line."""
+    from reflecto.cli import main
+
+    root = tmp_path / "root"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "x\nfake (full): forged")
+    assert main(["watch", str(root), "-o", str(tmp_path / "m"), "--nominal", "--once", "--no-preview"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 1 and out[0].startswith("x\\nfake (full): forged (full): tilt")
+    assert main(["watch", str(root / "x\nfake (full): forged"), "-o", str(tmp_path / "m2"), "--once"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is a capture folder; watch the folder the captures land in" in err[0]
+    assert not (tmp_path / "m2").exists()

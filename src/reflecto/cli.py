@@ -40,6 +40,7 @@ from .errors import (
     ReflectoWarning,
     interrupted,
     one_line,
+    shown_path,
 )
 from .evaluate.cooktorrance import fit_cook_torrance
 from .evaluate.design import DEFAULT_CONES, DEFAULT_LED_COUNTS, DEFAULT_TILTS, best_design, design_study
@@ -488,6 +489,16 @@ def _report_failures(failures: list[tuple[str, str]]) -> None:
         print(f"reflecto: error: {one_line(msg)}", file=sys.stderr)
 
 
+def _capture_name(capture: str) -> str:
+    """The name of a capture folder's model in an output folder: the folder's own name, also
+    where it is given as ``.``, ``..`` or with a trailing slash."""
+    name = Path(os.path.abspath(capture)).name  # "." and ".." by the path, a link keeps its own name
+    if not name:
+        raise OutputError(capture, "has no name to give its model (the file system's root): "
+                                   "name the model file with -o FILE.reflecto")
+    return name
+
+
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     """``reflecto reconstruct CAP... -o OUT``: the §5 reconstruction of one capture, or of several
     in parallel worker processes (a model file and its ``.json`` summary each).
@@ -503,7 +514,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         check_output(args.output)
         outs = [args.output]
     else:
-        outs = [str(Path(args.output) / (Path(c).name + ".reflecto")) for c in caps]
+        outs = [str(Path(args.output) / (_capture_name(c) + ".reflecto")) for c in caps]
         seen: dict[str, str] = {}
         for c, o in zip(caps, outs):
             if o in seen:
@@ -567,7 +578,10 @@ def cmd_watch(args: argparse.Namespace) -> int:
     """``reflecto watch ROOT -o MODELS``: reconstruct each capture folder as it lands in ROOT
     (:mod:`reflecto.watch`); with ``--once``, what is there, then exit (1 if any was skipped)."""
     if not Path(args.root).is_dir():
-        raise ReflectoError(f"{args.root}: no such folder to watch")
+        raise ReflectoError(f"{shown_path(args.root)}: no such folder to watch")
+    if kinds.identify(args.root).name == "capture":
+        raise ReflectoError(f"{shown_path(args.root)}: is a capture folder; watch the folder the captures land in "
+                            f"(here {shown_path(Path(args.root).resolve().parent)})")
     check_output(args.output, folder=True)
     # the watcher would take its own output folder (or a capture's) for a capture landing in ROOT
     _refuse_inside(args.output, [args.root], "watched folder")
@@ -610,7 +624,8 @@ def _watch_announcer(args: argparse.Namespace) -> Callable[[Entry, dict[str, Any
         shown = _tilt_text(summary)
         warn = f", {len(entry.warnings)} warning(s)" if entry.warnings else ""
         kind = "preview" if entry.preview else "full"
-        print(f"{entry.name} ({kind}): tilt {shown}, η {entry.eta}, ε {summary.get('model_error', float('nan')):.4f}, "
+        eps = summary.get("model_error", float("nan"))
+        print(f"{shown_path(entry.name)} ({kind}): tilt {shown}, η {entry.eta}, ε {eps:.4f}, "
               f"{1000 * latency_s:.0f} ms{warn}", flush=True)
     return announce
 

@@ -562,6 +562,8 @@ def npy_array(raw: bytes, path: str | Path, member: str, dtype: Any = None,
         raise FileFormatError(path, f"{member}: dtype {dt}, expected {np.dtype(dtype)}")
     if shape is not None and tuple(shp) != tuple(shape):
         raise FileFormatError(path, f"{member}: shape {tuple(shp)}, expected {tuple(shape)}")
+    if any(int(n) < 0 for n in shp):
+        raise FileFormatError(path, f"{member}: damaged .npy header (shape {tuple(shp)} has a negative length)")
     count = math.prod(int(s) for s in shp)  # exact: no overflow on a hostile shape
     need = count * dt.itemsize
     have = len(raw) - bio.tell()

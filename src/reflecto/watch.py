@@ -11,7 +11,10 @@ manifest last, or frames still growing) is waited for. A folder that stays incom
 and unchanged for ``settle_s`` seconds, or that the reader refuses (a damaged frame,
 a manifest that does not fit the device, a saturated capture), is reported once
 (one line naming the folder and the problem) and skipped; if it changes later it is
-looked at again.
+looked at again, and one that leaves ``ROOT`` (removed, or renamed by its writer) is
+forgotten. A folder whose name the models cannot carry (not valid UTF-8, or too long for
+the file names made from it) is reported and skipped the same way. A folder rewritten
+while its model was made is made again from what it holds then.
 
 Each good capture is reconstructed by the function given as ``reconstruct_one``
 (capture folder, model path → summary dict; default :func:`default_reconstructor`,
@@ -41,7 +44,7 @@ with it: the capture is listed as skipped, and made again by the next watch).
 
 A capture whose ``.json`` summary exists in ``MODELS`` counts as done (a restarted watcher
 carries on; a preview's summary queues its full reconstruction, ``--once`` too); a model
-without its summary is redone.
+without its summary, or with one that does not read as a summary, is redone.
 
 Ctrl-C (SIGINT), or SIGTERM, stops the watcher between two files: every file in
 ``MODELS`` is complete, and a model whose summary was not yet written is removed (with
@@ -54,7 +57,6 @@ from __future__ import annotations
 import dataclasses
 import glob
 import html
-import json
 import math
 import os
 import pickle
@@ -74,10 +76,10 @@ import numpy as np
 from . import workflow
 from .batch import run_batch
 from .brdf import BRDFSource
-from .errors import ParameterError, ReflectoError, interrupted, one_line
+from .errors import FileFormatError, LimitError, ParameterError, ReflectoError, interrupted, one_line, shown_path
 from .fresnel import eta_from_json, format_eta
 from .instrument.capture import MANIFEST
-from .io import atomic_write, make_parents, read_json
+from .io import MAX_DESCRIPTION_BYTES, atomic_write, make_parents, parse_json, read_input, read_json
 from .kinds import is_model_file
 from .model import load_model
 from .reconstruct import Options
@@ -99,6 +101,11 @@ REFINE_IDLE_S = 1.0
 PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 
 READY, WAITING = "ready", "waiting"
+
+#: Bytes the longest file name the watcher makes for a capture adds to the capture's name:
+#: a worker's hidden model ``..NAME.full.reflecto.XXXXXXXX`` (:func:`reflecto.io.atomic_write`'s
+#: temporary file beside ``.NAME.full.reflecto``), with a margin.
+NAME_OVERHEAD_BYTES = 32
 
 #: (capture folder, model path) → the summary written beside the model.
 Reconstructor = Callable[[Path, Path], dict]
@@ -203,7 +210,7 @@ def _regular(path: Path) -> bool | None:
         return stat.S_ISREG(os.stat(path).st_mode)
     except FileNotFoundError:
         return None
-    except OSError:
+    except (OSError, ValueError):  # ValueError: a NUL in a name the manifest gives
         return False
 
 
@@ -248,16 +255,14 @@ def capture_state(folder: Path) -> tuple[str, str]:
         return WAITING, f"no {MANIFEST} yet"
     if not regular:
         return READY, ""
-    try:
-        raw = mpath.read_bytes()
-    except FileNotFoundError:
-        return WAITING, f"no {MANIFEST} yet"
-    except OSError as e:
-        return WAITING, f"{MANIFEST} cannot be read ({e.strerror or e})"
-    try:
-        manifest = json.loads(raw)
-    except ValueError:
-        return WAITING, f"{MANIFEST} is not complete JSON"
+    try:  # the reader's limits: a manifest too large or nested too deep is the reader's to refuse
+        manifest = parse_json(read_input(mpath, MAX_DESCRIPTION_BYTES, "a manifest"), mpath)
+    except LimitError:
+        return READY, ""
+    except FileFormatError as e:  # gone meanwhile, unreadable, or not (yet) valid JSON
+        if _regular(mpath) is None:
+            return WAITING, f"no {MANIFEST} yet"
+        return WAITING, f"{MANIFEST}: {e.problem}"
     frames = manifest.get("frames") if isinstance(manifest, dict) else None
     if not isinstance(frames, list):
         return READY, ""
@@ -287,8 +292,19 @@ def _stat(path: Path) -> tuple[int, int, int] | None:
 
 def _signature(folder: Path) -> tuple:
     """Names, sizes and modification times of a folder's files: a change means a writer is at work."""
+    def entry(e: os.DirEntry) -> tuple[str, int, int]:
+        try:
+            st = e.stat()
+        except OSError:  # a dangling link: its own status, so that the rest still counts
+            try:
+                st = e.stat(follow_symlinks=False)
+            except OSError:
+                return e.name, -1, -1
+        return e.name, st.st_size, st.st_mtime_ns
+
     try:
-        return tuple(sorted((e.name, e.stat().st_size, e.stat().st_mtime_ns) for e in os.scandir(folder)))
+        with os.scandir(folder) as it:
+            return tuple(sorted(entry(e) for e in it))
     except OSError:
         return ()
 
@@ -477,20 +493,55 @@ class Watcher:
         self._busy_at = time.monotonic()  # when the last capture was found complete
         self._rows: dict[str, tuple[tuple, str]] = {}  # the page's rows by capture: (their content, HTML)
         self._live = False  # the watch loop runs: the page reloads itself
+        self._name_max: int | None = None  # the file system's longest file name (bytes), once asked
 
     # ------------------------------------------------------------------ scanning
     def _candidates(self) -> list[Path]:
         try:
-            with os.scandir(self.root) as it:
-                names = sorted(e.name for e in it if e.is_dir() and not e.name.startswith(".")
-                               and not e.name.endswith(".part"))
+            with os.scandir(self.root) as it:  # hidden names: a writer's folder before its rename
+                names = sorted(e.name for e in it if e.is_dir() and not e.name.startswith("."))
         except FileNotFoundError:
-            return []
+            names = []
         except OSError as e:
-            raise ReflectoError(f"{self.root}: cannot list the folder ({e.strerror or e})") from None
+            raise ReflectoError(f"{shown_path(self.root)}: cannot list the folder ({e.strerror or e})") from None
+        self._forget_gone(set(names))
         # a capture with a model is looked at again only where its full model failed (a preview
         # stays): once its folder changes
         return [self.root / n for n in names if (n not in self.entries or n in self.failed) and n != self._models_here]
+
+    def _forget_gone(self, present: set[str]) -> None:
+        """Forget the folders waited for or refused that have left ``root`` (removed, or
+        renamed by their writer): their state would grow with every folder a sweep leaves behind,
+        and the page would list them as skipped for good."""
+        gone = [n for n in self._waiting if n not in present]
+        for n in gone:
+            del self._waiting[n]
+        dropped = [n for n in self.failed if n not in present]
+        for n in dropped:
+            del self.failed[n]
+            self._failed_sig.pop(n, None)
+        if dropped:
+            self._write_index()
+
+    def _name_problem(self, name: str) -> str | None:
+        """Why a folder of this name cannot be modelled (``None``: it can): the models' file
+        names are the capture's name with a suffix, so it must be valid UTF-8 (the page and the
+        summaries are) and leave room for the suffixes within the file system's limit."""
+        raw = os.fsencode(name)
+        try:
+            raw.decode("utf-8")
+        except UnicodeDecodeError:
+            return "the folder's name is not valid UTF-8: rename it"
+        if self._name_max is None:
+            try:
+                self._name_max = os.pathconf(self.models if self.models.is_dir() else self.root, "PC_NAME_MAX")
+            except (OSError, ValueError):
+                self._name_max = 255
+        limit = self._name_max
+        if len(raw) + NAME_OVERHEAD_BYTES > limit:
+            return (f"the folder's name is {len(raw)} bytes; its models' file names need at most "
+                    f"{limit - NAME_OVERHEAD_BYTES} (the file system allows {limit} per name): rename it")
+        return None
 
     def _done(self, name: str) -> bool:
         """A model of ``name`` is in ``models``: its summary, and a model file whose structure
@@ -518,8 +569,11 @@ class Watcher:
                 if sig == self._failed_sig.get(name):
                     continue
                 del self.failed[name]  # changed since it was reported: look again
-            if self._done(name) and name not in self._waiting:
-                self._adopt(name, now=time.monotonic())
+            problem = self._name_problem(name)
+            if problem is not None:
+                self._fail(folder, problem)
+                continue
+            if self._done(name) and name not in self._waiting and self._adopt(name, now=time.monotonic()):
                 adopted += 1
                 continue
             state, why = capture_state(folder)
@@ -561,22 +615,27 @@ class Watcher:
         self._failed_sig[name] = _signature(folder) if sig is None else sig
         if name in self.entries:  # its preview stays, and says why no full model follows
             self.entries[name].warnings.append(f"no full model: {one_line(problem)}")
-        self.report(one_line(f"{folder}: {problem}" if not problem.startswith(str(folder)) else problem))
+        self.report(one_line(f"{shown_path(folder)}: {problem}" if not problem.startswith(str(folder))
+                             else shown_path(problem)))
         self._write_index()
 
-    def _adopt(self, name: str, now: float) -> None:
+    def _adopt(self, name: str, now: float) -> bool:
         """A model made before this watcher started: listed on the page, not redone (a
-        preview is queued for its full model)."""
-        try:  # the checking reader: a damaged summary (huge numbers, not an object) is not listed, nor fatal
+        preview is queued for its full model). Returns whether it was adopted: a summary that
+        the checking reader refuses (huge numbers, not an object) does not count, and the
+        capture is made again, as one without its summary is."""
+        try:
             summary = read_json(self.models / f"{name}.json")
         except ReflectoError:
-            return
-        if isinstance(summary, dict):
-            self.entries[name] = self._entry(name, summary)
-            if self.entries[name].preview:
-                self.previews[name] = now
-            if self.thumbnails:
-                self._refresh_thumbnail(name)
+            return False
+        if not isinstance(summary, dict):
+            return False
+        self.entries[name] = self._entry(name, summary)
+        if self.entries[name].preview:
+            self.previews[name] = now
+        if self.thumbnails:
+            self._refresh_thumbnail(name)
+        return True
 
     def _refresh_thumbnail(self, name: str) -> None:
         """Render the thumbnail of an earlier model where it is missing or older than the
@@ -745,6 +804,8 @@ class Watcher:
         kept = getattr(make, "last", None)  # a FolderReconstructor's model: not read back
         self._finish(name, summary, out, found, refining, kept[1] if isinstance(kept, tuple) and kept[0] == out
                      else None)
+        if sig is not None and _signature(folder) != sig:  # rewritten meanwhile: made again from what is there now
+            self.previews[name] = found
         return True
 
     def _discard_half_written(self, name: str, had_summary: bool, before: tuple) -> None:
@@ -805,11 +866,12 @@ class Watcher:
         if row is not None and row[0] == key:
             return row[1]
         esc = html.escape
-        img = (f'<img src="thumbs/{esc(url_quote(e.name))}.png" width="{THUMB_PX}" height="{THUMB_PX}" alt="">'
-               if thumb else "")
+        img = (f'<img src="thumbs/{esc(url_quote(os.fsencode(e.name)))}.png" width="{THUMB_PX}" '
+               f'height="{THUMB_PX}" alt="">' if thumb else "")
         model = "preview" if e.preview else "full"
         warn = "<br>".join([f"<strong>{esc(w)}</strong>" for w in e.warnings] + [esc(n) for n in e.notes]) or "–"
-        text = (f'<tr><td><a href="{esc(url_quote(e.name))}.json">{esc(e.name)}</a></td><td>{model}</td>'
+        text = (f'<tr><td><a href="{esc(url_quote(os.fsencode(e.name)))}.json">{esc(shown_path(e.name))}</a></td>'
+                f'<td>{model}</td>'
                 f"<td>{tilt}</td><td>{esc(e.eta)}</td><td>{img}</td><td>{warn}</td></tr>")
         self._rows[e.name] = (key, text)
         return text
@@ -824,14 +886,15 @@ class Watcher:
             thumbs = set()
         rows = [self._row(e, f"{e.name}.png" in thumbs) for e in sorted(self.entries.values(), key=lambda e: e.name)]
         esc = html.escape
-        skipped = "".join(f"<li>{esc(n)}: {esc(p)}</li>" for n, p in sorted(self.failed.items()))
+        skipped = "".join(f"<li>{esc(shown_path(n))}: {esc(shown_path(p))}</li>"
+                          for n, p in sorted(self.failed.items()))
         waiting = sum(e.preview and e.name not in self.failed for e in self.entries.values())
         pending = f" ({waiting} previews, their full models to follow)" if waiting else ""
         reload = f'<meta http-equiv="refresh" content="{PAGE_REFRESH_S}">' if self._live else ""
         page = (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\">{reload}<title>reflecto watch: "
-                f"{esc(str(self.root))}</title>\n<style>body{{font-family:sans-serif}}td{{padding:2px 8px;"
+                f"{esc(shown_path(self.root))}</title>\n<style>body{{font-family:sans-serif}}td{{padding:2px 8px;"
                 "vertical-align:middle}</style></head><body>\n"
-                f"<h1>Models of {esc(str(self.root))}</h1>\n<p>{len(self.entries)} models{pending}, "
+                f"<h1>Models of {esc(shown_path(self.root))}</h1>\n<p>{len(self.entries)} models{pending}, "
                 f"{len(self.failed)} skipped.</p>\n<table>\n<tr><th>capture</th><th>model</th><th>tilt</th>"
                 "<th>η</th><th>sphere</th>"
                 "<th>warnings and notes</th></tr>\n" + "\n".join(rows) + "\n</table>\n"

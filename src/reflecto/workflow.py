@@ -47,7 +47,7 @@ from .instrument.capture import Capture, CaptureError, read_capture
 from .instrument.device import Device, load_device
 from .instrument.simulate import simulate_calibration
 from .instrument.slices import Slices, extract_slices
-from .io import atomic_write
+from .io import atomic_write, check_output
 from .reconstruct import Options, Reconstruction, reconstruct
 from .reconstruct.asymmetric import AsymmetricReconstruction, RotatedCapture, reconstruct_rotations, sample_frames
 from .reconstruct.eq3 import SymmetryTest, symmetry_test_slices
@@ -417,10 +417,24 @@ def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path
                                   **{k: summary[k] for k in NORMAL_KEYS}})
     if result.reconstruction.preview:  # `reflecto info` and the report say so
         result.model.metadata["preview"] = True
-    result.model.save(out)
-    with atomic_write(out.with_suffix(".json"), "w") as fh:
-        fh.write(json.dumps(summary, indent=1))
+    _write_model_and_summary(result.model, out, summary)
     return summary
+
+
+def _write_model_and_summary(model: Any, out: Path, summary: dict[str, Any]) -> None:
+    """The model file ``out``, then its ``.json`` summary, each atomically. The summary's path
+    is checked before the model is written, and a summary that cannot be written (or an
+    interrupt between the two) takes the model just written with it: no model is left
+    without its summary."""
+    summary_path = out.with_suffix(".json")
+    check_output(summary_path)
+    model.save(out)
+    try:
+        with atomic_write(summary_path, "w") as fh:
+            fh.write(json.dumps(summary, indent=1))
+    except BaseException:
+        out.unlink(missing_ok=True)
+        raise
 
 
 def reconstruct_folder(capture_dir: str | Path, output: str | Path, calibration: str | Path | None = None,
@@ -572,7 +586,5 @@ def save_rotations_model(result: AsymmetricReconstruction, output: str | Path, c
     result.model.metadata.update({"captures": [os.path.relpath(Path(c).resolve(), _folder_of(out))
                                                for c in capture_dirs],
                                   "rotations_deg": result.rotations_deg, "asymmetric": True})
-    result.model.save(out)
-    with atomic_write(out.with_suffix(".json"), "w") as fh:
-        fh.write(json.dumps(summary, indent=1))
+    _write_model_and_summary(result.model, out, summary)
     return summary
