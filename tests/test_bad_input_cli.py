@@ -555,3 +555,69 @@ def test_a_negative_length_in_an_npy_header_is_a_damaged_file(tmp_path):
     assert len(bad) == len(good) and bad != good
     with pytest.raises(FileFormatError, match=r"x\.npz: meta\.npy: damaged \.npy header \(shape \(-2, -4\)"):
         rio.npy_array(bad, tmp_path / "x.npz", "meta.npy")
+
+
+def test_an_rgl_export_of_eta_one_has_no_specular_part(tmp_path, capsys):
+    """η = 1 (no interface: F ≡ 0) is inside the model's range: the export is written, and what
+    it holds is the diffuse term alone."""
+    src = tmp_path / "eta1.json"
+    src.write_text(json.dumps({"type": "analytic", "alpha": 0.2, "kd": 0.5, "ks": 0.5, "eta": 1}))
+    out = tmp_path / "eta1.bsdf"
+    assert main(["export", str(src), "-o", str(out), "-q"]) == 0
+    from reflecto.sources import RGLBRDF
+
+    i = np.array([[0.3, 0.1, np.sqrt(0.9)], [0.0, 0.0, 1.0]])
+    o = np.array([[-0.3, -0.1, np.sqrt(0.9)], [0.5, 0.0, np.sqrt(0.75)]])
+    assert np.allclose(RGLBRDF(out).eval(i, o), 0.5 / np.pi, rtol=0.02)
+
+
+def test_a_merl_table_without_back_scattering_is_one_line_for_the_rgl_export(tmp_path, capsys):
+    """A MERL table whose θ_d = 0 bins are unmeasured (−1) has no back-scattering to estimate the
+    RGL tables' NDF from: one line naming the file, no output."""
+    from reflecto.sources import merl
+
+    lamb = tmp_path / "lamb.json"
+    lamb.write_text(json.dumps({"type": "analytic", "alpha": 0.3, "kd": 0.5, "ks": 0.2}))
+    table = tmp_path / "t.binary"
+    assert main(["export", str(lamb), "-o", str(table), "-q"]) == 0
+    t = merl.read_merl_table(table).copy()
+    t[:, 0, 0, :] = -1.0
+    merl.write_merl_table(tmp_path / "retro.binary", t)
+    _, line = _run(["export", str(tmp_path / "retro.binary"), "-o", str(tmp_path / "r.bsdf")], capsys)
+    assert "retro.binary: no positive NDF or back-scattering" in line
+    assert not (tmp_path / "r.bsdf").exists()
+
+
+def test_export_refuses_to_replace_its_input_and_never_hints_at_it(tmp_path, capsys):
+    """``export X.bsdf -o X.bsdf`` would replace the file being read with a resampled copy; a
+    MERL export of an anisotropic ``X.bsdf`` hints at another RGL name than ``X.bsdf``."""
+    model = tmp_path / "an.json"
+    model.write_text(json.dumps({"type": "analytic", "alpha": [0.3, 0.08], "kd": 0.2, "ks": 0.5}))
+    rgl = tmp_path / "an.bsdf"
+    assert main(["export", str(model), "-o", str(rgl), "-q"]) == 0
+    before = rgl.read_bytes()
+    _, line = _run(["export", str(rgl), "-o", str(rgl)], capsys)
+    assert "is the file being exported" in line and rgl.read_bytes() == before
+    _, line = _run(["export", str(rgl), "-o", str(tmp_path / "an.binary")], capsys)
+    assert "an-anisotropic.bsdf" in line and f"-o {rgl} " not in line
+
+
+def test_a_file_name_that_is_not_utf8_and_a_description_with_escapes(tmp_path, capsys):
+    """A source whose name is not valid UTF-8 exports (its name escaped in the file's description),
+    and ``info`` writes the description's newlines and terminal escapes as escapes."""
+    name = os.fsdecode(b"bad\xffname.json")
+    (tmp_path / name).write_text(json.dumps({"type": "analytic", "alpha": 0.2, "kd": 0.3, "ks": 0.4}))
+    out = tmp_path / "bn.bsdf"
+    assert main(["export", str(tmp_path / name), "-o", str(out), "-q"]) == 0
+    from reflecto.export.rgl import write_tensor_file
+    from reflecto.sources.rgl import read_tensor_file
+
+    f = {k: np.array(v) for k, v in read_tensor_file(out).items()}
+    assert b"bad\\udcffname" in f["description"].tobytes()
+    f["description"] = np.frombuffer(b"paper\n  kind        merl\x1b[31m", np.uint8).copy()
+    write_tensor_file(tmp_path / "desc.bsdf", f)
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "desc.bsdf")]) == 0
+    out_lines = capsys.readouterr().out.splitlines()
+    assert any(x.startswith("  description paper\\n  kind        merl\\x1b[31m") for x in out_lines)
+    assert not any(x.startswith("  kind        merl") for x in out_lines) and "\x1b" not in "".join(out_lines)

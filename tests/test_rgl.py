@@ -100,3 +100,62 @@ def test_marginal_warp_bisection_equals_the_column_count(rng):
         sx = _solve_quadratic(c0, c1, target - rows[np.arange(len(u)), px])
         expected = np.stack([(px + sx) / (m.w - 1), (py + sy) / (m.h - 1)], axis=-1)
         assert np.array_equal(m.sample(u, k), expected)
+
+
+def _paper_white_fields(shared) -> dict:
+    return {k: np.array(v) for k, v in read_tensor_file(shared / "rgl" / "paper_white_rgb.bsdf").items()}
+
+
+@pytest.mark.parametrize("damage", ["small", "nonsquare", "zero", "negative"])
+def test_a_luminance_table_mitsuba_cannot_sample_is_refused(shared, tmp_path, damage):
+    """The luminance slices must be rgb's (square, the same size), non-negative and not zero in
+    any incident slice: Mitsuba's plugin refuses the first two and samples a NaN pdf from the others."""
+    from reflecto.export.rgl import write_tensor_file
+
+    f = _paper_white_fields(shared)
+    lum = f["luminance"]
+    f["luminance"] = {"small": np.ascontiguousarray(lum[:, :, :16, :16]),
+                      "nonsquare": np.ascontiguousarray(lum[:, :, :16, :]),
+                      "zero": np.zeros_like(lum), "negative": -lum}[damage]
+    p = write_tensor_file(tmp_path / f"{damage}.bsdf", f)
+    expected = {"small": "must match the rgb slices", "nonsquare": "must match the rgb slices",
+                "zero": "'luminance' is zero everywhere", "negative": "'luminance' must be non-negative"}[damage]
+    with pytest.raises(FileFormatError, match=expected):
+        RGLBRDF(p)
+
+
+def test_rows_of_no_visible_normals_read_without_a_division_by_zero(shared, tmp_path):
+    """A band of ``vndf`` rows of zeros (no mass: the conditional warp is undefined there) is
+    read, and the inverse warp stays within [0, 1]² instead of giving NaN indices."""
+    from reflecto.export.rgl import write_tensor_file
+
+    f = _paper_white_fields(shared)
+    f["vndf"][:, :, 60:70, :] = 0
+    src = RGLBRDF(write_tensor_file(tmp_path / "rows.bsdf", f))
+    table = src._vndf
+    y = np.full(50, 64.5 / (table.h - 1))  # between two rows of zeros
+    u = table.invert(np.stack([np.linspace(0, 1, 50), y], -1), np.zeros(50), np.full(50, 0.3))
+    assert np.all(np.isfinite(u)) and np.all((u >= 0) & (u <= 1))
+    rng = np.random.default_rng(0)
+    assert np.all(np.isfinite(src.eval(random_directions(rng, 200, 80.0), random_directions(rng, 200, 80.0))))
+
+
+def test_a_table_of_huge_ndf_values_is_judged_by_its_largest_nodes(shared, tmp_path):
+    """Every ``ndf`` node of a 512² table could exceed the projected bound: the damage check visits
+    at most MAX_NODES_AT_RISK of them (bounded memory) and still refuses the file."""
+    from reflecto.export.rgl import write_tensor_file
+    from reflecto.sources import rgl
+
+    f = _paper_white_fields(shared)
+    f["ndf"] = np.full((512, 512), 1e6, np.float32)
+    f["ndf"][7, 11] = 2e6
+    p = write_tensor_file(tmp_path / "bomb.bsdf", f)
+    with pytest.raises(FileFormatError, match="more than any BRDF reflecto represents"):
+        RGLBRDF(p)
+    obj = RGLBRDF.__new__(RGLBRDF)
+    obj._ndf = rgl.Marginal2D.__new__(rgl.Marginal2D)
+    obj._ndf.data = f["ndf"]
+    obj._rgb = [type("T", (), {"data": np.ones(4)})()]
+    obj._sigma = type("T", (), {"data": np.ones(4)})()
+    nodes = obj._ndf_nodes_at_risk()
+    assert len(nodes) == rgl.MAX_NODES_AT_RISK and 7 * 512 + 11 in nodes and np.all(np.diff(nodes) > 0)

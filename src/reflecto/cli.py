@@ -275,9 +275,10 @@ def cmd_info(args: argparse.Namespace) -> int:
         "albedo": {f"{t:g}deg": [round(float(v), 5) for v in a] for t, a in zip(theta, alb)},
         "albedo_range": [round(float(alb.min()), 5), round(float(alb.max()), 5)],
     }
-    lines = [str(info["file"]),
+    lines = [shown_path(info["file"]),
              f"  kind        {info['kind']}  (isotropic: {info['isotropic']}, reciprocal: {info['reciprocal']})"]
-    lines += [f"  {k:<11} {v}" for k, v in info["parameters"].items()]
+    # a file's own text (an RGL description) with its newlines and terminal escapes written as escapes
+    lines += [f"  {shown_path(k):<11} {shown_path(str(v))}" for k, v in info["parameters"].items()]
     meta = getattr(src, "metadata", None) or {}
     if "normal_tilt_deg" in meta:  # a reconstruction: the sample normal it used (§5.4)
         unc = meta.get("normal_uncertainty_deg")
@@ -659,6 +660,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     out = Path(args.output)
     fmt = _export_format(args)
     check_output(out)
+    if _same_file(out, args.source):
+        raise OutputError(out, "is the file being exported; export writes a new file: name another")
     src = load_source(args.source)
     if fmt == "rgl":
 
@@ -671,12 +674,23 @@ def cmd_export(args: argparse.Namespace) -> int:
                            not args.quiet and not args.json and _interactive()) as bar:
                 export_merl(src, out, allow_anisotropic=args.isotropic == "yes", progress=bar.update)
         except ParameterError:
+            rgl = out.with_suffix(".bsdf")
+            if _same_file(rgl, args.source):  # the hint must not name the input
+                rgl = out.with_name(f"{out.stem}-anisotropic.bsdf")
             raise ReflectoError(f"{args.source} is anisotropic; a MERL table holds an isotropic BRDF: add "
-                                f"--isotropic yes to write its φ_h = 0 slice, or write -o {out.with_suffix('.bsdf')} "
+                                f"--isotropic yes to write its φ_h = 0 slice, or write -o {rgl} "
                                 "(RGL, anisotropic)") from None
     size = out.stat().st_size
     return _emit(args, {"source": str(args.source), "output": str(out), "format": fmt, "bytes": size},
                  [f"wrote {out} ({size} bytes, {fmt})"])
+
+
+def _same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether ``a`` and ``b`` are one existing file (links followed)."""
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
 
 
 def merl_bins() -> int:

@@ -57,7 +57,7 @@ from scipy import ndimage
 from .. import __version__
 from ..brdf import BRDFSource
 from ..colour import LUM
-from ..errors import FileFormatError
+from ..errors import FileFormatError, ParameterError, shown_path
 from ..fresnel import fresnel, is_constant
 from ..io import atomic_path, atomic_write
 from ..polar import NodeNDFs
@@ -129,12 +129,18 @@ def write_tensor_file(path: str | Path, fields: dict[str, np.ndarray]) -> Path:
     path
         The file to write.
     fields
-        Field name → array (any dtype of the tensor format, any shape).
+        Field name → array of dtype ``uint8``, little-endian ``uint32`` or little-endian
+        ``float32`` (the ones Mitsuba's reader of these files uses), any shape.
 
     Returns
     -------
     Path
         ``path``.
+
+    Raises
+    ------
+    ValueError
+        A field of another dtype (convert it first, e.g. ``a.astype("<f4")``).
     """
     arrays = {k: np.ascontiguousarray(v) for k, v in fields.items()}
     header = bytearray(MAGIC + bytes([1, 0]) + struct.pack("<I", len(arrays)))
@@ -347,7 +353,10 @@ def _fresnel_ratio(source: BRDFSource, u: Array, grid: RGLGrid) -> Array:
         return np.ones_like(u)
 
     th = 0.5 * math.pi * u * u
-    return _fresnel_luminance(source, np.cos(th)) / max(float(_fresnel_luminance(source, np.ones(1))[0]), 1e-300)
+    normal = float(_fresnel_luminance(source, np.ones(1))[0])
+    if not normal > 0:  # η = 1: no interface, F ≡ 0 at every angle; nothing to take out of rgb
+        return np.ones_like(u)
+    return _fresnel_luminance(source, np.cos(th)) / normal
 
 
 def _fresnel_luminance(source: BRDFSource, c: Array) -> Array:
@@ -397,7 +406,8 @@ def _build_tables(source: BRDFSource, d_fn: NDFFunction, iso: bool, grid: RGLGri
     ring = d[:-1].mean(axis=0) if not iso else d[0]  # the last row repeats the first azimuth
     norm = float(np.sum(_trapezoid_weights(u0) * math.pi * u0 * np.sin(th) * np.cos(th) * ring) * 2 * math.pi)
     if not (norm > 0 and np.isfinite(norm)):
-        raise ValueError(f"{source.name}: no positive NDF or back-scattering to build the tables from")
+        raise ParameterError(f"{shown_path(source.path or source.name)}: no positive NDF or back-scattering "
+                             "(f(m, m) at θ_d = 0, unmeasured or zero) to build the RGL tables from")
     d, ring = d / norm, ring / norm
     c = _floor(source, ring, u0, grid.floor_scale)
     n_vals = (d + c) / (1.0 + math.pi * c)  # ∫ N cos dω = 1
@@ -556,8 +566,9 @@ def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | 
 
     Raises
     ------
-    ValueError
-        When the source gives non-finite values.
+    ParameterError
+        (a ``ValueError``) When the source gives non-finite values, or no positive NDF
+        or back-scattering to build the tables from.
     """
     d_fn, iso_guess = proxy_ndf(source)
     iso = iso_guess if isotropic is None else bool(isotropic)
@@ -565,9 +576,12 @@ def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | 
     phi_i, theta_i, wi = _incident_dirs(iso, grid)
     rgb, lum = _slices(source, tabs, wi, phi_i, theta_i)
     if not (np.all(np.isfinite(rgb)) and np.all(np.isfinite(lum))):
-        raise ValueError(f"{source.name}: non-finite values while building the RGL tables")
+        raise ParameterError(f"{shown_path(source.path or source.name)}: non-finite values while building "
+                             "the RGL tables")
     vndf = np.broadcast_to(tabs.warp, (len(phi_i), len(theta_i)) + tabs.warp.shape)
-    desc = (description if description is not None else export_description(source, iso)).encode("utf-8")
+    # a file name that is not valid UTF-8 (surrogate escapes) is written with backslash escapes
+    desc = (description if description is not None else export_description(source, iso)).encode(
+        "utf-8", "backslashreplace")
     return {
         "description": np.frombuffer(desc, dtype=np.uint8).copy(),
         "phi_i": phi_i.astype(np.float32),

@@ -55,6 +55,10 @@ DTYPES = {
 MAX_FIELDS = 64
 MAX_NDIM = 8
 MAX_NAME_BYTES = 256
+#: The most ``ndf`` nodes the damage check visits (:meth:`RGLBRDF._ndf_nodes_at_risk`; 8
+#: incident directions each): a table whose values could exceed the projected bound almost
+#: everywhere is judged by its largest nodes, in bounded memory.
+MAX_NODES_AT_RISK = 1 << 14
 
 
 def read_tensor_file(path: str | Path) -> dict[str, np.ndarray]:
@@ -155,6 +159,12 @@ def _check_tables(path: Path, theta_i: Array, phi_i: Array, ndf: np.ndarray, sig
     empty = ~np.any(vndf.reshape(vndf.shape[0] * vndf.shape[1], -1) > 0, axis=1)
     if np.any(empty):
         raise FileFormatError(path, f"field 'vndf' is zero everywhere in {int(empty.sum())} incident slice(s): "
+                              "its warp is undefined")
+    if np.any(lum < 0):
+        raise FileFormatError(path, "field 'luminance' must be non-negative")
+    dark = ~np.any(lum.reshape(lum.shape[0] * lum.shape[1], -1) > 0, axis=1)
+    if np.any(dark):  # the sampling warp of such a slice divides by zero (Mitsuba's pdf is NaN there)
+        raise FileFormatError(path, f"field 'luminance' is zero everywhere in {int(dark.sum())} incident slice(s): "
                               "its warp is undefined")
     if jac[0] not in (0, 1):
         raise FileFormatError(path, f"field 'jacobian' must be 0 or 1, got {int(jac[0])}")
@@ -288,7 +298,10 @@ class Marginal2D:
         c1 = (1 - sy) * v10 + sy * v11
         ux = sx * (c0 + 0.5 * sx * (c1 - c0))
         ux = ux + (1 - sy) * c0v + sy * c1v
-        ux = ux / ((1 - sy) * r0 + sy * r1)
+        row = (1 - sy) * r0 + sy * r1
+        # a row of no mass (zeros in the table): its conditional warp is undefined; the point's
+        # own position along the row stands in (uniform), as its limit from rows of equal mass does
+        ux = np.divide(ux, row, out=np.asarray(sx, dtype=np.float64).copy(), where=row > 0)
         uy = sy * (r0 + 0.5 * sy * (r1 - r0)) + m0
         return np.stack([ux, uy], axis=-1)
 
@@ -450,6 +463,9 @@ class RGLBRDF(BRDFSource):
         if rgb.shape[3] != rgb.shape[4] or jac.shape != (1,):
             raise FileFormatError(path, f"rgb slices must be square and jacobian one byte; "
                                         f"got rgb {rgb.shape}, jacobian {jac.shape}")
+        if lum.shape[2:] != rgb.shape[3:]:  # Mitsuba's plugin samples rgb's grid through the luminance's warp
+            raise FileFormatError(path, f"luminance slices {lum.shape[2:]} must match the rgb slices "
+                                        f"{rgb.shape[3:]} (square, the same size)")
         if min(ndf.shape) < 2 or min(sigma.shape) < 2 or min(vndf.shape[2:]) < 2 or min(rgb.shape[3:]) < 2:
             raise FileFormatError(path, "tables must be at least 2×2")
         _check_tables(path, theta_i, phi_i, ndf, sigma, vndf, lum, rgb, jac)
@@ -616,7 +632,10 @@ class RGLBRDF(BRDFSource):
         ndf_values = np.asarray(self._ndf.data, dtype=np.float64).reshape(-1)
         rgb_max = max(float(np.max(np.abs(t.data))) for t in self._rgb)
         bound = rgb_max * ndf_values / (4.0 * float(np.min(self._sigma.data)))
-        return np.flatnonzero(bound > MAX_PROJECTED_BRDF)
+        risky = np.flatnonzero(bound > MAX_PROJECTED_BRDF)
+        if len(risky) > MAX_NODES_AT_RISK:  # a table of huge values: its largest nodes are what to visit
+            risky = np.sort(risky[np.argpartition(bound[risky], -MAX_NODES_AT_RISK)[-MAX_NODES_AT_RISK:]])
+        return risky
 
     def eval_cosine(self, i: ArrayLike, o: ArrayLike) -> Array:
         """The plugin's value ``f(i, o)·cos θ_o`` (what Mitsuba's ``eval`` returns).
