@@ -77,16 +77,13 @@ class MitsubaMeasured(BRDFSource):
     """
 
     kind = "mitsuba-measured"
+    isotropic = True
     reciprocal = False
 
     def __init__(self, path: str | Path, prefer: str = "llvm_ad_rgb") -> None:
-        from .sources.rgl import read_tensor_file
-
         self.mi, self.variant = import_mitsuba(prefer)
         self.path = Path(path)
         self.bsdf = self.mi.load_dict({"type": "measured", "filename": str(self.path)})
-        # as the file says (and reflecto's reader decides): one or two φ_i slices, an isotropic table
-        self.isotropic = len(read_tensor_file(self.path)["phi_i"]) <= 2
 
     def eval_cosine(self, i: ArrayLike, o: ArrayLike) -> NDArray[np.float64]:
         """Mitsuba's ``eval``: ``f(i, o)·cos θ_o``, shape ``(N, 3)``."""
