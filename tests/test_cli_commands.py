@@ -142,7 +142,6 @@ def test_simulate_tilt_azimuth_and_shake_are_in_the_manifest_and_the_reconstruct
 # ------------------------------------------------------------------ report --ref
 def test_report_with_a_reference_shows_its_eq10_error(tmp_path, capsys):
     from reflecto import load_source
-    from reflecto.evaluate.metrics import brdf_error
     from reflecto.model import MicrofacetBRDF
 
     ref = load_source(PLASTIC)
@@ -156,8 +155,10 @@ def test_report_with_a_reference_shows_its_eq10_error(tmp_path, capsys):
     assert main(["report", str(tmp_path / "m.reflecto"), "--ref", str(PLASTIC), "--no-render", "-o",
                  str(tmp_path / "rep"), "--json"]) == 0
     page = Path(json_out(capsys)["output"])
-    err = brdf_error(ref, MicrofacetBRDF.load(tmp_path / "m.reflecto"))
-    shown = float(row(page, "eq. 10 error vs reference (normalized, %)"))
+    from reflecto.evaluate.metrics import comparison_error
+
+    err = comparison_error(ref, MicrofacetBRDF.load(tmp_path / "m.reflecto"))  # as `reflecto compare` scores it
+    shown = float(row(page, f"eq. 10 error vs reference ({err.describe()}, normalized, %)"))
     assert shown == round(100 * err.normalized, 3) and 0.0 < shown < 5.0  # the reference's own NDF, tabulated at 32²
     assert float(row(page, "log-RMSE vs reference")) == round(err.log_rmse, 5)
     assert f"reference <code>{PLASTIC}</code>" in page.read_text()

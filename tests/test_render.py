@@ -155,3 +155,69 @@ def test_spp_to_resolve_asks_for_a_floor_a_third_of_the_corrected_difference():
     assert Comparison(0.03, 0.03, 0.0, r, r, r).within_noise
     black = Comparison(0.0, 0.0, 0.0, r, r, r)  # two black renders: alike, and no spp to name
     assert black.within_noise and black.spp_to_resolve() == 64
+
+
+def test_text_with_dollar_signs_is_plain_not_maths(tmp_path):
+    """A title or material name with ``$…$`` in it is written as it is (matplotlib's mathtext
+    raised a parse error on a backslash command inside dollar signs)."""
+    from reflecto.evaluate.plots import plot_errors
+    from reflecto.render.mitsuba import titled
+
+    img = titled(np.zeros((64, 256, 3), np.uint8), r"cost $\foo$ x")
+    assert img.shape[0] > 64 and img[:20].min() < 255  # a strip with dark text in it
+    rec = {"name": r"a$\b$", "device": "ideal", **{k: {"error": e} for k, e in
+                                                    (("ours", 0.1), ("earlier", 0.2), ("cook_torrance", 0.3),
+                                                     ("same_data_ct", 0.3))}}
+    assert plot_errors([rec], tmp_path / "pe.png").stat().st_size > 0
+
+
+def test_environment_maps_are_read_as_mitsuba_reads_them(mitsuba, tmp_path):
+    """A linear OpenEXR map (as ``render -o x.exr`` writes) is accepted and read in floating
+    point; a TIFF, which imageio reads and Mitsuba does not, is refused in one line; the
+    viewer's lighting keeps the shared map's high dynamic range."""
+    import imageio.v3 as iio
+
+    from reflecto.errors import FileFormatError
+    from reflecto.evaluate.viewer import _envmap_small
+    from reflecto.render.mitsuba import check_envmap, default_envmap, read_envmap, save_image
+
+    exr = save_image(np.full((16, 32, 3), 2.5), tmp_path / "ok.exr")
+    assert check_envmap(exr) == exr and np.allclose(read_envmap(exr), 2.5)
+    import cv2
+
+    assert cv2.imwrite(str(tmp_path / "env.tif"), np.full((16, 32, 3), 100, np.uint8))
+    assert iio.imread(tmp_path / "env.tif").shape == (16, 32, 3)  # an image imageio reads
+    with pytest.raises(FileFormatError, match="env.tif: unreadable environment map"):
+        check_envmap(tmp_path / "env.tif")
+    env = default_envmap()
+    if env.is_file():
+        small = np.frombuffer(__import__("base64").b64decode(_envmap_small(env)["data"]), "<f4")
+        assert small.max() > 1.5 and np.isclose(small.mean(), read_envmap(env).mean(), rtol=0.05)
+
+
+def test_a_bsdf_file_whose_name_is_not_utf8_renders(mitsuba, shared, tmp_path):
+    """Mitsuba takes file names as UTF-8: an RGL file of another name is rendered through a link."""
+    import os
+    import shutil
+
+    bad = tmp_path / os.fsdecode(b"mint\xff.bsdf")
+    shutil.copyfile(shared / "rgl" / "chm_mint_rgb.bsdf", bad)
+    assert main(["render", str(bad), "--scene", "sphere-point", "--resolution", "16", "--spp", "1",
+                 "-o", str(tmp_path / "u.png")]) == 0
+    assert (tmp_path / "u.png").is_file()
+
+
+def test_a_title_is_drawn_on_comparisons_and_refused_for_linear_images(mitsuba, tmp_path, capsys):
+    """``--title`` above a ``--compare`` image too; with a ``.exr`` or ``.hdr`` output it is refused
+    before the render (it was accepted and ignored)."""
+    import imageio.v3 as iio
+
+    ex = str(__import__("pathlib").Path(__file__).resolve().parents[1] / "examples" / "ggx-plastic.json")
+    base = ["render", ex, "--scene", "sphere-point", "--resolution", "16", "--spp", "1", "--compare", ex]
+    assert main([*base, "-o", str(tmp_path / "a.png")]) == 0
+    assert main([*base, "--title", "HELLO TITLE", "-o", str(tmp_path / "b.png")]) == 0
+    assert iio.imread(tmp_path / "b.png").shape[0] > iio.imread(tmp_path / "a.png").shape[0]
+    capsys.readouterr()
+    assert main(["render", ex, "--title", "x", "-o", str(tmp_path / "c.exr")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--title is drawn on a .png image" in err[0] and not (tmp_path / "c.exr").exists()

@@ -107,3 +107,97 @@ def test_report_shows_the_specular_colour_of_a_fresnel_tint(tmp_path):
     assert back.tint.beyond == "trend"
     text = write_report(back.path, tmp_path / "t", render=False).read_text()
     assert "beyond 67.0°: the nodes&#x27; trend continued" in text
+
+
+def _small_model(tmp_path: Path, name: str = "m.reflecto") -> Path:
+    a = AnalyticBRDF(distribution="ggx", alpha=0.3, kd=0.3, ks=0.5, eta=1.5)
+    return MicrofacetBRDF.from_ndf_function(a.ndf, resolution=16, kd=a.kd, ks=a.ks, eta=a.eta).save(tmp_path / name)
+
+
+def test_a_report_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
+    """A report that fails half-way leaves the earlier report in its folder as it was; a folder
+    of other files (a watch's models, with their index.html) is refused, not filled."""
+    from reflecto.errors import OutputError
+    from reflecto.evaluate import report
+
+    model = _small_model(tmp_path)
+    out = write_report(model, tmp_path / "r", render=False).parent
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def broken(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(report, "write_viewer", broken)
+    with pytest.raises(OSError):
+        write_report(model, out, render=False)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    other = tmp_path / "models"
+    other.mkdir()
+    (other / "index.html").write_text("a watch's page")
+    (other / "precious.reflecto").write_bytes(b"x")
+    monkeypatch.undo()
+    with pytest.raises(OutputError, match="folder of other files"):
+        write_report(model, other, render=False)
+    assert sorted(p.name for p in other.iterdir()) == ["index.html", "precious.reflecto"]
+
+
+def test_names_that_are_markup_or_not_utf8_stay_text(tmp_path):
+    """A model file named like markup, or with a name that is not valid UTF-8, gives a page (and a
+    viewer whose data block cannot open a tag or a comment) that shows the name as text."""
+    import os
+
+    from reflecto.evaluate.viewer import write_viewer
+
+    model = _small_model(tmp_path, "<!--<script>.reflecto")
+    page = write_report(model, tmp_path / "r", render=False)
+    viewer = (page.parent / "viewer.html").read_text()
+    assert "<!--<script>" not in viewer and "\\u003c!--\\u003cscript>" in viewer
+    bad = _small_model(tmp_path, os.fsdecode(b"bad\xff.reflecto"))
+    text = write_report(bad, tmp_path / "r2", render=False).read_text()
+    assert "bad\\udcff.reflecto" in text
+    write_viewer([("</script><!--", load_model(model))], tmp_path / "v.html")
+    assert "</script><!--" not in (tmp_path / "v.html").read_text()
+
+
+def test_the_report_scores_an_anisotropic_reference_as_compare_does(tmp_path):
+    """The report's eq. 10 error against an anisotropic reference is ``compare``'s (every
+    half-vector azimuth), not the φ_h = 0 cut alone."""
+    from reflecto.evaluate.metrics import comparison_error
+    from reflecto.load import load_source
+
+    ref = ROOT / "examples" / "asymmetric" / "ggx-brushed-30.toml"
+    model = _small_model(tmp_path)
+    text = write_report(model, tmp_path / "r", reference=ref, render=False).read_text()
+    err = comparison_error(load_source(ref), load_model(model))
+    assert f"{round(100 * err.normalized, 3)}</td>" in text and err.describe() in text
+
+
+def test_gallery_keeps_to_its_own_folders_and_names(tmp_path, capsys):
+    """``gallery -o`` refuses a folder of other files that merely holds an ``index.html`` (a
+    watch's models or a report), two materials of one name, and a resolution out of range,
+    each in one line before any capture is simulated; its image links are URL-encoded."""
+    from reflecto.evaluate.gallery import GalleryRow, GallerySettings, _cell
+
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / "index.html").write_text("x")
+    (victim / "precious.reflecto").write_bytes(b"x")
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    for d in (a, b):
+        (d / "x.json").write_text(json.dumps({"type": "analytic", "alpha": 0.3, "kd": 0.2, "ks": 0.3}))
+    argv = ["gallery", "--rotations", "0", "180", "--resolution", "16", "--spp", "1"]
+    for extra, expected in (([str(a / "x.json"), "-o", str(victim)], "folder of other files"),
+                            ([str(a / "x.json"), str(b / "x.json"), "-o", str(tmp_path / "g")], "the same name"),
+                            ([str(a / "x.json"), "-o", str(tmp_path / "g"), "--resolution", "4"],
+                             "resolution must be in [8, 4096]")):
+        assert main([*argv, *extra]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and expected in err[0], err
+    assert sorted(p.name for p in victim.iterdir()) == ["index.html", "precious.reflecto"]
+    assert not (tmp_path / "g").exists()
+    row = GalleryRow("p#1", "p#1.json", {}, "", 0.1, 0.1, 0.1, 0.1, 0.01, 1.0, False,
+                     {k: f"p#1_{k}.png" for k in ("reference", "symmetric", "asymmetric")}, 1.0)
+    assert 'src="p%231_reference.png"' in _cell(row, "reference")
+    assert GallerySettings().resolution == 256

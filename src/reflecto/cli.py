@@ -44,7 +44,7 @@ from .errors import (
 )
 from .evaluate.cooktorrance import fit_cook_torrance
 from .evaluate.design import DEFAULT_CONES, DEFAULT_LED_COUNTS, DEFAULT_TILTS, best_design, design_study
-from .evaluate.gallery import GallerySettings, gallery
+from .evaluate.gallery import GALLERY_MARKER, GallerySettings, check_distinct_names, gallery
 from .evaluate.metrics import brdf_error, comparison_error
 from .evaluate.report import write_report
 from .evaluate.sweep import summarize, sweep
@@ -58,7 +58,7 @@ from .instrument.device import BUILTINS as DEVICE_BUILTINS
 from .instrument.device import load_device
 from .instrument.plots import plot_coverage
 from .instrument.simulate import simulate_calibration, simulate_capture
-from .io import PAGE_MARKER, atomic_path, check_output, make_parents, read_json
+from .io import atomic_path, check_output, make_parents, read_json
 from .load import load_source
 from .reconstruct import Options
 from .reconstruct.asymmetric import MIN_CAPTURES
@@ -704,8 +704,11 @@ def cmd_render(args: argparse.Namespace) -> int:
     difference against a reference and its noise floor (docs/mitsuba.md).
     """
 
-    src = load_source(args.source)
     out = Path(args.output)
+    if args.title and out.suffix.lower() != ".png":  # before the render: a title is drawn on 8-bit pixels
+        raise ReflectoError(f"{shown_path(out)}: --title is drawn on a .png image; a .exr or .hdr keeps its "
+                            "linear values untouched: drop --title or write a .png")
+    src = load_source(args.source)
     if not args.compare:
         r = render(src, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
         # a linear EXR keeps the object's alpha; PNG and HDR get the grey background
@@ -724,10 +727,10 @@ def cmd_render(args: argparse.Namespace) -> int:
     c = compare(ref, src, args.scene, envmap=args.envmap, resolution=args.resolution, spp=args.spp, seed=args.seed)
 
 
+    image = comparison_image(c.reference.radiance, c.test.radiance, (f"reference\n{ref.name}", f"test\n{src.name}"),
+                             alpha=c.reference.alpha, alpha_test=c.test.alpha, difference=c.difference)
     with atomic_path(out, suffix=".png") as tmp:
-        iio.imwrite(tmp, comparison_image(c.reference.radiance, c.test.radiance,
-                                          (f"reference\n{ref.name}", f"test\n{src.name}"),
-                                          alpha=c.reference.alpha, alpha_test=c.test.alpha, difference=c.difference))
+        iio.imwrite(tmp, titled(image, args.title) if args.title else image)
     seconds = c.test.seconds + c.reference.seconds + c.reference_repeat.seconds
     lines = [f"rendered {src.name} and {ref.name} twice ({args.scene}, {args.resolution}², {c.test.spp} spp, "
              f"{c.test.variant}) in {seconds:.1f} s; {c.summary()}; wrote {out} (reference | {src.name} | difference)"]
@@ -1067,7 +1070,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seed of the source's render (the reference's: +1, +2)")
     q.add_argument("--compare", metavar="REFERENCE",
                    help="also render REFERENCE; write reference | source | difference")
-    q.add_argument("--title", help="write this title above the image (.png only; default: no title)")
+    q.add_argument("--title", help="write this title above the image, or above the comparison (.png only; "
+                                   "default: no title)")
     q.add_argument("-o", "--output", required=True,
                    help="image: .png (sRGB, grey background), .exr (linear RGBA) or .hdr (linear, grey background)")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
@@ -1154,8 +1158,9 @@ def cmd_gallery(args: argparse.Namespace) -> int:
     """``reflecto gallery SOURCE... -o DIR``: teapots of reference, symmetric path and §5.5 path
     (:func:`reflecto.evaluate.gallery.gallery`, the paper's Fig. 6); returns exit status 0."""
 
-    check_output(args.output, folder=True, marker=PAGE_MARKER)
+    check_output(args.output, folder=True, marker=GALLERY_MARKER)
     _refuse_holding(args.output, [*args.materials, args.device, args.calibration])
+    check_distinct_names(args.materials)
     rotations = tuple(args.rotations)
     settings = GallerySettings(args.device, args.calibration, rotations, args.spp, args.resolution, args.seed)
 

@@ -736,9 +736,6 @@ def _replaceable(path: Path, folder: bool = False) -> None:
     raise OutputError(path, "is a device, FIFO or socket; refusing to replace it with an output")
 
 
-#: The file that marks a folder as an earlier page-and-images output (a gallery's):
-#: :func:`atomic_folder` replaces such a folder, not one of unrelated files.
-PAGE_MARKER = "index.html"
 
 
 def _replaceable_folder(path: Path, marker: str) -> None:
@@ -902,7 +899,7 @@ def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
 
 
 @contextlib.contextmanager
-def atomic_folder(path: str | Path, marker: str = PAGE_MARKER) -> Iterator[Path]:
+def atomic_folder(path: str | Path, marker: str) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; it replaces ``path`` on success.
 
     The folder gets mode ``0o777 & ~umask``; on failure it is removed, with any
@@ -914,8 +911,10 @@ def atomic_folder(path: str | Path, marker: str = PAGE_MARKER) -> Iterator[Path]
     path
         The folder to write; an existing folder there is replaced as a whole.
     marker
-        The file every output of this kind holds (a capture's ``manifest.json``, a
-        calibration folder's ``calibration.json``; default :data:`PAGE_MARKER`).
+        The file every output of this kind holds, and no other kind (a capture's
+        ``manifest.json``, a calibration folder's ``calibration.json``, a gallery's
+        ``gallery.json``, a report's ``viewer.html``; an ``index.html`` alone would also
+        mark a watch's models folder).
 
     Yields
     ------

@@ -9,10 +9,13 @@ from .io import atomic_path
 
 
 def pyplot() -> Any:
-    """``matplotlib.pyplot`` with the non-interactive Agg backend."""
+    """``matplotlib.pyplot`` with the non-interactive Agg backend and plain text (no mathtext)."""
     import matplotlib.pyplot as plt  # deferred: matplotlib is ~0.4 s of every command's start-up; only plots need it
 
     plt.switch_backend("Agg")
+    # every text is plain: a material or file name with "$…$" in it is not maths markup (it
+    # raised a parse error), and reflecto's labels write their symbols in Unicode
+    plt.rcParams["text.parse_math"] = False
     return plt
 
 

@@ -23,22 +23,25 @@ import dataclasses
 import html
 import json
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote as url_quote
 
 from .. import workflow
-from ..errors import ParameterError
+from ..errors import ParameterError, shown_path
 from ..instrument.device import load_device
 from ..instrument.simulate import simulate_capture
 from ..io import atomic_folder, atomic_write
 from ..load import load_source
 from ..reconstruct import Options, reconstruct_rotations
-from ..render.mitsuba import SMOOTHING_PX, image_difference, object_mask, render, save_image
+from ..render.mitsuba import SMOOTHING_PX, check_render_settings, image_difference, object_mask, render, save_image
 from .metrics import comparison_error
 
-__all__ = ["GallerySettings", "GalleryRow", "gallery_row", "write_gallery", "gallery"]
+__all__ = ["GALLERY_MARKER", "GallerySettings", "GalleryRow", "check_distinct_names", "gallery_row", "write_gallery",
+           "gallery"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,6 +65,8 @@ class GallerySettings:
         if len(self.rotations_deg) < 2:
             raise ParameterError("the gallery's §5.5 path needs at least two rotations, "
                                  f"got {list(self.rotations_deg)}")
+        # the renders' settings, checked before the captures and reconstructions that precede them
+        check_render_settings("teapot-env", self.resolution, self.spp, self.seed)
 
 
 @dataclasses.dataclass
@@ -166,7 +171,8 @@ border-bottom: 1px solid #eee; } img { width: 256px; } .num { font-size: 0.85em;
 
 
 def _cell(row: GalleryRow, kind: str) -> str:
-    img = f'<img src="{html.escape(row.images[kind])}" alt="{html.escape(row.name)} {kind}">'
+    src = html.escape(url_quote(os.fsencode(row.images[kind])))  # a name's "#", "?" or "%" is not part of a URL
+    img = f'<img src="{src}" alt="{html.escape(shown_path(row.name))} {kind}">'
     if kind == "reference":
         return f"<td>{img}<div class='num'>noise floor of the renders {100 * row.noise_floor:.2f} %</div></td>"
     err = row.symmetric_error if kind == "symmetric" else row.asymmetric_error
@@ -201,13 +207,15 @@ def write_gallery(rows: Sequence[GalleryRow], out: Path, settings: GallerySettin
     for r in rows:
         params = ", ".join(f"{k} {v}" for k, v in r.parameters.items())
         verdict = "broken" if r.symmetry_broken else "kept"
-        body.append(f"<tr><td><b>{html.escape(r.name)}</b><div class='num'>{html.escape(params)}<br>"
+        name, shown_params = html.escape(shown_path(r.name)), html.escape(shown_path(params))
+        body.append(f"<tr><td><b>{name}</b><div class='num'>{shown_params}<br>"
                     f"eq. 3 in one capture: {verdict} ({r.symmetry_ratio:.1f}×)</div></td>"
                     + "".join(_cell(r, k) for k in ("reference", "symmetric", "asymmetric")) + "</tr>")
     form = rows[0].error_form if rows else ""
     page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>reflecto gallery: §5.5</title>"
             f"{_STYLE}</head>\n<body>\n<h1>Anisotropic and asymmetric materials: reference, symmetric path, §5.5 path"
-            f"</h1>\n<p>Device {html.escape(settings.device)}; teapot under the environment map, {settings.spp} spp, "
+            f"</h1>\n<p>Device {html.escape(shown_path(settings.device))}; teapot under the environment map, "
+            f"{settings.spp} spp, "
             f"{settings.resolution}²; BRDF error: {html.escape(form)}, normalized; image difference: mean |Δ| over "
             "the teapot's pixels relative to the reference's mean (both smoothed by 1 px), beside the same between "
             f"two renders of the reference (noise floor) and √(difference² − floor²) (noise-corrected).</p>\n"
@@ -219,6 +227,34 @@ def write_gallery(rows: Sequence[GalleryRow], out: Path, settings: GallerySettin
     with atomic_write(index, "w") as fh:
         fh.write(page)
     return index
+
+
+#: The file every gallery folder holds: a folder with it is an earlier gallery, which a new one replaces
+#: as a whole (a folder with only an ``index.html`` may be a report or a watch's models).
+GALLERY_MARKER = "gallery.json"
+
+
+def check_distinct_names(paths: Sequence[str | Path]) -> None:
+    """Refuse materials of the same file name: their images (``NAME_reference.png``, …) would
+    overwrite each other in the gallery's folder.
+
+    Parameters
+    ----------
+    paths
+        The material files.
+
+    Raises
+    ------
+    ParameterError
+        Two of them have the same name (stem).
+    """
+    seen: dict[str, str] = {}
+    for p in paths:
+        stem = Path(p).stem
+        if stem in seen:
+            raise ParameterError(f"materials {shown_path(seen[stem])} and {shown_path(p)} have the same name "
+                                 f"{shown_path(stem)!r}; their images would overwrite each other: rename one")
+        seen[stem] = str(p)
 
 
 def gallery(paths: Sequence[str | Path], out_dir: str | Path, settings: GallerySettings | None = None,
@@ -246,10 +282,11 @@ def gallery(paths: Sequence[str | Path], out_dir: str | Path, settings: GalleryS
     """
 
     settings = settings or GallerySettings()
+    check_distinct_names(paths)
     device = load_device(settings.device)
     cal = workflow.calibration_for(device, settings.calibration, missing="simulate", seed=settings.seed)
     rows = []
-    with atomic_folder(out_dir) as tmp:
+    with atomic_folder(out_dir, marker=GALLERY_MARKER) as tmp:
         for p in paths:
             row = gallery_row(p, tmp, settings, device, cal)
             rows.append(row)

@@ -13,7 +13,7 @@ and its PNGs:
 * a ``θ_h``–``θ_d`` image at ``φ_d = 90°`` as BRDF Explorer shows it (log scale);
 * the numbers: η, k_d, k_s, normal tilt, E(η), and with a reference the eq. 10 error.
 
-Every image is written before the page (atomic renames); the page checks on load
+The folder is written whole or not at all (an earlier report there is replaced); the page checks on load
 that each image decoded and records the count in ``<body data-images>`` — the
 headless-Chromium test reads it (``tests/test_report.py``).
 """
@@ -25,6 +25,7 @@ import math
 import tempfile
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote as url_quote
 
 import imageio.v3 as iio
 import numpy as np
@@ -33,17 +34,17 @@ from numpy.typing import NDArray
 from .. import geometry, workflow
 from ..brdf import BRDFSource, HasNDF, albedo_angles
 from ..colour import LUM
-from ..errors import FileFormatError, ReflectoError, one_line
+from ..errors import FileFormatError, ReflectoError, one_line, shown_path
 from ..fresnel import is_constant
 from ..instrument.capture import read_capture
 from ..instrument.device import load_device
 from ..instrument.plots import plot_coverage
-from ..io import atomic_path, atomic_write, read_json
+from ..io import atomic_folder, atomic_path, atomic_write, read_json
 from ..load import load_source
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF, load_model
 from ..plotting import pyplot, save_figure
 from ..render.mitsuba import bsdf_file, compare_files, comparison_image, default_envmap, render_file, titled, to_srgb8
-from .metrics import brdf_error
+from .metrics import comparison_error
 from .viewer import write_viewer
 
 Array = NDArray[np.float64]
@@ -320,11 +321,17 @@ def _render_figures(model: MicrofacetBRDF | IsotropicMicrofacetBRDF, model_file:
                                                  alpha=c.reference.alpha, alpha_test=c.test.alpha,
                                                  difference=c.difference),
                                 out / f"compare_{scene}.png"),
-                      f"{what}: reference | model | relative difference (0–20 %). Mean image difference "
+                      f"{what}: reference | model | relative difference (scale from 0 to 20 %, or to the 99th "
+                      "percentile where that is higher, as its bar says). Mean image difference "
                       f"{100 * c.difference:.2f} % over the object's pixels; noise floor {100 * c.noise_floor:.2f} % "
                       f"(two renders of the reference with different seeds); corrected for it "
                       f"{100 * c.corrected:.2f} %.{note}"))
     return items, comparisons
+
+
+#: The file every report folder holds: a folder with it is an earlier report, which a new one
+#: replaces as a whole; another non-empty folder is refused.
+REPORT_MARKER = "viewer.html"
 
 
 def write_report(model_path: str | Path, out_dir: str | Path, reference: str | Path | None = None,
@@ -337,10 +344,14 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
         The model file; its ``.json`` summary beside it, when present, adds the normal tilt,
         the model error, the shake verdict and isotropy.
     out_dir
-        The report's folder (created if missing).
+        The report's folder, written whole or not at all (:func:`reflecto.io.atomic_folder`):
+        an earlier report there (one holding :data:`REPORT_MARKER`) is replaced, a folder of
+        other files refused.
     reference
         A reference BRDF file: adds the comparisons, its θ_h–θ_d image and the normalized
-        eq. 10 error (:func:`~reflecto.evaluate.metrics.brdf_error`) and log-RMSE.
+        eq. 10 error and log-RMSE as ``reflecto compare`` gives them
+        (:func:`~reflecto.evaluate.metrics.comparison_error`: every half-vector azimuth where
+        either BRDF is anisotropic).
     spp
         Samples per pixel of the renders; ``None``: each scene's default.
     render
@@ -360,8 +371,14 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     model_path = Path(model_path)
     model = load_model(model_path)
     ref = load_source(reference) if reference is not None else None
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    with atomic_folder(out_dir, marker=REPORT_MARKER) as tmp:
+        _write_report_into(tmp, model_path, model, ref, reference, spp, render)
+    return Path(out_dir) / "index.html"
+
+
+def _write_report_into(out: Path, model_path: Path, model: Any, ref: BRDFSource | None,
+                       reference: str | Path | None, spp: int | None, render: bool) -> None:
+    """:func:`write_report`'s files, written into the (temporary) folder ``out``."""
     figs: list[tuple[str, list[tuple[str, str]]]] = []
     numbers: dict[str, Any] = {
         "η (R, G, B)": "∞: constant Fresnel, F ≡ 1" if is_constant(model.eta) else np.round(model.eta, 4).tolist(),
@@ -401,8 +418,8 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
 
         items.append((theta_h_theta_d_image(ref, out, "thd_reference.png", "reference: θ_h–θ_d at φ_d = 90°"),
                       "Reference."))
-        err = brdf_error(ref, model)
-        numbers["eq. 10 error vs reference (normalized, %)"] = round(100 * err.normalized, 3)
+        err = comparison_error(ref, model)  # as `reflecto compare`: every half-vector azimuth where one is anisotropic
+        numbers[f"eq. 10 error vs reference ({err.describe()}, normalized, %)"] = round(100 * err.normalized, 3)
         numbers["log-RMSE vs reference"] = round(err.log_rmse, 5)
     figs.append(("θ_h–θ_d slice", items))
     cap_dir = model.metadata.get("capture")
@@ -411,7 +428,7 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     got = (slice_figure(Path(cap_dir), out, model.metadata.get("calibration"))
            if cap_dir and Path(cap_dir).is_dir() else None)
     if isinstance(got, tuple):
-        items.append((got[0], f"The slices of {html.escape(str(cap_dir))} ({html.escape(got[2])})."))
+        items.append((got[0], f"The slices of {html.escape(shown_path(cap_dir))} ({html.escape(shown_path(got[2]))})."))
         dev = got[1]
     elif isinstance(got, str):
         numbers["capture slices"] = f"not shown: the capture cannot be read ({got})"
@@ -423,31 +440,29 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     items.insert(0, (cov.name, f"Half-vector coverage per LED of device {html.escape(dev.name)} (paper Fig. 2(c)(d))."))
     figs.append(("Capture", items))
 
-    viewer_sources = [("model: " + model_path.stem, model)] + ([("reference: " + ref.name, ref)]
-                                                               if ref is not None else [])
+    viewer_sources = [("model: " + shown_path(model_path.stem), model)] + (
+        [("reference: " + shown_path(ref.name), ref)] if ref is not None else [])
     write_viewer(viewer_sources, out / "viewer.html", envmap=default_envmap())
     rows = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>" for k, v in numbers.items())
     sections = []
     for title, its in figs:
-        body = "\n".join(f'<figure><img src="{html.escape(f)}" alt="{html.escape(c)}">'
+        body = "\n".join(f'<figure><img src="{html.escape(url_quote(f))}" alt="{html.escape(c)}">'
                          f'<figcaption>{c}</figcaption></figure>'
                          for f, c in its)
         sections.append(f"<h2>{html.escape(title)}</h2>\n{body}")
-    title = f"reflecto report: {html.escape(model_path.name)}"
+    title = f"reflecto report: {html.escape(shown_path(model_path.name))}"
     page = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{title}</title>{_STYLE}</head>\n"
             f"<body data-images=\"pending\">\n<h1>{title}</h1>\n"
-            f"<p>Model file <code>{html.escape(str(model_path))}</code>"
-            + (f", reference <code>{html.escape(str(reference))}</code>" if reference else "") + "</p>\n"
+            f"<p>Model file <code>{html.escape(shown_path(model_path))}</code>"
+            + (f", reference <code>{html.escape(shown_path(reference))}</code>" if reference else "") + "</p>\n"
             "<p><a href=\"viewer.html\">Interactive BRDF viewer</a>: lit sphere with a draggable light, θ_h–θ_d "
             "slice with read-outs, incidence-plane plots"
             + (", model and reference side by side" if ref is not None else "")
             + " (a static page; works from file://).</p>\n"
             f"<h2>Numbers</h2>\n<table>\n{rows}\n</table>\n" + "\n".join(sections)
             + f"\n{_CHECK_SCRIPT}\n</body></html>\n")
-    index = out / "index.html"
-    with atomic_write(index, "w") as fh:
+    with atomic_write(out / "index.html", "w") as fh:
         fh.write(page)
-    return index
 
 
 def write_index(entries: list[dict[str, Any]], out_dir: str | Path, title: str = "reflecto sweep") -> Path:
@@ -474,8 +489,8 @@ def write_index(entries: list[dict[str, Any]], out_dir: str | Path, title: str =
     head = "".join(f"<th>{html.escape(k)}</th>" for k in ["material", *keys])
     rows = []
     for e in entries:
-        link = (f'<a href="{html.escape(e["href"])}">{html.escape(e["name"])}</a>' if e.get("href")
-                else html.escape(e["name"]))
+        link = (f'<a href="{html.escape(url_quote(e["href"]))}">{html.escape(shown_path(e["name"]))}</a>'
+                if e.get("href") else html.escape(shown_path(e["name"])))
         cells = "".join(f"<td>{html.escape(_fmt(e.get(k)))}</td>" for k in keys)
         rows.append(f"<tr><td>{link}</td>{cells}</tr>")
     page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"

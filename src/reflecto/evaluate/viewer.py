@@ -35,12 +35,12 @@ import json
 import math
 from pathlib import Path
 
-import imageio.v3 as iio
 import numpy as np
 
 from .. import geometry
 from ..brdf import BRDFSource
 from ..io import atomic_write
+from ..render.mitsuba import read_envmap
 from ..render.sphere import BACKGROUND, CAMERA, FOV_DEG, LIGHTS, TARGET, UP
 
 __all__ = ["N_PHI_D", "N_THETA_D", "N_THETA_H", "tabulate_projected", "write_viewer"]
@@ -85,7 +85,7 @@ def _envmap_small(path: Path | None) -> dict | None:
     """The environment map reduced to 32 × 16 (lat–long, linear RGB), or None without one."""
     if path is None or not Path(path).is_file():
         return None
-    img = np.asarray(iio.imread(path), dtype=np.float64)[..., :3]
+    img = read_envmap(path)  # linear floating point, as Mitsuba's envmap reads it (not 8-bit, not clipped)
     h, w = img.shape[:2]
     small = img[: h - h % 16, : w - w % 32].reshape(16, (h - h % 16) // 16, 32, (w - w % 32) // 32, 3).mean(axis=(1, 3))
     return {"width": 32, "height": 16, "data": base64.b64encode(small.astype("<f4").tobytes()).decode()}
@@ -120,7 +120,8 @@ def write_viewer(sources: list[tuple[str, BRDFSource]], path: str | Path, envmap
         "background": BACKGROUND,
         "envmap": _envmap_small(Path(envmap) if envmap else None),
     }
-    page = _PAGE.replace("%TITLE%", html.escape(title)).replace("%DATA%", json.dumps(data).replace("</", "<\\/"))
+    # inside <script> the data must not open or close a tag or a comment ("</", "<!--"): every "<" is escaped
+    page = _PAGE.replace("%TITLE%", html.escape(title)).replace("%DATA%", json.dumps(data).replace("<", "\\u003c"))
     path = Path(path)
     with atomic_write(path, "w") as fh:
         fh.write(page)

@@ -91,47 +91,101 @@ def _opencv_quiet() -> Iterator[None]:
         cv2.utils.logging.setLogLevel(level)
 
 
-def check_envmap(path: str | Path) -> Path:
-    """Refuse a missing or unreadable environment map with a clear error.
+def _utf8_name(path: Path) -> bool:
+    """Whether ``path`` can be handed to Mitsuba, which takes file names as UTF-8 text."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:  # a name of bytes that are not UTF-8 (surrogate escapes)
+        return False
+    return True
+
+
+def read_envmap(path: str | Path) -> NDArray[np.float64]:
+    """An environment map as Mitsuba's ``envmap`` emitter reads it: linear RGB, ``(H, W, 3)``.
+
+    Read by Mitsuba's own image reader (Radiance ``.hdr``, OpenEXR, PFM, PNG, JPEG, …; 8-bit
+    sRGB images linearized), so that what is accepted here is what renders; without
+    Mitsuba by OpenCV (which reads ``.hdr`` as floating point, not clipped to 8 bits).
 
     Parameters
     ----------
     path
-        The environment map (any format ``imageio`` reads, e.g. ``.hdr``, ``.exr``).
+        The environment map.
 
     Returns
     -------
-    pathlib.Path
-        ``path``, once it is read as a finite RGB(A) image.
+    numpy.ndarray of shape (H, W, 3)
+        Linear RGB radiance (the map's own scale).
 
     Raises
     ------
     FileFormatError
-        Missing, unreadable, not RGB, or with a non-finite pixel.
+        Missing, a name Mitsuba cannot take (not valid UTF-8), unreadable, not RGB, or
+        with a non-finite pixel.
     """
     path = Path(path)
     if not path.is_file():
         raise FileFormatError(path, "environment map not found")
+    if not _utf8_name(path):
+        raise FileFormatError(path, "the file's name is not valid UTF-8, which Mitsuba cannot open: rename it")
+    unreadable = ("unreadable environment map: no decoder reads it as an image (damaged, truncated, or not a "
+                  "Radiance .hdr, OpenEXR or other image file Mitsuba reads)")
     try:
-        with _opencv_quiet():  # imageio may try OpenCV's decoder, which logs its failures to stderr
-            img = iio.imread(path)
+        mi, _ = import_mitsuba("llvm_ad_rgb")
+    except ImportError:
+        mi = None
+    try:
+        if mi is not None:
+            bmp = mi.Bitmap(str(path)).convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, srgb_gamma=False)
+            img = np.array(bmp, dtype=np.float64)
+        else:
+            with _opencv_quiet():
+                raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if raw is None or raw.ndim != 3 or raw.shape[2] < 3:
+                raise ValueError(unreadable)
+            img = raw[..., 2::-1].astype(np.float64)  # BGR → RGB
+            if raw.dtype.kind in "ui":  # an 8- or 16-bit image: sRGB-encoded
+                img = img / (255.0 if raw.dtype == np.uint8 else 65535.0)
+                img = np.where(img <= 0.04045, img / 12.92, ((img + 0.055) / 1.055) ** 2.4)
     except Exception:  # noqa: BLE001 - any decoder failure is "unreadable"
-        raise FileFormatError(path, "unreadable environment map: no decoder reads it as an image (damaged, "
-                                    "truncated, or not a Radiance .hdr, OpenEXR or other image file)") from None
+        raise FileFormatError(path, unreadable) from None
     if img.ndim != 3 or img.shape[2] < 3 or not np.all(np.isfinite(img)):
         raise FileFormatError(path, f"environment map must be a finite RGB image, got shape {img.shape}")
-    return path
+    return img[..., :3]
+
+
+def check_envmap(path: str | Path) -> Path:
+    """Refuse a missing or unreadable environment map with a clear error (:func:`read_envmap`).
+
+    Parameters
+    ----------
+    path
+        The environment map (any image Mitsuba's ``envmap`` reads, e.g. ``.hdr``, ``.exr``).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``, once it is read as a finite RGB image.
+
+    Raises
+    ------
+    FileFormatError
+        As :func:`read_envmap`.
+    """
+    read_envmap(path)
+    return Path(path)
 
 
 def bsdf_file(source: BRDFSource, folder: Path) -> Path:
-    """An RGL file for ``source``: its own file if it is one, else a fresh export in ``folder``.
+    """An RGL file for ``source``: its own file if it is one (through a link in ``folder`` where
+    its name is not valid UTF-8, which Mitsuba cannot open), else a fresh export in ``folder``.
 
     Parameters
     ----------
     source
         The BRDF.
     folder
-        Where the export goes (as ``source.bsdf``).
+        Where the export (or the link) goes, as ``source.bsdf``.
 
     Returns
     -------
@@ -140,7 +194,11 @@ def bsdf_file(source: BRDFSource, folder: Path) -> Path:
     """
 
     if isinstance(source, RGLBRDF):
-        return Path(source.path)
+        if _utf8_name(Path(source.path)):
+            return Path(source.path)
+        link = folder / "source.bsdf"  # Mitsuba takes UTF-8 names: a link of such a name to the file
+        os.symlink(os.path.abspath(source.path), link)
+        return link
 
     return export_rgl(source, folder / "source.bsdf")
 
@@ -361,6 +419,34 @@ MAX_SEED = SAMPLER_MAX_SEED - 2
 #: Most samples per pixel: Mitsuba's samplers count samples in 32 bits (a larger count is
 #: refused by its scene parser), and 2²⁰ is far beyond a converged render of these scenes.
 MAX_SPP = 2**20
+
+
+def check_render_settings(scene: str, resolution: int, spp: int | None, seed: int = 0,
+                          max_seed: int = MAX_SEED) -> int:
+    """Refuse render settings out of range before any work; returns the sample count to render with.
+
+    Parameters
+    ----------
+    scene
+        One of :data:`SCENES`.
+    resolution
+        Image side in pixels, in [8, 4096].
+    spp
+        Samples per pixel in [1, :data:`MAX_SPP`]; ``None``: the scene's default.
+    seed, max_seed
+        The sampler's seed, in [0, ``max_seed``].
+
+    Returns
+    -------
+    int
+        The samples per pixel rendered (:func:`sample_count`).
+
+    Raises
+    ------
+    ParameterError
+        A value out of range, naming it.
+    """
+    return _check(scene, resolution, spp, seed, max_seed)
 
 
 def _check(scene: str, resolution: int, spp: int | None, seed: int = 0, max_seed: int = MAX_SEED) -> int:
