@@ -494,15 +494,25 @@ def test_a_model_file_with_an_unknown_fresnel_form_is_refused(tmp_path, model, c
 
 def test_exposure_times_the_frames_contradict_are_refused(tmp_path, cap, capsys):
     """A manifest's exposure time sets the radiance scale: one written wrongly (1e-300 ms,
-    or both exposures labelled ≈ 1 ms) is caught by the frames' own brightness ratio."""
+    or both exposures labelled ≈ 1 ms) is not the camera's times shortened by one factor;
+    frames swapped between the exposures are caught by their own brightness ratio."""
     for name, new in (("tiny", "1e-300"), ("same", "1.0000000000000002")):
         bad = _copy(cap, tmp_path / name)
         text = (bad / "manifest.json").read_text()
         assert '"exposure_ms": 8.0' in text
         (bad / "manifest.json").write_text(text.replace('"exposure_ms": 8.0', f'"exposure_ms": {new}'))
         _, line = _run(["reconstruct", str(bad), "-o", str(tmp_path / f"{name}.reflecto")], capsys)
-        assert f"{bad}: LED " in line and "the manifest's exposure times say" in line, line
+        assert "manifest.json: exposure times" in line and "shortened by one factor" in line, line
         assert not (tmp_path / f"{name}.reflecto").exists()
+    bad = _copy(cap, tmp_path / "swapped")
+    frames = json.loads((bad / "manifest.json").read_text())["frames"]
+    short, long_ = (next(f["file"] for f in frames if f["led"] == 2 and f["exposure_ms"] == t and not f.get("check"))
+                    for t in (1.0, 8.0))
+    os.replace(bad / short, bad / "tmp.png")
+    os.replace(bad / long_, bad / short)
+    os.replace(bad / "tmp.png", bad / long_)
+    _, line = _run(["reconstruct", str(bad), "-o", str(tmp_path / "swapped.reflecto")], capsys)
+    assert f"{bad}: LED 2: its 8 ms frame reads" in line and "the manifest's exposure times say 8×" in line, line
 
 
 @pytest.mark.parametrize("suffix", [".bsdf", ".reflecto"])

@@ -315,6 +315,17 @@ def _edit_manifest(d, fn):
         (lambda d: _edit_manifest(d, lambda m: m["frames"].append({**m["frames"][2], "check": True})),
          "check frame for LED 1 at 1 ms is not part of the device"),
         (lambda d: _edit_manifest(d, lambda m: m["device"].update(check_leds=[0, 9])), "check_leds"),
+        # times the camera's auto-exposure could not have taken: longer, or another ratio
+        (lambda d: _edit_manifest(d, lambda m: [f.update(exposure_ms=2 * f["exposure_ms"]) for f in m["frames"]]),
+         "not the camera's"),
+        (lambda d: _edit_manifest(d, lambda m: [f.update(exposure_ms=11.0) for f in m["frames"]
+                                                if f["exposure_ms"] == 8.0]), "not the camera's"),
+        # one LED's long exposure replaced by its short one: caught at that LED, not only at the first
+        (lambda d: shutil.copyfile(d / "led3_t1ms.png", d / "led3_t8ms.png"), "LED 3: its 1 ms and 8 ms frames"),
+        (lambda d: shutil.copyfile(d / "led2_t1ms.png", d / "led2_t8ms.png"), "LED 2: its 1 ms and 8 ms frames"),
+        (lambda d: _edit_manifest(d, lambda m: m.update(kind="Sample")), "'kind' must be one of"),
+        (lambda d: [cv2.imwrite(str(d / f"led2_t{t}ms.png"), np.zeros((240, 320, 3), np.uint16)) for t in (1, 8)],
+         "reads below the camera's black level"),
     ],
 )
 def test_bad_captures_are_refused(capture_dir, damage, message, tmp_path, capsys):
@@ -433,3 +444,81 @@ def test_a_pixel_footprint_and_blur_spread_a_sharp_peak_and_keep_its_energy():
     for bad in ({"footprint": 0}, {"footprint": 2.0}, {"blur_px": -1.0}, {"blur_px": float("nan")}):
         with pytest.raises(ParameterError):
             simulate_capture(flat, dev, **bad)
+
+
+def test_calibration_folders_must_be_consistent(as_built, tmp_path):
+    """A calibration folder whose white capture is another device's, whose grid names one image
+    for several positions, or (a gamma camera) whose response sweep lacks its times is refused,
+    naming the problem, instead of giving a wrong calibration."""
+    dev, _, d = as_built
+    other = tmp_path / "earlier"
+    simulate_calibration(Device.builtin("earlier"), other, seed=5)
+    mixed = tmp_path / "mixed"
+    shutil.copytree(d / "calib", mixed)
+    shutil.rmtree(mixed / "white")
+    shutil.copytree(other / "white", mixed / "white")
+    with pytest.raises(CaptureError, match="the white capture's device is not calibration.json's"):
+        calibrate(mixed)
+    same = tmp_path / "same"
+    shutil.copytree(d / "calib", same)
+    _edit_calibration = json.loads((same / "calibration.json").read_text())
+    for e in _edit_calibration["grid"]:
+        e["file"] = "grid_0.png"
+    (same / "calibration.json").write_text(json.dumps(_edit_calibration))
+    with pytest.raises(FileFormatError, match="is named for two images"):
+        calibrate(same)
+    gamma = Device.from_dict({"name": "g", "camera": {"bits": 8, "response": "gamma", "black_level": 0.0,
+                                                    "exposures_ms": [1.0, 8.0]}})
+    simulate_calibration(gamma, tmp_path / "gamma", seed=2)
+    meta = json.loads((tmp_path / "gamma" / "calibration.json").read_text())
+    for e in meta["response"]:
+        e.pop("exposure_ms")
+    (tmp_path / "gamma" / "calibration.json").write_text(json.dumps(meta))
+    with pytest.raises(FileFormatError, match="exposure_ms is missing"):
+        calibrate(tmp_path / "gamma")
+
+
+def test_a_white_standard_auto_exposed_records_its_times(tmp_path):
+    """A camera sensitive enough that auto-exposure shortens the white frames: the white
+    capture's manifest gives the times the frames were taken with, and the calibration's
+    scale is the nominal one (it was the shortening factor off)."""
+    dev = Device.from_dict({"name": "bright", "camera": {"sensitivity": 100000.0}})
+    simulate_calibration(dev, tmp_path / "calib", seed=3)
+    white = read_capture(tmp_path / "calib" / "white")
+    assert white.exposures_ms[0] < 0.9 * dev.camera.exposures_ms[0]
+    cal = calibrate(tmp_path / "calib")
+    nominal = nominal_calibration(dev)
+    rows, cols = dev.optics.view_pixels()
+    ratio = np.median(cal.scale[:, rows, cols] / nominal.scale[:, rows, cols])
+    assert 0.9 < ratio < 1.1, ratio
+
+
+def test_device_files_that_cannot_take_a_capture_are_refused(tmp_path):
+    """A device whose imperfections change its sensor's size, or whose sensor has no pixel in
+    the view cone, is refused; exposure times that %g writes alike still give one file per frame."""
+    with pytest.raises(ParameterError, match="the sensor is 640×480"):
+        Device.from_dict({**Device.builtin("as-built").to_dict(with_truth=True),
+                          "truth": {**Device.builtin("as-built").to_dict(with_truth=True)["truth"],
+                                    "optics": {"width": 640, "height": 480}}})
+    with pytest.raises(ParameterError, match="no pixel of the sensor lies in the view cone"):
+        Device.from_dict({"optics": {"disc_radius_px": 0.001}})
+    dev = Device.from_dict({"name": "close", "camera": {"exposures_ms": [1.0, 1.0000001], "auto_exposure": False}})
+    cap = simulate_capture(SRC, dev, seed=1)
+    write_capture(cap, tmp_path / "cap")
+    assert len(list((tmp_path / "cap").glob("*.png"))) == cap.raw.shape[0] * 2 + 2 * len(dev.check_leds)
+    assert np.array_equal(read_capture(tmp_path / "cap").raw, cap.raw)
+
+
+def test_a_device_file_is_keyed_by_its_contents(tmp_path):
+    """Two device files of one name, or one file edited, are two devices: their kept calibrations
+    and sweep records are not each other's."""
+    from reflecto.workflow import device_key
+
+    a, b = tmp_path / "A", tmp_path / "B"
+    a.mkdir()
+    b.mkdir()
+    (a / "dev.json").write_text(json.dumps({"name": "dev"}))
+    (b / "dev.json").write_text(json.dumps({"name": "dev", "occluder_deg": 1.0}))
+    assert device_key("as-built") == "as-built"
+    ka, kb = device_key(a / "dev.json"), device_key(b / "dev.json")
+    assert ka.startswith("dev-") and kb.startswith("dev-") and ka != kb

@@ -44,10 +44,10 @@ from . import geometry
 from .errors import ReflectoError, ReflectoWarning
 from .instrument.calibrate import Calibration, calibrate, load_calibration, needs_calibration, nominal_calibration
 from .instrument.capture import Capture, CaptureError, read_capture
-from .instrument.device import Device, load_device
+from .instrument.device import BUILTINS, Device, load_device
 from .instrument.simulate import simulate_calibration
 from .instrument.slices import Slices, extract_slices
-from .io import atomic_write, check_output
+from .io import atomic_write, check_output, sha256
 from .reconstruct import Options, Reconstruction, reconstruct
 from .reconstruct.asymmetric import AsymmetricReconstruction, RotatedCapture, reconstruct_rotations, sample_frames
 from .reconstruct.eq3 import SymmetryTest, symmetry_test_slices
@@ -111,6 +111,26 @@ def calibration_for(device: Device, calibration: str | Path | Calibration | None
         return calibrate(simulate_calibration(device, Path(tmp) / "calib", seed=seed))
 
 
+def device_key(device: str | Path) -> str:
+    """A name for what ``device`` is, for the files and records kept per device: a built-in
+    device's name, or a device file's name and the digest of its contents (two files of one
+    name, or one file edited, are two devices: their calibrations and results differ).
+
+    Parameters
+    ----------
+    device
+        A built-in device name or a device file.
+
+    Returns
+    -------
+    str
+        ``"as-built"``, or e.g. ``"mydev-3f2a9c1b04d7"``.
+    """
+    if str(device) in BUILTINS:
+        return str(device)
+    return f"{Path(device).stem}-{sha256(Path(device).read_bytes())[:12]}"
+
+
 def calibration_file(device: str | Path, folder: Path, seed: int = 1) -> str | None:
     """The calibration file of a simulated device with hidden imperfections (``as-built``,
     ``wide-as-built``), made once by the virtual calibration procedure and kept in
@@ -126,7 +146,7 @@ def calibration_file(device: str | Path, folder: Path, seed: int = 1) -> str | N
         A built-in device name or a device file (:func:`reflecto.instrument.device.load_device`).
     folder
         Where the file ``calibration-<device>.npz`` (and the simulated calibration captures,
-        ``calibration-<device>/``) are kept.
+        ``calibration-<device>/``) are kept, ``<device>`` its :func:`device_key`.
     seed
         Seed of the simulated calibration captures.
 
@@ -138,7 +158,8 @@ def calibration_file(device: str | Path, folder: Path, seed: int = 1) -> str | N
     dev = load_device(device)
     if dev.truth is None:
         return None
-    cal_path = folder / f"calibration-{Path(device).stem}.npz"
+    key = device_key(device)
+    cal_path = folder / f"calibration-{key}.npz"
     if cal_path.exists():
         try:
             Calibration.load(cal_path)
@@ -146,7 +167,7 @@ def calibration_file(device: str | Path, folder: Path, seed: int = 1) -> str | N
             warnings.warn(f"{e}; calibrating again", ReflectoWarning, stacklevel=2)
             cal_path.unlink()
     if not cal_path.is_file():
-        calib_dir = folder / f"calibration-{Path(device).stem}"
+        calib_dir = folder / f"calibration-{key}"
         if not calib_dir.is_dir():
             simulate_calibration(dev, calib_dir, seed=seed)
         calibrate(calib_dir).save(cal_path)

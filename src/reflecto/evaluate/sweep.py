@@ -178,8 +178,8 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
     src = load_source(p)
     name = p.stem
     seed = material_seed(name)
-    rec: dict[str, Any] = {"name": name, "file": str(p), "device": device, "seed": seed, "half": half(name),
-                           "timings": {}}
+    rec: dict[str, Any] = {"name": name, "file": str(p), "device": device, "device_key": workflow.device_key(device),
+                           "seed": seed, "half": half(name), "timings": {}}
     tm = rec["timings"]
     t0 = time.perf_counter()
     grid = metric_grid(METRIC_STRIDE)
@@ -353,7 +353,9 @@ def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ide
         failures.append((str(p), f"{p}: its result record {out / 'materials' / (p.stem + '.json')} is a folder; "
                                  "remove it (or choose another -o) to evaluate this material"))
     mats_left = [p for p in mats if p not in blocked]
-    records = {p.stem: r for p in mats_left if (r := _done(out, p.stem)) is not None and r.get("device") == device}
+    key = workflow.device_key(device)  # a device file edited since: its records are redone
+    records = {p.stem: r for p in mats_left if (r := _done(out, p.stem)) is not None and r.get("device") == device
+               and r.get("device_key", r.get("device")) == key}
     todo = [p for p in mats_left if p.stem not in records]
     bar = Progress(len(mats), "sweep", progress, initial=len(mats) - len(todo))
 

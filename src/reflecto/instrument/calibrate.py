@@ -639,14 +639,23 @@ def _unit_vectors(value: Any, where: Path, what: str, max_count: int) -> Array:
     return v
 
 
-def _entries(meta: dict[str, Any], key: str, mpath: Path, lo: int, hi: int) -> list[dict[str, Any]]:
+def _entries(meta: dict[str, Any], key: str, mpath: Path, lo: int, hi: int,
+             timed: bool = False) -> list[dict[str, Any]]:
+    """The ``key`` list of the calibration manifest: ``lo`` to ``hi`` objects, each ``exposure_ms``
+    a positive number (with ``timed``, required and distinct: the response sweep's times are its data)."""
     v = meta.get(key)
     if not isinstance(v, list) or not lo <= len(v) <= hi or not all(isinstance(e, dict) for e in v):
         raise FileFormatError(mpath, f"'{key}' must be a list of {lo} to {hi} objects, got {short_repr(v)}")
     for e in v:
+        if timed and "exposure_ms" not in e:
+            raise FileFormatError(mpath, f"'{key}' entry {short_repr(e)}: exposure_ms is missing (the sweep's "
+                                  "times are what recovers the camera's response)")
         t = e.get("exposure_ms", 1.0)
         if not isinstance(t, (int, float)) or isinstance(t, bool) or not (math.isfinite(t) and t > 0):
             raise FileFormatError(mpath, f"'{key}' entry {short_repr(e)}: exposure_ms must be a positive number")
+    if timed and len({float(e["exposure_ms"]) for e in v}) != len(v):
+        raise FileFormatError(mpath, f"'{key}': every frame needs its own exposure time, got "
+                              f"{short_repr([e['exposure_ms'] for e in v])}")
     return v
 
 
@@ -709,8 +718,18 @@ def read_calibration_manifest(calib_dir: Path) -> tuple[dict[str, Any], Device]:
     if device.camera.response == "gamma":
         if len(meta.get("response") or []) < 3:
             raise FileFormatError(mpath, "a gamma camera needs an exposure sweep ('response', >= 3 frames)")
-        for f in _entries(meta, "response", mpath, 3, MAX_RESPONSE_FRAMES):
+        for f in _entries(meta, "response", mpath, 3, MAX_RESPONSE_FRAMES, timed=True):
             f["_path"] = inside(calib_dir, f.get("file"), mpath, "response frame")
+    named: dict[Path, str] = {}  # one image cannot be two exposures or two positions: a copy-paste slip
+    for key in ("grid", "mirror", "response"):
+        for entry in meta.get(key) or []:
+            if "_path" not in entry:
+                continue
+            what = f"{key} image {short_repr(entry.get('file'))}"
+            if entry["_path"] in named:
+                raise FileFormatError(mpath, f"file {short_repr(entry.get('file'))} is named for two images "
+                                      f"({named[entry['_path']]} and {what})")
+            named[entry["_path"]] = what
     white = inside(calib_dir, "white", mpath, "white capture folder")
     if (white.exists() or white.is_symlink()) and not white.is_dir():
         raise CaptureError(white, "the white capture must be a folder (a capture of the white standard), "
@@ -780,6 +799,11 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
             raise CaptureError(m["_path"], problem)
     # radiometry
     white = read_capture(calib_dir / "white")
+    if white.device.to_dict() != device.to_dict():  # another device's white standard: a wrong radiometry
+        raise CaptureError(calib_dir / "white", "the white capture's device is not calibration.json's (another "
+                           "device's white standard, or another design of this one)")
+    if white.kind != "white":
+        raise CaptureError(calib_dir / "white", f"a calibration's white capture has kind 'white', got {white.kind!r}")
     wmeta = white.extra.get("white")
     albedo = wmeta.get("albedo", 0.0) if isinstance(wmeta, dict) else 0.0
     if not isinstance(albedo, (int, float)) or isinstance(albedo, bool) or not 0 < albedo <= 1:
@@ -811,6 +835,10 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
     too_bright = _implausible_scale(device, scale, response)  # what Calibration.load would refuse
     if too_bright is not None:
         raise CaptureError(calib_dir / "white", too_bright)
+    if np.any(scale < 0):  # Calibration.load refuses it too: the white frames read below their black level
+        k = int(np.flatnonzero((scale < 0).reshape(len(scale), -1).any(axis=1))[0])
+        raise CaptureError(calib_dir / "white", f"LED {k}: the white standard reads below the black level "
+                           "(negative radiometric scale); no radiometric calibration")
     led_err = np.degrees(np.arccos(np.clip(np.sum(leds * device.leds, axis=1), -1, 1)))
     report = {"kind": "measured", **geo_report, "led_offset_from_nominal_deg": np.round(led_err, 3).tolist(),
               "white_albedo": albedo}

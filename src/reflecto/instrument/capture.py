@@ -117,7 +117,7 @@ class Capture:
         return self.raw.shape[0]
 
 
-def frame_name(led: int, exposure_ms: float, check: bool = False) -> str:
+def frame_name(led: int, exposure_ms: float, check: bool = False, exact: bool = False) -> str:
     """File name a capture gives a frame: ``led{led}_t{exposure}ms[_check].png``.
 
     Parameters
@@ -125,16 +125,21 @@ def frame_name(led: int, exposure_ms: float, check: bool = False) -> str:
     led
         LED index.
     exposure_ms
-        Exposure time (ms), written with ``%g``.
+        Exposure time (ms), written with ``%g`` (six significant digits), or with
+        ``exact`` in full (the shortest text that reads back as the same number): for
+        times that ``%g`` writes alike.
     check
         Whether it is a check frame (the LED fired again after the sequence).
+    exact
+        Write the time in full.
 
     Returns
     -------
     str
         E.g. ``"led0_t8ms.png"``, ``"led2_t1ms_check.png"``.
     """
-    return f"led{led}_t{exposure_ms:g}ms{'_check' if check else ''}.png"
+    t = _ms(exposure_ms) if exact else f"{exposure_ms:g}"
+    return f"led{led}_t{t}ms{'_check' if check else ''}.png"
 
 
 def expects_check_frames(device: Device, kind: str) -> bool:
@@ -415,17 +420,19 @@ def write_capture(capture: Capture, out_dir: str | Path) -> Path:
             raise ReflectoError(f"{out_dir}: the device takes check frames of LEDs {list(dev.check_leds)}: "
                                 f"expected check frames of shape {shape}, got {got}")
     frames = []
+    # times that %g writes alike (1 and 1.0000001 ms) are named in full: one file per frame
+    exact = len({f"{float(t):g}" for t in capture.exposures_ms}) < len(capture.exposures_ms)
     with atomic_dir(out_dir) as tmp:
         for led in range(capture.raw.shape[0]):
             for e, t in enumerate(capture.exposures_ms):
-                name = frame_name(led, float(t))
+                name = frame_name(led, float(t), exact=exact)
                 _write_png(tmp / name, capture.raw[led, e])
                 frames.append({"file": name, "led": led, "exposure_ms": float(t)})
         if expects_check_frames(dev, capture.kind):  # shape checked above
             assert capture.check is not None
             for c, led in enumerate(dev.check_leds):
                 for e, t in enumerate(capture.exposures_ms):
-                    name = frame_name(led, float(t), check=True)
+                    name = frame_name(led, float(t), check=True, exact=exact)
                     _write_png(tmp / name, capture.check[c, e])
                     frames.append({"file": name, "led": led, "exposure_ms": float(t), "check": True})
         manifest = {
@@ -550,11 +557,18 @@ def read_capture(cap_dir: str | Path) -> Capture:
     entries = [_frame_key(f, mpath) for f in frames]
     times = np.array(device.camera.exposures_ms)
     if device.camera.auto_exposure:
-        # the capture's own times (auto-exposure), as many as the camera takes
+        # the capture's own times (auto-exposure), as many as the camera takes: the camera's
+        # times shortened by one factor (auto-exposure keeps their ratios and never lengthens them)
         own = sorted({t for (_, t, _), _ in entries})
         if len(own) != len(times) or any(not (0 < t <= MAX_EXPOSURE_MS) for t in own):
             raise CaptureError(mpath, f"expected {len(times)} positive exposure times per LED, "
                                f"found {_numbers(own[:10])}")
+        factor = np.asarray(own) / times
+        if not (np.all(np.abs(factor / factor[0] - 1.0) <= AUTO_EXPOSURE_RATIO_TOLERANCE)
+                and factor[0] <= 1.0 + AUTO_EXPOSURE_RATIO_TOLERANCE):
+            raise CaptureError(mpath, f"exposure times {_numbers(own)} ms are not the camera's "
+                               f"{_numbers(list(times))} ms shortened by one factor (auto-exposure keeps their "
+                               "ratios and never lengthens them)")
         times = np.array(own)
     rotation = m.get("rotation_deg", 0.0)
     if (not isinstance(rotation, (int, float)) or isinstance(rotation, bool) or not math.isfinite(rotation)
@@ -562,8 +576,9 @@ def read_capture(cap_dir: str | Path) -> Capture:
         raise FileFormatError(mpath, f"'rotation_deg' must be a finite number of degrees (|r| ≤ {MAX_ROTATION_DEG:g}), "
                               f"got {short_repr(rotation)}")
     kind = m.get("kind", "sample")
-    if not isinstance(kind, str):
-        raise FileFormatError(mpath, f"'kind' must be a string, got {short_repr(kind)}")
+    if kind not in CAPTURE_KINDS:  # another kind would pass without the check frames a sample capture has
+        raise FileFormatError(mpath, f"'kind' must be one of {', '.join(map(repr, CAPTURE_KINDS))}, "
+                              f"got {short_repr(kind)}")
     check_leds = device.check_leds if expects_check_frames(device, kind) else ()
     expected = {(led, float(t), False) for led in range(device.n_leds) for t in times}
     expected |= {(led, float(t), True) for led in check_leds for t in times}
@@ -617,6 +632,19 @@ def read_capture(cap_dir: str | Path) -> Capture:
     return cap
 
 
+#: The kinds of capture folder: a sample's (with check frames where the device has check
+#: LEDs) and a white standard's (a calibration's radiometry).
+CAPTURE_KINDS = ("sample", "white")
+#: Relative tolerance of an auto-exposed capture's times against the camera's times times one
+#: factor (the simulator rounds them to float32, 6·10⁻⁸; a camera may round to its line time).
+AUTO_EXPOSURE_RATIO_TOLERANCE = 1e-3
+#: Largest share of a frame's checked view pixels (every :data:`EXPOSURE_CHECK_STRIDE` th) that
+#: may read below the black level by more than 8 read-noise standard deviations (at least
+#: 4 DN; :func:`check_exposures`): the read noise (≈ 0.6 DN on the default camera) puts none
+#: there; a blank frame puts all.
+BELOW_BLACK_MAX_FRACTION = 0.05
+
+
 #: Smallest black-subtracted reading (DN, every channel) of the shorter exposure that
 #: :func:`check_exposures` compares: from 32 DN the read noise (≈ 0.6 DN on the
 #: default camera) and the quantization move a ratio by under 2 %.
@@ -643,11 +671,15 @@ def check_exposures(cap: Capture) -> None:
     :data:`EXPOSURE_CHECK_STRIDE` th pixel of the view disc whose shorter exposure
     reads ≥ :data:`EXPOSURE_CHECK_MIN_DN` in every channel and whose longer one is
     unsaturated, the median of the per-pixel ratio of the channel sums must lie within a
-    factor :data:`EXPOSURE_RATIO_TOLERANCE` of ``t_b / t_a``. The times are the
-    capture's, shared by its LEDs, so the first LED (in firing order) with at least
-    :data:`EXPOSURE_CHECK_MIN_PIXELS` such pixels decides (a sharp lobe's dark slices
-    cannot); a capture where none can is not compared, and a gamma-encoded camera's
-    response is the merge's to recover.
+    factor :data:`EXPOSURE_RATIO_TOLERANCE` of ``t_b / t_a``. Every LED's pair of frames
+    is compared, and every check LED's, where it has at least
+    :data:`EXPOSURE_CHECK_MIN_PIXELS` such pixels (a sharp lobe's dark slices cannot
+    tell); and two exposures of an LED that read the same image where it is lit (a frame
+    copied over the other, or one file standing for both) are refused whatever their
+    brightness. A frame whose checked pixels read below the black level (by more than
+    8 read-noise deviations) on more than :data:`BELOW_BLACK_MAX_FRACTION` of them is
+    another camera's or damaged. A gamma-encoded camera's response is the merge's to
+    recover.
 
     Parameters
     ----------
@@ -657,30 +689,52 @@ def check_exposures(cap: Capture) -> None:
     Raises
     ------
     CaptureError
-        Naming the LED, the two exposures and both ratios.
+        Naming the LED, the two exposures and both ratios (or that they are one image).
     """
     cam = cap.device.camera
     t = np.asarray(cap.exposures_ms, dtype=np.float64)
+    rows, cols = cap.device.optics.view_pixels()
+    rows, cols = rows[::EXPOSURE_CHECK_STRIDE], cols[::EXPOSURE_CHECK_STRIDE]
+    # every frame's checked pixels in one gather: (frames of an LED, exposures, pixels, RGB)
+    sub = cap.raw[:, :, rows, cols]
+    names = [f"LED {led}" for led in range(cap.n_leds)]
+    if cap.check is not None:
+        sub = np.concatenate([sub, cap.check[:, :, rows, cols]])
+        names += [f"LED {led}'s check" for led in cap.device.check_leds]
+    # per pixel over the channels by hand: NumPy's reductions over a last axis of 3 are slow
+    darkest = np.minimum(np.minimum(sub[..., 0], sub[..., 1]), sub[..., 2])
+    if cam.black_level > 0 and len(rows):
+        noise_dn = cam.read_noise / cam.gain if cam.response == "linear" else 0.0
+        low = (darkest < cam.black_level - max(8.0 * noise_dn, 4.0)).mean(axis=-1)
+        k, e = np.unravel_index(int(np.argmax(low)), low.shape)
+        if low[k, e] > BELOW_BLACK_MAX_FRACTION:  # a blank or foreign frame: it would merge to negative values
+            raise CaptureError(_where(cap), f"{names[k]}: its {_ms(t[e])} ms frame reads below the camera's black "
+                               f"level {cam.black_level:g} DN (less its noise) on {100 * low[k, e]:.0f} % of the view "
+                               "disc: a frame of another camera, or a damaged one")
+    order = np.argsort(t)
+    for a, b in zip(order[:-1], order[1:]):
+        flat_a, flat_b = sub[:, a].reshape(len(sub), -1), sub[:, b].reshape(len(sub), -1)
+        same = (flat_a == flat_b).all(axis=1) & (flat_a.max(axis=1) > cam.black_level)
+        if same.any():  # no two exposures of a lit scene read alike, on any camera
+            raise CaptureError(_where(cap), f"{names[int(np.argmax(same))]}: its {_ms(t[a])} ms and {_ms(t[b])} ms "
+                               "frames are the same image (one file copied over, or standing for, the other)")
     if cam.response != "linear" or len(t) < 2:
         return
     sat = SATURATION * cam.max_value - cam.black_level
-    rows, cols = cap.device.optics.view_pixels()
-    rows, cols = rows[::EXPOSURE_CHECK_STRIDE], cols[::EXPOSURE_CHECK_STRIDE]
-    order = np.argsort(t)
+    low_z = darkest.astype(np.float64) - cam.black_level
+    high_z = np.maximum(np.maximum(sub[..., 0], sub[..., 1]), sub[..., 2]).astype(np.float64) - cam.black_level
+    total = sub[..., 0].astype(np.float64) + sub[..., 1] + sub[..., 2] - 3.0 * cam.black_level
     for a, b in zip(order[:-1], order[1:]):
-        for led in range(cap.n_leds):  # the times are the capture's: the first LED that can tell decides
-            za = cap.raw[led, a][rows, cols].astype(np.float64) - cam.black_level
-            zb = cap.raw[led, b][rows, cols].astype(np.float64) - cam.black_level
-            ok = (za.min(axis=1) >= EXPOSURE_CHECK_MIN_DN) & (zb.max(axis=1) < sat)
+        said = float(t[b] / t[a])
+        for j, what in enumerate(names):
+            ok = (low_z[j, a] >= EXPOSURE_CHECK_MIN_DN) & (high_z[j, b] < sat)
             if np.count_nonzero(ok) < EXPOSURE_CHECK_MIN_PIXELS:
                 continue
-            seen = float(np.median(zb[ok].sum(axis=1) / za[ok].sum(axis=1)))
-            said = float(t[b] / t[a])
-            if 1.0 / EXPOSURE_RATIO_TOLERANCE <= seen / said <= EXPOSURE_RATIO_TOLERANCE:
-                break
-            raise CaptureError(_where(cap), f"LED {led}: its {_ms(t[b])} ms frame reads {seen:.3g}× its "
-                               f"{_ms(t[a])} ms frame (median of {np.count_nonzero(ok)} pixels), but the "
-                               f"manifest's exposure times say {said:.3g}×: the times or the frames are wrong")
+            seen = float(np.median(total[j, b][ok] / total[j, a][ok]))
+            if not 1.0 / EXPOSURE_RATIO_TOLERANCE <= seen / said <= EXPOSURE_RATIO_TOLERANCE:
+                raise CaptureError(_where(cap), f"{what}: its {_ms(t[b])} ms frame reads {seen:.3g}× its "
+                                   f"{_ms(t[a])} ms frame (median of {np.count_nonzero(ok)} pixels), but the "
+                                   f"manifest's exposure times say {said:.3g}×: the times or the frames are wrong")
 
 
 def _where(cap: Capture) -> Path:

@@ -562,6 +562,15 @@ class Device:
         camera = _camera(d.get("camera", {}), f"{where}.camera")
         angles = _led_angles(d.get("leds", DEFAULT_LED_ANGLES), f"{where}.leds")
         truth = _truth(d["truth"], f"{where}.truth", len(angles)) if "truth" in d else None
+        if truth is not None and (truth.optics.width, truth.optics.height) != (optics.width, optics.height):
+            raise ParameterError(f"{where}.truth.optics: the sensor is {truth.optics.width}×{truth.optics.height}, "
+                                 f"the device's {optics.width}×{optics.height}: a device's imperfections do not "
+                                 "change its sensor")
+        sensors = [(optics, f"{where}.optics")] + ([(truth.optics, f"{where}.truth.optics")] if truth else [])
+        for o, w in sensors:
+            if not len(o.view_pixels()[0]):
+                raise ParameterError(f"{w}: no pixel of the sensor lies in the view cone (check disc_radius_px, "
+                                     "cx, cy): such a device sees nothing")
         return cls(
             name=name,
             optics=optics,

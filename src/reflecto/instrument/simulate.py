@@ -505,11 +505,13 @@ def simulate_calibration(device: Device, out_dir: str | Path, seed: int = 0, whi
     optics, leds, intensity, trans = _truth(device)
     cam = device.camera
     lamb = AnalyticBRDF(distribution="ggx", alpha=0.5, kd=WHITE_ALBEDO, ks=0.0)
-    frames = [simulate_capture(lamb, device, seed=seed * 1000 + r, tilt_azimuth_deg=0.0).raw.astype(np.float64)
-              for r in range(white_repeats)]
-    mean = np.mean(frames, axis=0)
+    shots = [simulate_capture(lamb, device, seed=seed * 1000 + r, tilt_azimuth_deg=0.0) for r in range(white_repeats)]
+    mean = np.mean([c.raw.astype(np.float64) for c in shots], axis=0)
+    # the times the frames were taken with: auto-exposure may have shortened the camera's (the
+    # same for every repeat: one target, one brightest pixel)
+    times = np.asarray(shots[0].exposures_ms, dtype=np.float64)
     white = Capture(device.nominal(), np.rint(mean).astype(np.uint8 if cam.response == "gamma" else np.uint16),
-                    np.array(cam.exposures_ms), "white", {"white": {"albedo": WHITE_ALBEDO, "repeats": white_repeats}})
+                    times, "white", {"white": {"albedo": WHITE_ALBEDO, "repeats": white_repeats}})
     t_spot = cam.exposures_ms[0]
     amp = 0.6 * cam.full_well / t_spot
     nominal = device.optics
