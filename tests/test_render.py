@@ -221,3 +221,12 @@ def test_a_title_is_drawn_on_comparisons_and_refused_for_linear_images(mitsuba, 
     assert main(["render", ex, "--title", "x", "-o", str(tmp_path / "c.exr")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--title is drawn on a .png image" in err[0] and not (tmp_path / "c.exr").exists()
+
+
+def test_a_render_of_days_is_refused_before_it_starts(tmp_path, capsys):
+    """Pixels × spp beyond MAX_SAMPLES (a 4096² image at 2²⁰ spp asked for 1.8·10¹³ samples) is one
+    line naming both, before Mitsuba is loaded."""
+    ex = str(__import__("pathlib").Path(__file__).resolve().parents[1] / "examples" / "ggx-plastic.json")
+    assert main(["render", ex, "--resolution", "4096", "--spp", "1048576", "-o", str(tmp_path / "x.png")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "4096² pixels × 1048576 spp" in err[0] and not (tmp_path / "x.png").exists()

@@ -419,6 +419,9 @@ MAX_SEED = SAMPLER_MAX_SEED - 2
 #: Most samples per pixel: Mitsuba's samplers count samples in 32 bits (a larger count is
 #: refused by its scene parser), and 2²⁰ is far beyond a converged render of these scenes.
 MAX_SPP = 2**20
+#: The most samples one render may take (pixels × spp): a 4096² image at 512 spp, hours on a
+#: workstation's CPU; beyond it a request is a typo rather than a render.
+MAX_SAMPLES = 4096 * 4096 * 512
 
 
 def check_render_settings(scene: str, resolution: int, spp: int | None, seed: int = 0,
@@ -460,7 +463,11 @@ def _check(scene: str, resolution: int, spp: int | None, seed: int = 0, max_seed
     spp = DEFAULT_SPP[scene] if spp is None else int(spp)
     if not 1 <= spp <= MAX_SPP:
         raise ParameterError(f"spp must be in [1, {MAX_SPP}], got {spp}")
-    return sample_count(spp)
+    count = sample_count(spp)
+    if resolution * resolution * count > MAX_SAMPLES:
+        raise ParameterError(f"{resolution}² pixels × {count} spp is {resolution * resolution * count:.3g} samples, "
+                             f"more than {MAX_SAMPLES:.3g} (days of rendering): lower --resolution or --spp")
+    return count
 
 
 def render_file(bsdf_path: Path, scene: str = "sphere-env", envmap: str | Path | None = None, resolution: int = 256,
