@@ -24,7 +24,10 @@ def fake_run_material(path: str, out_dir: str, device: str = "ideal", calibratio
     name = Path(path).stem
     a = float(np.clip(src.albedo([0.0])[0, 1], 1e-3, 1.0))
     img = np.full((sw.SPHERE_RES, sw.SPHERE_RES, 3), 0.1).tolist()
-    rec = {"name": name, "file": path, "device": device, "seed": sw.material_seed(name),
+    from reflecto.workflow import device_key
+
+    rec = {"name": name, "file": path, "material_digest": sw.material_digest(path), "device": device,
+           "device_key": device_key(device), "seed": sw.material_seed(name),
            "timings": {"total_s": 0.01, "ours_reconstruct_s": 0.01, "cook_torrance_fit_s": 0.01},
            "ours": {"error": a, "log_rmse": 0.1, "eta": [1.5, 1.5, 1.5], "ks": [0.5, 0.5, 0.5], "albedo_max": a,
                     "finite": True, "isotropic": True},

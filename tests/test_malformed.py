@@ -252,3 +252,87 @@ def test_a_black_reference_has_no_normalized_error(tmp_path, capsys):
     assert main(["compare", str(black), str(PLASTIC)]) == 1
     assert "the reference black reflects (almost) nothing" in _err(capsys)
     assert main(["compare", str(PLASTIC), str(black)]) == 0  # a black test against a real reference: its error
+
+
+def test_a_resumed_sweep_redoes_an_edited_material_and_keeps_a_device_spelled_otherwise(tmp_path, fake_sweep,
+                                                                                         capsys, monkeypatch):
+    """A record is kept for the same material file contents and the same device contents: an
+    edited material is evaluated again, and ``./dev.json`` for ``dev.json`` keeps the records."""
+    (tmp_path / "mats").mkdir()
+    mat = tmp_path / "mats" / "m0.json"
+    mat.write_text(json.dumps({"type": "analytic", "alpha": 0.2, "kd": 0.45, "ks": 0.5}))
+    (tmp_path / "dev.json").write_text(json.dumps({"name": "dev"}))
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "res"
+    argv = ["sweep", "mats", "-o", str(out), "--jobs", "1", "--json"]
+    assert main([*argv, "--device", "dev.json"]) == 0
+    first = json.loads((out / "materials" / "m0.json").read_text())
+    capsys.readouterr()
+    assert main([*argv, "--device", "./dev.json"]) == 0
+    assert json.loads((out / "materials" / "m0.json").read_text()) == first  # kept, not evaluated again
+    mat.write_text(json.dumps({"type": "analytic", "alpha": 0.5, "kd": 0.05, "ks": 0.1}))
+    assert main([*argv, "--device", "dev.json"]) == 0
+    again = json.loads((out / "materials" / "m0.json").read_text())
+    assert again["material_digest"] != first["material_digest"] and again["ours"]["error"] < first["ours"]["error"]
+
+
+def test_batch_commands_refuse_before_they_start(tmp_path, capsys):
+    """A malformed --scheduler (it hung after a traceback), a design folder without materials
+    (found after every layout), a design value twice or finer than its key, --shadowing with
+    --asymmetric (ignored) and a MERL table of an anisotropic source (its φ_h = 0 slice,
+    silently) are one line each, before any output is made."""
+    (tmp_path / "mats").mkdir()
+    (tmp_path / "mats" / "m0.json").write_text(json.dumps({"type": "analytic", "alpha": 0.2, "kd": 0.2, "ks": 0.5}))
+    (tmp_path / "empty").mkdir()
+    aniso = ROOT / "examples" / "asymmetric" / "ggx-brushed-30.toml"
+    cases = [
+        (["sweep", str(tmp_path / "mats"), "-o", str(tmp_path / "s"), "--scheduler", "tcp://127.0.0.1:notaport"],
+         "not a scheduler address"),
+        (["sweep", str(tmp_path / "mats"), "-o", str(tmp_path / "s"), "--scheduler", "foo://bar:1"],
+         "unknown scheme 'foo'"),
+        (["design", str(tmp_path / "empty"), "-o", str(tmp_path / "d"), "--cones", "40", "--tilts", "20",
+          "--leds", "6"], "no material files in"),
+        (["design", str(tmp_path / "mats"), "-o", str(tmp_path / "d"), "--cones", "40", "40", "--tilts", "20",
+          "--leds", "6", "--layout-only"], "--cones: each value once"),
+        (["design", str(tmp_path / "mats"), "-o", str(tmp_path / "d"), "--cones", "40.04", "--tilts", "20",
+          "--leds", "6", "--layout-only"], "--cones: values to 1 decimal"),
+        (["reconstruct", str(tmp_path / "mats"), str(tmp_path / "empty"), "--asymmetric", "--shadowing",
+          "correlated", "-o", str(tmp_path / "a.reflecto")], "--shadowing correlated: the §5.5 path"),
+        (["tabulate", str(aniso), "-o", str(tmp_path / "t.binary")], "is anisotropic; a MERL table holds"),
+    ]
+    for argv, expected in cases:
+        assert main(argv) == 1, argv
+        err = _err(capsys)
+        assert expected in err, (argv, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "mats"]
+
+
+def test_fit_ct_scores_an_anisotropic_source_as_compare_does(capsys):
+    """``fit-ct`` of an anisotropic source reports eq. 10 over every half-vector azimuth (the
+    φ_h = 0 cut alone understated it 3×), and says which form."""
+    from reflecto.evaluate.cooktorrance import fit_cook_torrance
+    from reflecto.evaluate.metrics import comparison_error
+    from reflecto.load import load_source
+
+    aniso = ROOT / "examples" / "asymmetric" / "ggx-brushed-30.toml"
+    assert main(["fit-ct", str(aniso), "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    src = load_source(aniso)
+    err = comparison_error(src, fit_cook_torrance(src))
+    assert got["error_normalized"] == pytest.approx(err.normalized) and "every half-vector azimuth" in got["error_form"]
+
+
+def test_a_failed_batch_leaves_no_empty_folder_it_made(tmp_path):
+    """After a failed command the empty folders made inside its new output folder go (a sweep's
+    ``materials/``), a folder with a finished item's record stays."""
+    from reflecto.cli import _clean_up
+
+    out = tmp_path / "res"
+    (out / "materials").mkdir(parents=True)
+    _clean_up([out], "sweep")
+    assert not out.exists()
+    (out / "materials").mkdir(parents=True)
+    (out / "materials" / "m0.json").write_text("{}")
+    (out / "designs").mkdir()
+    _clean_up([out], "design")
+    assert sorted(p.name for p in out.iterdir()) == ["materials"]

@@ -245,11 +245,12 @@ def run_on_dask(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels
         import distributed  # deferred: the optional `dask` extra, needed only with --scheduler
     except ImportError:
         raise ReflectoError("--scheduler needs dask.distributed: pip install 'reflecto[dask]'") from None
+    check_scheduler_address(scheduler)
     if not items:
         return
     try:
         client = distributed.Client(scheduler, timeout=DASK_CONNECT_TIMEOUT_S, set_as_default=False)
-    except (OSError, TimeoutError) as e:
+    except (OSError, TimeoutError, ValueError) as e:
         raise ReflectoError(f"{scheduler}: cannot reach the Dask scheduler ({one_line(e)})") from None
     try:
         futs = {client.submit(_guarded, fn, args, labels[k], pure=False, key=f"reflecto-{k}-{labels[k]}"): k
@@ -263,6 +264,37 @@ def run_on_dask(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels
             on_result(k, *res)
     finally:
         client.close()
+
+
+def check_scheduler_address(scheduler: str) -> None:
+    """Refuse a Dask scheduler address that is not ``[scheme://]host:port`` of a transport
+    ``distributed`` has, before any work (a malformed one raised inside ``distributed.Client``,
+    whose background loop then kept the process from exiting).
+
+    Parameters
+    ----------
+    scheduler
+        The address, e.g. ``tcp://10.0.0.5:8786``.
+
+    Raises
+    ------
+    ReflectoError
+        A malformed address, or ``dask.distributed`` missing.
+    """
+    try:
+        from distributed.comm.addressing import parse_address, parse_host_port  # deferred: the optional extra
+        from distributed.comm.registry import backends  # deferred: the optional extra
+    except ImportError:
+        raise ReflectoError("--scheduler needs dask.distributed: pip install 'reflecto[dask]'") from None
+    try:
+        scheme, location = parse_address(scheduler)
+        if scheme not in backends:
+            raise ValueError(f"unknown scheme {scheme!r} (one of {', '.join(sorted(backends))})")
+        if scheme != "inproc":
+            parse_host_port(location)
+    except ValueError as e:
+        raise ReflectoError(f"--scheduler {scheduler}: not a scheduler address, [scheme://]host:port ({one_line(e)})"
+                            ) from None
 
 
 def _run_isolated(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels: Sequence[str], which: list[int],

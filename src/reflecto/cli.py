@@ -30,7 +30,7 @@ import numpy as np
 from tqdm import tqdm
 
 from . import __version__, kinds, workflow
-from .batch import Progress, interactive, run_batch
+from .batch import Progress, check_scheduler_address, interactive, run_batch
 from .errors import (
     BatchError,
     FileFormatError,
@@ -43,12 +43,20 @@ from .errors import (
     shown_path,
 )
 from .evaluate.cooktorrance import fit_cook_torrance
-from .evaluate.design import DEFAULT_CONES, DEFAULT_LED_COUNTS, DEFAULT_TILTS, best_design, design_study
+from .evaluate.design import (
+    DEFAULT_CONES,
+    DEFAULT_LED_COUNTS,
+    DEFAULT_TILTS,
+    DESIGN_DECIMALS,
+    best_design,
+    design_study,
+    design_value,
+)
 from .evaluate.gallery import GALLERY_MARKER, GallerySettings, check_distinct_names, gallery
-from .evaluate.metrics import brdf_error, comparison_error
+from .evaluate.metrics import comparison_error
 from .evaluate.report import write_report
-from .evaluate.sweep import summarize, sweep
-from .export.merl import export_merl
+from .evaluate.sweep import find_materials, summarize, sweep
+from .export.merl import export_merl, holds_isotropic
 from .export.rgl import export_rgl
 from .fresnel import eta_from_json, format_eta
 from .instrument import layout
@@ -182,6 +190,8 @@ def check_inputs(args: argparse.Namespace) -> None:
     reflecto.kinds.KindError
     """
     command = args.command
+    if getattr(args, "scheduler", None):  # before any folder is made for the results
+        check_scheduler_address(args.scheduler)
     for name, need, accept in _INPUTS.get(command, []):
         value = getattr(args, name, None)
         values = value if isinstance(value, list) else [value]
@@ -305,6 +315,10 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
     _check_suffix(out, "merl", f"use -o {out.with_suffix('.binary')}")
     check_output(out)
     src = load_source(args.source)
+    if not holds_isotropic(src):  # as `export`: a MERL table of an anisotropic source is its φ_h = 0 slice only
+        raise ReflectoError(f"{shown_path(args.source)} is anisotropic; a MERL table holds an isotropic BRDF: "
+                            f"reflecto export {shown_path(args.source)} -o {shown_path(out)} --isotropic yes writes "
+                            "its φ_h = 0 slice, or write an RGL .bsdf")
     with _progress(merl.N_BINS, f"tabulating {src.name}", not args.quiet and not args.json and _interactive()) as bar:
         table = merl.tabulate(src, progress=bar.update)
     merl.write_merl_table(out, table)
@@ -458,6 +472,9 @@ def _reconstruct_asymmetric(args: argparse.Namespace) -> int:
         raise ReflectoError(f"{caps[0]}: --asymmetric reconstructs one model from captures of the same point at "
                             f"{MIN_CAPTURES} or more rotations (paper §5.5); got one capture — reconstruct it "
                             "without --asymmetric")
+    if args.shadowing != "auto":  # the §5.5 path's isotropic branch keeps eq. 8's product; the option would be ignored
+        raise ReflectoError(f"--shadowing {args.shadowing}: the §5.5 path (--asymmetric) fits eq. 8's product "
+                            "shadowing; --shadowing chooses the form of one capture's model (leave it out here)")
     out = Path(args.output)
     _check_suffix(out, "model", f"use -o {out.with_suffix('.reflecto')}")
     if out.suffix.lower() != ".reflecto":
@@ -781,14 +798,15 @@ def cmd_fit_ct(args: argparse.Namespace) -> int:
 
     src = load_source(args.source)
     ct = fit_cook_torrance(src)
-    err = brdf_error(src, ct)
-    info = {"source": str(args.source), **ct.parameters(), "error_normalized": err.normalized, "log_rmse": err.log_rmse}
+    err = comparison_error(src, ct)  # as `compare`: every half-vector azimuth where the source is anisotropic
+    info = {"source": str(args.source), **ct.parameters(), "error_normalized": err.normalized, "log_rmse": err.log_rmse,
+            "error_form": err.describe()}
     return _emit(args, info, [
         f"Cook–Torrance fit of {args.source} (Beckmann D, V-groove G, Schlick F; eq. 10 weights):",
         f"  rho_d  {np.round(ct.rho_d, 5).tolist()}",
         f"  rho_s  {np.round(ct.rho_s, 5).tolist()}",
         f"  F0     {ct.f0:.4f}    m  {ct.m:.5f}",
-        f"  normalized error  {100 * err.normalized:.3f} % (eq. 10), log-RMSE {err.log_rmse:.5f}"])
+        f"  normalized error  {100 * err.normalized:.3f} % ({err.describe()}), log-RMSE {err.log_rmse:.5f}"])
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
@@ -837,6 +855,12 @@ def cmd_design(args: argparse.Namespace) -> int:
                                  ("--leds", args.leds, 3, 32)):
         if not values or any(not lo <= v <= hi for v in values):
             raise ReflectoError(f"{flag}: each value must be in [{lo:g}, {hi:g}], got {values}")
+        if any(abs(v - design_value(v)) > 1e-9 for v in values):  # a design's key holds 0.1°
+            raise ReflectoError(f"{flag}: values to {DESIGN_DECIMALS} decimal(s), got {values}")
+        if len({design_value(v) for v in values}) != len(values):  # one design twice: one record, two rows
+            raise ReflectoError(f"{flag}: each value once, got {values}")
+    if not args.layout_only and not find_materials(list(args.folders)):  # known before any design is laid out
+        raise ReflectoError(f"no material files in {', '.join(map(shown_path, args.folders))} (or pass --layout-only)")
     try:
         rows = design_study(args.folders, args.output, cones=args.cones, tilts=args.tilts, led_counts=args.leds,
                             jobs=args.jobs, scheduler=args.scheduler, progress=not args.quiet,
@@ -1211,6 +1235,13 @@ def _clean_up(new: list[Path], command: str) -> None:
         return
     if command == "report" and new[-1].is_dir() and not new[-1].is_symlink():
         shutil.rmtree(new[-1], ignore_errors=True)
+    if new[-1].is_dir() and not new[-1].is_symlink():  # the empty folders made inside it (a sweep's materials/)
+        for root, subs, _ in os.walk(new[-1], topdown=False):
+            for sub in subs:
+                try:
+                    (Path(root) / sub).rmdir()
+                except OSError:  # not empty (a finished item's record), or a link: kept
+                    pass
     for d in reversed(new):
         try:
             d.rmdir()

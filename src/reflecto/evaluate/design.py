@@ -83,6 +83,28 @@ PAPER_FRAME_RATE_HZ = 120.0
 PAPER_KEY = "paper"
 
 
+#: Decimals of a design's angles, as its key (``c60.0-t20.0-l6``) and records hold them: the
+#: study refuses finer values rather than giving two designs one record.
+DESIGN_DECIMALS = 1
+
+
+def design_value(value: float) -> float:
+    """``value`` (degrees, or an LED count) as a design's key holds it: rounded to
+    :data:`DESIGN_DECIMALS` decimals.
+
+    Parameters
+    ----------
+    value
+        A cone half-angle or axis tilt (degrees), or a number of LEDs.
+
+    Returns
+    -------
+    float
+        The rounded value.
+    """
+    return round(float(value), DESIGN_DECIMALS)
+
+
 @dataclasses.dataclass(frozen=True)
 class Design:
     """One optical design: cone half-angle and axis tilt (degrees), number of LEDs."""

@@ -52,7 +52,7 @@ from ..errors import BatchError, FileFormatError, ReflectoError, ReflectoWarning
 from ..fresnel import eta_from_json, eta_to_json, is_constant
 from ..instrument.device import load_device
 from ..instrument.simulate import simulate_capture
-from ..io import atomic_write, make_parents, read_description, read_json, remove_empty
+from ..io import atomic_write, make_parents, read_description, read_json, remove_empty, sha256
 from ..load import load_source
 from ..render.sphere import render_sphere
 from .cooktorrance import fit_cook_torrance, fit_cook_torrance_capture
@@ -147,6 +147,23 @@ def _reconstruct(src: Any, device_name: str, calibration: str | None, seed: int)
     return result.reconstruction, t, result.slices
 
 
+def material_digest(path: str | Path) -> str:
+    """The digest of a material file's contents (SHA-256, 16 hex digits): a sweep's record of a
+    material is kept only while its file is what was evaluated.
+
+    Parameters
+    ----------
+    path
+        The material file.
+
+    Returns
+    -------
+    str
+        16 hexadecimal digits.
+    """
+    return sha256(Path(path).read_bytes())[:16]
+
+
 def run_material(path: str, out_dir: str, device: str = "ideal", calibration: str | None = None) -> dict[str, Any]:
     """Evaluate one material (see the module docstring); writes and returns its record.
 
@@ -178,8 +195,8 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
     src = load_source(p)
     name = p.stem
     seed = material_seed(name)
-    rec: dict[str, Any] = {"name": name, "file": str(p), "device": device, "device_key": workflow.device_key(device),
-                           "seed": seed, "half": half(name), "timings": {}}
+    rec: dict[str, Any] = {"name": name, "file": str(p), "material_digest": material_digest(p), "device": device,
+                           "device_key": workflow.device_key(device), "seed": seed, "half": half(name), "timings": {}}
     tm = rec["timings"]
     t0 = time.perf_counter()
     grid = metric_grid(METRIC_STRIDE)
@@ -353,9 +370,11 @@ def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ide
         failures.append((str(p), f"{p}: its result record {out / 'materials' / (p.stem + '.json')} is a folder; "
                                  "remove it (or choose another -o) to evaluate this material"))
     mats_left = [p for p in mats if p not in blocked]
-    key = workflow.device_key(device)  # a device file edited since: its records are redone
-    records = {p.stem: r for p in mats_left if (r := _done(out, p.stem)) is not None and r.get("device") == device
-               and r.get("device_key", r.get("device")) == key}
+    # a record is kept for the same device (by its contents: a device file edited since, or another
+    # of the same name, is another device) and the same material file's contents
+    key = workflow.device_key(device)
+    records = {p.stem: r for p in mats_left if (r := _done(out, p.stem)) is not None
+               and r.get("device_key", r.get("device")) == key and r.get("material_digest") == material_digest(p)}
     todo = [p for p in mats_left if p.stem not in records]
     bar = Progress(len(mats), "sweep", progress, initial=len(mats) - len(todo))
 

@@ -46,7 +46,7 @@ def export_merl(source: BRDFSource, path: str | Path, allow_anisotropic: bool = 
     ParameterError
         For an anisotropic source without ``allow_anisotropic``.
     """
-    if not allow_anisotropic and not _isotropic(source):
+    if not allow_anisotropic and not holds_isotropic(source):
         raise ParameterError(f"{source.name} is anisotropic; MERL files hold isotropic BRDFs only "
                              "(pass allow_anisotropic to write its φ_h = 0 slice)")
     table = merl.tabulate(source, progress=progress)
@@ -54,7 +54,20 @@ def export_merl(source: BRDFSource, path: str | Path, allow_anisotropic: bool = 
     return merl.write_merl_table(path, table)
 
 
-def _isotropic(source: BRDFSource) -> bool:
+def holds_isotropic(source: BRDFSource) -> bool:
+    """Whether a MERL table (isotropic, ``φ_h = 0``) holds ``source`` whole: it says it is
+    isotropic, or its NDF (or back-scattering) is rotationally symmetric.
+
+    Parameters
+    ----------
+    source
+        The BRDF.
+
+    Returns
+    -------
+    bool
+        ``True`` where the φ_h = 0 slice stands for every azimuth.
+    """
     if getattr(source, "isotropic", False):
         return True
 
