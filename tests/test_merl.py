@@ -85,3 +85,22 @@ def test_invalid_bins_and_bad_files(table, tmp_path):
     (tmp_path / "nan.binary").write_bytes(bytes(nan))
     with pytest.raises(FileFormatError, match="NaN"):
         load_source(tmp_path / "nan.binary")
+
+
+def test_a_source_with_non_finite_values_is_a_parameter_error_naming_it():
+    """A source that gives NaN at some MERL bins (a model that passes the plausibility sample but
+    overflows elsewhere) is one ParameterError naming it, which the CLI prints as one line."""
+    from reflecto.brdf import BRDFSource
+    from reflecto.errors import ParameterError
+    from reflecto.sources import merl
+
+    class NaNAt(BRDFSource):
+        kind, isotropic, path = "test", True, None
+
+        def eval(self, i, o):
+            v = np.full((len(i), 3), 0.1)
+            v[::997] = np.nan
+            return v
+
+    with pytest.raises(ParameterError, match="test: the source produced NaN or infinite values"):
+        merl.tabulate(NaNAt())

@@ -211,7 +211,7 @@ def _accumulate(sums: _Sums, grid: Grid, r: Array, m: Array, name: str) -> None:
     ok = np.all(r >= 0, axis=1) & np.all(np.isfinite(r), axis=1)
     if not np.all(np.isfinite(m[ok])):
         bad = int(np.count_nonzero(~np.isfinite(m[ok])))
-        raise ValueError(f"{name}: {bad} non-finite values on the metric grid")
+        raise ParameterError(f"{name}: {bad} non-finite values on the metric grid")
     cos_i = grid.i[ok, 2][:, None]
     w = grid.w[ok][:, None]
     rc, mc = r[ok] * cos_i, m[ok] * cos_i
@@ -278,8 +278,8 @@ def brdf_error(reference: BRDFSource, test: BRDFSource, stride: int = 1, albedo_
 
     Raises
     ------
-    ValueError
-        ``test`` is non-finite on a bin where the reference is valid.
+    ParameterError
+        (a ``ValueError``) ``test`` is non-finite on a bin where the reference is valid.
     """
     g = metric_grid(stride)
     r = evaluate_on_grid(reference, g) if reference_values is None else reference_values
@@ -353,8 +353,8 @@ def brdf_error_all_azimuths(reference: BRDFSource, test: BRDFSource, azimuths: i
 
     Raises
     ------
-    ValueError
-        ``test`` is non-finite on a bin where the reference is valid.
+    ParameterError
+        (a ``ValueError``) ``test`` is non-finite on a bin where the reference is valid.
     """
     sums = _Sums()
     for k in range(azimuths):

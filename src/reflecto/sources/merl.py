@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import geometry
 from ..brdf import ALBEDO_RANGE, BRDFSource, Reader, check_plausible, check_projected, read_file_bytes, register_reader
-from ..errors import FileFormatError
+from ..errors import FileFormatError, ParameterError, shown_path
 from ..io import atomic_write
 
 Array = NDArray[np.float64]
@@ -243,17 +243,17 @@ def write_merl_table(path: str | Path, table: ArrayLike) -> Path:
 
     Raises
     ------
-    ValueError
-        For a table of another shape or with NaN or infinite values.
+    ParameterError
+        (a ``ValueError``) For a table of another shape or with NaN or infinite values.
     FileFormatError
         For values above :data:`~reflecto.brdf.MAX_PROJECTED_BRDF` (projected).
     """
     path = Path(path)
     t = np.asarray(table, dtype=np.float64)
     if t.shape != SHAPE + (3,):
-        raise ValueError(f"MERL table must have shape {SHAPE + (3,)}, got {t.shape}")
+        raise ParameterError(f"MERL table must have shape {SHAPE + (3,)}, got {t.shape}")
     if not np.all(np.isfinite(t)):
-        raise ValueError("MERL table contains NaN or infinite values")
+        raise ParameterError("MERL table contains NaN or infinite values")
     check_projected(np.maximum(t, 0.0) * _cos_cos()[..., None], path, "the table to write")
     flat = t.reshape(N_BINS, 3).T  # (3, N)
     stored = flat / SCALE[:, None]
@@ -291,8 +291,8 @@ def tabulate(source: BRDFSource, chunk: int = 1 << 17, progress: Callable[[int],
 
     Raises
     ------
-    ValueError
-        When the source gives NaN or infinite values.
+    ParameterError
+        (a ``ValueError``) When the source gives NaN or infinite values.
     """
     i, o = bin_directions()
     i = i.reshape(-1, 3)
@@ -308,7 +308,7 @@ def tabulate(source: BRDFSource, chunk: int = 1 << 17, progress: Callable[[int],
         if progress is not None:
             progress(len(ii))
     if not np.all(np.isfinite(out)):
-        raise ValueError(f"{source.name}: the source produced NaN or infinite values")
+        raise ParameterError(f"{shown_path(source.path or source.name)}: the source produced NaN or infinite values")
     return out.reshape(SHAPE + (3,))
 
 
