@@ -149,3 +149,54 @@ def test_watch_names_with_odd_characters(tmp_path):
     assert not any("models" in line for line in lines)
     page = (models / "index.html").read_text()
     assert 'href="a%23b%3Fc%2541.json"' in page
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    ({"max_tilt_deg": "16"}, "max_tilt_deg must be a number"),
+    ({"kd_bound_max_deg": None}, "kd_bound_max_deg must be a number"),
+    ({"fixed_eta": 1.0000001}, "a fixed η must be a finite relative index in [1.001"),
+    ({"fixed_eta": np.complex128(1.5)}, "a fixed η must be a real number"),
+    ({"estimate_normal": "no"}, "estimate_normal must be True, False or None"),
+    ({"detect_shake": "no"}, "detect_shake must be True or False"),
+])
+def test_options_of_the_wrong_type_are_refused(kwargs, words):
+    """Options of another type than they hold are refused naming them (a string tilt raised a
+    TypeError, a complex η warned in the fit, "no" counted as True)."""
+    with pytest.raises(ParameterError, match=words.replace("[", r"\[").replace("(", r"\(")):
+        Options(**kwargs)
+
+
+def test_rotation_sets_whose_lists_disagree_are_refused(capture):
+    """``rotated_captures`` with fewer or more rotations (or names) than captures, or a rotation
+    that is not a number, is refused (zip dropped captures silently); the §5.5 set refuses a
+    shadowing form it would not use."""
+    from reflecto.reconstruct import reconstruct_rotations
+    from reflecto.workflow import rotated_captures
+
+    caps = [capture, dataclasses.replace(capture, rotation_deg=90.0), dataclasses.replace(capture, rotation_deg=180.0)]
+    with pytest.raises(ParameterError, match="rotations_deg: one per capture, got 2 for 3"):
+        rotated_captures(caps, rotations_deg=[0, 90])
+    with pytest.raises(ParameterError, match="names: one per capture, got 1 for 3"):
+        rotated_captures(caps, names=["a"])
+    with pytest.raises(ParameterError, match="rotations_deg: each a finite number of degrees, got 'ninety'"):
+        rotated_captures(caps[:2], rotations_deg=[0, "ninety"])
+    with pytest.raises(ParameterError, match="the §5.5 set fits eq. 8's product shadowing"):
+        reconstruct_rotations(rotated_captures(caps[:2]), Options(shadowing="correlated"))
+
+
+def test_a_tilt_at_the_search_bound_says_so_and_the_isotropy_verdict_is_the_models():
+    """A 22° tilt with the default max_tilt_deg (16°) is held at the bound, and the summary says
+    so; a 30° tilt whose estimated frame reads anisotropic falls back to the device frame,
+    where the verdict, the model and the notes agree."""
+    from reflecto.model import IsotropicMicrofacetBRDF
+
+    sl = extract_slices(simulate_capture(SRC, IDEAL, tilt_deg=22.0, seed=1), nominal_calibration(IDEAL))
+    r = reconstruct(sl)
+    assert r.normal_tilt_deg == pytest.approx(16.0, abs=0.02)
+    assert any("reached the search's bound max_tilt_deg 16°" in n for n in r.notes), r.notes
+    sl = extract_slices(simulate_capture(SRC, IDEAL, tilt_deg=30.0, tilt_azimuth_deg=30.0, seed=1),
+                        nominal_calibration(IDEAL))
+    r = reconstruct(sl, Options(max_tilt_deg=40.0))
+    assert isinstance(r.model, IsotropicMicrofacetBRDF) == r.isotropy.isotropic
+    if r.normal_source == "device":
+        assert any("was not kept" in n for n in r.notes), r.notes

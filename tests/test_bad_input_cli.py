@@ -631,3 +631,69 @@ def test_a_file_name_that_is_not_utf8_and_a_description_with_escapes(tmp_path, c
     out_lines = capsys.readouterr().out.splitlines()
     assert any(x.startswith("  description paper\\n  kind        merl\\x1b[31m") for x in out_lines)
     assert not any(x.startswith("  kind        merl") for x in out_lines) and "\x1b" not in "".join(out_lines)
+
+
+def test_output_names_that_are_not_utf8_and_unreadable_seeds(tmp_path, capsys):
+    """``simulate -o`` with a name of bytes that are not UTF-8 writes its capture (OpenCV's writer
+    crashed the process on it), and a seed no manifest could hold is refused up front."""
+    out = tmp_path / os.fsdecode(b"cap\xff")
+    assert main(["simulate", str(PLASTIC), "-o", str(out), "-q"]) == 0
+    from reflecto.instrument.capture import read_capture
+
+    assert read_capture(out).raw.shape[0] == 6
+    assert [p.name for p in tmp_path.iterdir()] == [out.name]  # no temporary folder left
+    _, line = _run(["simulate", str(PLASTIC), "--seed", str(10**400), "-o", str(tmp_path / "big")], capsys)
+    assert "--seed" in line and not (tmp_path / "big").exists()
+
+
+def test_model_files_save_only_what_load_reads(tmp_path):
+    """``save`` refuses a model that ``load`` would refuse (too many tint nodes, a sample-normal
+    entry out of range, metadata nested too deep or with an integer no float holds), and a
+    hostile dtype in a model's array table is one line naming the file."""
+    import zipfile
+
+    from reflecto.io import content_digest
+    from reflecto.model import IsotropicMicrofacetBRDF, load_model
+
+    nodes = np.radians(np.linspace(0, 90, 92))
+    d = np.exp(-(np.tan(np.minimum(nodes, 1.5)) / 0.2) ** 2)
+    for kwargs, words in (({"tint": (np.linspace(0.1, 1.4, 1100), np.ones((1100, 3)))}, "tint_theta nodes"),
+                          ({"metadata": {"normal_tilt_deg": 95}}, "not a valid sample normal entry"),
+                          ({"metadata": {"deep": json.loads("[" * 70 + "]" * 70)}}, "nested deeper"),
+                          ({"metadata": {"big": 10**400}}, "out of range")):
+        m = IsotropicMicrofacetBRDF((nodes, d), kd=0.2, ks=0.5, eta=1.5, **kwargs)
+        with pytest.raises(ParameterError, match=words):
+            m.save(tmp_path / "m.reflecto")
+        assert not (tmp_path / "m.reflecto").exists()
+    good = IsotropicMicrofacetBRDF((nodes, d), kd=0.2, ks=0.5, eta=1.5).save(tmp_path / "g.reflecto")
+    with zipfile.ZipFile(good) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    meta = json.loads(members["meta.json"])
+    meta["arrays"]["ndf"]["dtype"] = "f4,f4,,"
+    meta.pop("sha256")
+    meta["sha256"] = content_digest(meta)
+    members["meta.json"] = json.dumps(meta).encode()
+    with zipfile.ZipFile(tmp_path / "d.reflecto", "w") as z:
+        for n, b in members.items():
+            z.writestr(n, b)
+    with pytest.raises(FileFormatError, match="invalid dtype"):
+        load_model(tmp_path / "d.reflecto")
+
+
+def test_info_json_is_strict_and_a_set_summary_is_named(tmp_path, capsys):
+    """``info --json`` writes a model's non-finite metadata as null (strict JSON), and names the
+    summary of a §5.5 set as a summary, not as a broken analytic description."""
+    from reflecto.model import IsotropicMicrofacetBRDF
+
+    nodes = np.radians(np.linspace(0, 90, 92))
+    m = IsotropicMicrofacetBRDF((nodes, np.exp(-(np.tan(np.minimum(nodes, 1.5)) / 0.2) ** 2)), kd=0.2, ks=0.5, eta=1.5,
+                                metadata={"score": float("nan")})
+    path = m.save(tmp_path / "m.reflecto")
+    assert main(["info", str(path), "--json"]) == 0
+    out = capsys.readouterr().out
+    assert json.loads(out, parse_constant=lambda c: pytest.fail(f"non-standard JSON {c}")) is not None
+    (tmp_path / "set.json").write_text(json.dumps({"asymmetric": True, "rotations_deg": [0, 90], "kd": [0.1] * 3,
+                                                   "ks": [0.5] * 3, "shake_detected": False}))
+    from reflecto.kinds import identify
+
+    assert identify(tmp_path / "set.json").name == "summary"

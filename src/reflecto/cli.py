@@ -90,11 +90,22 @@ def _progress(total: int, desc: str, enabled: bool):
 
 def _emit(args: argparse.Namespace, info: dict, lines: list[str]) -> int:
     """Print ``info`` as JSON with ``--json``, else the human-readable ``lines`` (none with ``-q``)."""
-    if args.json:
-        print(json.dumps(info, indent=1))
+    if args.json:  # strict JSON: a non-finite number (a file's own metadata) is written as null
+        print(json.dumps(_finite_json(info), indent=1, allow_nan=False))
     elif lines and not getattr(args, "quiet", False):
         print("\n".join(lines))
     return 0
+
+
+def _finite_json(value: Any) -> Any:
+    """``value`` with every non-finite float (NaN, ±inf) replaced by ``None`` (JSON's null)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_json(v) for v in value]
+    return value
 
 
 #: What reflecto reads a file of each suffix as (``load_source`` goes by suffix first).
@@ -298,7 +309,7 @@ def cmd_info(args: argparse.Namespace) -> int:
             lines.append("  normal      not placed: a preview, read in the device frame (the full model places it)")
         else:
             lines.append(f"  normal      tilted {meta['normal_tilt_deg']:.2f}° from the device axis "
-                         f"({detail}{meta.get('normal_source')})")
+                         f"({detail}{shown_path(str(meta.get('normal_source')))})")
         if meta.get("preview") is True:
             lines.append("  preview     a first model (reflecto watch); reflecto reconstruct makes the full one")
     lines.append("  directional albedo (RGB) at θ_i:")
@@ -334,13 +345,13 @@ def cmd_layout(args: argparse.Namespace) -> int:
     dev = load_device(args.device)
     leds = dev.leds
     if args.optimize:
-        leds = layout.optimize_layout(dev.optics, n_leds=dev.n_leds, seed=args.seed)
+        leds = layout.optimize_layout(dev.optics, n_leds=dev.n_leds, theta_max_deg=args.theta_max, seed=args.seed)
     cov = layout.coverage(dev.optics, leds, resolution=args.resolution, theta_max_deg=args.theta_max)
     info = {"device": dev.name, "leds_elevation_azimuth_deg": np.round(layout.led_angles(leds), 2).tolist(),
             "coverage": cov.to_dict()}
     if args.plot:
 
-        plot_coverage(dev.optics, leds, args.plot, resolution=max(args.resolution, 128))
+        plot_coverage(dev.optics, leds, args.plot, resolution=max(args.resolution, 128), theta_max_deg=args.theta_max)
         info["plot"] = str(args.plot)
     if args.json:
         print(json.dumps(info, indent=1))
@@ -443,7 +454,8 @@ def _checked(convert: Callable[[str], Any], ok: Callable[[Any], bool], expect: s
 
 #: The checked number options: what numpy, scipy and Mitsuba would refuse with a
 #: traceback, or take silently (NaN angles, negative counts), is one line naming the option.
-_SEED = _checked(int, lambda v: v >= 0, "an integer >= 0")
+#: Seeds of the simulations: they are written into the manifest, whose reader refuses integers no float holds.
+_SEED = _checked(int, lambda v: 0 <= v <= 2**63 - 1, f"an integer in [0, {2**63 - 1}]")
 _LAYOUT_SEED = _checked(int, lambda v: 0 <= v <= layout.MAX_SEED, f"an integer in [0, {layout.MAX_SEED}]")
 _RENDER_SEED = _checked(int, lambda v: 0 <= v <= RENDER_MAX_SEED, f"an integer in [0, {RENDER_MAX_SEED}] "
                         "(the reference renders use the seed + 1 and + 2)")

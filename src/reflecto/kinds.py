@@ -54,6 +54,8 @@ _SUFFIX = {".reflecto": "model", ".binary": "merl", ".bsdf": "rgl", ".h5": "nbrd
            ".png": "image", ".exr": "image", ".hdr": "image", ".jpg": "image", ".jpeg": "image"}
 _DEVICE_KEYS = {"name", "optics", "leds", "camera", "truth", "occluder_deg", "firing_order", "check_leds"}
 _SUMMARY_KEYS = {"kd", "ks", "shake_detected", "model_error"}
+#: A §5.5 set's summary (``reconstruct --asymmetric``): no single capture's model error.
+_SET_SUMMARY_KEYS = {"kd", "ks", "shake_detected", "asymmetric", "rotations_deg"}
 _MAX_DESCRIPTION = 16 << 20
 
 #: What to run with a file of each kind instead (``{path}`` is the file).
@@ -123,7 +125,7 @@ def _json_kind(data: object) -> str:
         return "manifest"
     if data.get("format") == "reflecto-calibration-capture":
         return "calibration-manifest"
-    if _SUMMARY_KEYS <= set(data):
+    if _SUMMARY_KEYS <= set(data) or _SET_SUMMARY_KEYS <= set(data):
         return "summary"
     if data and set(data) <= _DEVICE_KEYS:
         return "device"
@@ -139,7 +141,7 @@ def _description_kind(path: Path) -> str:
     except (OSError, ValueError, RecursionError):
         return "unknown"
     if path.suffix.lower() == ".json" and path.with_suffix(".h5").is_file() and isinstance(data, dict) \
-            and "type" not in data and not (_SUMMARY_KEYS <= set(data)):
+            and "type" not in data and not (_SUMMARY_KEYS <= set(data) or _SET_SUMMARY_KEYS <= set(data)):
         return "nbrdf-architecture"  # an NBRDF's architecture file beside its weights
     return _json_kind(data)
 

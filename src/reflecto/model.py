@@ -29,7 +29,7 @@ import math
 import os
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -37,7 +37,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import _kernels
 from .brdf import BRDFSource, Reader, check_plausible, register_reader
 from .brdf import rgb_triplet as _rgb
-from .errors import FileFormatError, ParameterError, ReflectoWarning, short_repr
+from .errors import FileFormatError, ParameterError, ReflectoWarning, one_line, short_repr, shown_path
 from .fresnel import FresnelTable, FresnelTint, eta_to_json, fresnel, is_constant
 from .hemicube import Hemicube, hemicube
 from .io import (
@@ -599,6 +599,7 @@ def _lobes_from_arrays(path: Path, arrays: dict[str, NDArray[Any]], ndf: Isotrop
 def _write_model_file(path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> None:
     """Zip ``meta`` (plus array specs and checksums) and ``arrays`` atomically."""
 
+    _check_writable(path, meta, arrays)
     members = {f"{name}.npy": npy_bytes(a) for name, a in arrays.items()}
     meta = json.loads(json.dumps(meta))  # what load() will see: string keys, lists, no tuples
     meta["arrays"] = {name: {"file": f"{name}.npy", "dtype": a.dtype.str, "shape": list(a.shape),
@@ -606,6 +607,36 @@ def _write_model_file(path: Path, meta: dict[str, Any], arrays: dict[str, NDArra
     meta["sha256"] = content_digest(meta)
     with atomic_write(path) as fh:
         write_zip(fh, {"meta.json": json.dumps(meta, indent=1).encode(), **members})
+
+
+def _check_writable(path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> None:
+    """Refuse, before writing, a model file that :meth:`MicrofacetBRDF.load` would refuse for
+    its metadata (JSON: its nesting, integers no float holds; size; the
+    sample normal's entries) or its node counts (:data:`MAX_POLAR_NODES`, :data:`MAX_TINT_NODES`).
+
+    Raises
+    ------
+    ParameterError
+        ``PATH: not saved, …``, naming the problem.
+    """
+    def refuse(problem: str) -> NoReturn:
+        raise ParameterError(f"{shown_path(path)}: not saved, the model is invalid: {problem}")
+
+    try:
+        text = json.dumps(meta)
+    except (TypeError, ValueError) as e:  # a value JSON does not hold (np.int64, a set)
+        refuse(f"its metadata is not plain JSON ({one_line(e)})")
+    if len(text) > MAX_MODEL_META_BYTES:
+        refuse(f"its metadata is {len(text)} bytes, more than {MAX_MODEL_META_BYTES}")
+    try:
+        parse_json(text, path)
+        _check_normal_metadata(path, json.loads(text).get("metadata") or {})
+    except FileFormatError as e:
+        refuse(e.problem)
+    for name, limit in (("tint_theta", MAX_TINT_NODES), ("lobes_theta_d", MAX_TINT_NODES),
+                        ("ndf_theta", MAX_POLAR_NODES)):
+        if name in arrays and len(arrays[name]) > limit:
+            refuse(f"{len(arrays[name])} {name} nodes, more than {limit}")
 
 
 def _read_model_file(path: Path) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
@@ -661,7 +692,7 @@ def _checked_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes])
             raise FileFormatError(path, f"array {name!r}: invalid shape {short_repr(shape)}")
         try:
             dt = np.dtype(dtype)
-        except TypeError:
+        except Exception:  # noqa: BLE001 - TypeError, ValueError, SyntaxError: NumPy's parser of a hostile spec
             raise FileFormatError(path, f"array {name!r}: invalid dtype {short_repr(dtype)}") from None
         arrays[name] = npy_array(members[f], path, f, dtype=dt, shape=tuple(shape))
     return arrays

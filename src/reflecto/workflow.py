@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import tempfile
 import time
@@ -41,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import geometry
-from .errors import ReflectoError, ReflectoWarning
+from .errors import ParameterError, ReflectoError, ReflectoWarning
 from .instrument.calibrate import Calibration, calibrate, load_calibration, needs_calibration, nominal_calibration
 from .instrument.capture import Capture, CaptureError, read_capture
 from .instrument.device import BUILTINS, Device, load_device
@@ -534,6 +535,13 @@ def rotated_captures(captures: Sequence[Capture | str | Path], calibration: str 
     """
     if names is None:
         names = [str(c) if not isinstance(c, Capture) else f"capture {k + 1}" for k, c in enumerate(captures)]
+    for what, given in (("rotations_deg", rotations_deg), ("names", names)):  # one per capture: none dropped
+        if given is not None and len(given) != len(captures):
+            raise ParameterError(f"{what}: one per capture, got {len(given)} for {len(captures)} captures")
+    if rotations_deg is not None:
+        for r in rotations_deg:
+            if isinstance(r, bool) or not isinstance(r, (int, float, np.integer, np.floating)) or not math.isfinite(r):
+                raise ParameterError(f"rotations_deg: each a finite number of degrees, got {r!r}")
     caps = [c if isinstance(c, Capture) else read_capture(c) for c in captures]
     if not caps:
         raise ReflectoError("<no capture>: the asymmetric reconstruction (§5.5) needs captures")

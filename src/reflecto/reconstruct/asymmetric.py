@@ -59,7 +59,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import geometry
-from ..errors import ReflectoError
+from ..errors import ParameterError, ReflectoError
 from ..fresnel import eta_to_json
 from ..hemicube import Hemicube, hemicube
 from ..instrument.slices import Slices, check_slices
@@ -566,6 +566,9 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
         captures that do not measure one material (:class:`CaptureConsistency`).
     """
     opt = options or Options()
+    if opt.shadowing != "auto":  # the set's isotropic branch fits eq. 8's product: the choice would be ignored
+        raise ParameterError(f"shadowing {opt.shadowing!r}: the §5.5 set fits eq. 8's product shadowing; the "
+                             "shadowing form is chosen for one capture's model (leave it 'auto')")
     syn_opt = synthesis or SynthesisOptions()
     t0 = time.perf_counter()
     check_rotations(captures)
@@ -599,7 +602,7 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
     model: IsotropicMicrofacetBRDF | MicrofacetBRDF
     if isotropic:
         stacked, ok_st = stack_isotropic([c.slices.reframe(frames[0]) for c in captures], valids)
-        iso = fit_isotropic(stacked, ok_st & stacked.valid, opt.fixed_eta)
+        iso = fit_isotropic(stacked, ok_st & stacked.valid, opt.fixed_eta, opt.kd_bound_max_deg)
         model, eta, ks_bound, fresnel_error = iso.model, iso.eta, iso.ks_at_bound, math.nan
     else:
         loop, mg, fill = _fit_hemicube_set(sb, sls, oks, opt, syn_opt, pairs.select(~pairs.symmetric))

@@ -40,7 +40,15 @@ from ..instrument.slices import Slices, check_slices, finite_rgb
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF
 from .extrapolation import ShadowingChoice, choose_shadowing
 from .hemicube_fit import HemicubeFit, fit_hemicube
-from .isotropic import ETA_MAX, OUTER_ITERATIONS, IsotropicFit, finish_isotropic, fit_isotropic, start_isotropic
+from .isotropic import (
+    ETA_MAX,
+    ETA_MIN,
+    OUTER_ITERATIONS,
+    IsotropicFit,
+    finish_isotropic,
+    fit_isotropic,
+    start_isotropic,
+)
 from .isotropy import IsotropyTest, azimuthal_test
 from .motion import PEAK_AGREEMENT_DEG, MotionReport, agreeing_normals, detect_motion, peak_agreement
 from .normal import (
@@ -139,6 +147,8 @@ class Options:
         if self.shadowing not in ("auto", "separable", "correlated"):
             raise bad(f"shadowing must be 'auto', 'separable' or 'correlated', got {self.shadowing!r}")
         if self.estimate_normal is not None:
+            if not isinstance(self.estimate_normal, (bool, np.bool_)):
+                raise bad(f"estimate_normal must be True, False or None, got {self.estimate_normal!r}")
             self.normal = "auto" if self.estimate_normal else "device"
             self.estimate_normal = None
         if isinstance(self.normal, str):
@@ -160,16 +170,26 @@ class Options:
                                           and 8 <= cells <= MAX_RESOLUTION):
                 raise bad(f"{name} must be an integer in [8, {MAX_RESOLUTION}] (hemicube cells per face side), "
                           f"got {cells!r}")
-        if self.fixed_eta is not None and not isinstance(self.fixed_eta, (int, float, np.number)):
-            raise bad(f"a fixed η must be a number, got {self.fixed_eta!r}")
-        if self.fixed_eta is not None and not (math.isfinite(self.fixed_eta) and 1.0 < self.fixed_eta <= ETA_MAX):
-            raise bad(f"a fixed η must be a finite relative index in (1, {ETA_MAX:g}], got {self.fixed_eta}")
+        real = (lambda x: isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool))
+        if self.fixed_eta is not None and not real(self.fixed_eta):
+            raise bad(f"a fixed η must be a real number, got {self.fixed_eta!r}")
+        if self.fixed_eta is not None and not (math.isfinite(self.fixed_eta) and ETA_MIN <= self.fixed_eta <= ETA_MAX):
+            raise bad(f"a fixed η must be a finite relative index in [{ETA_MIN:g}, {ETA_MAX:g}] (the fit's range), "
+                      f"got {self.fixed_eta}")
+        for name in ("max_tilt_deg", "kd_bound_max_deg"):
+            if not real(getattr(self, name)):
+                raise bad(f"{name} must be a number of degrees, got {getattr(self, name)!r}")
         if not (math.isfinite(self.max_tilt_deg) and 0.0 < self.max_tilt_deg < 60.0):
             raise bad(f"max_tilt_deg must lie in (0°, 60°), got {self.max_tilt_deg}")
         if not (math.isfinite(self.kd_bound_max_deg) and 0.0 < self.kd_bound_max_deg <= 90.0):
             raise bad(f"kd_bound_max_deg must lie in (0°, 90°], got {self.kd_bound_max_deg}")
+        for name in ("detect_shake", "energy_clamp"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise bad(f"{name} must be True or False, got {getattr(self, name)!r}")
 
 
+#: A tilt estimated within this of ``Options.max_tilt_deg`` (degrees) is said to be held by the bound.
+MAX_TILT_MARGIN_DEG = 0.01
 #: The largest hemicube resolution the options take (the paper's is 512; 2048² cells per face
 #: are 100 MB of NDF).
 MAX_RESOLUTION = 2048
@@ -779,13 +799,20 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     test = azimuthal_test(sl, ok, iso.least_squares)  # in the frame kept: the device frame's only when it is
     isotropic = _choose_isotropic(opt.isotropic, test)
     cpu.isotropy = lap()
+    anisotropic_frame_note = None
     if not isotropic and est.source == "estimated":
         # an anisotropic lobe: the estimate's isotropic fit does not hold; the device axis
+        dropped = est
         est = dataclasses.replace(est, normal=np.array([0.0, 0.0, 1.0]), uncertainty_deg=0.0, source="device")
         frame, sl = est.frame, slices
         ok = valid & sl.valid
         iso = device_fit if device_fit is not None else _device_frame_fit(slices, valid, opt)
         test = azimuthal_test(sl, ok, iso.least_squares)
+        isotropic = _choose_isotropic(opt.isotropic, test)  # the verdict of the frame kept, as the model is
+        anisotropic_frame_note = (f"the tilt estimated ({dropped.tilt_deg:.2f}° ± {dropped.uncertainty_deg:.2f}°) "
+                                  "was not kept: the lobe reads anisotropic in its frame, and the isotropic fit "
+                                  "that estimated it does not hold; read in the device frame (a tilted anisotropic "
+                                  "capture needs a given normal)")
         cpu.fit += lap()  # the device frame's fit (and its test) after all
     fit: IsotropicFit | HemicubeFit = iso
     shadowing = None
@@ -806,7 +833,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         motion.excluded_leds = fit.excluded_leds
     cpu.motion = lap()
     model, scale, albedo = limit_energy_of_the_trend(built, opt.energy_clamp)
-    notes = _normal_notes(est, opt, isotropic) + _hidden_peak_notes(hidden)
+    notes = _normal_notes(est, opt, isotropic) + ([anisotropic_frame_note] if anisotropic_frame_note else [])
+    notes += _hidden_peak_notes(hidden)
     notes += _notes(fit, model, isotropic, test, scale) + held_tint_notes(built, model)
     shadowing_note = None if shadowing is None else shadowing.note()
     if shadowing_note:
@@ -841,8 +869,12 @@ def _normal_notes(est: NormalEstimate, opt: Options, isotropic: bool) -> list[st
         return []
     if est.source == "estimated":
         how = f"estimated with {est.planes} symmetry planes" if est.planes else "estimated"
-        return [f"sample normal tilted {est.tilt_deg:.2f}° from the device axis (±{est.uncertainty_deg:.2f}°, "
-                f"{how}, §5.4)"]
+        notes = [f"sample normal tilted {est.tilt_deg:.2f}° from the device axis (±{est.uncertainty_deg:.2f}°, "
+                 f"{how}, §5.4)"]
+        if est.tilt_deg >= opt.max_tilt_deg - MAX_TILT_MARGIN_DEG:  # held by the search's bound: beyond it, maybe
+            notes.append(f"the tilt reached the search's bound max_tilt_deg {opt.max_tilt_deg:g}°: the normal may "
+                         "lie beyond it (raise max_tilt_deg, or give the normal)")
+        return notes
     if not isotropic or opt.isotropic == "no":
         return ["sample normal: the device axis (the tilt estimate assumes an isotropic lobe; give a known "
                 "normal for a tilted capture of an anisotropic material)"]
