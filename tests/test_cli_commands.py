@@ -223,9 +223,9 @@ def test_layout_seed_theta_max_resolution_and_plot(tmp_path, capsys, monkeypatch
         return original(optics, n_leds=kw["n_leds"], seed=kw["seed"], resolution=16, maxiter=2)
 
     monkeypatch.setattr(layout, "optimize_layout", short)
-    assert main(["layout", "--optimize", "--seed", "3", "--resolution", "16", "--json"]) == 0
+    assert main(["layout", "--optimize", "--seed", "3", "--resolution", "16", "--theta-max", "70", "--json"]) == 0
     leds = np.array(json_out(capsys)["leds_elevation_azimuth_deg"])
-    assert seen == {"n_leds": 6, "seed": 3}
+    assert seen == {"n_leds": 6, "seed": 3, "theta_max_deg": 70.0}  # --theta-max reaches the optimizer too
     direct = layout.led_angles(original(dev.optics, n_leds=6, seed=3, resolution=16, maxiter=2))
     assert np.allclose(leds, np.round(direct, 2)) and np.allclose(leds[0], [5.0, 0.0])
 
