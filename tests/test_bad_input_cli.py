@@ -697,3 +697,14 @@ def test_info_json_is_strict_and_a_set_summary_is_named(tmp_path, capsys):
     from reflecto.kinds import identify
 
     assert identify(tmp_path / "set.json").name == "summary"
+
+
+def test_simulate_does_not_write_into_a_calibration_folder(tmp_path, calib, capsys):
+    """``simulate -o CAL/white`` would replace a calibration folder's white-standard capture with a
+    sample capture (a folder with a manifest counts as replaceable): refused in one line, the
+    white capture untouched."""
+    calib_dir = calib[0]
+    before = (calib_dir / "white" / "manifest.json").read_bytes()
+    _, line = _run(["simulate", str(PLASTIC), "-o", str(calib_dir / "white")], capsys)
+    assert "lies in the calibration folder" in line
+    assert (calib_dir / "white" / "manifest.json").read_bytes() == before

@@ -377,6 +377,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     check_output(args.output, folder=True, marker=MANIFEST)
     _refuse_holding(args.output, [args.source, args.device])
+    parent = Path(os.path.abspath(args.output)).parent
+    if kinds.identify(parent).name == "calibration-folder":  # its white/ is a capture too: not a sample's place
+        raise OutputError(args.output, f"lies in the calibration folder {shown_path(parent)}; simulate writes a "
+                                       "sample capture: name a folder outside it")
     src = load_source(args.source)
     dev = load_device(args.device)
     cap = simulate_capture(src, dev, tilt_deg=args.tilt, tilt_azimuth_deg=args.tilt_azimuth,
