@@ -200,3 +200,12 @@ def test_a_tilt_at_the_search_bound_says_so_and_the_isotropy_verdict_is_the_mode
     assert isinstance(r.model, IsotropicMicrofacetBRDF) == r.isotropy.isotropic
     if r.normal_source == "device":
         assert any("was not kept" in n for n in r.notes), r.notes
+
+
+def test_options_compare_by_value():
+    """Two Options with the same given normal are equal (the generated comparison raised on the
+    normal's array), and a different normal or value makes them differ."""
+    assert Options(normal=[0, 0, 1]) == Options(normal=(0.0, 0.0, 1.0))
+    assert Options(normal=[0, 0, 1]) != Options(normal=[0, 0.6, 0.8])
+    assert Options() == Options() and Options() != Options(normal=[0, 0, 1])
+    assert Options(fixed_eta=1.5) != Options()

@@ -138,6 +138,22 @@ class Options:
     kd_bound_max_deg: float = 75.0
     shadowing: str = "auto"
 
+    def __eq__(self, other: object) -> bool:
+        """Field by field, a given normal (an array) by its values: the generated comparison
+        raised on the array's ambiguous truth value."""
+        if not isinstance(other, Options):
+            return NotImplemented
+        for f in dataclasses.fields(self):
+            a, b = getattr(self, f.name), getattr(other, f.name)
+            if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+                if not (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and np.array_equal(a, b)):
+                    return False
+            elif a != b:
+                return False
+        return True
+
+    __hash__ = None  # type: ignore[assignment]  # mutable, as the generated class is
+
     def __post_init__(self) -> None:
         def bad(what: str) -> ParameterError:
             return ParameterError(f"reconstruction options: {what}")
