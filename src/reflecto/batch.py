@@ -268,8 +268,8 @@ def run_on_dask(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels
 
 def check_scheduler_address(scheduler: str) -> None:
     """Refuse a Dask scheduler address that is not ``[scheme://]host:port`` of a transport
-    ``distributed`` has, before any work (a malformed one raised inside ``distributed.Client``,
-    whose background loop then kept the process from exiting).
+    ``distributed`` has, before any work: ``distributed.Client`` raises on a malformed one after
+    starting its background loop, which then keeps the process from exiting.
 
     Parameters
     ----------

@@ -52,7 +52,7 @@ from .evaluate.design import (
     design_study,
     design_value,
 )
-from .evaluate.gallery import GALLERY_MARKER, GallerySettings, check_distinct_names, gallery
+from .evaluate.gallery import GALLERY_MARKER, GallerySettings, gallery
 from .evaluate.metrics import comparison_error
 from .evaluate.report import write_report
 from .evaluate.sweep import find_materials, summarize, sweep
@@ -1200,7 +1200,6 @@ def cmd_gallery(args: argparse.Namespace) -> int:
 
     check_output(args.output, folder=True, marker=GALLERY_MARKER)
     _refuse_holding(args.output, [*args.materials, args.device, args.calibration])
-    check_distinct_names(args.materials)
     rotations = tuple(args.rotations)
     settings = GallerySettings(args.device, args.calibration, rotations, args.spp, args.resolution, args.seed)
 

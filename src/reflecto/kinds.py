@@ -20,6 +20,7 @@ import tomllib
 import zipfile
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 from .errors import ReflectoError, one_line
 
@@ -57,6 +58,12 @@ _SUMMARY_KEYS = {"kd", "ks", "shake_detected", "model_error"}
 #: A §5.5 set's summary (``reconstruct --asymmetric``): no single capture's model error.
 _SET_SUMMARY_KEYS = {"kd", "ks", "shake_detected", "asymmetric", "rotations_deg"}
 _MAX_DESCRIPTION = 16 << 20
+
+
+def _is_summary(data: dict[str, Any]) -> bool:
+    """Whether a JSON object is a reconstruction's summary: one capture's, or a §5.5 set's."""
+    keys = set(data)
+    return _SUMMARY_KEYS <= keys or _SET_SUMMARY_KEYS <= keys
 
 #: What to run with a file of each kind instead (``{path}`` is the file).
 _USE = {
@@ -125,7 +132,7 @@ def _json_kind(data: object) -> str:
         return "manifest"
     if data.get("format") == "reflecto-calibration-capture":
         return "calibration-manifest"
-    if _SUMMARY_KEYS <= set(data) or _SET_SUMMARY_KEYS <= set(data):
+    if _is_summary(data):
         return "summary"
     if data and set(data) <= _DEVICE_KEYS:
         return "device"
@@ -141,7 +148,7 @@ def _description_kind(path: Path) -> str:
     except (OSError, ValueError, RecursionError):
         return "unknown"
     if path.suffix.lower() == ".json" and path.with_suffix(".h5").is_file() and isinstance(data, dict) \
-            and "type" not in data and not (_SUMMARY_KEYS <= set(data) or _SET_SUMMARY_KEYS <= set(data)):
+            and "type" not in data and not _is_summary(data):
         return "nbrdf-architecture"  # an NBRDF's architecture file beside its weights
     return _json_kind(data)
 

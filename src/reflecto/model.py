@@ -599,9 +599,9 @@ def _lobes_from_arrays(path: Path, arrays: dict[str, NDArray[Any]], ndf: Isotrop
 def _write_model_file(path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> None:
     """Zip ``meta`` (plus array specs and checksums) and ``arrays`` atomically."""
 
-    _check_writable(path, meta, arrays)
+    text = _check_writable(path, meta, arrays)
     members = {f"{name}.npy": npy_bytes(a) for name, a in arrays.items()}
-    meta = json.loads(json.dumps(meta))  # what load() will see: string keys, lists, no tuples
+    meta = json.loads(text)  # what load() will see: string keys, lists, no tuples
     meta["arrays"] = {name: {"file": f"{name}.npy", "dtype": a.dtype.str, "shape": list(a.shape),
                              "sha256": sha256(members[f"{name}.npy"])} for name, a in arrays.items()}
     meta["sha256"] = content_digest(meta)
@@ -609,10 +609,15 @@ def _write_model_file(path: Path, meta: dict[str, Any], arrays: dict[str, NDArra
         write_zip(fh, {"meta.json": json.dumps(meta, indent=1).encode(), **members})
 
 
-def _check_writable(path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> None:
+def _check_writable(path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> str:
     """Refuse, before writing, a model file that :meth:`MicrofacetBRDF.load` would refuse for
     its metadata (JSON: its nesting, integers no float holds; size; the
     sample normal's entries) or its node counts (:data:`MAX_POLAR_NODES`, :data:`MAX_TINT_NODES`).
+
+    Returns
+    -------
+    str
+        The metadata as JSON text (what the file holds).
 
     Raises
     ------
@@ -629,14 +634,15 @@ def _check_writable(path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[
     if len(text) > MAX_MODEL_META_BYTES:
         refuse(f"its metadata is {len(text)} bytes, more than {MAX_MODEL_META_BYTES}")
     try:
-        parse_json(text, path)
-        _check_normal_metadata(path, json.loads(text).get("metadata") or {})
+        metadata = parse_json(text, path).get("metadata") or {}
+        _check_normal_metadata(path, metadata if isinstance(metadata, dict) else {})
     except FileFormatError as e:
         refuse(e.problem)
     for name, limit in (("tint_theta", MAX_TINT_NODES), ("lobes_theta_d", MAX_TINT_NODES),
                         ("ndf_theta", MAX_POLAR_NODES)):
         if name in arrays and len(arrays[name]) > limit:
             refuse(f"{len(arrays[name])} {name} nodes, more than {limit}")
+    return text
 
 
 def _read_model_file(path: Path) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:

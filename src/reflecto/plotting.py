@@ -13,8 +13,8 @@ def pyplot() -> Any:
     import matplotlib.pyplot as plt  # deferred: matplotlib is ~0.4 s of every command's start-up; only plots need it
 
     plt.switch_backend("Agg")
-    # every text is plain: a material or file name with "$…$" in it is not maths markup (it
-    # raised a parse error), and reflecto's labels write their symbols in Unicode
+    # every text is plain: a material or file name with "$…$" in it is not maths markup (mathtext
+    # would fail to parse "\foo"), and reflecto's labels write their symbols in Unicode
     plt.rcParams["text.parse_math"] = False
     return plt
 

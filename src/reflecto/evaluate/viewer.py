@@ -318,9 +318,10 @@ function drawPolar(ctx, T, size) {
 const RES = 192, cols = [];
 D.brdfs.forEach((b, idx) => {
   const col = document.createElement("div"); col.className = "col";
-  col.innerHTML = `<h2>${b.label.replace(/[<>&]/g, "")}</h2><canvas class="sphere" width="${RES}" height="${RES}"></canvas>` +
+  col.innerHTML = `<h2></h2><canvas class="sphere" width="${RES}" height="${RES}"></canvas>` +
     `<div>θ_h–θ_d slice: θ_h 0–90° left to right, θ_d 0–90° bottom to top; log f, black 10⁻³, white 10³ sr⁻¹</div><canvas class="slice" width="180" height="180"></canvas>` +
     `<div class="readout"></div><div>incidence plane at the θ_i above (dashed: the light; R, G, B: f·cos θ_o, linear)</div><canvas class="polar" width="220" height="140"></canvas>`;
+  col.querySelector("h2").textContent = b.label;  // a name is text, whatever characters it holds
   document.getElementById("cols").appendChild(col);
   cols.push(col);
 });

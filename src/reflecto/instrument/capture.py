@@ -162,7 +162,7 @@ def expects_check_frames(device: Device, kind: str) -> bool:
 
 def _write_png(path: Path, img: NDArray[np.integer]) -> None:
     # OpenCV stores BGR; our arrays are RGB. Encoded in memory and written by Python: OpenCV's
-    # own writer takes the name as UTF-8 text (a name of other bytes crashed the process)
+    # own writer takes the name as UTF-8 text (a name of other bytes crashes the process)
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(img[..., ::-1]))
     if not ok:
         raise ReflectoError(f"{shown_path(path)}: could not encode the image")

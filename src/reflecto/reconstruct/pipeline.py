@@ -139,8 +139,8 @@ class Options:
     shadowing: str = "auto"
 
     def __eq__(self, other: object) -> bool:
-        """Field by field, a given normal (an array) by its values: the generated comparison
-        raised on the array's ambiguous truth value."""
+        """Field by field, a given normal (an array) by its values: a generated comparison fails
+        on the array's ambiguous truth value."""
         if not isinstance(other, Options):
             return NotImplemented
         for f in dataclasses.fields(self):
@@ -825,10 +825,10 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         iso = device_fit if device_fit is not None else _device_frame_fit(slices, valid, opt)
         test = azimuthal_test(sl, ok, iso.least_squares)
         isotropic = _choose_isotropic(opt.isotropic, test)  # the verdict of the frame kept, as the model is
-        anisotropic_frame_note = (f"the tilt estimated ({dropped.tilt_deg:.2f}° ± {dropped.uncertainty_deg:.2f}°) "
-                                  "was not kept: the lobe reads anisotropic in its frame, and the isotropic fit "
-                                  "that estimated it does not hold; read in the device frame (a tilted anisotropic "
-                                  "capture needs a given normal)")
+        anisotropic_frame_note = (f"read in the device frame, not at the tilt the isotropic fit places "
+                                  f"({dropped.tilt_deg:.2f}° ± {dropped.uncertainty_deg:.2f}°): the lobe reads "
+                                  "anisotropic in that frame, where the isotropic fit does not hold (a tilted "
+                                  "anisotropic capture needs a given normal)")
         cpu.fit += lap()  # the device frame's fit (and its test) after all
     fit: IsotropicFit | HemicubeFit = iso
     shadowing = None
