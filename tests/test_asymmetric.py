@@ -331,7 +331,7 @@ def test_gallery_command_renders_three_teapots_per_material(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_the_set_normal_is_estimated_once():
+def test_the_set_normal_is_estimated_once_by_default():
     from reflecto.instrument.calibrate import nominal_calibration
     from reflecto.instrument.device import Device
     from reflecto.instrument.simulate import simulate_capture
@@ -346,7 +346,9 @@ def test_the_set_normal_is_estimated_once():
     caps = [RotatedCapture(extract_slices(simulate_capture(src, dev, seed=k + 1, rotation_deg=r, tilt_deg=6.0,
                                                            tilt_azimuth_deg=40.0), cal), float(r))
             for k, r in enumerate(ROTATIONS)]
-    res = reconstruct_rotations(caps, Options(normal="search"))
+    with pytest.raises(ReflectoError, match="does not measure the same material"):
+        reconstruct_rotations(caps, Options(normal="device"))  # tilted: the device axis misreads the set
+    res = reconstruct_rotations(caps)  # "auto": the device axis first, then the set's search
     t, a = math.radians(6.0), math.radians(40.0)
     truth = np.array([math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), math.cos(t)])
     assert math.degrees(math.acos(min(1.0, float(res.normal @ truth)))) < 0.3

@@ -411,6 +411,21 @@ def test_a_plane_seen_only_on_the_flank_of_a_hidden_peak_is_not_judged(shared):
     assert not res.shake_detected
 
 
+def test_a_plane_seen_only_on_a_far_tail_is_not_judged(shared):
+    """The ideal device's steel tilted 8° (seed 5): LED 5's slice never held its mirror
+    direction (so no peak is hidden), and in the sample frame its nearest view lies 8.5°
+    from it, about 70 of the lobe's half widths; the plane located on that tail lies 8.6°
+    off a normal 0.01° from the truth. It is not judged (:func:`.normal.peakless_leds`), so
+    the steady capture is not read as shaken; LED 4's plane, through the peak, still is."""
+    from reflecto import load_source
+
+    cap = simulate_capture(load_source(shared / "merl-nbrdf" / "steel.h5"), DEV, tilt_deg=8.0, seed=5)
+    res = reconstruct(extract_slices(cap, CAL))
+    assert _off(res.frame[2], np.array(cap.extra["simulation"]["normal"])) < 0.05
+    assert res.motion.plane_offsets_deg[5] is None and res.motion.plane_offsets_deg[4] is not None
+    assert not res.shake_detected
+
+
 def test_the_device_frame_check_stops_only_where_its_first_rounds_answer():
     """:func:`.pipeline.device_frame_check`: on GGX α 0.1 tilted 7° the device frame's ε
     after its first rounds is already many times the estimated frame's, and the check

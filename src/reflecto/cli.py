@@ -1028,8 +1028,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-o", "--output", required=True, help="model file (.reflecto) or, for several captures, a folder")
     q.add_argument("--normal", type=_normal_arg, default="auto", metavar="auto|device|search|X,Y,Z",
                    help="the sample normal (§5.4): estimated from the capture (auto, default), the device axis "
-                        "(device), or a known unit vector in device coordinates; with --asymmetric, auto keeps the "
-                        "device axis and search runs the set's own normal search (seconds per set)")
+                        "(device), or a known unit vector in device coordinates; with --asymmetric, auto takes the "
+                        "device axis unless the captures disagree in it (a tilted set), then the set's own normal "
+                        "search (seconds per set), which search always runs")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it (default: fitted, eqs. 5–6)")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="reconstruct a 1-D isotropic NDF (yes), a hemicube NDF for an anisotropic material (no), "

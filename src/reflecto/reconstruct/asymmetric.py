@@ -42,9 +42,12 @@ one device-frame normal for all captures. With ``Options(normal="search")`` it i
 in which the captures agree best with each other where they see the same half vector
 in the sample frame (:class:`SetDistance`: E(η) of the direct overlaps of all
 captures' bins, §5.1 without τ, so an asymmetric NDF does not bias it), searched as
-§5.4 does (:func:`.normal.estimate_normal_consistency`); it costs seconds per set, so
-under the default ``"auto"`` the set takes the device axis (``"device"`` likewise, or a
-given vector).
+§5.4 does (:func:`.normal.estimate_normal_consistency`). It costs seconds per set, so
+under the default ``"auto"`` the set takes the device axis first and runs the search only
+where the captures, seen about that axis, do not measure one material
+(:class:`CaptureConsistency`): a tilted set turns the sample about a normal that is not
+the axis, and its captures then disagree as different samples would (``"device"`` keeps
+the axis, a given vector is taken as it is).
 """
 
 from __future__ import annotations
@@ -71,7 +74,7 @@ from .isotropic import fit_isotropic
 from .isotropy import CONDITIONAL_EXPLAINED, IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
 from .normal import MIN_PAIRS, estimate_normal_consistency, tilt_frame
-from .pipeline import Options, bound_notes, held_tint_notes, limit_energy_of_the_trend, usable_samples
+from .pipeline import Options, bound_notes, checked_options, held_tint_notes, limit_energy_of_the_trend, usable_samples
 from .samples import Bins, bin_samples, kd_bound
 from .synthesis import SynthesisFill, SynthesisOptions
 from .tuning import ASYMMETRIC
@@ -496,6 +499,36 @@ def _fit_hemicube_set(sb: _SetBins, sls: Sequence[Slices], oks: Sequence[NDArray
     return result, mg, fill
 
 
+@dataclasses.dataclass
+class _SetView:
+    """A set's captures in the sample frames of one normal: their slices and usable samples, the
+    set's bins, the first capture's 1-D fit, the overlaps' ratios and whether they measure one material."""
+
+    frames: list[Array]
+    slices: list[Slices]
+    valid: list[NDArray[np.bool_]]
+    bins: _SetBins
+    reference: Any
+    pairs: Pairs
+    ratios: PairRatios
+    consistency: CaptureConsistency
+
+
+def _set_view(captures: Sequence[RotatedCapture], valids: list[NDArray[np.bool_]], normal: Array,
+              opt: Options) -> _SetView:
+    """The set seen with the device-frame ``normal`` (:class:`_SetView`)."""
+    frames = sample_frames([c.rotation_deg for c in captures], normal)
+    sls = [c.slices.reframe(f) for c, f in zip(captures, frames)]
+    oks = [ok & s.valid for ok, s in zip(valids, sls)]
+    sb = set_bins(sls, oks, opt.work_resolution)
+    # a 1-D fit of the first capture gives S, F and k_d for comparing partial NDFs:
+    # are the captures of one material, and do they keep eq. 3?
+    reference = fit_isotropic(sls[0], oks[0], opt.fixed_eta).least_squares
+    pairs = overlap_pairs(sb.bins, len(sb.light), symmetric=True)
+    ratios = pair_ratios(sb.bins, len(sb.light), reference, pairs)
+    return _SetView(list(frames), sls, oks, sb, reference, pairs, ratios, capture_consistency(sb, ratios))
+
+
 def _refuse_mixed(captures: Sequence[RotatedCapture], consistency: CaptureConsistency) -> None:
     if consistency.consistent:
         return
@@ -565,7 +598,7 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
         Naming the capture, for a set that :func:`check_rotations` refuses and for
         captures that do not measure one material (:class:`CaptureConsistency`).
     """
-    opt = options or Options()
+    opt = checked_options(options)
     if opt.shadowing != "auto":  # the set's isotropic branch fits eq. 8's product: the choice would be ignored
         raise ParameterError(f"shadowing {opt.shadowing!r}: the §5.5 set fits eq. 8's product shadowing; the "
                              "shadowing form is chosen for one capture's model (leave it 'auto')")
@@ -579,22 +612,19 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
         except ReflectoError as e:
             raise ReflectoError(f"{c.name}: {str(e).removeprefix('capture: ')}") from None
     if isinstance(opt.normal, str):
-        # "auto" keeps the device axis: the set's search costs seconds; "search" runs it
+        # "auto" takes the device axis first: the set's search costs seconds; "search" runs it
         normal = (_set_normal(captures, valids, opt.max_tilt_deg) if opt.normal == "search"
                   else np.array([0.0, 0.0, 1.0]))
     else:
         normal = np.asarray(opt.normal, dtype=np.float64)
-    frames = sample_frames([c.rotation_deg for c in captures], normal)
-    sls = [c.slices.reframe(f) for c, f in zip(captures, frames)]
-    oks = [ok & s.valid for ok, s in zip(valids, sls)]
-    sb = set_bins(sls, oks, opt.work_resolution)
-    # a 1-D fit of the first capture gives S, F and k_d for comparing partial NDFs:
-    # are the captures of one material, and do they keep eq. 3?
-    reference = fit_isotropic(sls[0], oks[0], opt.fixed_eta).least_squares
-    pairs = overlap_pairs(sb.bins, len(sb.light), symmetric=True)
-    ratios = pair_ratios(sb.bins, len(sb.light), reference, pairs)
-    consistency = capture_consistency(sb, ratios)
-    _refuse_mixed(captures, consistency)
+    view = _set_view(captures, valids, normal, opt)
+    if not view.consistency.consistent and opt.normal == "auto":
+        # a tilted set's captures disagree in the device frame as different samples would: search its normal
+        normal = _set_normal(captures, valids, opt.max_tilt_deg)
+        view = _set_view(captures, valids, normal, opt)
+    _refuse_mixed(captures, view.consistency)
+    frames, sls, oks, sb, reference, pairs, ratios, consistency = (
+        view.frames, view.slices, view.valid, view.bins, view.reference, view.pairs, view.ratios, view.consistency)
     symmetry = symmetry_from_ratios(within_captures(ratios, sb), captures=len(captures))
     isotropic, tests = _choose_isotropic(opt.isotropic, sls, oks, reference, symmetry)
     fill: SynthesisFill | None = None

@@ -894,6 +894,36 @@ def hidden_peaks(slices: Slices, valid: NDArray[np.bool_], normal: Array, nodes:
     return out
 
 
+def peakless_leds(slices: Slices, valid: NDArray[np.bool_], normal: Array, nodes: Array, values: Array,
+                  pitch_deg: float | None = None) -> list[int]:
+    """The LEDs whose slice holds no sample of the specular peak about ``normal``: no usable
+    sample's half vector ``h = (l + v)/|l + v|`` lies within the fitted lobe's half width (or
+    the half-vector pitch, where larger) of ``normal``. Such a slice sees only the lobe's
+    flank or tail, where a mirror plane located from the data moves by degrees with
+    hundredths of a degree of the normal (:func:`.motion.detect_motion`, ``flank_only``).
+    A superset of :func:`hidden_peaks`' LEDs; arguments as there.
+
+    Returns
+    -------
+    list of int
+        The LEDs, in order.
+    """
+    pitch = half_vector_pitch_deg(slices) if pitch_deg is None or not math.isfinite(pitch_deg) else pitch_deg
+    reach = math.cos(math.radians(max(lobe_half_width_deg(nodes, values), pitch)))
+    view = slices.view
+    v_n = view @ normal
+    out = []
+    for k in range(slices.n_leds):
+        ok = valid[k]
+        if not ok.any():
+            continue
+        light = slices.light[k]
+        inv_length = 1.0 / np.sqrt(np.maximum(2.0 + 2.0 * (view @ light), 1e-300))  # |l + v| of unit vectors
+        if float(np.max(np.where(ok, (float(light @ normal) + v_n) * inv_length, -1.0))) < reach:
+            out.append(k)
+    return out
+
+
 def half_vector_pitch_deg(slices) -> float:
     """Half the median angle between horizontally adjacent pixels' view directions
     (degrees): how finely the camera samples the half vector of one LED's slice

@@ -3,7 +3,7 @@
 ::
 
     usable_samples        finite, unsaturated samples                       (§4.3)
-    estimate_frame        the altered normal (§5.4), by default              normal.py
+    resolve_normal        the altered normal (§5.4), by default              normal.py
     fit_isotropic         a 1-D NDF D(θ_h), η, k_d, k_s (§5.1–5.3)          isotropic.py
     azimuthal_test        isotropic? symmetric under eq. 3?                  isotropy.py
     choose_shadowing      S's form beyond the observed θ_d (isotropic)       extrapolation.py
@@ -61,6 +61,7 @@ from .normal import (
     estimate_normal,
     estimate_normal_consistency,
     hidden_peaks,
+    peakless_leds,
     refine_normal,
     slice_peaks,
 )
@@ -69,7 +70,7 @@ from .tuning import PIPELINE
 Array = NDArray[np.float64]
 
 __all__ = ["Options", "Reconstruction", "FitSeconds", "reconstruct", "usable_samples", "estimate_frame",
-           "limit_energy", "limit_energy_of_the_trend"]
+           "limit_energy", "limit_energy_of_the_trend", "checked_options"]
 
 #: Incidence angles (degrees) at which the albedo is checked against 1.
 ALBEDO_ANGLES = PIPELINE.albedo_angles
@@ -103,9 +104,10 @@ class Options:
         ``(0, 0, 1)``), ``"search"`` (for a §5.5 set: the set's own normal search,
         :func:`.asymmetric.reconstruct_rotations`; one capture: as ``"auto"``) or a unit
         3-vector in device coordinates (a known normal). A §5.5 set takes the device axis
-        under ``"auto"``: its search costs seconds per set.
+        under ``"auto"`` unless its captures disagree there (a tilted set), then its search
+        (seconds per set).
     estimate_normal
-        Former switch of §5.4, kept as an alias: ``True`` is ``normal="auto"``,
+        An alias of ``normal``: ``True`` is ``normal="auto"``,
         ``False`` ``normal="device"``; ``None`` (default) leaves ``normal`` as given.
     max_tilt_deg
         Largest tilt searched by the normal estimate (degrees).
@@ -202,6 +204,33 @@ class Options:
         for name in ("detect_shake", "energy_clamp"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise bad(f"{name} must be True or False, got {getattr(self, name)!r}")
+
+
+def checked_options(options: Options | None) -> Options:
+    """The options a stage runs with: the defaults for ``None``, else a copy of ``options``
+    checked again (an :class:`Options` is checked when made; a field set afterwards is
+    checked here, before the stage reads it).
+
+    Parameters
+    ----------
+    options
+        The caller's options, or ``None``.
+
+    Returns
+    -------
+    Options
+        A checked copy (the defaults for ``None``).
+
+    Raises
+    ------
+    ParameterError
+        ``options`` is no :class:`Options`, or one of its fields is invalid.
+    """
+    if options is None:
+        return Options()
+    if not isinstance(options, Options):
+        raise ParameterError(f"reconstruction options must be an Options, got {type(options).__name__}")
+    return dataclasses.replace(options)
 
 
 #: A tilt estimated within this of ``Options.max_tilt_deg`` (degrees) is said to be held by the bound.
@@ -729,8 +758,13 @@ def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> li
     notes = []
     # the bound binds in the fit, or in a channel's scalars after it (the tint's bounded least
     # squares): the model before the energy limit (``model.ks / energy_scale``) reaches 1
-    if ks_at_bound or bool(np.any(np.asarray(model.ks) >= (1.0 - 1e-9) * energy_scale)):
+    ks = np.asarray(model.ks)
+    if bool(np.any(ks >= (1.0 - 1e-9) * energy_scale)):
         notes.append("k_s at its physical bound 1 (a microfacet reflects at most F): the specular level fixes η")
+    elif ks_at_bound:  # the channels' scalars, fitted after the luminance fit, came out below it
+        notes.append("the luminance fit held k_s at its physical bound 1 (a microfacet reflects at most F), so the "
+                     f"specular level fixes η; the channels' k_s, fitted after it, stay below (largest "
+                     f"{float(ks.max()) / energy_scale:.3f})")
     if is_constant(eta):
         notes.append(f"constant Fresnel (F ≡ 1, the η → ∞ limit of eq. 4): the data ask for a flatter curve than "
                      f"any dielectric up to η = {ETA_MAX:g} gives (a metal-like or sheen lobe); the channels' k_s "
@@ -764,11 +798,12 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     Returns
     -------
     Reconstruction
-        The model (:class:`reflecto.model.MicrofacetBRDF`), η, the isotropy test, the
+        The model (:class:`reflecto.model.IsotropicMicrofacetBRDF`, or for an anisotropic
+        material :class:`reflecto.model.MicrofacetBRDF`), η, the isotropy test, the
         motion report, the normal frame, the model error, the energy scale, the albedo,
         notes and the seconds taken.
     """
-    opt = options or Options()
+    opt = checked_options(options)
     if isinstance(opt.normal, str) and opt.normal == "search":  # the §5.5 set search; one capture: as "auto"
         opt = dataclasses.replace(opt, normal="auto")
     t0 = time.perf_counter()
@@ -843,8 +878,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     built = fit.model  # the ceiling, tint and lobes per node of an isotropic fit are made on first use
     cpu.model = lap()
     hidden = _hidden_peaks(slices, ok, est, built)
-    motion = (detect_motion(slices, sl, ok, isotropic, est.uncertainty_deg, [p.led for p in hidden], peaks)
-              if opt.detect_shake else MotionReport())
+    motion = (detect_motion(slices, sl, ok, isotropic, est.uncertainty_deg, _flank_only(slices, ok, est, built),
+                            peaks) if opt.detect_shake else MotionReport())
     if isinstance(fit, HemicubeFit):
         motion.excluded_leds = fit.excluded_leds
     cpu.motion = lap()
@@ -869,6 +904,17 @@ def _hidden_peaks(slices: Slices, valid: NDArray[np.bool_], est: NormalEstimate,
     if est.source == "device" or table is None:
         return []
     return hidden_peaks(slices, valid, est.normal, table.nodes, table.values, est.half_vector_pitch_deg)
+
+
+def _flank_only(slices: Slices, valid: NDArray[np.bool_], est: NormalEstimate, model) -> list[int]:
+    """The LEDs whose mirror planes the motion cue does not judge: the slices that hold no
+    sample of an isotropic model's specular peak about the normal used
+    (:func:`.normal.peakless_leds`; a steel tilted 8° has LED 5's nearest view 8.5° from its
+    mirror direction, 70 half widths, and its plane 8.6° off a normal 0.01° from the truth)."""
+    table = getattr(model, "ndf_table", None)
+    if table is None:
+        return []
+    return peakless_leds(slices, valid, est.normal, table.nodes, table.values, est.half_vector_pitch_deg)
 
 
 def _hidden_peak_notes(hidden: list[HiddenPeak]) -> list[str]:

@@ -45,7 +45,7 @@ from .isotropic import channel_scalars
 from .isotropy import IsotropyTest
 from .motion import MotionReport, PeakAgreement, agreeing_normals, peak_agreement
 from .normal import SlicePeak, half_vector_pitch_deg, light_fit, slice_peaks
-from .pipeline import FitSeconds, Options, Reconstruction, bound_notes, limit_energy, usable_samples
+from .pipeline import FitSeconds, Options, Reconstruction, bound_notes, checked_options, limit_energy, usable_samples
 from .repeat import repeat_checks
 from .samples import kd_median_bound
 
@@ -118,7 +118,7 @@ def preview(slices: Slices, options: Options | None = None) -> Reconstruction:
     reflecto.errors.ReflectoError
         For slices with too few usable samples to fit.
     """
-    opt = options or Options()
+    opt = checked_options(options)
     if opt.isotropic == "no":
         raise ParameterError("preview: the preview is an isotropic fit, not for a material declared anisotropic "
                              "(isotropic='no')")
