@@ -209,3 +209,181 @@ def test_options_compare_by_value():
     assert Options(normal=[0, 0, 1]) != Options(normal=[0, 0.6, 0.8])
     assert Options() == Options() and Options() != Options(normal=[0, 0, 1])
     assert Options(fixed_eta=1.5) != Options()
+
+
+def test_a_simulated_calibration_needs_the_devices_truth():
+    """A capture's device is its manifest's nominal design: ``missing="simulate"`` has no truth
+    to measure there, and calibrating the nominal design instead would label a nominal
+    reading "simulated" (pvc as-built: eq. 10 3.5× the calibrated one). Refused, as is a
+    ``missing`` that names no choice."""
+    from reflecto import workflow
+
+    cap = simulate_capture(SRC, Device.builtin("as-built"), seed=1)
+    with pytest.raises(CaptureError, match="carries no truth to simulate its calibration"):
+        workflow.capture_to_model(cap, missing="simulate")
+    with pytest.raises(ParameterError, match="missing must be one of"):
+        workflow.capture_to_model(cap, missing="bogus")  # type: ignore[arg-type]
+    assert workflow.calibration_for(Device.builtin("as-built"), missing="simulate", seed=1) is not None
+
+
+@pytest.mark.parametrize("name", ["m.json", "m.bsdf", "m.binary", "m"])
+def test_a_model_is_saved_only_under_its_own_suffix(tmp_path, slices, name):
+    """The readers tell files apart by their suffix: a model written as ``.bsdf`` would be read as an
+    RGL file, and ``save_model`` to ``m.json`` would replace the model by its own summary."""
+    from reflecto import workflow
+
+    result = workflow.capture_to_model(simulate_capture(SRC, IDEAL, seed=1))
+    with pytest.raises(ParameterError, match=r"not saved, a model file's name must end in \.reflecto"):
+        workflow.save_model(result, tmp_path / name)
+    with pytest.raises(ParameterError, match=r"must end in \.reflecto"):
+        reconstruct(slices).model.save(tmp_path / name)
+    assert list(tmp_path.iterdir()) == []
+    workflow.save_model(result, tmp_path / "m.REFLECTO")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.REFLECTO", "m.json"]
+
+
+def test_a_cook_torrance_fit_needs_usable_samples(slices):
+    """No finite sample (a NaN or negative reference, a capture without a valid sample) is an
+    error, not the start values returned as a black model."""
+    from reflecto.evaluate.cooktorrance import fit_cook_torrance, fit_cook_torrance_capture
+
+    @dataclasses.dataclass
+    class Nan(AnalyticBRDF):
+        def eval(self, i, o):
+            return np.full(np.shape(i)[:-1] + (3,), np.nan)
+
+    with pytest.raises(ParameterError, match="0 of 0 samples usable"):
+        fit_cook_torrance(Nan())
+    with pytest.raises(ParameterError, match="0 of 0 samples usable"):
+        fit_cook_torrance_capture(dataclasses.replace(slices, valid=np.zeros_like(slices.valid)))
+    with pytest.raises(ParameterError, match="reference_values must have shape"):
+        fit_cook_torrance(SRC, reference_values=np.zeros((5, 3)))
+
+
+@pytest.mark.parametrize("field, value, message", [("fixed_eta", -3.0, "a fixed η must be"),
+                                                   ("isotropic", "maybe", "isotropic must be"),
+                                                   ("max_tilt_deg", float("nan"), "max_tilt_deg must lie"),
+                                                   ("normal", [0.0, 0.0, 2.0], "a given normal must be")])
+def test_options_set_after_they_were_made_are_checked_by_the_stage(slices, field, value, message):
+    """An :class:`Options` is checked when made; a field set afterwards is checked when a stage
+    reads it (a fixed η of −3 was clamped to 1.001 without a word, ``isotropic="maybe"`` took
+    the hemicube path)."""
+    from reflecto.reconstruct.asymmetric import RotatedCapture, reconstruct_rotations
+    from reflecto.reconstruct.preview import preview
+
+    opt = Options()
+    setattr(opt, field, value)
+    with pytest.raises(ParameterError, match=message):
+        reconstruct(slices, opt)
+    with pytest.raises(ParameterError, match=message):
+        preview(slices, opt)
+    with pytest.raises(ParameterError, match=message):
+        reconstruct_rotations([RotatedCapture(slices, 0.0), RotatedCapture(slices, 90.0)], opt)
+    with pytest.raises(ParameterError, match="must be an Options"):
+        reconstruct(slices, {"normal": "device"})  # type: ignore[arg-type]
+
+
+def test_types_and_flags_are_checked_where_a_string_would_pass_as_true(capture, tmp_path):
+    """A string where a flag belongs is refused, not read as True (``shake="no"`` simulated a
+    shake); a source or device that is not one is named, not an AttributeError."""
+    from reflecto import workflow
+    from reflecto.export import export_merl, export_rgl
+
+    for call, message in [(lambda: simulate_capture(SRC, IDEAL, shake="no"), "shake must be True or False"),
+                          (lambda: simulate_capture(SRC, IDEAL, shake_deg=5.0), "a shake angle needs shake=True"),
+                          (lambda: simulate_capture("x.json", IDEAL), "the source must be a BRDF"),
+                          (lambda: simulate_capture(SRC, "ideal"), "the device must be a Device"),
+                          (lambda: workflow.capture_to_model(capture, preview="no"), "preview must be True or False"),
+                          (lambda: workflow.measure("cap", None), "the capture must be a Capture"),
+                          (lambda: export_rgl(SRC, tmp_path / "a.bsdf", isotropic="no"), "isotropic must be"),
+                          (lambda: export_rgl(SRC, tmp_path / "a.binary"), r"name must end in \.bsdf"),
+                          (lambda: export_merl(SRC, tmp_path / "a.bsdf"), r"name must end in \.binary")]:
+        with pytest.raises(ParameterError, match=message):
+            call()
+    assert list(tmp_path.iterdir()) == []
+    slices = workflow.measure(capture, None)  # the nominal calibration reads the ideal device
+    assert slices.values.shape[0] == IDEAL.n_leds
+
+
+def test_a_merl_export_writes_only_what_the_reader_reads(tmp_path):
+    """A negative source is refused (it was clamped to a black table), and one whose albedo the
+    MERL reader refuses is not written (it was, and then could not be read)."""
+    from reflecto.errors import FileFormatError
+    from reflecto.export import export_merl
+
+    @dataclasses.dataclass
+    class Negative(AnalyticBRDF):
+        def eval(self, i, o):
+            return -np.ones(np.shape(i)[:-1] + (3,))
+
+    @dataclasses.dataclass
+    class Bright(AnalyticBRDF):
+        def eval(self, i, o):
+            return 50.0 * super().eval(i, o)
+
+    with pytest.raises(ParameterError, match="negative on the MERL grid"):
+        export_merl(Negative(), tmp_path / "n.binary")
+    with pytest.raises(FileFormatError, match="not written: the file would be refused on reading"):
+        export_merl(Bright(alpha=0.3, kd=0.5, ks=0.5), tmp_path / "b.binary")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_metrics_refuse_what_gives_no_number():
+    """A reference with no valid bin gave a NaN error with only a warning; an NDF floor of NaN
+    a NaN; an ``eval`` of the wrong shape NumPy's broadcast message."""
+    from reflecto.evaluate.metrics import metric_grid, ndf_error
+
+    g = metric_grid(4)
+    with pytest.raises(ParameterError, match="no valid bin"):
+        brdf_error(SRC, SRC, stride=4, reference_values=np.full((len(g.i), 3), np.nan))
+    with pytest.raises(ParameterError, match="floor must be a fraction"):
+        ndf_error(SRC, SRC, resolution=16, floor=float("nan"))
+
+    @dataclasses.dataclass
+    class Grey(AnalyticBRDF):
+        def eval(self, i, o):
+            return super().eval(i, o).mean(axis=-1)
+
+    with pytest.raises(ParameterError, match=r"must return shape \(N, 3\)"):
+        brdf_error(SRC, Grey(), stride=4)
+
+
+@pytest.mark.parametrize("kwargs, message", [({"resolution": 0}, "resolution must be an integer"),
+                                             ({"resolution": 10**6}, "resolution must be an integer"),
+                                             ({"supersample": 0}, "supersample must be"),
+                                             ({"lights": (((np.nan, 0.0, 1.0), 1.0),)}, "a light needs"),
+                                             ({"lights": (((0.0, 0.0, 3.0), -1.0),)}, "a light needs")])
+def test_a_sphere_render_refuses_sizes_and_lights_that_give_no_image(kwargs, message):
+    """An empty image (resolution 0), an all-NaN one (supersample 0) or a black one (a NaN or
+    negative light) was returned without a word; a huge size asked for terabytes."""
+    from reflecto.hemicube import hemicube
+    from reflecto.render.sphere import render_sphere
+
+    with pytest.raises(ParameterError, match=message):
+        render_sphere(SRC, **kwargs)
+    with pytest.raises(ParameterError, match="hemicube resolution must be an even integer"):
+        hemicube(10**6)
+
+
+def test_a_capture_is_written_only_as_it_reads(capture, tmp_path):
+    """Float frames were written as 8-bit PNGs that the reader then refused for a 12-bit camera,
+    a NaN rotation or exposure into the manifest: refused before any file is written."""
+    from reflecto.instrument.capture import write_capture
+
+    for bad, message in [(dataclasses.replace(capture, raw=capture.raw.astype(np.float64)), "must be uint16"),
+                         (dataclasses.replace(capture, rotation_deg=float("nan")), "rotation must be a finite"),
+                         (dataclasses.replace(capture, exposures_ms=np.array([np.nan, 8.0])), "exposure times"),
+                         (dataclasses.replace(capture, raw=capture.raw[:, :1]), "must have shape"),
+                         (dataclasses.replace(capture, raw=capture.raw | np.uint16(0xF000)), "exceed the camera")]:
+        with pytest.raises(ReflectoError, match=message):
+            write_capture(bad, tmp_path / "cap")
+        assert not (tmp_path / "cap").exists()
+
+
+def test_a_simulated_calibration_needs_a_white_exposure(tmp_path):
+    """``white_repeats=0`` averaged no frame (an IndexError after NumPy's empty-mean warning)."""
+    from reflecto.instrument.simulate import simulate_calibration
+
+    with pytest.raises(ParameterError, match="white_repeats must be an integer"):
+        simulate_calibration(Device.builtin("as-built"), tmp_path / "cal", white_repeats=0)
+    assert not (tmp_path / "cal").exists()

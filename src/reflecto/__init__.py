@@ -15,7 +15,7 @@ from .brdf import BRDFSource, directional_albedo
 from .errors import FileFormatError, ParameterError, ReflectoError
 from .hemicube import Hemicube, hemicube
 from .load import load_source
-from .model import MicrofacetBRDF, load_model
+from .model import IsotropicMicrofacetBRDF, MicrofacetBRDF, load_model
 from .sources import NBRDF, RGLBRDF, AnalyticBRDF, MerlBRDF
 
 __version__ = "0.1.0"
@@ -25,6 +25,7 @@ __all__ = [
     "BRDFSource",
     "FileFormatError",
     "Hemicube",
+    "IsotropicMicrofacetBRDF",
     "MerlBRDF",
     "MicrofacetBRDF",
     "NBRDF",

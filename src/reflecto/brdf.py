@@ -203,15 +203,29 @@ def directional_albedo(
     dw = (np.sin(th) * (np.pi * u / n_u))[:, None] * np.full(n_phi, 2.0 * np.pi / n_phi)[None, :]
     dw = dw.ravel()
     out = np.empty((len(theta_i), 3))
-    for k, t in enumerate(theta_i):
-        i = geometry.spherical_to_cartesian(t, np.radians(phi_i_deg))
-        idoth = h @ i
-        o = 2.0 * idoth[:, None] * h - i
-        ok = (idoth > 0) & (o[:, 2] > 0)
-        f = _eval_chunked(source, np.broadcast_to(i, o[ok].shape).copy(), o[ok])
-        w = (o[ok, 2] * 4.0 * idoth[ok] * dw[ok])[:, None]
-        out[k] = np.sum(f * w, axis=0)
+    group = max(1, ALBEDO_BATCH // len(h))  # angles per call of the source: few calls, bounded memory
+    for k0 in range(0, len(theta_i), group):
+        out[k0 : k0 + group] = _albedo_sums(source, theta_i[k0 : k0 + group], float(np.radians(phi)), h, dw)
     return out
+
+
+#: The most quadrature points :func:`directional_albedo` evaluates in one call of the source.
+ALBEDO_BATCH = 1 << 18
+
+
+def _albedo_sums(source: BRDFSource, theta_i: Array, phi_i: float, h: Array, dw: Array) -> Array:
+    """``Σ f(i, o) cos θ_o 4 (i·h) dω_h`` over the half vectors ``h`` (weights ``dw``) for each
+    incidence ``θ_i`` (radians, shape ``(K,)``) at azimuth ``φ_i``; shape ``(K, 3)``. All the
+    incidences' pairs go to the source at once; each sum runs over its own pairs in ``h``'s order."""
+    i = geometry.spherical_to_cartesian(theta_i, np.full(theta_i.shape, phi_i))
+    idoth = np.stack([h @ ik for ik in i])  # (K, H)
+    o = 2.0 * idoth[..., None] * h - i[:, None, :]
+    ok = (idoth > 0) & (o[..., 2] > 0)
+    f = _eval_chunked(source, np.broadcast_to(i[:, None, :], o.shape)[ok], o[ok])
+    w = (o[ok][:, 2] * 4.0 * idoth[ok] * np.broadcast_to(dw, ok.shape)[ok])[:, None]
+    ends = np.cumsum(np.count_nonzero(ok, axis=1))
+    starts = ends - np.count_nonzero(ok, axis=1)
+    return np.array([np.sum(f[a:b] * w[a:b], axis=0) for a, b in zip(starts, ends)]).reshape(len(theta_i), 3)
 
 
 def valid_pairs(i: Array, o: Array) -> NDArray[np.bool_]:

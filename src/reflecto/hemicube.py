@@ -16,6 +16,7 @@ each row-major), optionally with trailing channel axes. The paper uses ``N = 512
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -42,13 +43,18 @@ def _rect_solid_angle(u0: Array, u1: Array, v0: Array, v1: Array) -> Array:
     return a(u0, v0) - a(u0, v1) - a(u1, v0) + a(u1, v1)
 
 
+#: The largest top-face resolution (texels per side): 3·4096² texels of directions, solid
+#: angles and lookups are ≈ 2 GB; a model file holds at most 2048.
+MAX_RESOLUTION = 4096
+
+
 class Hemicube:
     """Geometry of an ``N``-resolution hemicube: texel directions, solid angles, lookups.
 
     Parameters
     ----------
     n
-        Top-face resolution ``N`` (even, ≥ 4). Side faces are ``N/2 × N``.
+        Top-face resolution ``N`` (even, in ``[4, MAX_RESOLUTION]``). Side faces are ``N/2 × N``.
 
     Attributes
     ----------
@@ -61,8 +67,9 @@ class Hemicube:
     """
 
     def __init__(self, n: int = 512) -> None:
-        if int(n) != n or n < 4 or n % 2:
-            raise ParameterError(f"hemicube resolution must be an even integer >= 4, got {n!r}")
+        if (isinstance(n, bool) or not isinstance(n, (int, float, np.integer, np.floating)) or not math.isfinite(n)
+                or int(n) != n or n < 4 or n % 2 or n > MAX_RESOLUTION):
+            raise ParameterError(f"hemicube resolution must be an even integer in [4, {MAX_RESOLUTION}], got {n!r}")
         self.n = int(n)
         self.half = self.n // 2
         self.top_size = self.n * self.n

@@ -440,14 +440,15 @@ class MicrofacetBRDF(BRDFSource):
         Parameters
         ----------
         path
-            The file to write (conventionally with suffix :data:`MODEL_SUFFIX`).
+            The file to write; its name ends in :data:`MODEL_SUFFIX` (the readers tell a model
+            file from the other kinds by it).
 
         Returns
         -------
         Path
             ``path``.
         """
-        path = Path(path)
+        path = _model_path(path)
         meta = {
             "format": MODEL_FORMAT,
             "version": _tint_version(self, 4 if self.tint is not None else 3),
@@ -594,6 +595,16 @@ def _lobes_from_arrays(path: Path, arrays: dict[str, NDArray[Any]], ndf: Isotrop
             raise FileFormatError(path, f"the NDF of θ_d node {math.degrees(t):.1f}° is not normalized "
                                         f"(∫ D cos θ dω = {d.normalization:.6g}, AR 1.2 needs 1)")
     return lobes
+
+
+def _model_path(path: str | Path) -> Path:
+    """``path``, refused (:class:`ParameterError`) unless its name ends in :data:`MODEL_SUFFIX`:
+    ``load_source`` and the CLI read a file by its suffix, so a model written as ``.bsdf`` or
+    ``.json`` would be refused as that kind (and a summary written beside it would replace it)."""
+    path = Path(path)
+    if path.suffix.lower() != MODEL_SUFFIX:
+        raise ParameterError(f"{shown_path(path)}: not saved, a model file's name must end in {MODEL_SUFFIX}")
+    return path
 
 
 def _write_model_file(path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[Any]]) -> None:
@@ -826,7 +837,7 @@ def load_model(path: str | Path) -> MicrofacetBRDF | IsotropicMicrofacetBRDF:
     Parameters
     ----------
     path
-        A ``.reflecto`` model file, as :func:`reflecto.workflow.measure` or :meth:`MicrofacetBRDF.save` writes it.
+        A ``.reflecto`` model file, as :func:`reflecto.workflow.save_model` or a model's ``save`` writes it.
 
     Returns
     -------
@@ -1077,14 +1088,14 @@ class IsotropicMicrofacetBRDF(BRDFSource):
         Parameters
         ----------
         path
-            The file to write.
+            The file to write; its name ends in :data:`MODEL_SUFFIX`.
 
         Returns
         -------
         Path
             ``path``.
         """
-        path = Path(path)
+        path = _model_path(path)
         meta = {
             "format": MODEL_FORMAT,
             "version": _tint_version(self, 5 if self.lobes is not None else 4 if self.tint is not None else 3),

@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import geometry
-from .errors import ParameterError, ReflectoError, ReflectoWarning
+from .errors import ParameterError, ReflectoError, ReflectoWarning, short_repr
 from .instrument.calibrate import Calibration, calibrate, load_calibration, needs_calibration, nominal_calibration
 from .instrument.capture import Capture, CaptureError, read_capture
 from .instrument.device import BUILTINS, Device, load_device
@@ -59,6 +59,7 @@ __all__ = ["CaptureModel", "Missing", "StageSeconds", "calibration_file", "calib
 
 #: What :func:`calibration_for` does for a device that needs a measured calibration and has none.
 Missing = Literal["refuse", "nominal", "simulate"]
+MISSING: tuple[str, ...] = ("refuse", "nominal", "simulate")
 
 
 # ------------------------------------------------------------------ calibration
@@ -93,10 +94,15 @@ def calibration_for(device: Device, calibration: str | Path | Calibration | None
     Raises
     ------
     CaptureError
-        ``missing="refuse"`` and the device needs a measured calibration.
+        ``missing="refuse"`` and the device needs a measured calibration; ``missing="simulate"``
+        for a device without its truth (a capture's, read from its manifest).
     FileFormatError
         The calibration file is damaged or made for another device design.
+    ParameterError
+        ``missing`` is none of :data:`MISSING`.
     """
+    if missing not in MISSING:
+        raise ParameterError(f"calibration: missing must be one of {', '.join(MISSING)}, got {missing!r}")
     nominal = device.nominal()
     if isinstance(calibration, Calibration):
         return calibration
@@ -108,6 +114,10 @@ def calibration_for(device: Device, calibration: str | Path | Calibration | None
         raise CaptureError(where, f"captured with device {device.name!r}, whose optics, LEDs and vignetting "
                            "differ from its nominal design: pass --calibration FILE (from `reflecto calibrate`), "
                            "or --nominal to use the nominal calibration anyway")
+    if device.truth is None:  # a capture's device is its manifest's nominal design: nothing to simulate from
+        raise CaptureError(where, f"device {device.name!r} carries no truth to simulate its calibration from (a "
+                           "capture records only the nominal design): pass the calibration of the simulated "
+                           "device, e.g. calibration_for(load_device(NAME), missing=\"simulate\")")
     with tempfile.TemporaryDirectory(prefix="reflecto-calibration-") as tmp:
         return calibrate(simulate_calibration(device, Path(tmp) / "calib", seed=seed))
 
@@ -244,7 +254,7 @@ class CaptureModel:
         return out
 
 
-def measure(capture: Capture, calibration: Calibration, where: str | Path | None = None) -> Slices:
+def measure(capture: Capture, calibration: Calibration | str | Path, where: str | Path | None = None) -> Slices:
     """The capture's BRDF slices (HDR merge and radiometry, §4.3); errors name ``where``.
 
     Parameters
@@ -252,7 +262,7 @@ def measure(capture: Capture, calibration: Calibration, where: str | Path | None
     capture
         The capture (its frames and manifest).
     calibration
-        The calibration that reads it (:func:`calibration_for`).
+        The calibration that reads it (:func:`calibration_for`), or its ``.npz`` file.
     where
         The capture's folder, for the message of an error; ``None``: errors as raised.
 
@@ -267,6 +277,11 @@ def measure(capture: Capture, calibration: Calibration, where: str | Path | None
     CaptureError
         The capture gives no slices (naming ``where`` when given).
     """
+    if not isinstance(capture, Capture):
+        raise ParameterError(f"measure: the capture must be a Capture (read_capture(FOLDER)), got "
+                             f"{short_repr(capture)}")
+    if not isinstance(calibration, Calibration):
+        calibration = calibration_for(capture.device, calibration, where=where or "<capture>")
     try:
         return extract_slices(capture, calibration)
     except CaptureError:
@@ -349,6 +364,8 @@ def capture_to_model(capture: Capture | str | Path, calibration: str | Path | Ca
     CaptureError
         Naming the capture folder (or ``<capture>``), for a capture that gives no model.
     """
+    if not isinstance(preview, (bool, np.bool_)):
+        raise ParameterError(f"preview must be True or False, got {short_repr(preview)}")
     t0, c0 = time.perf_counter(), time.process_time()
     where: str | Path = "<capture>"
     if not isinstance(capture, Capture):

@@ -183,9 +183,17 @@ def fit_cook_torrance(reference: BRDFSource, stride: int = 4, reference_values: 
         The fitted model (ρ_d, ρ_s per channel, F0, m).
     """
     g = metric_grid(stride)
-    r = evaluate_on_grid(reference, g) if reference_values is None else reference_values
+    r = evaluate_on_grid(reference, g) if reference_values is None else np.asarray(reference_values, np.float64)
+    if r.shape != (len(g.i), 3):
+        raise ParameterError(f"Cook–Torrance fit: reference_values must have shape ({len(g.i)}, 3) (the grid of "
+                             f"stride {stride}), got {r.shape}")
     ok = np.all(r >= 0, axis=1) & np.all(np.isfinite(r), axis=1)
     return fit_cook_torrance_samples(g.i[ok], g.o[ok], r[ok], g.w[ok])
+
+
+#: The fewest usable samples :func:`fit_cook_torrance_samples` fits: its four parameters per
+#: channel need more than four, and a fit to a handful is no baseline.
+MIN_SAMPLES = 16
 
 
 def fit_cook_torrance_samples(i: ArrayLike, o: ArrayLike, f: ArrayLike, w: ArrayLike) -> CookTorrance:
@@ -209,10 +217,27 @@ def fit_cook_torrance_samples(i: ArrayLike, o: ArrayLike, f: ArrayLike, w: Array
     -------
     CookTorrance
         The best fit over the starts.
+
+    Raises
+    ------
+    ParameterError
+        Shapes that do not match, or fewer than :data:`MIN_SAMPLES` usable samples (finite
+        values, a positive weight, both directions above the horizon; the others are left out).
     """
     i, o = np.ascontiguousarray(i, dtype=np.float64), np.ascontiguousarray(o, dtype=np.float64)
     r = np.asarray(f, dtype=np.float64)
-    sw = np.sqrt(np.asarray(w, dtype=np.float64)) * i[:, 2]  # residual = √w (R − M) cos θ_i
+    w = np.asarray(w, dtype=np.float64)
+    n = len(i)
+    if i.shape != (n, 3) or o.shape != (n, 3) or r.shape != (n, 3) or w.shape != (n,):
+        raise ParameterError(f"Cook–Torrance fit: i, o, f must have shape (N, 3) and w (N,), got {i.shape}, "
+                             f"{o.shape}, {r.shape} and {w.shape}")
+    usable = np.all(np.isfinite(r), axis=1) & np.isfinite(w) & (w > 0) & (i[:, 2] > 0) & (o[:, 2] > 0)
+    if np.count_nonzero(usable) < MIN_SAMPLES:
+        raise ParameterError(f"Cook–Torrance fit: {np.count_nonzero(usable)} of {n} samples usable (finite values, "
+                             f"a positive weight, both directions above the horizon); it needs at least {MIN_SAMPLES}")
+    if not np.all(usable):
+        i, o, r, w = np.ascontiguousarray(i[usable]), np.ascontiguousarray(o[usable]), r[usable], w[usable]
+    sw = np.sqrt(w) * i[:, 2]  # residual = √w (R − M) cos θ_i
     y = np.ascontiguousarray(r * sw[:, None])
     diff = sw / math.pi
     # fixed by the data: the diffuse column's dot products

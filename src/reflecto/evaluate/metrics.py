@@ -193,7 +193,11 @@ def evaluate_on_grid(source: BRDFSource, grid: Grid, chunk: int = 1 << 18) -> Ar
         return np.asarray(table).reshape(-1, 3)[grid.flat]
     out = np.empty((len(grid.w), 3))
     for s in range(0, len(grid.w), chunk):
-        out[s : s + chunk] = source.eval(grid.i[s : s + chunk], grid.o[s : s + chunk])
+        f = np.asarray(source.eval(grid.i[s : s + chunk], grid.o[s : s + chunk]))
+        if f.shape != (len(grid.i[s : s + chunk]), 3):
+            raise ParameterError(f"{getattr(source, 'name', 'the source')}: eval(i, o) of {len(grid.i[s : s + chunk])} "
+                                 f"direction pairs must return shape (N, 3) (R, G, B), got {f.shape}")
+        out[s : s + chunk] = f
     return out
 
 
@@ -230,6 +234,9 @@ MIN_ALBEDO_REF = 1e-6
 
 
 def _error(sums: _Sums, reference: BRDFSource, albedo_ref: float | None, form: str, azimuths: int) -> Error:
+    if not sums.w > 0:
+        raise ParameterError(f"eq. 10: the reference {reference.name} has no valid bin on the grid (every value "
+                             "negative or not finite)")
     rmse = np.sqrt(sums.sq / sums.w)
     log_rmse = np.sqrt(sums.log_sq / sums.w)
     if albedo_ref is not None:
@@ -279,7 +286,8 @@ def brdf_error(reference: BRDFSource, test: BRDFSource, stride: int = 1, albedo_
     Raises
     ------
     ParameterError
-        (a ``ValueError``) ``test`` is non-finite on a bin where the reference is valid.
+        (a ``ValueError``) ``test`` is non-finite on a bin where the reference is valid; a
+        reference without a valid bin; a source whose ``eval`` does not return ``(N, 3)``.
     """
     g = metric_grid(stride)
     r = evaluate_on_grid(reference, g) if reference_values is None else reference_values
@@ -408,10 +416,18 @@ def ndf_error(reference: HasNDF, model: HasNDF, resolution: int = 256, floor: fl
     -------
     float
         The mean relative error (0 for identical NDFs).
-    """
 
+    Raises
+    ------
+    ParameterError
+        A floor outside ``[0, 1)``, or a reference NDF with no finite positive texel.
+    """
+    if isinstance(floor, bool) or not isinstance(floor, (int, float, np.number)) or not 0.0 <= floor < 1.0:
+        raise ParameterError(f"NDF error: floor must be a fraction in [0, 1), got {floor!r}")
     h = hemicube(resolution).directions
     d = reference.ndf(h)
     m = model.ndf(h)
+    if not (np.all(np.isfinite(d)) and d.max() > 0):
+        raise ParameterError("NDF error: the reference NDF must be finite with a positive peak")
     peak = d > floor * d.max()
     return float(np.mean(np.abs(m[peak] / d[peak] - 1.0)))

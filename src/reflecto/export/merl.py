@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..brdf import BRDFSource
-from ..errors import ParameterError
+from ..errors import FileFormatError, ParameterError, short_repr, shown_path
 from ..sources import merl
 from .rgl import proxy_ndf
 
@@ -44,14 +44,38 @@ def export_merl(source: BRDFSource, path: str | Path, allow_anisotropic: bool = 
     Raises
     ------
     ParameterError
-        For an anisotropic source without ``allow_anisotropic``.
+        For a path whose name does not end in ``.binary``, an anisotropic source without
+        ``allow_anisotropic``, or a source that is negative (beyond round-off) or not finite.
+    FileFormatError
+        Naming ``path``, for a table reflecto's reader would refuse (its albedo or values
+        implausible): nothing is written.
     """
+    path = Path(path)
+    if path.suffix.lower() != ".binary":
+        raise ParameterError(f"{shown_path(path)}: not written, a MERL file's name must end in .binary")
+    if not isinstance(allow_anisotropic, (bool, np.bool_)):
+        raise ParameterError(f"allow_anisotropic must be True or False, got {short_repr(allow_anisotropic)}")
     if not allow_anisotropic and not holds_isotropic(source):
         raise ParameterError(f"{source.name} is anisotropic; MERL files hold isotropic BRDFs only "
                              "(pass allow_anisotropic to write its φ_h = 0 slice)")
     table = merl.tabulate(source, progress=progress)
-    np.maximum(table, 0.0, out=table)  # a model never yields −1; clamp round-off below 0
+    if not np.all(np.isfinite(table)):
+        raise ParameterError(f"{source.name}: not finite on the MERL grid ({np.count_nonzero(~np.isfinite(table))} "
+                             "values)")
+    low = float(table.min())
+    if low < -NEGATIVE_TOLERANCE * max(1.0, float(table.max())):
+        raise ParameterError(f"{source.name}: negative on the MERL grid (down to {low:.3g} sr⁻¹): not a BRDF")
+    np.maximum(table, 0.0, out=table)  # round-off below 0 (a bin written −1 would read as unmeasured)
+    try:  # reflecto writes only what it reads: the reader's checks, before the file takes its name
+        merl.check_table(merl.MerlBRDF.from_table(table, source.name), path)
+    except FileFormatError as e:
+        raise FileFormatError(path, f"not written: the file would be refused on reading ({e.problem})") from None
     return merl.write_merl_table(path, table)
+
+
+#: How far below 0 a tabulated value may lie, relative to the table's largest (at least
+#: 1 sr⁻¹), and count as round-off that is set to 0.
+NEGATIVE_TOLERANCE = 1e-9
 
 
 def holds_isotropic(source: BRDFSource) -> bool:

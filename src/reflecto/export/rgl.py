@@ -57,7 +57,7 @@ from scipy import ndimage
 from .. import __version__
 from ..brdf import BRDFSource
 from ..colour import LUM
-from ..errors import FileFormatError, ParameterError, shown_path
+from ..errors import FileFormatError, ParameterError, short_repr, shown_path
 from ..fresnel import fresnel, is_constant
 from ..io import atomic_path, atomic_write
 from ..polar import NodeNDFs
@@ -672,8 +672,15 @@ def export_rgl(source: BRDFSource, path: str | Path, grid: RGLGrid = RGLGrid(), 
     ------
     FileFormatError
         Naming ``path``, when the tables would not pass the reader's checks.
+    ParameterError
+        For a path whose name does not end in ``.bsdf``, or ``isotropic`` none of True,
+        False, None.
     """
     path = Path(path)
+    if path.suffix.lower() != ".bsdf":
+        raise ParameterError(f"{shown_path(path)}: not written, an RGL file's name must end in .bsdf")
+    if isotropic is not None and not isinstance(isotropic, (bool, np.bool_)):
+        raise ParameterError(f"isotropic must be True, False or None, got {short_repr(isotropic)}")
     tables = rgl_tables(source, grid, isotropic, description)
     with atomic_path(path, suffix=".bsdf") as tmp:
         write_tensor_file(tmp, tables)

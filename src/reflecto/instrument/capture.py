@@ -37,7 +37,7 @@ import sys
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import cv2
 import numpy as np
@@ -395,6 +395,30 @@ def atomic_dir(path: str | Path, marker: str = MANIFEST):
     return atomic_folder(path, marker)
 
 
+def _check_writable_capture(capture: Capture, out_dir: Path) -> None:
+    """Refuse, before writing, a capture that :func:`read_capture` would refuse for its frames'
+    type, shape or range, its exposure times or its rotation."""
+    def refuse(problem: str) -> NoReturn:
+        raise ReflectoError(f"{shown_path(out_dir)}: not written: {problem}")
+
+    dev, raw = capture.device, np.asarray(capture.raw)
+    want = np.uint8 if dev.camera.response == "gamma" else np.uint16
+    if raw.dtype != want:
+        refuse(f"the frames must be {np.dtype(want).name} (the camera's {dev.camera.bits}-bit raw values), "
+               f"got {raw.dtype}")
+    times = np.asarray(capture.exposures_ms, dtype=np.float64)
+    if times.ndim != 1 or len(times) == 0 or not np.all(np.isfinite(times)) or not np.all(times > 0):
+        refuse(f"exposure times must be finite and > 0 ms, got {short_repr(capture.exposures_ms)}")
+    shape = (dev.n_leds, len(times))
+    if raw.ndim != 5 or raw.shape[:2] != shape or raw.shape[4] != 3:
+        refuse(f"the frames must have shape (LEDs, exposures, height, width, 3) = {shape + ('H', 'W', 3)}, "
+               f"got {raw.shape}")
+    if raw.size and int(raw.max()) > dev.camera.max_value:
+        refuse(f"raw values up to {int(raw.max())} exceed the camera's {dev.camera.max_value}")
+    if not (isinstance(capture.rotation_deg, (int, float, np.number)) and math.isfinite(capture.rotation_deg)):
+        refuse(f"the rotation must be a finite angle, got {short_repr(capture.rotation_deg)}")
+
+
 def write_capture(capture: Capture, out_dir: str | Path) -> Path:
     """Write frames and manifest into ``out_dir`` atomically (all or nothing).
 
@@ -415,6 +439,7 @@ def write_capture(capture: Capture, out_dir: str | Path) -> Path:
     """
     out_dir = Path(out_dir)
     dev = capture.device
+    _check_writable_capture(capture, out_dir)
     h, w = capture.raw.shape[2:4]
     if expects_check_frames(dev, capture.kind):
         shape = (len(dev.check_leds),) + capture.raw.shape[1:]

@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .. import _kernels, geometry
 from ..brdf import BRDFSource
-from ..errors import ParameterError
+from ..errors import ParameterError, short_repr
 from ..sources.analytic import AnalyticBRDF
 from .capture import CALIBRATION_MANIFEST, MAX_ROTATION_DEG, Capture, _write_png, atomic_dir, write_capture
 from .device import Camera, Device
@@ -282,6 +282,14 @@ def simulate_capture(
         For a tilt outside [0°, :data:`MAX_TILT_DEG`], a tilt azimuth or rotation that is
         not a finite angle of at most :data:`MAX_ROTATION_DEG`, or a negative seed.
     """
+    if not callable(getattr(source, "eval", None)):
+        raise ParameterError(f"simulate: the source must be a BRDF (load_source(PATH)), got {short_repr(source)}")
+    if not isinstance(device, Device):
+        raise ParameterError(f"simulate: the device must be a Device (load_device(NAME)), got {short_repr(device)}")
+    if not isinstance(shake, (bool, np.bool_)):
+        raise ParameterError(f"shake must be True or False, got {short_repr(shake)}")
+    if shake_deg is not None and not shake:
+        raise ParameterError("a shake angle needs shake=True")
     for name, v in (("tilt", tilt_deg), ("rotation", rotation_deg), ("tilt azimuth", tilt_azimuth_deg),
                     ("shake angle", shake_deg)):
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.number))):
@@ -468,6 +476,10 @@ RESPONSE_SWEEP_MS = tuple(0.25 * 2.0**k for k in range(9))
 GRID_OFFSETS = tuple((a, b) for a in (0.0, 0.033, 0.066) for b in (0.0, 0.033, 0.066))
 
 
+#: The most white-standard exposures :func:`simulate_calibration` averages per frame.
+MAX_WHITE_REPEATS = 256
+
+
 def simulate_calibration(device: Device, out_dir: str | Path, seed: int = 0, white_repeats: int = 8) -> Path:
     """Write the calibration captures of ``device`` into ``out_dir`` (atomically).
 
@@ -498,9 +510,13 @@ def simulate_calibration(device: Device, out_dir: str | Path, seed: int = 0, whi
     Raises
     ------
     ParameterError
-        For a negative seed.
+        For a negative seed, or ``white_repeats`` not an integer in ``[1, MAX_WHITE_REPEATS]``.
     """
     _check_seed(seed)
+    if isinstance(white_repeats, bool) or not isinstance(white_repeats, (int, np.integer)) \
+            or not 1 <= white_repeats <= MAX_WHITE_REPEATS:
+        raise ParameterError(f"white_repeats must be an integer in [1, {MAX_WHITE_REPEATS}], got "
+                             f"{short_repr(white_repeats)}")
     rng = np.random.default_rng(seed)
     optics, leds, intensity, trans = _truth(device)
     cam = device.camera

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..brdf import BRDFSource
+from ..errors import ParameterError, short_repr
 
 Array = NDArray[np.float64]
 
@@ -120,6 +121,29 @@ def sphere_coverage(resolution: int, supersample: int = 8) -> Array:
     return hit.mean(axis=2)
 
 
+#: The image sizes :func:`render_sphere` draws (pixels per side), and its sub-pixel rays per axis.
+RESOLUTION_RANGE = (8, 4096)
+MAX_SUPERSAMPLE = 16
+
+
+def _check_render(resolution: int, supersample: int, lights) -> None:
+    """Refuse sizes and lights that give no image (an empty or NaN one)."""
+    def integer(x: object) -> bool:
+        return isinstance(x, (int, np.integer)) and not isinstance(x, bool)
+
+    lo, hi = RESOLUTION_RANGE
+    if not (integer(resolution) and lo <= resolution <= hi):
+        raise ParameterError(f"render: resolution must be an integer in [{lo}, {hi}] pixels, got {resolution!r}")
+    if not (integer(supersample) and 1 <= supersample <= MAX_SUPERSAMPLE):
+        raise ParameterError(f"render: supersample must be an integer in [1, {MAX_SUPERSAMPLE}], got {supersample!r}")
+    for position, intensity in lights:
+        pos, power = np.asarray(position, dtype=np.float64), np.asarray(intensity, dtype=np.float64)
+        if pos.shape != (3,) or not np.all(np.isfinite(pos)) or not (np.all(np.isfinite(power))
+                                                                    and np.all(power >= 0)):
+            raise ParameterError(f"render: a light needs a finite position (3-vector) and a finite intensity ≥ 0, "
+                                 f"got {short_repr(position)} and {short_repr(intensity)}")
+
+
 def render_sphere(source: BRDFSource, resolution: int = 256, supersample: int = 3, lights=LIGHTS) -> Array:
     """Linear RGB radiance ``(res, res, 3)`` of a unit sphere at the origin (see module docstring).
 
@@ -144,7 +168,14 @@ def render_sphere(source: BRDFSource, resolution: int = 256, supersample: int = 
     -------
     numpy.ndarray, shape (res, res, 3)
         Radiance (W m⁻² sr⁻¹, scene lengths in metres), box-filtered with 0 off the sphere.
+
+    Raises
+    ------
+    ParameterError
+        A resolution outside ``[8, 4096]``, a supersampling outside ``[1, 16]``, or a light
+        whose position is not a finite 3-vector or whose intensity is not finite and ≥ 0.
     """
+    _check_render(resolution, supersample, lights)
     d, p, hit = _hits(resolution, supersample)
     n = p  # unit sphere
     tang = np.stack([-p[..., 1], p[..., 0], np.zeros(p.shape[:-1])], -1)

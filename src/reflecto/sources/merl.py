@@ -369,6 +369,29 @@ def hemispherical_albedo(table: ArrayLike) -> Array:
     return np.maximum(t, 0.0).T @ _hh_weights().ravel()
 
 
+def check_table(source: MerlBRDF, path: Path) -> None:
+    """The checks a MERL file's table passes on reading: a finite hemispherical albedo of at
+    most ``ALBEDO_RANGE[1]`` per channel, and :func:`reflecto.brdf.check_plausible`.
+
+    Parameters
+    ----------
+    source
+        The table as a source (:meth:`MerlBRDF.from_table` or a file's).
+    path
+        The file, for the message.
+
+    Raises
+    ------
+    FileFormatError
+        Naming ``path`` and the check that failed.
+    """
+    rho = hemispherical_albedo(source.table)
+    if not np.all(np.isfinite(rho)) or rho.max() > ALBEDO_RANGE[1]:
+        raise FileFormatError(path, f"hemispherical albedo {np.round(rho, 4).tolist()} above the plausible "
+                              f"{ALBEDO_RANGE[1]:g}: damaged, or not a BRDF in sr⁻¹")
+    check_plausible(source, path)
+
+
 class MerlBRDF(BRDFSource):
     """A MERL ``.binary`` BRDF, looked up bin by bin (no interpolation, as MERL's reader).
 
@@ -386,11 +409,7 @@ class MerlBRDF(BRDFSource):
         self._flat = self.table.reshape(N_BINS, 3)
         self.reciprocal = True  # φ_d folding makes lookups reciprocal by construction
         self.isotropic = True
-        rho = hemispherical_albedo(self.table)
-        if not np.all(np.isfinite(rho)) or rho.max() > ALBEDO_RANGE[1]:
-            raise FileFormatError(self.path, f"hemispherical albedo {np.round(rho, 4).tolist()} above the plausible "
-                                  f"{ALBEDO_RANGE[1]:g}: damaged, or not a BRDF in sr⁻¹")
-        check_plausible(self, self.path)
+        check_table(self, self.path)
 
     @classmethod
     def from_table(cls, table: ArrayLike, name: str = "merl") -> MerlBRDF:
