@@ -92,8 +92,8 @@ def _emit(args: argparse.Namespace, info: dict, lines: list[str]) -> int:
     """Print ``info`` as JSON with ``--json``, else the human-readable ``lines`` (none with ``-q``)."""
     if args.json:  # strict JSON: a non-finite number (a file's own metadata) is written as null
         print(json.dumps(_finite_json(info), indent=1, allow_nan=False))
-    elif lines and not getattr(args, "quiet", False):
-        print("\n".join(lines))
+    elif lines and not getattr(args, "quiet", False):  # a name's control characters escaped: one line each
+        print("\n".join(shown_path(line) for line in lines))
     return 0
 
 
@@ -325,6 +325,8 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
     out = Path(args.output)
     _check_suffix(out, "merl", f"use -o {out.with_suffix('.binary')}")
     check_output(out)
+    if _same_file(out, args.source):
+        raise OutputError(out, "is the file being tabulated; tabulate writes a new file: name another")
     src = load_source(args.source)
     if not holds_isotropic(src):  # as `export`: a MERL table of an anisotropic source is its φ_h = 0 slice only
         raise ReflectoError(f"{shown_path(args.source)} is anisotropic; a MERL table holds an isotropic BRDF: "
@@ -354,7 +356,7 @@ def cmd_layout(args: argparse.Namespace) -> int:
         plot_coverage(dev.optics, leds, args.plot, resolution=max(args.resolution, 128), theta_max_deg=args.theta_max)
         info["plot"] = str(args.plot)
     if args.json:
-        print(json.dumps(info, indent=1))
+        print(json.dumps(_finite_json(info), indent=1, allow_nan=False))
         return 0
     print(f"LED layout of device {dev.name!r} (elevation, azimuth in degrees):")
     for k, (el, az) in enumerate(info["leds_elevation_azimuth_deg"]):
@@ -366,7 +368,7 @@ def cmd_layout(args: argparse.Namespace) -> int:
     print(f"  after both mirror planes {100 * cov.after_mirrors:6.2f} %")
     print(f"  every slice overlaps another: {cov.every_led_overlaps}")
     if args.plot:
-        print(f"wrote {args.plot}")
+        print(f"wrote {shown_path(args.plot)}")
     return 0
 
 
@@ -469,11 +471,15 @@ _JOBS = _checked(int, lambda v: v >= 0, "0 (one per core) or a positive number o
 _SECONDS = _checked(float, lambda v: math.isfinite(v) and v >= 0, "a finite number of seconds >= 0")
 _ANGLE = _checked(float, math.isfinite, "a finite angle in degrees")
 _CAP_ANGLE = _checked(float, lambda v: 0 < v <= 90, "an angle in (0, 90] degrees")
+_MAX_TILT = _checked(float, lambda v: 0 < v < 60, "an angle in (0, 60) degrees")
+#: The layout analysis's hemicube: 256 takes about a minute, 512 several on one core.
+_LAYOUT_RESOLUTION = _checked(int, lambda v: 8 <= v <= 256 and v % 2 == 0, "an even integer in [8, 256]")
 
 
 def _options(args: argparse.Namespace) -> Options:
     """The reconstruction settings of ``reconstruct``'s (and ``watch``'s) flags."""
-    return Options(normal=args.normal, fixed_eta=args.eta, isotropic=args.isotropic, shadowing=args.shadowing)
+    return Options(normal=args.normal, fixed_eta=args.eta, isotropic=args.isotropic, shadowing=args.shadowing,
+                   max_tilt_deg=args.max_tilt)
 
 
 def _missing(args: argparse.Namespace) -> workflow.Missing:
@@ -875,6 +881,8 @@ def cmd_design(args: argparse.Namespace) -> int:
             raise ReflectoError(f"{flag}: values to {DESIGN_DECIMALS} decimal(s), got {values}")
         if len({design_value(v) for v in values}) != len(values):  # one design twice: one record, two rows
             raise ReflectoError(f"{flag}: each value once, got {values}")
+    _refuse_inside(args.output, [f for f in args.folders if Path(f).is_dir()], "materials folder")
+    _refuse_holding(args.output, list(args.folders))
     if not args.layout_only and not find_materials(list(args.folders)):  # known before any design is laid out
         raise ReflectoError(f"no material files in {', '.join(map(shown_path, args.folders))} (or pass --layout-only)")
     try:
@@ -981,8 +989,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--optimize", action="store_true",
                    help="run the layout optimizer instead of using the device's LEDs")
     q.add_argument("--seed", type=_LAYOUT_SEED, default=0, help="random seed of the layout optimizer")
-    q.add_argument("--resolution", type=int, default=64, help="hemicube resolution of the analysis: cells along "
-                   "each edge of a hemicube face (the NDF's texels; the plot uses at least 128)")
+    q.add_argument("--resolution", type=_LAYOUT_RESOLUTION, default=64, help="hemicube resolution of the analysis: "
+                   "cells along each edge of a hemicube face, even, 8 to 256 (the NDF's texels; the plot uses at "
+                   "least 128)")
     q.add_argument("--theta-max", type=_CAP_ANGLE, default=80.0, help="NDF cap θ_h ≤ this (degrees)")
     q.add_argument("--plot", type=Path, help="write the Fig. 2(c)(d) analogue to this PNG (default: no plot)")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
@@ -1032,6 +1041,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "device axis unless the captures disagree in it (a tilted set), then the set's own normal "
                         "search (seconds per set), which search always runs")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it (default: fitted, eqs. 5–6)")
+    q.add_argument("--max-tilt", type=_MAX_TILT, default=16.0, metavar="DEG",
+                   help="largest tilt of the sample normal the estimate searches, degrees (0 to 60)")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="reconstruct a 1-D isotropic NDF (yes), a hemicube NDF for an anisotropic material (no), "
                         "or decide from the capture (auto)")
@@ -1061,6 +1072,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the sample normal (§5.4), as for reconstruct: estimated from each capture (auto), the "
                         "device axis (device), or a known unit vector")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it")
+    q.add_argument("--max-tilt", type=_MAX_TILT, default=16.0, metavar="DEG", help="as for reconstruct")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto", help="as for reconstruct")
     q.add_argument("--shadowing", choices=("auto", "separable", "correlated"), default="auto",
                    help="as for reconstruct")

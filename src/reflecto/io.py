@@ -27,6 +27,7 @@ import io
 import json
 import math
 import os
+import re
 import shutil
 import stat
 import sys
@@ -762,6 +763,44 @@ def _replaceable_folder(path: Path, marker: str) -> None:
     if not empty and not (path / marker).is_file():
         raise OutputError(path, f"is a folder of other files (no {marker}), not an earlier output of this "
                                 "kind; refusing to replace it: name a new or empty folder")
+    if not empty and marker in FRAME_FOLDER_MARKERS:
+        foreign = _foreign_entry(path, marker)
+        if foreign is not None:
+            raise OutputError(path, f"holds {foreign}, which no earlier output of this kind writes; refusing to "
+                                    "replace it: name a new or empty folder")
+
+
+#: The markers of the folders of frames (a capture's ``manifest.json``, a calibration's
+#: ``calibration.json``): such a folder holds its marker, a JSON file of a reflecto format,
+#: PNG frames and (a calibration) captures of the same kind, nothing else.
+FRAME_FOLDER_MARKERS = ("manifest.json", "calibration.json")
+
+
+def _foreign_entry(path: Path, marker: str, depth: int = 0) -> str | None:
+    """The first entry of the frame folder ``path`` that its kind of output does not write
+    (``marker`` not a reflecto format's JSON, a file that is no PNG frame, a folder that is
+    no capture), or ``None`` where the folder holds only what an earlier output writes."""
+    try:
+        text = (path / marker).read_text(encoding="utf-8", errors="replace")[:4096]
+    except OSError as err:
+        return f"an unreadable {marker} ({err.strerror or err})"
+    if not re.search(r'"format"\s*:\s*"reflecto-', text):
+        return f"a {marker} of no reflecto format"
+    try:
+        entries = list(os.scandir(path))
+    except OSError as err:
+        return f"entries it cannot list ({err.strerror or err})"
+    for entry in entries:
+        if entry.name == marker or (entry.name.lower().endswith(".png") and entry.is_file(follow_symlinks=False)):
+            continue
+        sub = Path(entry.path)
+        if depth == 0 and entry.is_dir(follow_symlinks=False) and (sub / "manifest.json").is_file():
+            inner = _foreign_entry(sub, "manifest.json", depth + 1)
+            if inner is None:
+                continue
+            return f"{entry.name}/ (a capture folder holding {inner})"
+        return repr(entry.name)
+    return None
 
 
 def check_output(path: str | Path, folder: bool = False, marker: str | None = None) -> None:

@@ -24,7 +24,7 @@ from typing import Any
 
 from .errors import ReflectoError, one_line
 
-__all__ = ["KINDS", "BRDF_KINDS", "Kind", "KindError", "identify", "require", "require_output_suffix",
+__all__ = ["KINDS", "BRDF_KINDS", "Kind", "KindError", "identify", "is_summary", "require", "require_output_suffix",
            "require_file_name", "is_model_file"]
 
 #: Every kind :func:`identify` names, with the words used in messages.
@@ -60,10 +60,22 @@ _SET_SUMMARY_KEYS = {"kd", "ks", "shake_detected", "asymmetric", "rotations_deg"
 _MAX_DESCRIPTION = 16 << 20
 
 
-def _is_summary(data: dict[str, Any]) -> bool:
-    """Whether a JSON object is a reconstruction's summary: one capture's, or a §5.5 set's."""
+def is_summary(data: dict[str, Any]) -> bool:
+    """Whether a JSON object is a reconstruction's summary: one capture's, or a §5.5 set's.
+
+    Parameters
+    ----------
+    data
+        A JSON object.
+
+    Returns
+    -------
+    bool
+        Whether it holds a summary's keys.
+    """
     keys = set(data)
     return _SUMMARY_KEYS <= keys or _SET_SUMMARY_KEYS <= keys
+
 
 #: What to run with a file of each kind instead (``{path}`` is the file).
 _USE = {
@@ -132,7 +144,7 @@ def _json_kind(data: object) -> str:
         return "manifest"
     if data.get("format") == "reflecto-calibration-capture":
         return "calibration-manifest"
-    if _is_summary(data):
+    if is_summary(data):
         return "summary"
     if data and set(data) <= _DEVICE_KEYS:
         return "device"
@@ -148,7 +160,7 @@ def _description_kind(path: Path) -> str:
     except (OSError, ValueError, RecursionError):
         return "unknown"
     if path.suffix.lower() == ".json" and path.with_suffix(".h5").is_file() and isinstance(data, dict) \
-            and "type" not in data and not _is_summary(data):
+            and "type" not in data and not is_summary(data):
         return "nbrdf-architecture"  # an NBRDF's architecture file beside its weights
     return _json_kind(data)
 

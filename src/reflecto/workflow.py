@@ -42,13 +42,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import geometry
-from .errors import ParameterError, ReflectoError, ReflectoWarning, short_repr
+from .errors import OutputError, ParameterError, ReflectoError, ReflectoWarning, short_repr
 from .instrument.calibrate import Calibration, calibrate, load_calibration, needs_calibration, nominal_calibration
 from .instrument.capture import Capture, CaptureError, read_capture
 from .instrument.device import BUILTINS, Device, load_device
 from .instrument.simulate import simulate_calibration
 from .instrument.slices import Slices, extract_slices
-from .io import atomic_write, check_output, sha256
+from .io import atomic_write, check_output, read_json, sha256
+from .kinds import is_summary
 from .reconstruct import Options, Reconstruction, reconstruct
 from .reconstruct.asymmetric import AsymmetricReconstruction, RotatedCapture, reconstruct_rotations, sample_frames
 from .reconstruct.eq3 import SymmetryTest, symmetry_test_slices
@@ -460,6 +461,24 @@ def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path
     return summary
 
 
+def _check_replaceable_summary(path: Path) -> None:
+    """Refuse to write a summary over a file that is not an earlier summary (``NAME.json`` is
+    often the BRDF description or device file the capture came from)."""
+    if not path.exists() and not path.is_symlink():
+        return
+    try:
+        data = read_json(path, limit=MAX_SUMMARY_BYTES)
+    except ReflectoError:
+        data = None
+    if not (isinstance(data, dict) and is_summary(data)):
+        raise OutputError(path, "is not the summary of an earlier model, and the model's summary would replace "
+                                "it: name the model otherwise (-o NEW.reflecto)")
+
+
+#: The largest file read to tell an earlier summary from another JSON file (bytes).
+MAX_SUMMARY_BYTES = 64 << 20
+
+
 def _write_model_and_summary(model: Any, out: Path, summary: dict[str, Any]) -> None:
     """The model file ``out``, then its ``.json`` summary, each atomically. The summary's path
     is checked before the model is written, and a summary that cannot be written (or an
@@ -467,6 +486,7 @@ def _write_model_and_summary(model: Any, out: Path, summary: dict[str, Any]) -> 
     without its summary."""
     summary_path = out.with_suffix(".json")
     check_output(summary_path)
+    _check_replaceable_summary(summary_path)
     model.save(out)
     try:
         with atomic_write(summary_path, "w") as fh:

@@ -402,7 +402,7 @@ def _check_writable_capture(capture: Capture, out_dir: Path) -> None:
         raise ReflectoError(f"{shown_path(out_dir)}: not written: {problem}")
 
     dev, raw = capture.device, np.asarray(capture.raw)
-    want = np.uint8 if dev.camera.response == "gamma" else np.uint16
+    want = dev.camera.raw_dtype
     if raw.dtype != want:
         refuse(f"the frames must be {np.dtype(want).name} (the camera's {dev.camera.bits}-bit raw values), "
                f"got {raw.dtype}")

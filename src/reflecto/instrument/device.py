@@ -309,6 +309,9 @@ class Camera:
             raise ParameterError(f"camera: bits must be in [8, 16], got {self.bits}")
         if self.response == "gamma" and self.bits != 8:
             raise ParameterError("camera: a gamma-encoded camera has 8 bits")
+        if self.response == "gamma" and self.black_level != 0:
+            raise ParameterError(f"camera: a gamma-encoded camera has no black level (set black_level 0), got "
+                                 f"{self.black_level}")
         if not 0 <= self.black_level < self.max_value / 2:
             raise ParameterError("camera: black level out of range")
         finite = (lambda x: isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x))
@@ -327,6 +330,12 @@ class Camera:
     def max_value(self) -> int:
         """Largest raw value, ``2^bits − 1`` (DN)."""
         return (1 << self.bits) - 1
+
+    @property
+    def raw_dtype(self) -> type[np.unsignedinteger]:
+        """The raw frames' type: ``uint8`` for an 8-bit camera (its PNG frames are 8-bit,
+        docs/capture-format.md), ``uint16`` otherwise."""
+        return np.uint8 if self.bits == 8 else np.uint16
 
     @property
     def gain(self) -> float:

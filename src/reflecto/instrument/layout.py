@@ -335,6 +335,9 @@ def coverage(optics: Optics, leds: ArrayLike, resolution: int = 64, theta_max_de
     cap = cube.directions[:, 2] >= math.cos(math.radians(theta_max_deg))
     w = np.where(cap, cube.solid_angles, 0.0)
     total = w.sum()
+    if not total > 0:
+        raise ParameterError(f"coverage: the cap θ_h ≤ {theta_max_deg:g}° holds no texel centre of a hemicube of "
+                             f"resolution {cube.n}: a larger cap or a finer hemicube")
     frac = lambda m: float(w[m].sum() / total)  # noqa: E731
     union = masks.any(axis=0)
     assert isinstance(union, np.ndarray)  # masks is (leds, texels): any over axis 0 is an array

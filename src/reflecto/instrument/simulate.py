@@ -146,11 +146,11 @@ def expose(signal: Array, t_ms: float, camera: Camera, rng: np.random.Generator 
     Returns
     -------
     ndarray, shape of ``signal``
-        Raw DN: uint16, or uint8 for a gamma camera.
+        Raw DN: uint16, or uint8 for an 8-bit camera (:attr:`Camera.raw_dtype`).
     """
     sig = np.ascontiguousarray(signal, dtype=np.float64).ravel()
     gamma = camera.gamma if camera.response == "gamma" else 0.0
-    out = np.empty(sig.shape, dtype=np.uint8 if gamma > 0 else np.uint16)
+    out = np.empty(sig.shape, dtype=camera.raw_dtype)
     z: NDArray[np.float32] | Array  # the normal deviates, float32 when drawn
     z = pois = np.empty(0)
     if rng is not None and not camera.noiseless:
@@ -329,7 +329,7 @@ def simulate_capture(
     dirs, mask = optics.pixel_directions()
     o = dirs[mask]
     h, w = mask.shape
-    raw_dtype = np.uint8 if cam.response == "gamma" else np.uint16
+    raw_dtype = cam.raw_dtype
     # an occluder in the light path (earlier device) blocks the central views
     scale = cam.sensitivity * trans[mask][:, None] * ~device.occluded(o)[:, None]
     power = device.led_irradiance * intensity
@@ -526,7 +526,7 @@ def simulate_calibration(device: Device, out_dir: str | Path, seed: int = 0, whi
     # the times the frames were taken with: auto-exposure may have shortened the camera's (the
     # same for every repeat: one target, one brightest pixel)
     times = np.asarray(shots[0].exposures_ms, dtype=np.float64)
-    white = Capture(device.nominal(), np.rint(mean).astype(np.uint8 if cam.response == "gamma" else np.uint16),
+    white = Capture(device.nominal(), np.rint(mean).astype(cam.raw_dtype),
                     times, "white", {"white": {"albedo": WHITE_ALBEDO, "repeats": white_repeats}})
     t_spot = cam.exposures_ms[0]
     amp = 0.6 * cam.full_well / t_spot

@@ -1,0 +1,107 @@
+"""Commands that would lose the user's files, or print what a terminal runs, refuse instead:
+one error line, a non-zero exit, and the user's files as they were (from a fuzz campaign of
+the CLI; each case was reproduced before its fix)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from reflecto.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+PLASTIC = ROOT / "examples" / "ggx-plastic.json"
+
+
+def _err(capsys) -> str:
+    lines = [l for l in capsys.readouterr().err.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("reflecto: error: "), lines
+    return lines[0]
+
+
+def test_a_folder_is_replaced_only_when_it_holds_nothing_but_an_earlier_output(tmp_path, capsys):
+    """A folder with someone else's manifest.json, or an earlier capture with the user's notes in
+    it, was replaced as a whole by simulate (its files deleted)."""
+    ext = tmp_path / "ext"
+    (ext / "src").mkdir(parents=True)
+    (ext / "manifest.json").write_text('{"manifest_version": 3}')
+    (ext / "index.html").write_text("x")
+    assert main(["simulate", str(PLASTIC), "-o", str(ext), "-q"]) == 1
+    assert "of no reflecto format" in _err(capsys)
+    assert sorted(p.name for p in ext.iterdir()) == ["index.html", "manifest.json", "src"]
+    cap = tmp_path / "cap"
+    assert main(["simulate", str(PLASTIC), "-o", str(cap), "-q"]) == 0
+    (cap / "notes.txt").write_text("mine")
+    assert main(["simulate", str(PLASTIC), "-o", str(cap), "-q"]) == 1
+    assert "holds 'notes.txt'" in _err(capsys) and (cap / "notes.txt").read_text() == "mine"
+    (cap / "notes.txt").unlink()
+    assert main(["simulate", str(PLASTIC), "-o", str(cap), "-q", "--seed", "2"]) == 0  # an earlier capture: replaced
+
+
+def test_a_models_summary_replaces_only_an_earlier_summary(tmp_path, capsys):
+    """``reconstruct CAP -o mat.reflecto`` wrote its summary over ``mat.json``, the material
+    description the capture came from."""
+    desc = tmp_path / "mat.json"
+    desc.write_text(PLASTIC.read_text())
+    cap = tmp_path / "cap"
+    assert main(["simulate", str(desc), "-o", str(cap), "-q"]) == 0
+    assert main(["reconstruct", str(cap), "-o", str(tmp_path / "mat.reflecto"), "-q"]) == 1
+    assert "is not the summary of an earlier model" in _err(capsys)
+    assert desc.read_text() == PLASTIC.read_text() and not (tmp_path / "mat.reflecto").exists()
+    out = tmp_path / "m.reflecto"
+    for _ in range(2):  # an earlier summary is replaced
+        assert main(["reconstruct", str(cap), "-o", str(out), "-q", "--max-tilt", "10"]) == 0
+    assert json.loads(out.with_suffix(".json").read_text())["normal_source"] in ("device", "estimated")
+
+
+def test_tabulate_does_not_replace_its_own_source(tmp_path, capsys):
+    table = tmp_path / "t.binary"
+    assert main(["tabulate", str(PLASTIC), "-o", str(table), "-q"]) == 0
+    before = table.read_bytes()
+    assert main(["tabulate", str(table), "-o", str(table), "-q"]) == 1
+    assert "is the file being tabulated" in _err(capsys) and table.read_bytes() == before
+
+
+def test_layout_refuses_an_empty_cap_and_an_unbounded_resolution(capsys):
+    """``--theta-max 1`` divided by an empty cap (NaN, and JSON no parser reads); ``--resolution``
+    had no upper bound (512 ran for minutes, 10⁵ ran out of memory)."""
+    assert main(["layout", "--theta-max", "1", "--json"]) == 1
+    assert "holds no texel centre" in _err(capsys)
+    with pytest.raises(SystemExit):
+        main(["layout", "--resolution", "100000"])
+    assert "must be an even integer in [8, 256]" in capsys.readouterr().err
+
+
+def test_design_writes_outside_its_materials(tmp_path, capsys):
+    mats = tmp_path / "mats"
+    mats.mkdir()
+    (mats / "p.json").write_text(PLASTIC.read_text())
+    assert main(["design", str(mats), "-o", str(mats), "--cones", "48.2", "--tilts", "20", "--leds", "6"]) == 1
+    assert "an input of this command" in _err(capsys)
+    assert main(["design", str(mats / "p.json"), "-o", str(mats), "--cones", "48.2", "--tilts", "20",
+                 "--leds", "6"]) == 1
+    assert "holds the input" in _err(capsys)
+    assert sorted(p.name for p in mats.iterdir()) == ["p.json"]
+
+
+def test_a_written_name_is_printed_on_one_line_without_control_characters(tmp_path, capsys):
+    out = tmp_path / "a\x1b[2Jb\nFAKE"
+    assert main(["simulate", str(PLASTIC), "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert printed.count("\n") == 1 and "\x1b" not in printed and "\\x1b[2Jb\\nFAKE" in printed
+
+
+def test_device_cameras_write_what_they_read(tmp_path, capsys):
+    """An 8-bit linear camera wrote 16-bit frames its reader refused; a gamma camera with the
+    default black level wrote frames read as below black."""
+    dev8 = tmp_path / "b8.json"
+    dev8.write_text(json.dumps({"name": "b8", "camera": {"bits": 8}}))
+    cap = tmp_path / "c8"
+    assert main(["simulate", str(PLASTIC), "--device", str(dev8), "-o", str(cap), "-q"]) == 0
+    assert main(["reconstruct", str(cap), "--nominal", "-o", str(tmp_path / "m8.reflecto"), "-q"]) == 0
+    gamma = tmp_path / "g8.json"
+    gamma.write_text(json.dumps({"name": "g8", "camera": {"bits": 8, "response": "gamma"}}))
+    assert main(["simulate", str(PLASTIC), "--device", str(gamma), "-o", str(tmp_path / "cg"), "-q"]) == 1
+    assert "a gamma-encoded camera has no black level" in _err(capsys)
