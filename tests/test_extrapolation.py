@@ -184,3 +184,19 @@ def test_a_continuation_keeps_a_bound_it_left_and_met_again(monkeypatch, shared)
     sequence = "".join(solves)
     assert "FT" in sequence and sequence.count("TF") <= 1, sequence  # met, and left at most once
     assert alt.ks_bound and alt.cost > (1 - extrapolation.MIN_COST_GAIN) * lum.cost  # the product stays
+
+
+def test_a_correlated_fit_on_another_branch_is_not_compared(shared):
+    """The earlier device's natural-209 (the sweep's seed): continued with the correlated form,
+    the fit leaves the product's lobe (half width 10.5° → 0.89°) for a cost 1 % lower; that
+    compares two lobes, not two forms (eq. 10 0.16 → 2.46). The product stays, and says why."""
+    from reflecto.evaluate.sweep import material_seed
+    from reflecto.load import load_source
+
+    src = load_source(shared / "merl-nbrdf" / "natural-209.h5")
+    dev = Device.builtin("earlier")
+    res = reconstruct(extract_slices(simulate_capture(src, dev, seed=material_seed("natural-209")),
+                                     nominal_calibration(dev)))
+    assert res.shadowing.form == SEPARABLE and res.shadowing.reason == "branch", res.shadowing
+    assert res.shadowing.cost_ratio < 0.99
+    assert brdf_error(src, res.model, stride=4).normalized < 0.3

@@ -28,8 +28,12 @@ Neither is right for every material, so the capture chooses (:func:`choose_shado
    final costs (eq. 10's weighted squares plus the NDF's curvature prior) compare
    directly, as likelihoods of models of equal size do. The grazing slices (θ_i ≈ 83°,
    views to θ_o = 68°) are where the two forms differ within the data.
-3. **The correlated form must fit clearly better**: its cost below ``1 −``
-   :data:`MIN_COST_GAIN` of the product's; otherwise the paper's product stays.
+3. **The correlated form must fit clearly better, on the same branch**: its cost below
+   ``1 −`` :data:`MIN_COST_GAIN` of the product's, and its lobe's half width within a
+   factor :data:`MAX_WIDTH_CHANGE` of the product's (the forms differ only where both
+   directions are far from the normal; a continuation that moves the lobe's core has
+   found another branch of the fit, and the costs then compare two lobes, not two
+   forms); otherwise the paper's product stays.
 
 Choosing on a held-out band instead (both forms fitted below ``θ_d = θ_obs − 13°``, the
 band's weighted misfit compared) picks the wrong form for two of four separable GGX
@@ -50,16 +54,17 @@ from typing import Any
 import numpy as np
 
 from ..fresnel import CONSTANT, is_constant
-from ..polar import IsotropicNDF
+from ..polar import IsotropicNDF, lobe_half_width_deg
 from .isotropic import IsotropicFit, LuminanceFit, fit_luminance, isotropic_fit
 from .tuning import EXTRAPOLATION
 
 __all__ = ["ShadowingChoice", "choose_shadowing", "form_difference", "SEPARABLE", "CORRELATED",
-           "MIN_DIFFERENCE", "MIN_COST_GAIN"]
+           "MIN_DIFFERENCE", "MIN_COST_GAIN", "MAX_WIDTH_CHANGE"]
 
 # Tuned numbers: what, units and provenance are in :mod:`.tuning` (extrapolation stage).
 MIN_DIFFERENCE = EXTRAPOLATION.min_difference
 MIN_COST_GAIN = EXTRAPOLATION.min_cost_gain
+MAX_WIDTH_CHANGE = EXTRAPOLATION.max_width_change
 
 #: The shadowing forms' names, as the summary and the model file's description give them.
 SEPARABLE = "separable"
@@ -76,7 +81,9 @@ class ShadowingChoice:
         :data:`SEPARABLE` (eq. 8's product) or :data:`CORRELATED`.
     reason
         ``"option"`` (imposed by the options), ``"indistinct"`` (the forms differ by less
-        than :data:`MIN_DIFFERENCE` on every measured bin) or ``"fit"`` (compared by cost).
+        than :data:`MIN_DIFFERENCE` on every measured bin), ``"branch"`` (the correlated
+        form's fit moved the lobe's core by more than :data:`MAX_WIDTH_CHANGE`: another
+        branch, not compared) or ``"fit"`` (compared by cost).
     difference
         The largest relative change of a measured bin's model value from the product to
         the correlated form (:func:`form_difference`); NaN where not computed.
@@ -166,9 +173,20 @@ def choose_shadowing(fit: IsotropicFit, fixed_eta: float | None = None, option: 
         return fit, ShadowingChoice(SEPARABLE, "indistinct", difference)
     alt = _correlated_fit(lum, fixed_eta)
     scores = (lum.cost, alt.cost)
+    if not _same_branch(lum, alt):
+        return fit, ShadowingChoice(SEPARABLE, "branch", difference, scores)
     if not scores[1] < (1.0 - MIN_COST_GAIN) * scores[0]:
         return fit, ShadowingChoice(SEPARABLE, "fit", difference, scores)
     return isotropic_fit(alt, fit.ceiling), ShadowingChoice(CORRELATED, "fit", difference, scores)
+
+
+def _same_branch(lum: LuminanceFit, alt: LuminanceFit) -> bool:
+    """Whether the correlated form's fit ``alt`` stayed on the product's branch ``lum``: its
+    lobe's half width at half maximum within :data:`MAX_WIDTH_CHANGE` of ``lum``'s (module
+    docstring, step 3)."""
+    w0 = lobe_half_width_deg(lum.problem.nodes, np.exp(lum.state.z))
+    w1 = lobe_half_width_deg(alt.problem.nodes, np.exp(alt.state.z))
+    return w1 <= MAX_WIDTH_CHANGE * w0 and w0 <= MAX_WIDTH_CHANGE * w1
 
 
 def _correlated_fit(lum: LuminanceFit, fixed_eta: float | None) -> LuminanceFit:

@@ -999,9 +999,8 @@ class ExtrapolationTuning:
         what="the choice is made only where the correlated form changes some measured bin's model value by at "
              "least this (with the product's fit)",
         source="convention: a choice the data change by less than 1 % nowhere is not the data's; measured: the "
-               "earlier device (no grazing LED) 0.00–0.7 %, where a cost comparison took the correlated form on a "
-               "different branch of the fit (natural-209: eq. 10 0.092 → 2.35); the paper's layout 2–32 % on matte "
-               "materials, sharp lobes below 1 %")
+               "paper's layout 2–32 % on matte materials, sharp lobes below 1 %; the earlier device (no grazing "
+               "LED) mostly below 1 %")
     min_cost_gain: float = tuned(
         0.01, name="MIN_COST_GAIN", units="relative",
         what="the height-correlated form is taken only where its fit's cost is below (1 − this) × the product's",
@@ -1010,6 +1009,15 @@ class ExtrapolationTuning:
                "Beckmann α 0.4), whose eq. 10 error then rises from 0.01–0.02 % to 0.17–0.21 %; lobes rendered with "
                "the correlated form give 0.93–0.98 (GGX α 0.2–0.4). On the shared materials the choices at "
                "0.99–1.00 moved eq. 10 by at most 1 %")
+    max_width_change: float = tuned(
+        2.0, name="MAX_WIDTH_CHANGE", units="ratio of half widths",
+        what="the correlated form's fit counts only where its lobe's half width at half maximum lies within this "
+             "factor of the product's fit's; beyond, the continuation has left the product's branch of the fit "
+             "and the product stays",
+        source="mechanism: the two forms differ only where both directions are far from the normal, so on one "
+               "branch they leave the lobe's core where it was (the shared materials' correlated fits: 0.87–1.40×); "
+               "a cost comparison across branches compares two lobes, not two forms (the earlier device's "
+               "natural-209: 10.5° → 0.89°, cost 0.990×, eq. 10 0.16 → 2.46)")
 
 
 @dataclasses.dataclass(frozen=True)
