@@ -105,3 +105,19 @@ def test_device_cameras_write_what_they_read(tmp_path, capsys):
     gamma.write_text(json.dumps({"name": "g8", "camera": {"bits": 8, "response": "gamma"}}))
     assert main(["simulate", str(PLASTIC), "--device", str(gamma), "-o", str(tmp_path / "cg"), "-q"]) == 1
     assert "a gamma-encoded camera has no black level" in _err(capsys)
+
+
+def test_layout_counts_no_view_the_occluder_blocks(tmp_path, capsys):
+    """A device whose occluder covers nearly the whole cone reported the coverage of a device
+    without one (81 %); its views carry no data."""
+    from reflecto.instrument.device import Device
+
+    d = Device.builtin("ideal").to_dict()
+    d.update(name="occluded", occluder_deg=47.0)
+    dev = tmp_path / "occluded.json"
+    dev.write_text(json.dumps(d))
+    assert main(["layout", "--json"]) == 0
+    plain = json.loads(capsys.readouterr().out)["coverage"]
+    assert main(["layout", "--device", str(dev), "--json"]) == 0
+    occluded = json.loads(capsys.readouterr().out)["coverage"]
+    assert occluded["after_tau"] < 0.1 * plain["after_tau"], (occluded, plain)

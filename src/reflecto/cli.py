@@ -348,7 +348,8 @@ def cmd_layout(args: argparse.Namespace) -> int:
     leds = dev.leds
     if args.optimize:
         leds = layout.optimize_layout(dev.optics, n_leds=dev.n_leds, theta_max_deg=args.theta_max, seed=args.seed)
-    cov = layout.coverage(dev.optics, leds, resolution=args.resolution, theta_max_deg=args.theta_max)
+    cov = layout.coverage(dev.optics, leds, resolution=args.resolution, theta_max_deg=args.theta_max,
+                          occluder_deg=dev.occluder_deg)
     info = {"device": dev.name, "leds_elevation_azimuth_deg": np.round(layout.led_angles(leds), 2).tolist(),
             "coverage": cov.to_dict()}
     if args.plot:

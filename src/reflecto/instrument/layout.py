@@ -155,7 +155,7 @@ def layout_violations(optics: Optics, leds: ArrayLike, occluder_deg: float = 0.0
     return out
 
 
-def coverage_masks(optics: Optics, leds: ArrayLike, cube: Hemicube) -> NDArray[np.bool_]:
+def coverage_masks(optics: Optics, leds: ArrayLike, cube: Hemicube, occluder_deg: float = 0.0) -> NDArray[np.bool_]:
     """Texels of ``cube`` whose half vector each LED's slice observes.
 
     Parameters
@@ -166,17 +166,24 @@ def coverage_masks(optics: Optics, leds: ArrayLike, cube: Hemicube) -> NDArray[n
         LED directions.
     cube
         The hemicube of half vectors.
+    occluder_deg
+        Half angle of a central occluder about the optical axis, degrees (0: none): the
+        views within it carry no data.
 
     Returns
     -------
     ndarray of bool, shape (L, cube.size)
-        True where the mirror view ``R_h(l)`` lies in the view cone above the grazing limit.
+        True where the mirror view ``R_h(l)`` lies in the view cone, outside the occluder,
+        above the grazing limit.
     """
     leds = geometry.normalize(np.atleast_2d(leds))
     h = cube.directions
     lh = leds @ h.T  # (L, T)
     o = 2.0 * lh[..., None] * h[None] - leds[:, None, :]  # mirror views (L, T, 3)
-    in_cone = o @ optics.axis >= math.cos(math.radians(optics.cone_half_angle_deg))
+    cos_axis = o @ optics.axis
+    in_cone = cos_axis >= math.cos(math.radians(optics.cone_half_angle_deg))
+    if occluder_deg > 0:
+        in_cone &= cos_axis <= math.cos(math.radians(occluder_deg))
     return in_cone & (o[..., 2] > MIN_VIEW_COS) & (lh > 0)
 
 
@@ -303,7 +310,8 @@ def _check_theta_max(theta_max_deg: float) -> None:
         raise ParameterError(f"theta_max must be in (0°, 90°], got {theta_max_deg}")
 
 
-def coverage(optics: Optics, leds: ArrayLike, resolution: int = 64, theta_max_deg: float = 80.0) -> Coverage:
+def coverage(optics: Optics, leds: ArrayLike, resolution: int = 64, theta_max_deg: float = 80.0,
+             occluder_deg: float = 0.0) -> Coverage:
     """Coverage analysis of a layout on a ``resolution`` hemicube (§4.1, Figure 2c–d).
 
     Parameters
@@ -316,6 +324,8 @@ def coverage(optics: Optics, leds: ArrayLike, resolution: int = 64, theta_max_de
         Hemicube resolution of the analysis.
     theta_max_deg
         The NDF cap θ_h ≤ θ_max whose solid angle the fractions refer to, degrees.
+    occluder_deg
+        Half angle of a central occluder, degrees (0: none; :func:`coverage_masks`).
 
     Returns
     -------
@@ -331,7 +341,7 @@ def coverage(optics: Optics, leds: ArrayLike, resolution: int = 64, theta_max_de
     _check_theta_max(theta_max_deg)
     cube = hemicube(resolution)
     leds = geometry.normalize(np.atleast_2d(leds))
-    masks = coverage_masks(optics, leds, cube)
+    masks = coverage_masks(optics, leds, cube, occluder_deg)
     cap = cube.directions[:, 2] >= math.cos(math.radians(theta_max_deg))
     w = np.where(cap, cube.solid_angles, 0.0)
     total = w.sum()
