@@ -121,3 +121,19 @@ def test_layout_counts_no_view_the_occluder_blocks(tmp_path, capsys):
     assert main(["layout", "--device", str(dev), "--json"]) == 0
     occluded = json.loads(capsys.readouterr().out)["coverage"]
     assert occluded["after_tau"] < 0.1 * plain["after_tau"], (occluded, plain)
+
+
+def test_log_axes_are_labelled_in_plain_text():
+    """With every text plain (a name's ``$`` is no maths markup), matplotlib's own log labels
+    showed as ``$\\mathdefault{10^{1}}$``: the log axes carry plain powers of ten."""
+    from reflecto.plotting import plain_log_axis, power_of_ten, pyplot
+
+    assert [power_of_ten(v) for v in (0.01, 1.0, 10.0, 2.0, 0.0)] == ["10⁻²", "10⁰", "10¹", "", ""]
+    plt = pyplot()
+    fig, ax = plt.subplots()
+    ax.semilogy([1, 2, 3], [0.01, 1.0, 30.0])
+    plain_log_axis(ax)
+    fig.canvas.draw()
+    labels = [t.get_text() for t in ax.get_yticklabels() if t.get_text()]
+    plt.close(fig)
+    assert labels and all("$" not in t and t.startswith("10") for t in labels), labels

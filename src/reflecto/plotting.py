@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,44 @@ def pyplot() -> Any:
     # would fail to parse "\foo"), and reflecto's labels write their symbols in Unicode
     plt.rcParams["text.parse_math"] = False
     return plt
+
+
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def power_of_ten(value: float, _position: Any = None) -> str:
+    """A log axis's tick label in plain text: ``10⁻²`` at a power of ten, empty elsewhere
+    (matplotlib's own labels are maths markup, which plain text shows as written).
+
+    Parameters
+    ----------
+    value
+        The tick's value (> 0).
+
+    Returns
+    -------
+    str
+        The label.
+    """
+    if not value > 0:
+        return ""
+    exponent = math.log10(value)
+    if abs(exponent - round(exponent)) > 1e-9:
+        return ""
+    return "10" + str(int(round(exponent))).translate(_SUPERSCRIPT)
+
+
+def plain_log_axis(ax: Any, which: str = "y") -> None:
+    """Label a log-scaled axis of ``ax`` with :func:`power_of_ten` (major ticks) and no minor labels.
+
+    Parameters
+    ----------
+    ax
+        A matplotlib axes whose ``which`` axis (``"x"`` or ``"y"``) is log-scaled.
+    """
+    axis = ax.yaxis if which == "y" else ax.xaxis
+    axis.set_major_formatter(power_of_ten)  # matplotlib wraps a function in a FuncFormatter
+    axis.set_minor_formatter(lambda value, position: "")
 
 
 def save_figure(fig: Any, path: str | Path, dpi: int = 90) -> Path:

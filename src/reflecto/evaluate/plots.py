@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from ..plotting import plain_log_axis, save_figure
 from ..plotting import pyplot as _plt
-from ..plotting import save_figure
 from ..render.mitsuba import exposure_for, to_srgb8
 from ..render.sphere import composite, sphere_coverage
 
@@ -37,6 +37,7 @@ def plot_errors(records: list[dict[str, Any]], path: str | Path) -> Path:
                               ("earlier", "earlier device [DWT*10]", "^-"),
                               ("ours", "ours (this device + §5)", "o-")):
         ax.semilogy(x, [max(r[key]["error"], 1e-6) for r in recs], style, ms=4, lw=1, label=label)
+    plain_log_axis(ax)
     ax.set_xticks(x)
     ax.set_xticklabels([r["name"] for r in recs], rotation=90, fontsize=6)
     ax.set_ylabel("normalized error (eq. 10), log scale")

@@ -42,7 +42,7 @@ from ..instrument.plots import plot_coverage
 from ..io import atomic_folder, atomic_path, atomic_write, read_json
 from ..load import load_source
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF, load_model
-from ..plotting import pyplot, save_figure
+from ..plotting import plain_log_axis, pyplot, save_figure
 from ..render.mitsuba import bsdf_file, compare_files, comparison_image, default_envmap, render_file, titled, to_srgb8
 from .metrics import comparison_error
 from .viewer import write_viewer
@@ -150,6 +150,7 @@ def ndf_figures(model: HasNDF, out: Path) -> list[tuple[str, str]]:
         caption = ("NDF against θ_h (log scale): the fit's one D (black; S of the plots) "
                    "and the lobe the model uses at each θ_d node (dashed), mixed between the nodes; the "
                    "export samples by the nodes' mean.")
+    plain_log_axis(ax)
     ax.set_xlabel("θ_h (deg)")
     ax.set_ylabel("D (sr⁻¹)")
     ax.grid(True, which="both", alpha=0.3)
