@@ -387,3 +387,15 @@ def test_a_simulated_calibration_needs_a_white_exposure(tmp_path):
     with pytest.raises(ParameterError, match="white_repeats must be an integer"):
         simulate_calibration(Device.builtin("as-built"), tmp_path / "cal", white_repeats=0)
     assert not (tmp_path / "cal").exists()
+
+
+def test_a_capture_of_nothing_but_noise_gives_no_model():
+    """A black target on a noisy camera (the as-built one) gave a 'metal-like' model of albedo
+    5·10⁻⁶ and a shake flag: its samples are noise, and it says so."""
+    dev = Device.builtin("as-built")
+    black = AnalyticBRDF(alpha=0.2, kd=0.0, ks=0.0, eta=1.5)
+    slices = extract_slices(simulate_capture(black, dev, seed=3), nominal_calibration(dev))
+    with pytest.raises(ReflectoError, match="no signal above the camera's noise"):
+        reconstruct(slices)
+    dark = AnalyticBRDF(alpha=0.2, kd=0.02, ks=0.02, eta=1.5)  # dark, but there
+    assert reconstruct(extract_slices(simulate_capture(dark, dev, seed=3), nominal_calibration(dev))).model is not None

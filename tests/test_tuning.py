@@ -35,6 +35,8 @@ NOT_TUNED = {
     ("symmetry", "MIN_ELEVATION_DEG"): "the device's definition of a steep LED "
                                        "(instrument.device.STEEP_ELEVATION_DEG), not a reconstruction choice",
     ("pipeline", "MAX_RESOLUTION"): "an input limit of Options (memory: 2048² cells per face), not a fit's choice",
+    ("pipeline", "SIGNAL_SIGMAS"): "a detection threshold of the camera's noise model (5 σ: a Gaussian passes it on "
+                                   "3e-7 of the samples), not a fit's choice",
     ("pipeline", "MAX_TILT_MARGIN_DEG"): "wording only: when a note says the tilt sits at the search's bound "
                                          "(the estimate holds it there to its last digits); no fit reads it",
 }

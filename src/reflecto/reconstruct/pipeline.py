@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from .. import geometry
 from ..brdf import albedo_angles
+from ..colour import LUM
 from ..errors import ParameterError, ReflectoError
 from ..fresnel import FresnelTint, eta_to_json, is_constant
 from ..instrument.slices import Slices, check_slices, finite_rgb
@@ -411,7 +412,18 @@ def usable_samples(slices: Slices) -> NDArray[np.bool_]:
     if int(ok.sum()) < MIN_SAMPLES:
         raise ReflectoError(f"capture: fewer than {MIN_SAMPLES} valid samples "
                             "(saturated, dark or outside the view cone)")
+    if slices.noise is not None:  # a target that reflects nothing still reads the camera's noise
+        signal = np.count_nonzero(ok & (slices.values @ LUM > SIGNAL_SIGMAS * slices.noise))
+        if signal < MIN_SAMPLES:
+            raise ReflectoError(f"capture: no signal above the camera's noise ({signal} samples above "
+                                f"{SIGNAL_SIGMAS:g} noise deviations, fewer than {MIN_SAMPLES}): an empty or black "
+                                "target, or LEDs that did not light")
     return ok
+
+
+#: A sample reads signal where its luminance exceeds this many of the noise model's standard
+#: deviations (:attr:`.Slices.noise`): noise alone passes it on 3·10⁻⁷ of the samples.
+SIGNAL_SIGMAS = 5.0
 
 
 def estimate_frame(slices: Slices, valid: NDArray[np.bool_], max_tilt_deg: float, isotropic: bool = True) -> Array:
@@ -935,7 +947,7 @@ def _normal_notes(est: NormalEstimate, opt: Options, isotropic: bool) -> list[st
                  f"{how}, §5.4)"]
         if est.tilt_deg >= opt.max_tilt_deg - MAX_TILT_MARGIN_DEG:  # held by the search's bound: beyond it, maybe
             notes.append(f"the tilt reached the search's bound max_tilt_deg {opt.max_tilt_deg:g}°: the normal may "
-                         "lie beyond it (raise max_tilt_deg, or give the normal)")
+                         "lie beyond it (raise it: --max-tilt, Options.max_tilt_deg; or give the normal)")
         return notes
     if not isotropic or opt.isotropic == "no":
         return ["sample normal: the device axis (the tilt estimate assumes an isotropic lobe; give a known "
