@@ -5,6 +5,7 @@ the CLI; each case was reproduced before its fix)."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -137,3 +138,29 @@ def test_log_axes_are_labelled_in_plain_text():
     labels = [t.get_text() for t in ax.get_yticklabels() if t.get_text()]
     plt.close(fig)
     assert labels and all("$" not in t and t.startswith("10") for t in labels), labels
+
+
+@pytest.mark.parametrize("device, message", [
+    ({"camera": {"full_well": 1e-300}}, "must hold at least one electron"),
+    ({"camera": {"read_noise": 1e12}}, "reads noise only"),
+    ({"occluder_deg": 48.0}, "pixels see the sample"),
+    ({"camera": {"exposures_ms": [1e-9]}}, r"exposures_ms\[0\] must be"),
+])
+def test_a_device_file_that_cannot_measure_is_refused_when_read(tmp_path, capsys, device, message):
+    """Such files simulated without a word and failed later with a misleading message (a NaN
+    scale field, a negative radiometric scale, a black model)."""
+    path = tmp_path / "dev.json"
+    path.write_text(json.dumps({"name": "d", **device}))
+    assert main(["simulate", str(PLASTIC), "--device", str(path), "-o", str(tmp_path / "cap"), "-q"]) == 1
+    assert re.search(message, _err(capsys))
+    assert not (tmp_path / "cap").exists()
+
+
+def test_a_truth_led_below_the_sample_plane_is_refused():
+    from reflecto.errors import ParameterError
+    from reflecto.instrument.device import Device
+
+    d = Device.builtin("as-built").to_dict(with_truth=True)
+    d["truth"]["led_angles"][0] = [-10.0, d["truth"]["led_angles"][0][1]]
+    with pytest.raises(ParameterError, match="at or below the sample plane"):
+        Device.from_dict(d)

@@ -211,6 +211,13 @@ def validate_optics_dict(d: Any, where: str) -> Optics:
     return optics_from_dict(dict(d), where)
 
 
+#: The fewest pixels of a device file's view disc (outside an occluder) that it may have: a
+#: slice's mirror plane is located on 1 000 usable pixels, the calibration's grid needs its spots.
+MIN_VIEW_PIXELS = 1000
+#: The shortest exposure a device file may give (ms): 1 µs.
+MIN_EXPOSURE_MS = 1e-3
+
+
 def _camera(d: Any, where: str) -> Camera:
     if not isinstance(d, dict):
         raise ParameterError(f"{where} must be a table/object, got {short_repr(d)}")
@@ -233,16 +240,25 @@ def _camera(d: Any, where: str) -> Camera:
             raise ParameterError(f"{where}.exposures_ms must be a list of 1 to {MAX_EXPOSURES} times, "
                                  f"got {short_repr(t)}")
         for k, v in enumerate(t):
-            _number(v, f"{where}.exposures_ms[{k}]", 1e-9, MAX_EXPOSURE_MS)
+            _number(v, f"{where}.exposures_ms[{k}]", MIN_EXPOSURE_MS, MAX_EXPOSURE_MS)
     if d.get("gamma", 1.0) <= 0:
         raise ParameterError(f"{where}.gamma must be > 0")
-    return Camera(**d)
+    if "full_well" in d and d["full_well"] < 1.0:
+        raise ParameterError(f"{where}.full_well must hold at least one electron, got {d['full_well']}")
+    cam = Camera(**d)
+    if cam.read_noise >= cam.full_well:
+        raise ParameterError(f"{where}: read_noise {cam.read_noise:g} e⁻ is not below full_well {cam.full_well:g} "
+                             "e⁻: such a camera reads noise only")
+    return cam
 
 
 def _truth(t: Any, where: str, n_leds: int) -> DeviceTruth:
     if not isinstance(t, dict) or set(t) != {"optics", "led_angles", "led_intensity", "transmission"}:
         raise ParameterError(f"{where} must have the keys optics, led_angles, led_intensity, transmission")
     angles = _led_angles(t["led_angles"], f"{where}.led_angles")
+    if any(el <= 0.0 for el, _ in angles):
+        raise ParameterError(f"{where}.led_angles: an LED at or below the sample plane (elevation "
+                             f"{min(el for el, _ in angles):g}°) lights nothing")
     inten = t["led_intensity"]
     if not isinstance(inten, (list, tuple)) or len(inten) != n_leds:
         raise ParameterError(f"{where}.led_intensity must list {n_leds} numbers, got {short_repr(inten)}")
@@ -576,17 +592,24 @@ class Device:
                                  f"the device's {optics.width}×{optics.height}: a device's imperfections do not "
                                  "change its sensor")
         sensors = [(optics, f"{where}.optics")] + ([(truth.optics, f"{where}.truth.optics")] if truth else [])
+        occluder = _number(d.get("occluder_deg", 0.0), f"{where}.occluder_deg", 0.0, 90.0)
         for o, w in sensors:
             if not len(o.view_pixels()[0]):
                 raise ParameterError(f"{w}: no pixel of the sensor lies in the view cone (check disc_radius_px, "
                                      "cx, cy): such a device sees nothing")
+            dirs, mask = o.pixel_directions()
+            seen = int(np.count_nonzero(dirs[mask] @ o.axis <= math.cos(math.radians(occluder))) if occluder > 0
+                       else np.count_nonzero(mask))
+            if seen < MIN_VIEW_PIXELS:
+                raise ParameterError(f"{w}: {seen} pixels see the sample (the view cone, outside the occluder), "
+                                     f"fewer than {MIN_VIEW_PIXELS}: too few views to calibrate or reconstruct")
         return cls(
             name=name,
             optics=optics,
             led_angles=angles,
             camera=camera,
             truth=truth,
-            occluder_deg=_number(d.get("occluder_deg", 0.0), f"{where}.occluder_deg", 0.0, 90.0),
+            occluder_deg=occluder,
             firing_order=_firing_order(d.get("firing_order"), where),
             check_leds=_check_leds(d.get("check_leds"), where),
         )
