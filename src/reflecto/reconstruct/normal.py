@@ -876,22 +876,32 @@ def hidden_peaks(slices: Slices, valid: NDArray[np.bool_], normal: Array, nodes:
     width = lobe_half_width_deg(nodes, values)
     reach = math.cos(math.radians(max(width, pitch)))
     seen = math.cos(math.radians(pitch))
+    near, near_axis = _nearest_half_vectors(slices, valid, normal)
+    out = []
+    for k in range(slices.n_leds):
+        # the untilted slice reached its mirror direction, the tilted one does not
+        if near_axis[k] >= seen and near[k] < reach:
+            light = slices.light[k]
+            out.append(HiddenPeak(k, math.degrees(math.acos(min(1.0, float(light @ normal)))),
+                                  math.degrees(math.acos(min(1.0, float(near[k])))), width))
+    return out
+
+
+def _nearest_half_vectors(slices: Slices, valid: NDArray[np.bool_], normal: Array) -> tuple[Array, Array]:
+    """Per LED, the largest cosine between a usable sample's half vector ``(l + v)/|l + v|`` and
+    ``normal``, and the same about the device axis; −1 for an LED without a usable sample."""
     view = slices.view
     v_z, v_n = view[:, 2], view @ normal
-    out = []
+    near, near_axis = np.full(slices.n_leds, -1.0), np.full(slices.n_leds, -1.0)
     for k in range(slices.n_leds):
         ok = valid[k]
         if not ok.any():
             continue
         light = slices.light[k]
         inv_length = 1.0 / np.sqrt(np.maximum(2.0 + 2.0 * (view @ light), 1e-300))  # |l + v| of unit vectors
-        if float(np.max(np.where(ok, (light[2] + v_z) * inv_length, -1.0))) < seen:
-            continue  # the untilted slice does not reach its mirror direction
-        near = float(np.max(np.where(ok, (float(light @ normal) + v_n) * inv_length, -1.0)))
-        if near < reach:
-            out.append(HiddenPeak(k, math.degrees(math.acos(min(1.0, float(light @ normal)))),
-                                  math.degrees(math.acos(min(1.0, near))), width))
-    return out
+        near_axis[k] = float(np.max(np.where(ok, (light[2] + v_z) * inv_length, -1.0)))
+        near[k] = float(np.max(np.where(ok, (float(light @ normal) + v_n) * inv_length, -1.0)))
+    return near, near_axis
 
 
 def peakless_leds(slices: Slices, valid: NDArray[np.bool_], normal: Array, nodes: Array, values: Array,
@@ -910,18 +920,8 @@ def peakless_leds(slices: Slices, valid: NDArray[np.bool_], normal: Array, nodes
     """
     pitch = half_vector_pitch_deg(slices) if pitch_deg is None or not math.isfinite(pitch_deg) else pitch_deg
     reach = math.cos(math.radians(max(lobe_half_width_deg(nodes, values), pitch)))
-    view = slices.view
-    v_n = view @ normal
-    out = []
-    for k in range(slices.n_leds):
-        ok = valid[k]
-        if not ok.any():
-            continue
-        light = slices.light[k]
-        inv_length = 1.0 / np.sqrt(np.maximum(2.0 + 2.0 * (view @ light), 1e-300))  # |l + v| of unit vectors
-        if float(np.max(np.where(ok, (float(light @ normal) + v_n) * inv_length, -1.0))) < reach:
-            out.append(k)
-    return out
+    near, _ = _nearest_half_vectors(slices, valid, normal)
+    return [k for k in range(slices.n_leds) if valid[k].any() and near[k] < reach]
 
 
 def half_vector_pitch_deg(slices) -> float:
