@@ -27,7 +27,7 @@ Prints per stage the median and p90 over all captures × rounds of the process's
 time (the benchmark runs single-threaded on one core; on a shared machine the wall
 time also counts the other processes' turns) and the wall time beside it; then the
 first-call time of ``reflecto reconstruct`` in a fresh process (wall, median of
-``--first`` runs). The device captures 8.6 BRDFs per second (116 ms each); the
+``--first`` runs). The device captures 8.6 BRDFs per second (117 ms each); the
 target is ≤ 100 ms median, ≤ 150 ms p90 marginal per capture (``total``).
 
 Run: ``.venv/bin/python benchmarks/bench_capture_to_model.py [--work DIR] [--repeats N]``.

@@ -7,7 +7,7 @@ Prints the per-material median times, the distribution (median, p90, max) and, a
 last line, ``ms_per_brdf: X`` (the median). Times are the process's CPU time (the
 benchmark runs on one core, single-threaded): on a shared machine the wall time also
 counts the other processes' turns; the wall-time median is printed beside it. The device captures 8.6 BRDFs per second
-(116 ms each); the paper's reconstruction took 30 s.
+(117 ms each); the paper's reconstruction took 30 s.
 
 Run: ``make bench`` or ``.venv/bin/python benchmarks/bench_reconstruct.py [--quick]``
 (``--quick``: every fifth material).

@@ -174,6 +174,7 @@ def main() -> None:
     ap.add_argument("-o", "--output", type=Path)
     args = ap.parse_args()
     paths = [str(p) for p in find_materials(args.folders)]
+    workflow.calibration_file(args.device, Path(args.work))  # made once here: the workers only read it
     with ProcessPoolExecutor(max(args.jobs, 1)) as pool:
         rows = list(pool.map(run, paths, [args.device] * len(paths), [args.work] * len(paths)))
     table = {r["name"]: r for r in csv.DictReader(open(ROOT / "docs" / f"sweep-{args.device}.csv"))}
