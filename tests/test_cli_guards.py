@@ -125,8 +125,8 @@ def test_layout_counts_no_view_the_occluder_blocks(tmp_path, capsys):
 
 
 def test_log_axes_are_labelled_in_plain_text():
-    """With every text plain (a name's ``$`` is no maths markup), matplotlib's own log labels
-    showed as ``$\\mathdefault{10^{1}}$``: the log axes carry plain powers of ten."""
+    r"""With every text plain (a name's ``$`` is no maths markup), matplotlib's own log labels
+    showed as ``$\mathdefault{10^{1}}$``: the log axes carry plain powers of ten."""
     from reflecto.plotting import plain_log_axis, power_of_ten, pyplot
 
     assert [power_of_ten(v) for v in (0.01, 1.0, 10.0, 2.0, 0.0)] == ["10⁻²", "10⁰", "10¹", "", ""]
