@@ -405,7 +405,8 @@ def usable_samples(slices: Slices) -> NDArray[np.bool_]:
     Raises
     ------
     ReflectoError
-        Fewer than :data:`MIN_SAMPLES` samples are usable.
+        Fewer than :data:`MIN_SAMPLES` samples are usable, or (where the slices carry a noise
+        model) fewer than that many read above :data:`SIGNAL_SIGMAS` noise deviations.
     """
     ok = slices.valid & finite_rgb(slices.values)  # a NaN or ±inf channel poisons the sum
     ok &= (slices.light[:, 2] > 0)[:, None] & (slices.view[:, 2] > 0)[None, :]
