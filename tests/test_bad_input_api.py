@@ -48,7 +48,7 @@ def _with(array: np.ndarray, index, value) -> np.ndarray:
     (lambda s: {"light": np.zeros_like(s.light)}, "light directions must be unit vectors"),
     (lambda s: {"view": s.view[:0]}, "view directions must have shape"),
     (lambda s: {"values": _with(s.values, (0, 5), np.nan)}, "values hold NaN"),
-    (lambda s: {"values": np.zeros_like(s.values)}, "every usable sample reads 0"),
+    (lambda s: {"values": np.zeros_like(s.values)}, "no signal above the camera's noise"),
     (lambda s: {"light": -s.light}, "valid samples"),
 ])
 def test_slices_the_kernels_cannot_read_are_refused(slices, change, words):

@@ -164,3 +164,13 @@ def test_a_truth_led_below_the_sample_plane_is_refused():
     d["truth"]["led_angles"][0] = [-10.0, d["truth"]["led_angles"][0][1]]
     with pytest.raises(ParameterError, match="at or below the sample plane"):
         Device.from_dict(d)
+
+
+def test_watch_takes_the_largest_tilt_to_search(tmp_path):
+    """``watch --max-tilt`` is reconstruct's: a capture tilted 12° is found with the bound at 14°."""
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    assert main(["simulate", str(PLASTIC), "--tilt", "12", "--seed", "2", "-o", str(root / "t12"), "-q"]) == 0
+    assert main(["watch", str(root), "-o", str(models), "--once", "--max-tilt", "14"]) == 0
+    summary = json.loads((models / "t12.json").read_text())
+    assert abs(summary["normal_tilt_deg"] - 12.0) < 0.5, summary["normal_tilt_deg"]

@@ -378,8 +378,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     (tilt, rotation, shake, camera noise).
     """
 
+    _refuse_holding(args.output, [args.source, args.device])  # the more telling refusal first
     check_output(args.output, folder=True, marker=MANIFEST)
-    _refuse_holding(args.output, [args.source, args.device])
     parent = Path(os.path.abspath(args.output)).parent
     if kinds.identify(parent).name == "calibration-folder":  # its white/ is a capture too: not a sample's place
         raise OutputError(args.output, f"lies in the calibration folder {shown_path(parent)}; simulate writes a "
@@ -403,8 +403,8 @@ def cmd_simulate_calibration(args: argparse.Namespace) -> int:
     pinhole grid, mirror) of a device.
     """
 
+    _refuse_holding(args.output, [args.device])  # the more telling refusal first
     check_output(args.output, folder=True, marker=CALIBRATION_MANIFEST)
-    _refuse_holding(args.output, [args.device])
     dev = load_device(args.device)
     out = simulate_calibration(dev, args.output, seed=args.seed)
     files = sorted(str(p.relative_to(out)) for p in Path(out).rglob("*") if p.is_file())

@@ -461,10 +461,11 @@ def save_model(result: CaptureModel, output: str | Path, capture_dir: str | Path
     return summary
 
 
-def _check_replaceable_summary(path: Path) -> None:
+def _check_replaceable_summary(path: Path, model: Path) -> None:
     """Refuse to write a summary over a file that is not an earlier summary (``NAME.json`` is
-    often the BRDF description or device file the capture came from)."""
-    if not path.exists() and not path.is_symlink():
+    often the BRDF description or device file the capture came from). Beside an earlier
+    model file ``model`` the JSON file is that model's summary, damaged or not."""
+    if not path.exists() and not path.is_symlink() or model.exists() or model.is_symlink():
         return
     try:
         data = read_json(path, limit=MAX_SUMMARY_BYTES)
@@ -486,7 +487,7 @@ def _write_model_and_summary(model: Any, out: Path, summary: dict[str, Any]) -> 
     without its summary."""
     summary_path = out.with_suffix(".json")
     check_output(summary_path)
-    _check_replaceable_summary(summary_path)
+    _check_replaceable_summary(summary_path, out)
     model.save(out)
     try:
         with atomic_write(summary_path, "w") as fh:
