@@ -240,8 +240,9 @@ def detect_motion(device_frame: Slices, sample_frame: Slices, valid: NDArray[np.
     mirror planes and the pairs are judged; ``valid`` marks the usable samples;
     ``normal_uncertainty_deg`` the standard uncertainty of that frame's normal (0 for
     a known one), which widens the mirror-plane and pair thresholds (module docstring).
-    ``flank_only``: LEDs whose slice sees only the far flank of a sharp lobe whose peak
-    the tilt hid (:func:`.normal.hidden_peaks`); their mirror planes are not judged. A
+    ``flank_only``: LEDs whose slice holds no sample of the peak, only its flank or tail
+    (:func:`.normal.peakless_leds`, the peaks a tilt hid among them); their mirror planes
+    are not judged. A
     plane located on a flank several half widths from the peak moves by degrees with
     hundredths of a degree of the normal (ideal steel tilted 0.5°, LED 2's nearest view
     3.4 half widths from its mirror direction: 1.6° from the plane through the normal

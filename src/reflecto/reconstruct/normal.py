@@ -872,19 +872,29 @@ def hidden_peaks(slices: Slices, valid: NDArray[np.bool_], normal: Array, nodes:
     NDF's ``nodes`` (radians) and ``values``; ``pitch_deg`` the camera's half-vector
     pitch where known (:attr:`NormalEstimate.half_vector_pitch_deg`).
     """
+    return peaks_out_of_reach(slices, valid, normal, nodes, values, pitch_deg)[0]
+
+
+def peaks_out_of_reach(slices: Slices, valid: NDArray[np.bool_], normal: Array, nodes: Array, values: Array,
+                       pitch_deg: float | None = None) -> tuple[list[HiddenPeak], list[int]]:
+    """:func:`hidden_peaks` and :func:`peakless_leds` from one pass over the slices (arguments as there).
+
+    Returns
+    -------
+    (list of HiddenPeak, list of int)
+        The peaks the tilt hides, and the LEDs whose slice holds no sample of the peak.
+    """
     pitch = half_vector_pitch_deg(slices) if pitch_deg is None or not math.isfinite(pitch_deg) else pitch_deg
     width = lobe_half_width_deg(nodes, values)
     reach = math.cos(math.radians(max(width, pitch)))
     seen = math.cos(math.radians(pitch))
     near, near_axis = _nearest_half_vectors(slices, valid, normal)
-    out = []
-    for k in range(slices.n_leds):
-        # the untilted slice reached its mirror direction, the tilted one does not
-        if near_axis[k] >= seen and near[k] < reach:
-            light = slices.light[k]
-            out.append(HiddenPeak(k, math.degrees(math.acos(min(1.0, float(light @ normal)))),
-                                  math.degrees(math.acos(min(1.0, float(near[k])))), width))
-    return out
+    peakless = [k for k in range(slices.n_leds) if valid[k].any() and near[k] < reach]
+    # hidden: the untilted slice reached its mirror direction, the tilted one does not
+    hidden = [HiddenPeak(k, math.degrees(math.acos(min(1.0, float(slices.light[k] @ normal)))),
+                         math.degrees(math.acos(min(1.0, float(near[k])))), width)
+              for k in peakless if near_axis[k] >= seen]
+    return hidden, peakless
 
 
 def _nearest_half_vectors(slices: Slices, valid: NDArray[np.bool_], normal: Array) -> tuple[Array, Array]:
@@ -918,10 +928,7 @@ def peakless_leds(slices: Slices, valid: NDArray[np.bool_], normal: Array, nodes
     list of int
         The LEDs, in order.
     """
-    pitch = half_vector_pitch_deg(slices) if pitch_deg is None or not math.isfinite(pitch_deg) else pitch_deg
-    reach = math.cos(math.radians(max(lobe_half_width_deg(nodes, values), pitch)))
-    near, _ = _nearest_half_vectors(slices, valid, normal)
-    return [k for k in range(slices.n_leds) if valid[k].any() and near[k] < reach]
+    return peaks_out_of_reach(slices, valid, normal, nodes, values, pitch_deg)[1]
 
 
 def half_vector_pitch_deg(slices) -> float:

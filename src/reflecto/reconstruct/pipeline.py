@@ -61,8 +61,7 @@ from .normal import (
     SlicePeak,
     estimate_normal,
     estimate_normal_consistency,
-    hidden_peaks,
-    peakless_leds,
+    peaks_out_of_reach,
     refine_normal,
     slice_peaks,
 )
@@ -890,9 +889,9 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         cpu.fit += lap()
     built = fit.model  # the ceiling, tint and lobes per node of an isotropic fit are made on first use
     cpu.model = lap()
-    hidden = _hidden_peaks(slices, ok, est, built)
-    motion = (detect_motion(slices, sl, ok, isotropic, est.uncertainty_deg, _flank_only(slices, ok, est, built),
-                            peaks) if opt.detect_shake else MotionReport())
+    hidden, flank_only = _peaks_out_of_reach(slices, ok, est, built)
+    motion = (detect_motion(slices, sl, ok, isotropic, est.uncertainty_deg, flank_only, peaks)
+              if opt.detect_shake else MotionReport())
     if isinstance(fit, HemicubeFit):
         motion.excluded_leds = fit.excluded_leds
     cpu.motion = lap()
@@ -910,28 +909,23 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
                           est if isinstance(opt.normal, str) and opt.normal == "auto" else None, shadowing, cpu)
 
 
-def _hidden_peaks(slices: Slices, valid: NDArray[np.bool_], est: NormalEstimate, model) -> list[HiddenPeak]:
-    """The LEDs whose specular peak the tilt hid (:func:`.normal.hidden_peaks`), for a
-    tilted frame and an isotropic model; none otherwise."""
-    table = getattr(model, "ndf_table", None)
-    if est.source == "device" or table is None:
-        return []
-    return hidden_peaks(slices, valid, est.normal, table.nodes, table.values, est.half_vector_pitch_deg)
-
-
-def _flank_only(slices: Slices, valid: NDArray[np.bool_], est: NormalEstimate, model) -> list[int]:
-    """The LEDs whose mirror planes the motion cue does not judge: the slices that hold no
-    sample of an isotropic model's specular peak about the normal used
+def _peaks_out_of_reach(slices: Slices, valid: NDArray[np.bool_], est: NormalEstimate, model
+                        ) -> tuple[list[HiddenPeak], list[int]]:
+    """For an isotropic model (none otherwise): the LEDs whose specular peak the tilt hid
+    (:func:`.normal.hidden_peaks`; none in the device frame), and those whose mirror planes the
+    motion cue does not judge, the slices that hold no sample of the peak about the normal used
     (:func:`.normal.peakless_leds`; a steel tilted 8° has LED 5's nearest view 8.5° from its
     mirror direction, 70 half widths, and its plane 8.6° off a normal 0.01° from the truth)."""
     table = getattr(model, "ndf_table", None)
     if table is None:
-        return []
-    return peakless_leds(slices, valid, est.normal, table.nodes, table.values, est.half_vector_pitch_deg)
+        return [], []
+    hidden, peakless = peaks_out_of_reach(slices, valid, est.normal, table.nodes, table.values,
+                                          est.half_vector_pitch_deg)
+    return ([] if est.source == "device" else hidden), peakless
 
 
 def _hidden_peak_notes(hidden: list[HiddenPeak]) -> list[str]:
-    """A note per hidden peak (:func:`_hidden_peaks`)."""
+    """A note per hidden peak (:func:`_peaks_out_of_reach`)."""
     return [f"the tilt hides LED {p.led}'s specular peak (θ_d {p.theta_d_deg:.0f}°; its nearest view "
             f"{p.nearest_deg:.2f}° off the mirror direction, the lobe's half width {p.half_width_deg:.2f}°): "
             "the lobe there is extrapolated; a capture with the device flatter on the sample sees it"
