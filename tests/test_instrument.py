@@ -522,3 +522,30 @@ def test_a_device_file_is_keyed_by_its_contents(tmp_path):
     assert device_key("as-built") == "as-built"
     ka, kb = device_key(a / "dev.json"), device_key(b / "dev.json")
     assert ka.startswith("dev-") and kb.startswith("dev-") and ka != kb
+
+
+def test_a_second_reframe_turns_from_the_first_and_keeps_the_values_the_brdf():
+    """Slices reframed twice, F₁ then F₂ (given in F₁'s coordinates), equal the capture's
+    slices reframed once into ``F₂ F₁``: directions, validity, and values corrected about the
+    first frame's normal (the one they are the BRDF for), not the device axis; and those
+    values are the analytic BRDF at the new directions (GGX α 0.2 tilted 6°: 0.3 % median
+    on the ideal 12-bit camera, against 19 % with the correction taken about the device axis)."""
+    src = AnalyticBRDF(distribution="ggx", alpha=0.2, kd=0.1, ks=0.8, eta=1.5)
+    dev = Device.builtin("ideal")
+    cap = simulate_capture(src, dev, tilt_deg=6.0, tilt_azimuth_deg=0.0, seed=1)
+    truth = np.array(cap.extra["simulation"]["normal"])
+    sl = extract_slices(cap, nominal_calibration(dev))
+    f1 = g.frame_from_normal(g.normalize(np.array([0.03, -0.02, 1.0])), np.array([1.0, 0.0, 0.0]))  # every LED stays up
+    # F₂ in F₁'s coordinates: the true normal's frame, as seen from F₁
+    f2 = g.frame_from_normal(g.to_local(truth, f1), np.array([1.0, 0.0, 0.0]))
+    twice, once = sl.reframe(f1).reframe(f2), sl.reframe(f2 @ f1)
+    np.testing.assert_allclose(twice.frame, f2 @ f1, atol=1e-15)
+    np.testing.assert_allclose(twice.light, once.light, atol=1e-12)
+    np.testing.assert_allclose(twice.view, once.view, atol=1e-12)
+    assert np.array_equal(twice.valid, once.valid)
+    np.testing.assert_allclose(twice.values[twice.valid], once.values[once.valid], rtol=1e-12)
+    assert abs(twice.frame[2] @ truth - 1.0) < 1e-12
+    ok = twice.valid & (twice.values[..., 1] > 0.05)
+    truth_values = np.stack([src.eval(np.broadcast_to(twice.light[k], twice.view.shape), twice.view)[:, 1]
+                             for k in range(twice.n_leds)])
+    assert np.median(np.abs(twice.values[..., 1][ok] / truth_values[ok] - 1.0)) < 0.01

@@ -245,11 +245,14 @@ class CaptureModel:
         Returns
         -------
         dict
-            :meth:`reflecto.reconstruct.Reconstruction.summary`'s fields, ``symmetry_test``
+            :meth:`reflecto.reconstruct.Reconstruction.summary`'s fields (``normal`` in device
+            coordinates, also for a capture turned by its ``rotation_deg``), ``symmetry_test``
             (the eq. 3 test's ``to_dict()``) and, unless the calibration was ``"nominal"``,
             ``calibration`` (:attr:`calibration`).
         """
         out = {**self.reconstruction.summary(), "symmetry_test": self.symmetry.to_dict()}
+        if not np.array_equal(self.slices.frame, np.eye(3)):  # turned by the capture's rotation: device coordinates
+            out["normal"] = geometry.to_world(self.reconstruction.frame[2], self.slices.frame).tolist()
         if self.calibration != "nominal":
             out["calibration"] = self.calibration
         return out
@@ -376,7 +379,9 @@ def capture_to_model(capture: Capture | str | Path, calibration: str | Path | Ca
     cal = calibration_for(capture.device, calibration, missing=missing, seed=seed, where=where)
     slices = measure(capture, cal, where)
     if capture.rotation_deg % 360.0:  # the model lives in the sample's frame, turned by the manifest's rotation
-        slices = slices.reframe(sample_frames([capture.rotation_deg])[0])
+        turn = sample_frames([capture.rotation_deg])[0]
+        slices = slices.reframe(turn)
+        options = _given_normal_in(options, turn)
     t2, c2 = time.perf_counter(), time.process_time()
     try:
         res = preview_reconstruction(slices, options) if preview else reconstruct(slices, options)
@@ -395,6 +400,14 @@ def capture_to_model(capture: Capture | str | Path, calibration: str | Path | Ca
                         StageSeconds(read=t1 - t0, slices=t2 - t1, reconstruct=t3 - t2, symmetry=t4 - t3),
                         StageSeconds(read=c1 - c0, slices=c2 - c1, reconstruct=c3 - c2, symmetry=c4 - c3),
                         provenance(capture))
+
+
+def _given_normal_in(options: Options | None, frame: NDArray[np.float64]) -> Options | None:
+    """``options`` with a given normal (device coordinates, as ``--normal X,Y,Z`` gives it)
+    expressed in ``frame``'s coordinates, those of the slices turned into it; other options as they are."""
+    if not isinstance(options, Options) or isinstance(options.normal, str):  # reconstruct refuses a wrong type
+        return options
+    return dataclasses.replace(options, normal=geometry.to_local(np.asarray(options.normal, dtype=np.float64), frame))
 
 
 def provenance(capture: Capture) -> dict[str, str]:

@@ -45,7 +45,9 @@ class Slices:
     pixels
         ``(row, col)`` of each view direction, shape ``(P, 2)``.
     frame
-        Rows ``(t, b, n)`` of the frame the directions are expressed in (identity: device).
+        Rows ``(t, b, n)`` of the frame the directions are expressed in, in device
+        coordinates (identity: the device's own). The values are the BRDF for a sample
+        whose normal is this frame's ``n``.
     censored
         Valid samples below the camera's detection limit, shape ``(L, P)``, or ``None``:
         0 or 1 DN in the longest exposure of a camera without dithering read noise,
@@ -89,7 +91,7 @@ class Slices:
         return self.light.shape[0]
 
     def reframe(self, frame: Array) -> Slices:
-        """Express the slices in a new sample frame (rows t, b, n in device coordinates).
+        """Express the slices in a new sample frame (rows t, b, n in the slices' coordinates).
 
         Directions are rotated; values are corrected for the changed ``cos θ_i``
         (see the module docstring). Views at or below the new horizon become invalid.
@@ -97,20 +99,23 @@ class Slices:
         Parameters
         ----------
         frame : ndarray, shape (3, 3)
-            Rows ``t, b, n`` of the new sample frame, in device coordinates
-            (e.g. :func:`reflecto.geometry.frame_from_normal` of an estimated normal, §5.4).
+            Rows ``t, b, n`` of the new sample frame, in the coordinates these slices'
+            directions are expressed in: the device's for a capture's slices (e.g.
+            :func:`reflecto.geometry.frame_from_normal` of an estimated normal, §5.4).
 
         Returns
         -------
         Slices
             Light ``(L, 3)`` and view ``(P, 3)`` directions in the new frame, values in
-            sr⁻¹ scaled by ``cos θ_i,old / cos θ_i,new``; LEDs within ~3° of the new
-            horizon become invalid too.
+            sr⁻¹ scaled by ``cos θ_i,old / cos θ_i,new`` (``cos θ_i,old`` about the normal
+            the values are for, this frame's ``n``); LEDs within ~3° of the new horizon
+            become invalid too. Its :attr:`frame` is the new frame in device coordinates
+            (``frame @ self.frame``): a second reframe turns from this one.
         """
         frame = np.asarray(frame, dtype=np.float64)
         light = geometry.to_local(self.light, frame)
         view = geometry.to_local(self.view, frame)
-        old = geometry.to_local(self.light, self.frame)[:, 2]
+        old = self.light[:, 2]  # the values are the BRDF about this frame's normal, z here
         new = light[:, 2]
         ratio = np.divide(old, new, out=np.zeros_like(new), where=new > 1e-6)
         values = self.values * ratio[:, None, None]
@@ -122,7 +127,7 @@ class Slices:
             check_values = self.check_values * ratio[k, None, None]
             check_valid = self.check_valid & valid[k]
         rescale = (lambda a: None if a is None else a * ratio[:, None])
-        return Slices(light, view, values, valid, self.pixels, frame, self.censored, rescale(self.noise),
+        return Slices(light, view, values, valid, self.pixels, frame @ self.frame, self.censored, rescale(self.noise),
                       rescale(self.limit), self.check_leds, check_values, check_valid)
 
 

@@ -591,7 +591,7 @@ class TiltProblem:
         h = self.light + self.view
         self.half = h / np.linalg.norm(h, axis=1, keepdims=True)
         self.cos_d = np.clip(np.einsum("ij,ij->i", self.light, self.half), 0.0, 1.0)
-        z_dev = geometry.to_local(slices.light, slices.frame)[:, 2]  # the normal the values assume
+        z_dev = slices.light[:, 2]  # cos θ_i about the normal the values are for (the slices' own z)
         self.f_dev = y[li, pj] * z_dev[li]
         if slices.noise is not None:  # eq. 10's weights made heteroscedastic (inverse_variance)
             self.weight = self.weight * inverse_variance(slices.noise[li, pj])

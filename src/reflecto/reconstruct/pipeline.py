@@ -103,7 +103,9 @@ class Options:
         :data:`DEVICE_AXIS_SIGMAS` of its uncertainty), ``"device"`` (the device axis
         ``(0, 0, 1)``), ``"search"`` (for a §5.5 set: the set's own normal search,
         :func:`.asymmetric.reconstruct_rotations`; one capture: as ``"auto"``) or a unit
-        3-vector in device coordinates (a known normal). A §5.5 set takes the device axis
+        3-vector (a known normal) in the coordinates of the slices reconstructed: the
+        device's for a capture's slices (:func:`reflecto.workflow.capture_to_model` turns it
+        with a capture whose manifest turns the sample). A §5.5 set takes the device axis
         under ``"auto"`` unless its captures disagree there (a tilted set), then its search
         (seconds per set).
     estimate_normal
@@ -289,7 +291,9 @@ class Reconstruction:
     motion
         The shake cues and their verdict.
     frame
-        Rows ``(t, b, n)`` of the sample frame in device coordinates.
+        Rows ``(t, b, n)`` of the sample frame in the coordinates of the slices reconstructed
+        (the device's for a capture's slices; :meth:`reflecto.workflow.CaptureModel.summary`
+        gives the normal in device coordinates for a capture turned by its rotation).
     model_error
         RMS relative misfit of the isotropic fit beyond the camera noise (``ε``).
     fresnel_error
@@ -362,7 +366,7 @@ class Reconstruction:
             ``kd``, ``ks`` (RGB lists); ``fresnel_tint`` (``theta_d_deg``, the nodes, ``tau``,
             one RGB row per node, ``beyond``, its continuation past the last node, and
             ``trend_from_deg``, :class:`reflecto.fresnel.FresnelTint`; ``None`` without a tint);
-            ``normal`` (unit vector, device frame),
+            ``normal`` (unit vector, in the slices' coordinates: :attr:`frame`),
             ``normal_tilt_deg``, ``normal_uncertainty_deg`` (degrees), ``normal_source``;
             ``isotropy_test`` (:meth:`IsotropyTest.to_dict`); the motion cues
             (:meth:`MotionReport.to_dict`: ``shake_detected``, …); ``shadowing``
