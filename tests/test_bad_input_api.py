@@ -198,8 +198,9 @@ def test_a_tilt_at_the_search_bound_says_so_and_the_isotropy_verdict_is_the_mode
                         nominal_calibration(IDEAL))
     r = reconstruct(sl, Options(max_tilt_deg=40.0))
     assert isinstance(r.model, IsotropicMicrofacetBRDF) == r.isotropy.isotropic
-    if r.normal_source == "device":
-        assert any(n.startswith("read in the device frame, not at the tilt") for n in r.notes), r.notes
+    assert r.normal_source == "device" and r.normal_tilt_deg == 0.0
+    note = "read in the device frame, not at the tilt the isotropic fit places (29."
+    assert any(n.startswith(note) for n in r.notes), r.notes
 
 
 def test_options_compare_by_value():
@@ -223,7 +224,15 @@ def test_a_simulated_calibration_needs_the_devices_truth():
         workflow.capture_to_model(cap, missing="simulate")
     with pytest.raises(ParameterError, match="missing must be one of"):
         workflow.capture_to_model(cap, missing="bogus")  # type: ignore[arg-type]
-    assert workflow.calibration_for(Device.builtin("as-built"), missing="simulate", seed=1) is not None
+    # the device named by its file, with its truth: the calibration measures the as-built LEDs
+    from reflecto.instrument import layout
+
+    dev = Device.builtin("as-built")
+    cal = workflow.calibration_for(dev, missing="simulate", seed=1)
+    truth = layout.led_direction(*np.array(dev.truth.led_angles).T)
+    offsets = np.degrees(np.arccos(np.clip(np.sum(truth * dev.leds, axis=1), -1.0, 1.0)))
+    assert offsets.max() > 0.1  # the as-built LEDs are off their nominal places
+    np.testing.assert_allclose(cal.report["led_offset_from_nominal_deg"], offsets, atol=0.005)
 
 
 @pytest.mark.parametrize("name", ["m.json", "m.bsdf", "m.binary", "m"])

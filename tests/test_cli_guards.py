@@ -54,7 +54,7 @@ def test_a_models_summary_replaces_only_an_earlier_summary(tmp_path, capsys):
     out = tmp_path / "m.reflecto"
     for _ in range(2):  # an earlier summary is replaced
         assert main(["reconstruct", str(cap), "-o", str(out), "-q", "--max-tilt", "10"]) == 0
-    assert json.loads(out.with_suffix(".json").read_text())["normal_source"] in ("device", "estimated")
+    assert json.loads(out.with_suffix(".json").read_text())["normal_source"] == "device"  # untilted
 
 
 def test_tabulate_does_not_replace_its_own_source(tmp_path, capsys):
@@ -166,11 +166,17 @@ def test_a_truth_led_below_the_sample_plane_is_refused():
         Device.from_dict(d)
 
 
-def test_watch_takes_the_largest_tilt_to_search(tmp_path):
-    """``watch --max-tilt`` is reconstruct's: a capture tilted 12° is found with the bound at 14°."""
+def test_watch_and_reconstruct_take_the_largest_tilt_to_search(tmp_path):
+    """``--max-tilt`` reaches the reconstruction from ``watch`` and ``reconstruct``: a capture
+    tilted 12° is held at a bound of 8° (the default 16° finds it), and the summary says so."""
     root, models = tmp_path / "root", tmp_path / "models"
     root.mkdir()
     assert main(["simulate", str(PLASTIC), "--tilt", "12", "--seed", "2", "-o", str(root / "t12"), "-q"]) == 0
-    assert main(["watch", str(root), "-o", str(models), "--once", "--max-tilt", "14"]) == 0
-    summary = json.loads((models / "t12.json").read_text())
-    assert abs(summary["normal_tilt_deg"] - 12.0) < 0.5, summary["normal_tilt_deg"]
+    assert main(["watch", str(root), "-o", str(models), "--once", "--max-tilt", "8"]) == 0
+    out = tmp_path / "r.reflecto"
+    assert main(["reconstruct", str(root / "t12"), "-o", str(out), "-q", "--max-tilt", "8"]) == 0
+    for summary in (json.loads((models / "t12.json").read_text()), json.loads(out.with_suffix(".json").read_text())):
+        assert abs(summary["normal_tilt_deg"] - 8.0) < 0.05, summary["normal_tilt_deg"]
+        assert any("reached the search's bound max_tilt_deg 8°" in n for n in summary["notes"]), summary["notes"]
+    assert main(["reconstruct", str(root / "t12"), "-o", str(out), "-q"]) == 0
+    assert abs(json.loads(out.with_suffix(".json").read_text())["normal_tilt_deg"] - 12.0) < 0.5

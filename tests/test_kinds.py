@@ -212,15 +212,29 @@ def test_wide_capture_reconstructs_without_nominal(tmp_path, capsys):
     assert "captured with device 'wide-as-built'" in capsys.readouterr().err
 
 
-def test_teapot_is_welded_and_smooth(shared):
+def test_teapot_is_welded_and_smooth(shared, tmp_path, monkeypatch):
+    """The welded copy's vertex normals are its triangles' mean normals: unit, on the side
+    the triangles face, and agreeing with every triangle around them to within its
+    curvature (made afresh: the copy is cached in the temporary folder)."""
+    import tempfile
+
     from reflecto.render.mitsuba import smooth_mesh
 
-    text = smooth_mesh(shared / "meshes" / "teapot.obj").read_text().splitlines()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    path = smooth_mesh(shared / "meshes" / "teapot.obj")
+    assert path.parent == tmp_path
+    text = path.read_text().splitlines()
     v = np.array([[float(x) for x in l.split()[1:]] for l in text if l.startswith("v ")])
     vn = np.array([[float(x) for x in l.split()[1:]] for l in text if l.startswith("vn ")])
+    f = np.array([[int(w.split("//")[0]) - 1 for w in l.split()[1:]] for l in text if l.startswith("f ")])
     assert len(v) == len(vn) < 6320  # the seam's repeated vertices merged
     assert len(np.unique(np.round(v, 5), axis=0)) == len(v)
     assert np.allclose(np.linalg.norm(vn, axis=1), 1.0, atol=1e-5)
+    tri = v[f]
+    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    face_n /= np.linalg.norm(face_n, axis=1, keepdims=True)
+    agree = np.einsum("fkj,fj->fk", vn[f], face_n)  # each corner's normal against its triangle's
+    assert np.mean(agree > 0.9) > 0.97 and np.mean(agree > 0.0) > 0.995, (np.mean(agree > 0.9), agree.min())
 
 
 def test_model_names_its_calibration_and_the_report_reads_the_slices_with_it(tmp_path, capsys):

@@ -3,6 +3,7 @@ file:// with no console message, its sphere under the point lights matches Mitsu
 sphere-point render of the same BRDF, and a light change changes the picture."""
 
 import json
+import math
 import re
 import shutil
 import subprocess
@@ -51,6 +52,15 @@ def test_tables_are_the_projected_brdf(shared):
     # θ_h = θ_d = 0: normal incidence and view, f·1·1
     assert t[0, 0, 0] == pytest.approx(a.eval(np.array([[0, 0, 1.0]]), np.array([[0, 0, 1.0]]))[0], rel=1e-6)
     assert np.all(t[:, -1] == 0)  # θ_d = 90°: grazing
+    # off the pole: the BRDF times both cosines, at the nodes θ_h = (π/2) u², θ_d, φ_d uniform
+    from reflecto import geometry
+
+    for a_, b_, c_ in ((20, 30, 10), (40, 12, 25), (9, 40, 0)):
+        th, td, pd = (math.pi / 2) * (a_ / 63) ** 2, (math.pi / 2) * b_ / 47, math.pi * c_ / 31
+        i, o = (np.asarray(v, dtype=np.float64).reshape(1, 3) for v in geometry.hd_to_io(th, 0.0, td, pd))
+        assert i[0, 2] > 0.05 and o[0, 2] > 0.05 and i[0, 2] * o[0, 2] < 0.95  # both cosines count
+        want = a.eval(i, o)[0] * i[0, 2] * o[0, 2]
+        np.testing.assert_allclose(t[a_, b_, c_], want, rtol=1e-5)
 
 
 @pytest.mark.slow

@@ -219,7 +219,7 @@ def smooth_mesh(mesh: Path) -> Path:
     seams, so a renderer shades it faceted with a seam. Vertices at the same position
     (to 10⁻⁵ of the mesh size) are merged, triangles that collapse are dropped, and
     each vertex gets the angle-weighted mean of its triangles' normals. The copy is
-    cached in the temporary folder under the hash of the source mesh.
+    cached in the temporary folder under the hash of the source mesh and of this code.
 
     Parameters
     ----------
@@ -232,7 +232,9 @@ def smooth_mesh(mesh: Path) -> Path:
         The cached copy, ``<tmp>/reflecto-smooth-<hash>.obj``, with ``vn`` normals.
     """
     raw = mesh.read_bytes()
-    cached = Path(tempfile.gettempdir()) / f"reflecto-smooth-{hashlib.sha256(raw).hexdigest()[:16]}.obj"
+    # keyed by the mesh and by this function's code: a copy an earlier version made is not served
+    key = hashlib.sha256(raw + smooth_mesh.__code__.co_code).hexdigest()[:16]
+    cached = Path(tempfile.gettempdir()) / f"reflecto-smooth-{key}.obj"
     if cached.is_file():
         return cached
     v, faces = [], []
