@@ -202,7 +202,9 @@ def test_mitsuba_evaluates_the_export_as_the_model(chrome_steel, tmp_path):
     assert brdf_error(chrome_steel, mts, stride=stride).normalized <= 0.02
 
 
-def test_rgl_description_names_material_capture_parameters_and_version(tmp_path):
+def test_rgl_description_names_material_capture_parameters_and_version(tmp_path, monkeypatch):
+    """The description names the capture by its folder, so the file's bytes do not depend on
+    how the model's path was typed (absolute, or relative from its folder)."""
     import reflecto
 
     cap, model, out = tmp_path / "cap", tmp_path / "m.reflecto", tmp_path / "m.bsdf"
@@ -210,9 +212,12 @@ def test_rgl_description_names_material_capture_parameters_and_version(tmp_path)
                  "-q"]) == 0
     assert main(["reconstruct", str(cap), "-o", str(model)]) == 0
     assert main(["export", str(model), "-o", str(out), "-q"]) == 0
+    monkeypatch.chdir(tmp_path)
+    assert main(["export", "m.reflecto", "-o", "m2.bsdf", "-q"]) == 0
+    assert (tmp_path / "m2.bsdf").read_bytes() == out.read_bytes()
     desc = RGLBRDF(out).description
     m = MicrofacetBRDF.load(model)
-    for part in (f"reflecto {reflecto.__version__}", "material ggx-plastic (simulated capture)", f"capture {cap}",
+    for part in (f"reflecto {reflecto.__version__}", "material ggx-plastic (simulated capture)", "capture cap ",
                  "device ideal", "k_d (R,G,B) " + " ".join(f"{v:.4g}" for v in m.kd),
                  "eta (R,G,B) " + " ".join(f"{v:.4g}" for v in m.eta)):
         assert part in desc, (part, desc)

@@ -598,9 +598,13 @@ def rgl_tables(source: BRDFSource, grid: RGLGrid = RGLGrid(), isotropic: bool | 
 # ------------------------------------------------------------------ description
 def _capture_info(source: BRDFSource) -> dict[str, str]:
     """Material, device and capture of a model, as its metadata records them
-    (:func:`reflecto.workflow.save_model` writes them from the capture's manifest)."""
+    (:func:`reflecto.workflow.save_model` writes them from the capture's manifest); the
+    capture by its folder's name, which does not depend on how the model's path was typed."""
     meta = getattr(source, "metadata", None) or {}
-    return {k: str(meta[k]) for k in ("material", "device", "capture") if meta.get(k)}
+    info = {k: str(meta[k]) for k in ("material", "device", "capture") if meta.get(k)}
+    if "capture" in info:
+        info["capture"] = Path(info["capture"]).name or info["capture"]
+    return info
 
 
 def export_description(source: BRDFSource, isotropic: bool) -> str:
