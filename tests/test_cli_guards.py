@@ -180,3 +180,18 @@ def test_watch_and_reconstruct_take_the_largest_tilt_to_search(tmp_path):
         assert any("reached the search's bound max_tilt_deg 8°" in n for n in summary["notes"]), summary["notes"]
     assert main(["reconstruct", str(root / "t12"), "-o", str(out), "-q"]) == 0
     assert abs(json.loads(out.with_suffix(".json").read_text())["normal_tilt_deg"] - 12.0) < 0.5
+
+
+def test_a_merl_table_that_is_no_brdf_is_refused_for_what_it_is(tmp_path, capsys, shared):
+    """An isotropic RGL file whose values on the MERL grid go negative (chm_mint: down to
+    −7.4·10⁶ sr⁻¹ at grazing) was told by ``export`` that it is anisotropic (add
+    ``--isotropic yes``, which failed the same way), and ``tabulate`` wrote it, a fifth of
+    its bins read as unmeasured. Both refuse it naming the file and the problem."""
+    src = shared / "rgl" / "chm_mint_rgb.bsdf"
+    for argv in (["export", str(src), "-o", str(tmp_path / "e.binary"), "-q"],
+                 ["export", str(src), "-o", str(tmp_path / "e.binary"), "-q", "--isotropic", "yes"],
+                 ["tabulate", str(src), "-o", str(tmp_path / "t.binary"), "-q"]):
+        assert main(argv) == 1
+        err = _err(capsys)
+        assert f"{src}: negative on the MERL grid" in err and "anisotropic" not in err, err
+    assert list(tmp_path.iterdir()) == []

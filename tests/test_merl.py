@@ -50,6 +50,10 @@ def test_indices_at_bin_edges():
     assert np.array_equal(merl.theta_d_index(td), k)
     assert np.array_equal(merl.phi_d_index(pd), kp)
     assert np.array_equal(merl.phi_d_index(pd - np.pi), kp)  # reciprocity fold of φ_d < 0
+    # φ_d = π (an in-plane pair: atan2's (−π, π]) floors to 180 and is clamped into the last bin,
+    # as readBRDF.cpp does; folding it to bin 0 read another bin than MERL's reader
+    assert merl.phi_d_index(np.pi) == 179 and merl.phi_d_index(np.nextafter(np.pi, 0)) == 179
+    assert merl.phi_d_index(0.0) == 0 and merl.phi_d_index(-1e-300) == 179  # −0 + π rounds to π
     # index formula of the spec
     i, o = g.hd_to_io(th[3], 0.0, td[40], pd[100])
     assert merl.bin_index(i, o) == 100 + 180 * 40 + 180 * 90 * 3

@@ -332,9 +332,7 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
         raise ReflectoError(f"{shown_path(args.source)} is anisotropic; a MERL table holds an isotropic BRDF: "
                             f"reflecto export {shown_path(args.source)} -o {shown_path(out)} --isotropic yes writes "
                             "its φ_h = 0 slice, or write an RGL .bsdf")
-    with _progress(merl.N_BINS, f"tabulating {src.name}", not args.quiet and not args.json and _interactive()) as bar:
-        table = merl.tabulate(src, progress=bar.update)
-    merl.write_merl_table(out, table)
+    _write_merl(args, src, out, allow_anisotropic=False)
     size = out.stat().st_size
     return _emit(args, {"source": str(args.source), "output": str(out), "format": "merl", "bytes": size},
                  [f"wrote {out} ({size} bytes, MERL 90x90x180, bin centres)"])
@@ -708,21 +706,29 @@ def cmd_export(args: argparse.Namespace) -> int:
         iso = {"auto": None, "yes": True, "no": False}[args.isotropic]
         export_rgl(src, out, isotropic=iso)
     else:
-
-        try:
-            with _progress(merl_bins(), f"tabulating {src.name}",
-                           not args.quiet and not args.json and _interactive()) as bar:
-                export_merl(src, out, allow_anisotropic=args.isotropic == "yes", progress=bar.update)
-        except ParameterError:
+        allow = args.isotropic == "yes"
+        if not allow and not holds_isotropic(src):
             rgl = out.with_suffix(".bsdf")
             if _same_file(rgl, args.source):  # the hint must not name the input
                 rgl = out.with_name(f"{out.stem}-anisotropic.bsdf")
             raise ReflectoError(f"{args.source} is anisotropic; a MERL table holds an isotropic BRDF: add "
                                 f"--isotropic yes to write its φ_h = 0 slice, or write -o {rgl} "
-                                "(RGL, anisotropic)") from None
+                                "(RGL, anisotropic)")
+        _write_merl(args, src, out, allow_anisotropic=allow)
     size = out.stat().st_size
     return _emit(args, {"source": str(args.source), "output": str(out), "format": fmt, "bytes": size},
                  [f"wrote {out} ({size} bytes, {fmt})"])
+
+
+def _write_merl(args: argparse.Namespace, src, out: Path, allow_anisotropic: bool) -> None:
+    """:func:`export_merl` of ``src`` (the file ``args.source``) to ``out``, with a progress bar;
+    a table that is no BRDF (negative or not finite on the grid) is refused naming the file."""
+    try:
+        shown = not args.quiet and not args.json and _interactive()
+        with _progress(merl_bins(), f"tabulating {src.name}", shown) as bar:
+            export_merl(src, out, allow_anisotropic=allow_anisotropic, progress=bar.update)
+    except ParameterError as e:
+        raise ReflectoError(f"{shown_path(args.source)}: {str(e).removeprefix(f'{src.name}: ')}") from None
 
 
 def _same_file(a: str | Path, b: str | Path) -> bool:

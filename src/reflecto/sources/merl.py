@@ -7,7 +7,8 @@ blocks R, G, B. Linear index ``i_φd + 180·i_θd + 180·90·i_θh``. Stored val
 bins that were not measured.
 
 Bin indices (floor, clamped): ``i_θh = ⌊90·√(θ_h/(π/2))⌋``; ``i_θd = ⌊θ_d/(π/2)·90⌋``;
-``φ_d`` folded into ``[0, π)`` by reciprocity, ``i_φd = ⌊φ_d/π·180⌋``. Indices are
+``φ_d < 0`` moved by ``π`` (reciprocity), ``i_φd = ⌊φ_d/π·180⌋`` (``φ_d = π`` clamped into the
+last bin, as MERL's ``readBRDF.cpp`` does). Indices are
 corrected so that a value exactly on a bin edge falls in the bin that *starts* there,
 as the spec's half-open intervals say, regardless of floating-point rounding.
 
@@ -106,7 +107,8 @@ def theta_d_index(theta_d: ArrayLike) -> NDArray[np.intp]:
 
 
 def phi_d_index(phi_d: ArrayLike) -> NDArray[np.intp]:
-    """MERL φ_d bin index: fold to [0, π) (add π if negative), 1° bins, edge-exact.
+    """MERL φ_d bin index: add π where negative, 1° bins, edge-exact, clamped (``φ_d = π``: 179, as
+    MERL's ``readBRDF.cpp``; algorithm-reference §6.1).
 
     Parameters
     ----------
@@ -120,7 +122,6 @@ def phi_d_index(phi_d: ArrayLike) -> NDArray[np.intp]:
     """
     p = np.asarray(phi_d, dtype=np.float64)
     p = np.where(p < 0, p + math.pi, p)
-    p = np.where(p >= math.pi, p - math.pi, p)
     raw = np.floor(p / math.pi * N_PHI_D).astype(np.intp)
     return _fix_edges(raw, p, np.radians, N_PHI_D)
 
