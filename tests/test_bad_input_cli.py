@@ -591,7 +591,7 @@ def test_a_merl_table_without_back_scattering_is_one_line_for_the_rgl_export(tmp
     table = tmp_path / "t.binary"
     assert main(["export", str(lamb), "-o", str(table), "-q"]) == 0
     t = merl.read_merl_table(table).copy()
-    t[:, 0, 0, :] = -1.0
+    t[:, 0, :, :] = -1.0  # every φ_d of the θ_d = 0 bins
     merl.write_merl_table(tmp_path / "retro.binary", t)
     _, line = _run(["export", str(tmp_path / "retro.binary"), "-o", str(tmp_path / "r.bsdf")], capsys)
     assert "retro.binary: no positive NDF or back-scattering" in line
