@@ -529,7 +529,11 @@ def _set_view(captures: Sequence[RotatedCapture], valids: list[NDArray[np.bool_]
     return _SetView(list(frames), sls, oks, sb, reference, pairs, ratios, capture_consistency(sb, ratios))
 
 
-def _refuse_mixed(captures: Sequence[RotatedCapture], consistency: CaptureConsistency) -> None:
+def _refuse_mixed(captures: Sequence[RotatedCapture], consistency: CaptureConsistency, normal: Array,
+                  searched: bool) -> None:
+    """Refuse a set whose captures do not measure one material about ``normal``; the message
+    says whether that normal was the set's own (``searched``) or imposed, where a tilted set
+    reads as different samples do."""
     if consistency.consistent:
         return
     assert consistency.worst is not None  # inconsistent: there is a worst pair
@@ -539,7 +543,15 @@ def _refuse_mixed(captures: Sequence[RotatedCapture], consistency: CaptureConsis
     raise ReflectoError(f"{captures[b].name}: does not measure the same material as {captures[a].name} (at shared "
                         f"half vectors their partial NDFs differ in level by {abs(consistency.cross_mean[a, b]):.2f} "
                         f"and by {consistency.cross_rms[a, b]:.2f} in log RMS{spread}): captures of different "
-                        "samples or points, or a wrong rotation_deg")
+                        "samples or points, or a wrong rotation_deg" + (
+                            f" (about the set's own normal, searched: tilted {_tilt_deg(normal):.2f}°)" if searched
+                            else f", or a set tilted from the normal given ({_tilt_deg(normal):.2f}° from the device "
+                                 "axis; --normal search finds the set's own)"))
+
+
+def _tilt_deg(normal: Array) -> float:
+    """Angle between ``normal`` (device coordinates) and the device axis, degrees."""
+    return math.degrees(math.acos(min(1.0, float(normal[2]) / float(np.linalg.norm(normal)))))
 
 
 def _isotropic_for_set(t: IsotropyTest) -> bool:
@@ -611,18 +623,18 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
             valids.append(usable_samples(c.slices))
         except ReflectoError as e:
             raise ReflectoError(f"{c.name}: {str(e).removeprefix('capture: ')}") from None
+    searched = isinstance(opt.normal, str) and opt.normal == "search"
     if isinstance(opt.normal, str):
         # "auto" takes the device axis first: the set's search costs seconds; "search" runs it
-        normal = (_set_normal(captures, valids, opt.max_tilt_deg) if opt.normal == "search"
-                  else np.array([0.0, 0.0, 1.0]))
+        normal = (_set_normal(captures, valids, opt.max_tilt_deg) if searched else np.array([0.0, 0.0, 1.0]))
     else:
         normal = np.asarray(opt.normal, dtype=np.float64)
     view = _set_view(captures, valids, normal, opt)
     if not view.consistency.consistent and opt.normal == "auto":
         # a tilted set's captures disagree in the device frame as different samples would: search its normal
-        normal = _set_normal(captures, valids, opt.max_tilt_deg)
+        normal, searched = _set_normal(captures, valids, opt.max_tilt_deg), True
         view = _set_view(captures, valids, normal, opt)
-    _refuse_mixed(captures, view.consistency)
+    _refuse_mixed(captures, view.consistency, normal, searched)
     frames, sls, oks, sb, reference, pairs, ratios, consistency = (
         view.frames, view.slices, view.valid, view.bins, view.reference, view.pairs, view.ratios, view.consistency)
     symmetry = symmetry_from_ratios(within_captures(ratios, sb), captures=len(captures))
