@@ -46,3 +46,13 @@ def test_spherical_near_pole():
     v = g.spherical_to_cartesian(1e-9, 0.3)
     th, ph = g.cartesian_to_spherical(v)
     assert abs(th - 1e-9) < 1e-15
+
+
+def test_tilt_deg_is_the_angle_from_the_device_axis():
+    import math
+
+    for deg, az in ((0.0, 0.0), (4.0, 60.0), (30.0, 250.0), (90.0, 10.0), (120.0, 0.0)):
+        t, a = math.radians(deg), math.radians(az)
+        n = np.array([math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), math.cos(t)])
+        assert abs(g.tilt_deg(n) - deg) < 1e-6
+    assert g.tilt_deg(np.array([0.0, 0.0, 1.0 + 1e-15])) == 0.0  # round-off above 1 clamped

@@ -7,6 +7,8 @@ is ``x = t``, ``y = b``, ``z = n``. Arrays of directions have shape ``(..., 3)``
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -205,6 +207,22 @@ def to_local(v: ArrayLike, frame: ArrayLike) -> Array:
         ``(v·t, v·b, v·n)``.
     """
     return np.asarray(v, dtype=np.float64) @ np.asarray(frame, dtype=np.float64).T
+
+
+def tilt_deg(normal: ArrayLike) -> float:
+    """Angle between a unit ``normal`` and the device axis ``+z``, ``acos(n_z)`` (degrees).
+
+    Parameters
+    ----------
+    normal : array_like, shape (3,)
+        A unit vector (device coordinates).
+
+    Returns
+    -------
+    float
+        The tilt in degrees, in [0, 180].
+    """
+    return math.degrees(math.acos(max(-1.0, min(1.0, float(np.asarray(normal)[2])))))
 
 
 def to_world(v: ArrayLike, frame: ArrayLike) -> Array:

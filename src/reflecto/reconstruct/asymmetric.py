@@ -425,7 +425,7 @@ class AsymmetricReconstruction:
     @property
     def normal_tilt_deg(self) -> float:
         """Angle between the set's estimated normal and the device's axis normal (degrees)."""
-        return math.degrees(math.acos(min(1.0, float(self.normal[2]))))
+        return geometry.tilt_deg(self.normal)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary (the ``.json`` written beside the model file).
@@ -540,18 +540,14 @@ def _refuse_mixed(captures: Sequence[RotatedCapture], consistency: CaptureConsis
     a, b = consistency.worst
     q = consistency.ratio(a, b)
     spread = f", {q:.1f}× what two LEDs of one capture differ by" if math.isfinite(q) else ""
+    tilt = geometry.tilt_deg(normal)
+    why = (f" (about the set's own normal, searched: tilted {tilt:.2f}°)" if searched
+           else f", or a set tilted from the normal given ({tilt:.2f}° from the device axis; --normal search finds "
+                "the set's own)")
     raise ReflectoError(f"{captures[b].name}: does not measure the same material as {captures[a].name} (at shared "
                         f"half vectors their partial NDFs differ in level by {abs(consistency.cross_mean[a, b]):.2f} "
                         f"and by {consistency.cross_rms[a, b]:.2f} in log RMS{spread}): captures of different "
-                        "samples or points, or a wrong rotation_deg" + (
-                            f" (about the set's own normal, searched: tilted {_tilt_deg(normal):.2f}°)" if searched
-                            else f", or a set tilted from the normal given ({_tilt_deg(normal):.2f}° from the device "
-                                 "axis; --normal search finds the set's own)"))
-
-
-def _tilt_deg(normal: Array) -> float:
-    """Angle between ``normal`` (device coordinates) and the device axis, degrees."""
-    return math.degrees(math.acos(min(1.0, float(normal[2]) / float(np.linalg.norm(normal)))))
+                        "samples or points, or a wrong rotation_deg" + why)
 
 
 def _isotropic_for_set(t: IsotropyTest) -> bool:

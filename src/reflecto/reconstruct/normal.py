@@ -383,7 +383,7 @@ class NormalEstimate:
     @property
     def tilt_deg(self) -> float:
         """Angle between the normal and the device axis, ``acos(n_z)`` (degrees)."""
-        return math.degrees(math.acos(min(1.0, float(self.normal[2]))))
+        return geometry.tilt_deg(self.normal)
 
     @property
     def frame(self) -> Array:

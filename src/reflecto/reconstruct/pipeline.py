@@ -354,7 +354,7 @@ class Reconstruction:
     @property
     def normal_tilt_deg(self) -> float:
         """Angle between the estimated sample normal and the device axis, ``acos(n_z)`` (degrees)."""
-        return math.degrees(math.acos(min(1.0, float(self.frame[2, 2]))))
+        return geometry.tilt_deg(self.frame[2])
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary (the ``material.json`` written beside a model file).
@@ -856,7 +856,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             # within the candidates (the fit's own normal too, where the planes moved it), so that is
             # its uncertainty (the motion cues must not read it as a turn)
             spread = max(est.tilt_deg, 0.0 if est.alternative is None
-                         else math.degrees(math.acos(min(1.0, float(est.alternative[2])))))
+                         else geometry.tilt_deg(est.alternative))
             est = NormalEstimate(np.array([0.0, 0.0, 1.0]), max(est.uncertainty_deg, spread), "device",
                                  est.refits, est.tilt_estimate_deg, alternative=est.normal, planes=est.planes)
             frame, sl = est.frame, slices

@@ -134,7 +134,7 @@ def preview(slices: Slices, options: Options | None = None) -> Reconstruction:
         normal, source, sd = np.array([0.0, 0.0, 1.0]), "device", 0.0
     else:
         found, spread = peaks_normal(peaks, agreement)
-        if found is None or math.degrees(math.acos(min(1.0, float(found[2])))) > opt.max_tilt_deg:
+        if found is None or geometry.tilt_deg(found) > opt.max_tilt_deg:
             normal, source, sd = np.array([0.0, 0.0, 1.0]), UNPLACED, math.nan
             notes.append(NO_PEAK_NOTE)
         else:
