@@ -142,6 +142,36 @@ def test_calibration_recovers_the_as_built_device(as_built):
     assert np.array_equal(loaded.scale, cal.scale) and loaded.optics == cal.optics
 
 
+def test_a_real_aperture_narrower_than_the_calibrated_disc_calibrates(tmp_path):
+    """The as-built device with its true cone 0.2° narrower than the design: a ring of the
+    calibrated view disc reads the white standard dark. That ring gets no scale (its
+    samples are invalid), the rest is calibrated to the noise of one white exposure, and
+    nothing outside the disc makes the field negative (it was refused as a white standard
+    reading below its black level)."""
+    d = Device.builtin("as-built").to_dict(with_truth=True)
+    d["truth"]["optics"]["cone_half_angle_deg"] -= 0.2
+    path = tmp_path / "narrow.json"
+    path.write_text(json.dumps(d))
+    dev = load_device(path)
+    simulate_calibration(dev, tmp_path / "calib", seed=5, white_repeats=1)
+    cal = calibrate(tmp_path / "calib")
+    assert np.all(cal.scale >= 0)
+    dt, mt = dev.truth.optics.pixel_directions()
+    dc, mc = cal.optics.pixel_directions()
+    cut = mc & ~mt  # in the calibrated disc, outside the real aperture
+    assert cut.sum() > 100 and not cal.scale[:, cut].any()
+    assert not cal.scale[:, ~mc].any()
+    m = mt & mc
+    cam = dev.camera
+    truth = dev.truth
+    true_scale = (cam.sensitivity / cam.gain) * (np.asarray(truth.led_intensity) * dev.led_irradiance
+                                                 * truth.leds[:, 2])[:, None, None] * truth.transmission_field()[None]
+    seen = np.all(cal.scale[..., 1][:, m] > 0, axis=0)
+    assert seen.mean() > 0.99
+    rel = cal.scale[..., 1][:, m][:, seen] / true_scale[:, m][:, seen] - 1
+    assert np.sqrt(np.mean(rel**2)) < 0.003, np.sqrt(np.mean(rel**2))  # 0.2 %: one white exposure's noise
+
+
 def test_smooth_field_is_exact_for_a_linear_field_up_to_the_disc_rim():
     from scipy import ndimage
 

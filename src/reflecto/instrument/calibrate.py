@@ -66,6 +66,11 @@ CALIBRATION_FORMAT = "reflecto-calibration"
 CALIBRATION_VERSION = 2
 #: σ (pixels) of the smoothing applied to the radiometric field.
 FIELD_SMOOTHING_PX = 3.0
+#: A view-disc pixel whose white reading is below this fraction of the LED's median over
+#: the disc is cut off by the real aperture, an obstruction or a misplaced axis: it gets no
+#: radiometric scale (its samples are invalid). Vignetting leaves the as-built device's
+#: darkest disc pixel at 0.84 of the median; a pixel half covered reads about 0.5.
+DARK_WHITE_FRACTION = 0.5
 
 
 @dataclasses.dataclass
@@ -449,6 +454,33 @@ def _gaussian_moments(sigma: float) -> tuple[Array, Array, Array]:
     return g, x * g, x * x * g
 
 
+def white_lit(white: Array, ok: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """The pixels of ``ok`` where the white standard is seen: its reading (channel mean) at
+    least :data:`DARK_WHITE_FRACTION` of its median over ``ok``.
+
+    The view disc comes from the calibrated geometry; where the real aperture is a little
+    narrower, or the axis a little off, a ring of the disc reads dark. Smoothed with the
+    rest, those pixels would pull the field down at the rim (and the local plane below
+    zero just outside it), and a sample there would read ``f ≈ 0``.
+
+    Parameters
+    ----------
+    white : ndarray, shape (H, W, C)
+        One LED's merged white frame (DN/ms).
+    ok : ndarray of bool, shape (H, W)
+        The view disc's pixels with a valid reading.
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+        The pixels that get a radiometric scale.
+    """
+    y = white.mean(axis=-1)
+    if not ok.any():
+        return ok
+    return ok & (y >= DARK_WHITE_FRACTION * float(np.median(y[ok])))
+
+
 def smooth_field(values: Array, ok: NDArray[np.bool_], sigma: float) -> Array:
     """The radiometric field's local linear fit under a Gaussian window, shape of ``values``.
 
@@ -824,9 +856,10 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
     else:
         rad, valid = merge_linear(white.raw, white.exposures_ms, cam)
     _, mask = optics.pixel_directions()
-    scale = np.empty(rad.shape, dtype=np.float32)
+    scale = np.zeros(rad.shape, dtype=np.float32)
     for k in range(device.n_leds):
-        scale[k] = smooth_field(rad[k], valid[k] & mask, FIELD_SMOOTHING_PX) / (albedo / math.pi)
+        lit = white_lit(rad[k], valid[k] & mask)
+        scale[k][lit] = (smooth_field(rad[k], lit, FIELD_SMOOTHING_PX) / (albedo / math.pi))[lit]
     dark = _dark_led(device, optics, scale)
     if dark is not None or not np.all(np.isfinite(scale)):
         k, lit = dark if dark is not None else (0, 0.0)
