@@ -858,8 +858,8 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
     _, mask = optics.pixel_directions()
     scale = np.zeros(rad.shape, dtype=np.float32)
     for k in range(device.n_leds):
-        lit = white_lit(rad[k], valid[k] & mask)
-        scale[k][lit] = (smooth_field(rad[k], lit, FIELD_SMOOTHING_PX) / (albedo / math.pi))[lit]
+        seen = white_lit(rad[k], valid[k] & mask)
+        scale[k][seen] = (smooth_field(rad[k], seen, FIELD_SMOOTHING_PX) / (albedo / math.pi))[seen]
     dark = _dark_led(device, optics, scale)
     if dark is not None or not np.all(np.isfinite(scale)):
         k, lit = dark if dark is not None else (0, 0.0)
