@@ -229,3 +229,81 @@ def test_a_render_of_days_is_refused_before_it_starts(tmp_path, capsys):
     assert main(["render", ex, "--resolution", "4096", "--spp", "1048576", "-o", str(tmp_path / "x.png")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "4096² pixels × 1048576 spp" in err[0] and not (tmp_path / "x.png").exists()
+
+
+def test_render_refuses_outputs_it_cannot_write_and_its_own_envmap(mitsuba, tmp_path, capsys):
+    """An ``.hdr`` or ``.exr`` name that is not UTF-8 (the ``.hdr`` writer crashed the process,
+    the ``.exr`` one raised a traceback) and an output that is the ``--envmap`` being rendered
+    with (it was overwritten) are one line each, before the render, and nothing is written."""
+    import os
+
+    ex = str(__import__("pathlib").Path(__file__).resolve().parents[1] / "examples" / "ggx-plastic.json")
+    for suffix in (".hdr", ".exr"):
+        bad = tmp_path / os.fsdecode(b"out\xff" + suffix.encode())
+        assert main(["render", ex, "--scene", "sphere-point", "--resolution", "16", "--spp", "1", "-o", str(bad)]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "not valid UTF-8" in err[0]
+    env = tmp_path / "my.hdr"
+    from reflecto.render.mitsuba import save_image
+
+    save_image(np.full((8, 16, 3), 0.5, dtype=np.float32), env)
+    before = env.read_bytes()
+    assert main(["render", ex, "--envmap", str(env), "--resolution", "16", "--spp", "1", "-o", str(env)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "environment map being rendered with" in err[0] and env.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["my.hdr"]
+
+
+def test_a_negative_envmap_and_a_black_reference_are_refused(mitsuba, tmp_path, capsys):
+    """An environment map with negative radiance (it lit the sphere with negative light) and a
+    ``--compare`` reference that renders black (the difference relative to it printed as
+    3·10³⁰⁴ %) are one line each."""
+    import json
+
+    from reflecto.errors import FileFormatError
+    from reflecto.render.mitsuba import check_envmap, save_image
+
+    img = np.full((8, 16, 3), 0.5, dtype=np.float32)
+    img[:4] = -1.0
+    with pytest.raises(FileFormatError, match="negative values"):
+        check_envmap(save_image(img, tmp_path / "neg.exr"))
+    black = tmp_path / "black.json"
+    black.write_text(json.dumps({"type": "analytic", "distribution": "ggx", "alpha": 0.3, "kd": 0.0, "ks": 0.0,
+                                 "eta": 1.5}))
+    ex = str(__import__("pathlib").Path(__file__).resolve().parents[1] / "examples" / "ggx-plastic.json")
+    out = tmp_path / "c.png"
+    assert main(["render", ex, "--compare", str(black), "--scene", "sphere-point", "--resolution", "16", "--spp",
+                 "1", "-o", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "renders black" in err[0] and not out.exists()
+
+
+def test_the_note_on_spp_compares_the_floor_with_the_corrected_difference():
+    """docs/mitsuba.md: the note appears when the floor is above a third of the corrected
+    difference (difference 3.0 %, floor 0.95 %: corrected 2.85 %, a third 0.949 %)."""
+    from reflecto.render.mitsuba import Comparison, Rendering
+
+    r = Rendering(np.zeros((2, 2, 3)), np.ones((2, 2)), "sphere-env", 64, 0, "scalar_rgb", 0.0)
+    c = Comparison(0.03, 0.0095, float(np.sqrt(0.03**2 - 0.0095**2)), r, r, r)
+    assert not c.resolved and c.spp_to_resolve() > 64
+
+
+def test_render_without_mitsuba_is_one_line(tmp_path):
+    """Mitsuba 3 is an optional extra: without it ``render`` says what it needs in one line
+    (it ended in a traceback)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    fake = tmp_path / "fake" / "mitsuba"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text('raise ImportError("no mitsuba here")\n')
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path / "fake"), str(root / "src")])}
+    p = subprocess.run([sys.executable, "-m", "reflecto.cli", "render", str(root / "examples" / "ggx-plastic.json"),
+                        "--resolution", "16", "--spp", "1", "-o", str(tmp_path / "x.png")],
+                       capture_output=True, text=True, env=env, timeout=300)
+    err = p.stderr.strip().splitlines()
+    assert p.returncode == 1 and len(err) == 1 and "needs Mitsuba 3" in err[0], p.stderr
+    assert not (tmp_path / "x.png").exists()

@@ -72,7 +72,17 @@ from .reconstruct import Options
 from .reconstruct.asymmetric import MIN_CAPTURES
 from .reconstruct.eq3 import SymmetryTest
 from .reconstruct.preview import UNPLACED
-from .render.mitsuba import DEFAULT_SPP, SCENES, compare, comparison_image, render, save_image, titled, to_srgb8
+from .render.mitsuba import (
+    DEFAULT_SPP,
+    SCENES,
+    compare,
+    comparison_image,
+    render,
+    save_image,
+    titled,
+    to_srgb8,
+    utf8_name,
+)
 from .render.mitsuba import MAX_SEED as RENDER_MAX_SEED
 from .sources import merl
 from .watch import Entry, Watcher, default_previewer, default_reconstructor
@@ -751,6 +761,12 @@ def cmd_render(args: argparse.Namespace) -> int:
     """
 
     out = Path(args.output)
+    if args.envmap and _same_file(out, args.envmap):
+        raise ReflectoError(f"{shown_path(out)}: is the environment map being rendered with; write the render "
+                            "elsewhere")
+    if out.suffix.lower() in (".exr", ".hdr") and not utf8_name(out):
+        raise ReflectoError(f"{shown_path(out)}: the name is not valid UTF-8, which the {out.suffix.lower()} writer "
+                            "cannot take: rename it (or write a .png)")
     if args.title and out.suffix.lower() != ".png":  # before the render: a title is drawn on 8-bit pixels
         raise ReflectoError(f"{shown_path(out)}: --title is drawn on a .png image; a .exr or .hdr keeps its "
                             "linear values untouched: drop --title or write a .png")
@@ -1328,6 +1344,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             rc = 141
         except ReflectoError as e:
             print(f"reflecto: error: {one_line(e)}", file=sys.stderr)
+        except ImportError as e:  # Mitsuba 3 (render, report, gallery) is optional
+            if e.name != "mitsuba":
+                raise
+            print(f"reflecto: error: {args.command} needs Mitsuba 3, which does not load here ({one_line(e)}): "
+                  "pip install 'reflecto[render]'", file=sys.stderr)
         except OSError as e:
             where = f"{e.filename}: " if e.filename else ""
             print(f"reflecto: error: {where}{one_line(e.strerror or e)}", file=sys.stderr)

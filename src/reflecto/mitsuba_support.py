@@ -47,9 +47,12 @@ def import_mitsuba(prefer: str = "llvm_ad_rgb") -> tuple[ModuleType, str]:
     """
     if prefer.startswith("llvm"):
         lib = find_libllvm()
-        if lib:
-            os.environ.setdefault("DRJIT_LIBLLVM_PATH", lib)
-    import mitsuba as mi  # deferred: DRJIT_LIBLLVM_PATH must be set before the import, and Mitsuba is optional
+        if lib:  # find_libllvm passes over a DRJIT_LIBLLVM_PATH naming no file: that one would not load
+            os.environ["DRJIT_LIBLLVM_PATH"] = lib
+    try:
+        import mitsuba as mi  # deferred: DRJIT_LIBLLVM_PATH must be set before the import, and Mitsuba is optional
+    except ImportError as e:  # not installed, or installed and broken: named so that callers can tell
+        raise ImportError(str(e) or "mitsuba", name="mitsuba") from None
 
     for variant in (prefer, "scalar_rgb"):
         if variant.startswith("llvm") and not os.environ.get("DRJIT_LIBLLVM_PATH"):
@@ -63,7 +66,7 @@ def import_mitsuba(prefer: str = "llvm_ad_rgb") -> tuple[ModuleType, str]:
             return mi, variant
         except Exception:  # noqa: BLE001 - any failure means: try the next variant
             continue
-    raise ImportError("no usable Mitsuba variant (tried llvm_ad_rgb and scalar_rgb)")
+    raise ImportError("no usable Mitsuba variant (tried llvm_ad_rgb and scalar_rgb)", name="mitsuba")
 
 
 class MitsubaMeasured(BRDFSource):

@@ -91,8 +91,20 @@ def _opencv_quiet() -> Iterator[None]:
         cv2.utils.logging.setLogLevel(level)
 
 
-def _utf8_name(path: Path) -> bool:
-    """Whether ``path`` can be handed to Mitsuba, which takes file names as UTF-8 text."""
+def utf8_name(path: Path) -> bool:
+    """Whether ``path`` can be handed to Mitsuba or the image writers, which take file names
+    as UTF-8 text.
+
+    Parameters
+    ----------
+    path
+        A file name.
+
+    Returns
+    -------
+    bool
+        False for a name of bytes that are not UTF-8 (read by Python as surrogate escapes).
+    """
     try:
         str(path).encode("utf-8")
     except UnicodeEncodeError:  # a name of bytes that are not UTF-8 (surrogate escapes)
@@ -121,12 +133,12 @@ def read_envmap(path: str | Path) -> NDArray[np.float64]:
     ------
     FileFormatError
         Missing, a name Mitsuba cannot take (not valid UTF-8), unreadable, not RGB, or
-        with a non-finite pixel.
+        with a non-finite or negative pixel.
     """
     path = Path(path)
     if not path.is_file():
         raise FileFormatError(path, "environment map not found")
-    if not _utf8_name(path):
+    if not utf8_name(path):
         raise FileFormatError(path, "the file's name is not valid UTF-8, which Mitsuba cannot open: rename it")
     unreadable = ("unreadable environment map: no decoder reads it as an image (damaged, truncated, or not a "
                   "Radiance .hdr, OpenEXR or other image file Mitsuba reads)")
@@ -151,6 +163,9 @@ def read_envmap(path: str | Path) -> NDArray[np.float64]:
         raise FileFormatError(path, unreadable) from None
     if img.ndim != 3 or img.shape[2] < 3 or not np.all(np.isfinite(img)):
         raise FileFormatError(path, f"environment map must be a finite RGB image, got shape {img.shape}")
+    if np.any(img[..., :3] < 0):  # radiance is not negative: such a map would light with negative light
+        raise FileFormatError(path, f"environment map has negative values (down to {float(img[..., :3].min()):.3g}); "
+                              "radiance is at least 0")
     return img[..., :3]
 
 
@@ -194,7 +209,7 @@ def bsdf_file(source: BRDFSource, folder: Path) -> Path:
     """
 
     if isinstance(source, RGLBRDF):
-        if _utf8_name(Path(source.path)):
+        if utf8_name(Path(source.path)):
             return Path(source.path)
         link = folder / "source.bsdf"  # Mitsuba takes UTF-8 names: a link of such a name to the file
         os.symlink(os.path.abspath(source.path), link)
@@ -660,8 +675,9 @@ class Comparison:
 
     @property
     def resolved(self) -> bool:
-        """Whether the noise floor is below a third of the difference."""
-        return self.noise_floor < self.difference / 3.0
+        """Whether the noise floor is below a third of the difference without the noise
+        (``corrected``)."""
+        return self.noise_floor < self.corrected / 3.0
 
     @property
     def within_noise(self) -> bool:
@@ -765,8 +781,11 @@ def compare_files(reference: Path, test: Path, scene: str = "sphere-env", envmap
         As :func:`compare`.
     """
     _check(scene, resolution, spp, seed)
-    t = render_file(test, scene, envmap, resolution, spp, seed)
     r = render_file(reference, scene, envmap, resolution, spp, seed + 1)
+    if not np.sum(np.abs(r.radiance)) > 0:  # the difference is relative to what the reference reflects
+        raise ParameterError(f"{reference}: the reference renders black in scene {scene!r} (it reflects nothing "
+                             "there), so the image difference relative to it is undefined")
+    t = render_file(test, scene, envmap, resolution, spp, seed)
     r2 = render_file(reference, scene, envmap, resolution, spp, seed + 2)
     mask = object_mask(t, r, r2)
     diff = image_difference(r.radiance, t.radiance, mask, smoothing)
