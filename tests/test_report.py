@@ -201,3 +201,29 @@ def test_gallery_keeps_to_its_own_folders_and_names(tmp_path, capsys):
                      {k: f"p#1_{k}.png" for k in ("reference", "symmetric", "asymmetric")}, 1.0)
     assert 'src="p%231_reference.png"' in _cell(row, "reference")
     assert GallerySettings().resolution == 256
+
+
+def test_the_report_of_a_preview_of_a_wide_capture_in_another_folder(tmp_path):
+    """A `watch` preview whose peaks placed no normal: the report says it is a preview and
+    that the tilt is not placed (it showed 0.0°); the capture taken with `wide` and moved
+    out of reach: the coverage is `wide`'s, named in the model (it fell back to the ideal
+    device); the albedo is over the angles the reconstruction checks (it read 0–80° and
+    disagreed with the summary's)."""
+    from reflecto import workflow
+    from reflecto.instrument.capture import write_capture
+    from reflecto.instrument.device import Device
+    from reflecto.instrument.simulate import simulate_capture
+
+    src = AnalyticBRDF(distribution="ggx", alpha=0.5, kd=(0.4, 0.3, 0.2), ks=0.3, eta=1.5)
+    cap = tmp_path / "cap" / "broad"
+    write_capture(simulate_capture(src, Device.builtin("wide"), tilt_deg=4.0, seed=1), cap)
+    model = tmp_path / "m" / "broad.reflecto"
+    summary = workflow.reconstruct_folder(cap, model, preview=True)
+    assert summary["normal_source"] == "unplaced" and summary["preview"] is True
+    shutil.rmtree(tmp_path / "cap")
+    text = write_report(model, tmp_path / "r", render=False).read_text()
+    assert "not placed" in text and "<th>preview</th>" in text
+    assert "normal tilt (deg)</th><td>0" not in text
+    assert "coverage per LED of device wide" in text
+    m = re.search(r"max directional albedo \(θ_i 0–89°\)</th><td>([0-9.]+)<", text)
+    assert m and abs(float(m.group(1)) - summary["albedo_max"]) < 1e-3, (m and m.group(1), summary["albedo_max"])

@@ -37,12 +37,15 @@ from ..colour import LUM
 from ..errors import FileFormatError, ReflectoError, one_line, shown_path
 from ..fresnel import is_constant
 from ..instrument.capture import read_capture
-from ..instrument.device import load_device
+from ..instrument.device import BUILTINS as DEVICE_BUILTINS
+from ..instrument.device import Device, load_device
 from ..instrument.plots import plot_coverage
 from ..io import atomic_folder, atomic_path, atomic_write, read_json
 from ..load import load_source
 from ..model import IsotropicMicrofacetBRDF, MicrofacetBRDF, load_model
 from ..plotting import plain_log_axis, pyplot, save_figure
+from ..reconstruct.pipeline import ALBEDO_ANGLES
+from ..reconstruct.preview import UNPLACED
 from ..render.mitsuba import bsdf_file, compare_files, comparison_image, default_envmap, render_file, titled, to_srgb8
 from .metrics import comparison_error
 from .viewer import write_viewer
@@ -377,6 +380,18 @@ def write_report(model_path: str | Path, out_dir: str | Path, reference: str | P
     return Path(out_dir) / "index.html"
 
 
+def _model_device(model: Any) -> Device | None:
+    """The device the model's capture was taken with, by its name in the model's metadata
+    (a built-in device; the ideal one where the metadata name none, as for analytic and
+    external BRDFs); ``None`` for a device the name does not identify."""
+    name = model.metadata.get("device") if isinstance(getattr(model, "metadata", None), dict) else None
+    if not name:
+        return load_device("ideal")
+    if not isinstance(name, str) or name not in DEVICE_BUILTINS:
+        return None
+    return load_device(name)
+
+
 def _write_report_into(out: Path, model_path: Path, model: Any, ref: BRDFSource | None,
                        reference: str | Path | None, spp: int | None, render: bool) -> None:
     """:func:`write_report`'s files, written into the (temporary) folder ``out``."""
@@ -393,17 +408,24 @@ def _write_report_into(out: Path, model_path: Path, model: Any, ref: BRDFSource 
                f"; beyond {np.degrees(model.tint.trend_from or model.tint.theta[-1]):.1f}°: "
                "the nodes' trend continued")}),
         "NDF": model.parameters().get("resolution", "isotropic" if model.isotropic else "anisotropic"),
-        "max directional albedo": round(float(model.albedo(np.array(
-            albedo_angles(model, (0.0, 30.0, 60.0, 80.0)))).max()), 4),
+        # the angles the reconstruction's energy limit checks, as the summary's albedo_max
+        f"max directional albedo (θ_i {ALBEDO_ANGLES[0]:g}–{ALBEDO_ANGLES[-1]:g}°)": round(float(model.albedo(np.array(
+            albedo_angles(model, ALBEDO_ANGLES))).max()), 4),
     }
     summary_path = model_path.with_suffix(".json")
     summary = read_json(summary_path) if summary_path.is_file() else {}
     if not isinstance(summary, dict):
         raise FileFormatError(summary_path, "a model summary must be a JSON object")
+    if summary.get("preview") is True:
+        numbers["preview"] = ("yes: the first look `watch` writes (one light fit; no tint, lobe per node or eq. 3 "
+                              "test); its full model replaces it")
+    unplaced = summary.get("normal_source") == UNPLACED  # a preview whose peaks placed no normal: tilt unknown
+    if unplaced:
+        numbers["normal tilt (deg)"] = "not placed (no compact specular peak; the model is in the device frame)"
     for key, label in (("normal_tilt_deg", "normal tilt (deg)"), ("normal_uncertainty_deg", "its uncertainty (deg)"),
                        ("model_error", "relative model error ε of the fit"),
                        ("shake_detected", "shake detected"), ("isotropic", "isotropic")):
-        if key in summary and summary[key] is not None:
+        if key in summary and summary[key] is not None and not (unplaced and key.startswith("normal_")):
             v = summary[key]
             numbers[label] = round(v, 4) if isinstance(v, float) else v
     if render:
@@ -424,7 +446,7 @@ def _write_report_into(out: Path, model_path: Path, model: Any, ref: BRDFSource 
         numbers["log-RMSE vs reference"] = round(err.log_rmse, 5)
     figs.append(("θ_h–θ_d slice", items))
     cap_dir = model.metadata.get("capture")
-    dev = load_device("ideal")
+    dev = _model_device(model)  # the capture's own device where its folder is read below
     items = []
     got = (slice_figure(Path(cap_dir), out, model.metadata.get("calibration"))
            if cap_dir and Path(cap_dir).is_dir() else None)
@@ -437,8 +459,13 @@ def _write_report_into(out: Path, model_path: Path, model: Any, ref: BRDFSource 
         numbers["capture slices"] = ("not shown: the model names the capture "
                                      f"{cap_dir or model.metadata['capture_not_found']}, "
                                      "which is not a capture folder inside the model's folder")
-    cov = plot_coverage(dev.optics, dev.leds, out / "coverage.png")
-    items.insert(0, (cov.name, f"Half-vector coverage per LED of device {html.escape(dev.name)} (paper Fig. 2(c)(d))."))
+    if dev is not None:
+        cov = plot_coverage(dev.optics, dev.leds, out / "coverage.png")
+        items.insert(0, (cov.name, f"Half-vector coverage per LED of device {html.escape(dev.name)} "
+                                   "(paper Fig. 2(c)(d))."))
+    else:
+        numbers["half-vector coverage"] = (f"not shown: the model's device {model.metadata.get('device')!s} is not a "
+                                           "built-in one and its capture folder is not found")
     figs.append(("Capture", items))
 
     viewer_sources = [("model: " + shown_path(model_path.stem), model)] + (
@@ -447,7 +474,7 @@ def _write_report_into(out: Path, model_path: Path, model: Any, ref: BRDFSource 
     rows = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>" for k, v in numbers.items())
     sections = []
     for title, its in figs:
-        body = "\n".join(f'<figure><img src="{html.escape(url_quote(f))}" alt="{html.escape(c)}">'
+        body = "\n".join(f'<figure><img src="{html.escape(url_quote(f))}" alt="{html.escape(html.unescape(c))}">'
                          f'<figcaption>{c}</figcaption></figure>'
                          for f, c in its)
         sections.append(f"<h2>{html.escape(title)}</h2>\n{body}")
