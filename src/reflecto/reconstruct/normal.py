@@ -367,6 +367,10 @@ class NormalEstimate:
     lobe_half_width_deg
         Half width at half maximum of the last light fit's NDF (degrees; NaN when nothing
         was estimated).
+    misfit
+        ``ε`` of the last light fit (:attr:`.isotropic.LuminanceFit.eps`: the RMS relative
+        residual beyond the camera noise) in the frame the tilt was refined from; NaN when
+        nothing was estimated.
     """
 
     normal: Array
@@ -379,6 +383,7 @@ class NormalEstimate:
     planes: int = 0
     fit_uncertainty_deg: float = math.nan
     lobe_half_width_deg: float = math.nan
+    misfit: float = math.nan
 
     @property
     def tilt_deg(self) -> float:
@@ -1009,7 +1014,8 @@ def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0
     pitch = half_vector_pitch_deg(slices)
     return NormalEstimate(normal, max(sd, pitch), "estimated", refits, _angle_deg(normal, z),
                           half_vector_pitch_deg=pitch, planes=planes, alternative=fitted if planes else None,
-                          fit_uncertainty_deg=sd, lobe_half_width_deg=width)
+                          fit_uncertainty_deg=sd, lobe_half_width_deg=width,
+                          misfit=lum.eps if refits else math.nan)
 
 
 def with_symmetry_planes(slices: Slices, valid: NDArray[np.bool_], normal: Array, sd_deg: float,

@@ -523,6 +523,8 @@ def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options,
 SHARP_LOBE_PITCHES = PIPELINE.sharp_lobe_pitches
 #: … but never less than this many pitches: the bias of a peak placed between pixels.
 SUBPIXEL_BIAS = PIPELINE.subpixel_bias
+#: … as has a lobe of any width whose light fit's misfit ``ε`` is at most this.
+EXACT_MODEL_MISFIT = PIPELINE.exact_model_misfit
 
 
 def _decision_uncertainty(est: NormalEstimate) -> float:
@@ -537,9 +539,12 @@ def _decision_uncertainty(est: NormalEstimate) -> float:
     :data:`SUBPIXEL_BIAS` pitches, the bias of a peak placed between pixels (so a tilt
     is told from none from ≈ 0.04° on). A broader lobe's tilt comes from many pixels,
     where the 1-D model's misfit biases it by more than the fit's scatter (untilted
-    paints and fabrics: 0.1–0.4°): the pitch's floor stays."""
+    paints and fabrics: 0.1–0.4°): the pitch's floor stays, unless the light fit misfits the
+    capture by no more than its own discretization (``misfit`` ≤ :data:`EXACT_MODEL_MISFIT`):
+    there no misfit biases the tilt, and a glossy lobe tilted 0.1–0.4° left on the device
+    axis has up to 27× the true normal's eq. 10 error."""
     sd, width, pitch = est.fit_uncertainty_deg, est.lobe_half_width_deg, est.half_vector_pitch_deg
-    if math.isfinite(sd) and width <= SHARP_LOBE_PITCHES * pitch:
+    if math.isfinite(sd) and (width <= SHARP_LOBE_PITCHES * pitch or est.misfit <= EXACT_MODEL_MISFIT):
         return max(sd, SUBPIXEL_BIAS * pitch)
     return est.uncertainty_deg
 

@@ -1078,6 +1078,16 @@ class PipelineTuning:
                "hand-held study, ideal and as-built, untilted): the sharp lobes' estimates lie 0.010–0.022° from "
                "the device axis with fit uncertainties under half of that (steel ±0.005°), and kept, "
                "pink-jasper's 0.013° would raise its eq. 10 error by 8 %")
+    exact_model_misfit: float = tuned(
+        0.01, name="EXACT_MODEL_MISFIT", units="ε (relative RMS residual beyond the noise)",
+        what="a lobe of any width whose last light fit misfits the capture by at most this has its tilt tested "
+             "against the fit's own uncertainty, as a sharp lobe's is",
+        source="measurement: the light fits of analytic lobes, the model exact (40 random GGX and Beckmann "
+               "lobes, α 0.02–0.6, as-built, calibrated, tilted 0–10°), end at ε 0.0009–0.0063 (0.017–0.063 on "
+               "four whose tilt hid a peak); the 50 shared materials' at 0.026 and up (as-built, untilted and "
+               "tilted), 0.028 (ideal), 0.063 (wide): none moves. Checked on 432 other random lobes tilted "
+               "0–0.6°: 124 small tilts kept instead of the device axis, eq. 10 0.13× (as-built) and 0.066× "
+               "(ideal) in geometric mean, none of 144 untilted captures given a tilt (docs/design/normal.md)")
     albedo_angles: tuple[float, ...] = tuned(
         (0.0, 30.0, 60.0, 75.0, 85.0, 89.0), name="ALBEDO_ANGLES", units="deg",
         what="incidence angles at which the directional albedo is checked against 1 (limit_energy)",
