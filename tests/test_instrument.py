@@ -115,6 +115,42 @@ def test_a_dark_grid_frame_is_named_and_the_others_calibrate(as_built, tmp_path)
     assert np.sqrt(np.mean(_angle_deg(dt[m], dc[m]) ** 2)) < 0.05
 
 
+def test_an_led_without_a_mirror_image_is_named_and_reported_unmeasured(as_built, tmp_path):
+    """calibration.json without LED 3's mirror entry: that LED keeps its design's direction
+    (the as-built one is 0.35° off), a warning names it, and the report gives no offset for
+    it (it read 0.0°, as if measured)."""
+    import warnings
+
+    from reflecto.errors import ReflectoWarning
+
+    dev, cal, d = as_built
+    calib = tmp_path / "calib"
+    shutil.copytree(d / "calib", calib)
+    meta = json.loads((calib / "calibration.json").read_text())
+    meta["mirror"] = [m for m in meta["mirror"] if m["led"] != 3]
+    (calib / "calibration.json").write_text(json.dumps(meta))
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        again = calibrate(calib)
+    named = [w for w in got if issubclass(w.category, ReflectoWarning) and "LEDs [3]" in str(w.message)]
+    assert len(named) == 1
+    assert again.report["leds_nominal"] == [3] and again.report["led_offset_from_nominal_deg"][3] is None
+    assert np.array_equal(again.leds[3], dev.leds[3]) and _angle_deg(again.leds[3], dev.truth.leds[3]) > 0.2
+    assert all(e is not None for k, e in enumerate(again.report["led_offset_from_nominal_deg"]) if k != 3)
+
+
+@pytest.mark.parametrize("k1", [-0.15, -0.2])
+def test_a_strong_barrel_distortion_maps_no_sensor_corner_into_the_view_cone(k1):
+    """Past the maximum of ρ(1 + k1ρ²) no ray reaches a pixel; Newton wandered there and the
+    sine law's clip gave the sensor's corners arbitrary directions inside the cone (up to
+    276 px off on the way back). Every pixel of the view disc maps back onto itself."""
+    optics = Device.builtin("as-built").optics.replace(k1=k1)
+    dirs, mask = optics.pixel_directions()
+    rows, cols = np.nonzero(mask)
+    back = optics.direction_to_pixel(dirs[mask])
+    assert mask.sum() > 20000 and np.abs(back - np.stack([cols, rows], axis=-1)).max() < 1e-6
+
+
 def test_calibration_recovers_the_as_built_device(as_built):
     dev, cal, d = as_built
     truth = dev.truth

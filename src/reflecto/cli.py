@@ -434,7 +434,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                         "device": cal.device.name, "report": r},
                  [f"wrote {args.output}: {r['spots_used']} grid spots, "
                   f"reprojection RMS {r['reprojection_rms_px']:.3f} px; "
-                  f"LEDs moved by {r['led_offset_from_nominal_deg']}° from nominal"])
+                  "LEDs moved by [" + ", ".join("not measured" if e is None else f"{e}"
+                                                for e in r["led_offset_from_nominal_deg"]) + "]° from nominal"])
 
 
 def _normal_arg(text: str) -> str | tuple[float, ...]:

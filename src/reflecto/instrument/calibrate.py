@@ -873,8 +873,15 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
         raise CaptureError(calib_dir / "white", f"LED {k}: the white standard reads below the black level "
                            "(negative radiometric scale); no radiometric calibration")
     led_err = np.degrees(np.arccos(np.clip(np.sum(leds * device.leds, axis=1), -1, 1)))
-    report = {"kind": "measured", **geo_report, "led_offset_from_nominal_deg": np.round(led_err, 3).tolist(),
-              "white_albedo": albedo}
+    measured = {int(m["led"]) for m in mirror}
+    unmeasured = [k for k in range(device.n_leds) if k not in measured]
+    if unmeasured:  # a real LED sits ±0.5° from its design: say which ones were not measured
+        warnings.warn(ReflectoWarning(f"{mpath}: LEDs {unmeasured} have no mirror image: they keep their design's "
+                                      "directions (a real device's are off by up to 0.5°)"), stacklevel=2)
+    report = {"kind": "measured", **geo_report,
+              "led_offset_from_nominal_deg": [round(float(e), 3) if k in measured else None
+                                              for k, e in enumerate(led_err)],
+              "leds_nominal": unmeasured, "white_albedo": albedo}
     return Calibration(device.nominal(), optics, leds, scale, response, report)
 
 

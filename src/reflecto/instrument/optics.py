@@ -44,8 +44,8 @@ def _law(name: str, theta: Array) -> Array:
 
 
 def _law_inverse(name: str, rho: Array) -> Array:
-    if name == "sine":
-        return np.arcsin(np.clip(rho, -1.0, 1.0))
+    if name == "sine":  # ρ = sin θ: beyond 1 (+ rounding) no direction maps there
+        return np.where(np.abs(rho) <= 1.0 + 1e-12, np.arcsin(np.clip(rho, -1.0, 1.0)), np.nan)
     if name == "tan":
         return np.arctan(rho)
     return rho
@@ -177,7 +177,17 @@ class Optics:
         r2 = rho * rho
         return rho * (1.0 + self.k1 * r2 + self.k2 * r2 * r2)
 
+    def _monotonic_r2(self) -> float:
+        """``ρ²`` up to which the distortion ``ρ(1 + k1ρ² + k2ρ⁴)`` rises: the smallest positive
+        root of its derivative ``1 + 3k1 x + 5k2 x²`` (``x = ρ²``; infinite where it has none)."""
+        roots = np.roots([5.0 * self.k2, 3.0 * self.k1, 1.0]) if (self.k1 or self.k2) else np.array([])
+        real = [float(r.real) for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12 and r.real > 0]
+        return min(real) if real else math.inf
+
     def _undistort(self, rho_d: Array) -> Array:
+        """The undistorted ``ρ`` of image radii ``ρ_d`` (focal lengths): the root of
+        ``ρ(1 + k1ρ² + k2ρ⁴) = ρ_d`` on the distortion's rising branch; NaN where there is none
+        (a strong barrel distortion folds back: past its maximum no ray reaches the pixel)."""
         rho = rho_d.copy()
         for _ in range(30):  # Newton on ρ(1 + k1ρ² + k2ρ⁴) = ρ_d
             r2 = rho * rho
@@ -187,7 +197,10 @@ class Optics:
             rho -= step
             if np.all(np.abs(step) < 1e-15):
                 break
-        return rho
+        r2 = rho * rho
+        g = rho * (1.0 + self.k1 * r2 + self.k2 * r2 * r2) - rho_d
+        ok = (np.abs(g) <= 1e-9 * (1.0 + np.abs(rho_d))) & (rho >= 0.0) & (r2 < self._monotonic_r2())
+        return np.where(ok, rho, np.nan)
 
     def direction_to_pixel(self, dirs: ArrayLike) -> Array:
         """Image position of view directions: ``r = f·ρ(θ)(1 + k1 ρ² + k2 ρ⁴)`` from the principal point.
