@@ -1001,3 +1001,38 @@ def test_the_cli_prints_one_line_per_model_whatever_the_name(sources: list[Path]
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "is a capture folder; watch the folder the captures land in" in err[0]
     assert not (tmp_path / "m2").exists()
+
+
+def test_a_capture_that_leaves_or_is_replaced_after_its_model(sources: list[Path], tmp_path: Path,
+                                                                monkeypatch) -> None:
+    """A capture removed after its preview leaves the page (it stayed as "full model to follow"
+    for good) with one line, its files kept in MODELS; a capture replaced by another after its
+    full model is modelled again from the new data (the page kept the old material's tilt)."""
+    import reflecto.watch as watch_mod
+
+    monkeypatch.setattr(watch_mod, "IDENTITY_CHECK_S", 0.0, raising=False)
+    root, models = tmp_path / "root", tmp_path / "models"
+    root.mkdir()
+    shutil.copytree(sources[0], root / "gone")
+    shutil.copytree(sources[0], root / "swapped")  # the untilted plastic
+    lines: list[str] = []
+    w = Watcher(root, models, thumbnails=False, report=lines.append, preview_one=default_previewer(),
+                refine_idle_s=3600.0)
+    w.scan()
+    assert sorted(w.entries) == ["gone", "swapped"] and all(e.preview for e in w.entries.values())
+    shutil.rmtree(root / "gone")
+    w.scan()
+    assert list(w.entries) == ["swapped"] and "gone" not in w.previews
+    assert len(lines) == 1 and "left the watched folder" in lines[0] and (models / "gone.json").is_file()
+    assert ">gone<" not in (models / "index.html").read_text()
+    w.refine_idle_s = 0.0
+    assert w.refine(final=True)
+    assert not w.entries["swapped"].preview and abs(w.entries["swapped"].tilt_deg) < 0.5
+    tmp = root / ".swapped.part"
+    shutil.copytree(sources[1], tmp)  # the rough material tilted 4°, renamed into place
+    shutil.rmtree(root / "swapped")
+    os.replace(tmp, root / "swapped")
+    w.run(once=True)
+    summary = json.loads((models / "swapped.json").read_text())
+    assert summary["preview"] is False and abs(summary["normal_tilt_deg"] - 4.0) < 0.5
+    assert abs(w.entries["swapped"].tilt_deg - 4.0) < 0.5

@@ -12,8 +12,11 @@ and unchanged for ``settle_s`` seconds, or that the reader refuses (a damaged fr
 a manifest that does not fit the device, a saturated capture), is reported once
 (one line naming the folder and the problem) and skipped; if it changes later it is
 looked at again, and one that leaves ``ROOT`` (removed, or renamed by its writer) is
-forgotten. A folder whose name the models cannot carry (not valid UTF-8, or too long for
-the file names made from it) is reported and skipped the same way. A folder rewritten
+forgotten. A modelled capture that leaves ``ROOT`` leaves the page with one line (its
+files stay in ``MODELS``); one replaced or rewritten after its model (another folder
+renamed into place, its manifest written again; looked at once a second,
+:data:`IDENTITY_CHECK_S`) is modelled again. A folder whose name the models cannot carry
+(not valid UTF-8, or too long for the file names made from it) is reported and skipped the same way. A folder rewritten
 while its model was made is made again from what it holds then.
 
 Each good capture is reconstructed by the function given as ``reconstruct_one``
@@ -92,6 +95,8 @@ POLL_S = 0.02
 PAGE_REFRESH_S = 2
 #: A folder incomplete and unchanged for this long (seconds) is reported as damaged.
 SETTLE_S = 5.0
+#: Seconds between two looks at the modelled capture folders for a replaced or rewritten one.
+IDENTITY_CHECK_S = 1.0
 #: Side of the index page's thumbnails (pixels).
 THUMB_PX = 48
 #: Seconds without a new capture after which the previews are replaced by full models: ten
@@ -288,6 +293,12 @@ def _stat(path: Path) -> tuple[int, int, int] | None:
     except OSError:
         return None
     return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def _identity(folder: Path) -> tuple:
+    """A folder's inode and modification time and its manifest's status: cheap to look at
+    again, and changed by a capture renamed into place or a manifest written again."""
+    return _stat(folder), _stat(folder / MANIFEST)
 
 
 def _signature(folder: Path) -> tuple:
@@ -494,6 +505,11 @@ class Watcher:
         self._rows: dict[str, tuple[tuple, str]] = {}  # the page's rows by capture: (their content, HTML)
         self._live = False  # the watch loop runs: the page reloads itself
         self._name_max: int | None = None  # the file system's longest file name (bytes), once asked
+        #: Each modelled capture's folder as its model was made from it (:func:`_identity`):
+        #: a folder replaced or rewritten since is modelled again.
+        self._made_from: dict[str, tuple] = {}
+        self._stale: set[str] = set()  # modelled captures whose folder changed: made again, not adopted
+        self._identity_checked = -math.inf  # time.monotonic() of the last look at the modelled folders
 
     # ------------------------------------------------------------------ scanning
     def _candidates(self) -> list[Path]:
@@ -505,9 +521,28 @@ class Watcher:
         except OSError as e:
             raise ReflectoError(f"{shown_path(self.root)}: cannot list the folder ({e.strerror or e})") from None
         self._forget_gone(set(names))
-        # a capture with a model is looked at again only where its full model failed (a preview
-        # stays): once its folder changes
-        return [self.root / n for n in names if (n not in self.entries or n in self.failed) and n != self._models_here]
+        self._find_rewritten()
+        # a capture with a model is looked at again where its full model failed (a preview
+        # stays), once its folder changes, and where its folder was replaced or rewritten
+        return [self.root / n for n in names
+                if (n not in self.entries or n in self.failed or n in self._stale) and n != self._models_here]
+
+    def _find_rewritten(self) -> None:
+        """Mark the modelled captures whose folder was replaced or rewritten since (a new
+        folder renamed into place, or its manifest written again): their model is of other
+        data, and is made again. Two file statuses per capture, looked at once per
+        :data:`IDENTITY_CHECK_S` (a sweep's thousand captures would otherwise cost 10⁵
+        statuses a second)."""
+        now = time.monotonic()
+        if now - self._identity_checked < IDENTITY_CHECK_S:
+            return
+        self._identity_checked = now
+        for name, made in self._made_from.items():
+            if name not in self._stale and name in self.entries and _identity(self.root / name) != made:
+                self._stale.add(name)
+                self.previews.pop(name, None)  # its full model is of the new data, made afresh
+                self.entries[name].warnings.append("the capture folder changed since: being modelled again")
+                self._write_index()
 
     def _forget_gone(self, present: set[str]) -> None:
         """Forget the folders waited for or refused that have left ``root`` (removed, or
@@ -520,7 +555,18 @@ class Watcher:
         for n in dropped:
             del self.failed[n]
             self._failed_sig.pop(n, None)
-        if dropped:
+        # a modelled capture that left: its files stay in MODELS, its row (and a preview's
+        # pending full model) goes, as a new watch of ROOT would not list it either
+        left = [n for n in self.entries if n not in present and n != self._models_here]
+        for n in left:
+            preview = self.entries.pop(n).preview
+            self._rows.pop(n, None)
+            self.previews.pop(n, None)
+            self._made_from.pop(n, None)
+            self._stale.discard(n)
+            self.report(f"{shown_path(self.root / n)}: the capture folder left the watched folder; its "
+                        f"{'preview' if preview else 'model'} stays in {shown_path(self.models)}, off the page")
+        if dropped or left:
             self._write_index()
 
     def _name_problem(self, name: str) -> str | None:
@@ -573,7 +619,8 @@ class Watcher:
             if problem is not None:
                 self._fail(folder, problem)
                 continue
-            if self._done(name) and name not in self._waiting and self._adopt(name, now=time.monotonic()):
+            if (self._done(name) and name not in self._waiting and name not in self._stale
+                    and self._adopt(name, now=time.monotonic())):
                 adopted += 1
                 continue
             state, why = capture_state(folder)
@@ -631,6 +678,7 @@ class Watcher:
         if not isinstance(summary, dict):
             return False
         self.entries[name] = self._entry(name, summary)
+        self._made_from[name] = _identity(self.root / name)
         if self.entries[name].preview:
             self.previews[name] = now
         if self.thumbnails:
@@ -802,6 +850,9 @@ class Watcher:
             self._discard_half_written(name, had_summary, before)
             raise
         kept = getattr(make, "last", None)  # a FolderReconstructor's model: not read back
+        self._stale.discard(name)
+        if sig is not None:
+            self._made_from[name] = _identity(folder)
         self._finish(name, summary, out, found, refining, kept[1] if isinstance(kept, tuple) and kept[0] == out
                      else None)
         if sig is not None and _signature(folder) != sig:  # rewritten meanwhile: made again from what is there now
