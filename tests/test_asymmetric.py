@@ -3,6 +3,7 @@ the anisotropy-aware comparison and the gallery (issue 24)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -315,6 +316,12 @@ def test_gallery_page_lists_every_material_with_its_errors(tmp_path):
     assert [r["name"] for r in data["rows"]] == ["m0", "m1", "m2"] and data["settings"]["rotations_deg"][1] == 90.0
     with pytest.raises(Exception, match="two rotations"):
         GallerySettings(rotations_deg=(0.0,))
+    # rows scored over different azimuths (an isotropic material's and an anisotropic one's): the
+    # page's one label read the first row's form for all of them
+    rows[1] = dataclasses.replace(rows[1], error_form="other form")
+    text = write_gallery(rows, tmp_path / "mixed", GallerySettings()).read_text()
+    assert "BRDF error: as each row" in text and text.count("BRDF error: form<br>") == 2
+    assert text.count("BRDF error: other form<br>") == 1
 
 
 @pytest.mark.slow

@@ -38,7 +38,7 @@ from ..io import atomic_folder, atomic_write
 from ..load import load_source
 from ..reconstruct import Options, reconstruct_rotations
 from ..render.mitsuba import SMOOTHING_PX, check_render_settings, image_difference, object_mask, render, save_image
-from .metrics import comparison_error
+from .metrics import brdf_error_all_azimuths, comparison_error
 
 __all__ = ["GALLERY_MARKER", "GallerySettings", "GalleryRow", "check_distinct_names", "gallery_row", "write_gallery",
            "gallery"]
@@ -148,7 +148,10 @@ def gallery_row(path: str | Path, out: Path, settings: GallerySettings, device=N
     device = device or load_device(settings.device)
     cal = cal or workflow.calibration_for(device, settings.calibration, missing="simulate", seed=settings.seed)
     sym, asym, test = _reconstructions(src, device, cal, settings)
-    e_sym, e_asym = comparison_error(src, sym), comparison_error(src, asym)
+    e_asym = comparison_error(src, asym)  # the §5.5 model is anisotropic: over every half-vector azimuth
+    # the symmetric path's over the same azimuths, so that a row's two errors compare (comparison_error
+    # alone takes the MERL bins where the reference and that model are both isotropic)
+    e_sym = brdf_error_all_azimuths(src, sym) if e_asym.form != "merl" else comparison_error(src, sym)
     stem = p.stem
     images = {k: f"{stem}_{k}.png" for k in ("reference", "symmetric", "asymmetric")}
     renders = {k: _render_png(s, out, images[k], settings, settings.seed + j)
@@ -203,15 +206,17 @@ def write_gallery(rows: Sequence[GalleryRow], out: Path, settings: GallerySettin
     rots = "/".join(f"{r:g}" for r in settings.rotations_deg)
     head = ("<tr><th>material</th><th>reference</th><th>symmetric path (one capture, eq. 3 mirror)</th>"
             f"<th>§5.5 path ({len(settings.rotations_deg)} captures at {rots}°)</th></tr>")
+    forms = sorted({r.error_form for r in rows})
+    form = forms[0] if len(forms) == 1 else "as each row's material states"  # rows may differ: say so
     body = []
     for r in rows:
         params = ", ".join(f"{k} {v}" for k, v in r.parameters.items())
         verdict = "broken" if r.symmetry_broken else "kept"
         name, shown_params = html.escape(shown_path(r.name)), html.escape(shown_path(params))
-        body.append(f"<tr><td><b>{name}</b><div class='num'>{shown_params}<br>"
+        own_form = f"BRDF error: {html.escape(r.error_form)}<br>" if len(forms) > 1 else ""
+        body.append(f"<tr><td><b>{name}</b><div class='num'>{shown_params}<br>{own_form}"
                     f"eq. 3 in one capture: {verdict} ({r.symmetry_ratio:.1f}×)</div></td>"
                     + "".join(_cell(r, k) for k in ("reference", "symmetric", "asymmetric")) + "</tr>")
-    form = rows[0].error_form if rows else ""
     page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>reflecto gallery: §5.5</title>"
             f"{_STYLE}</head>\n<body>\n<h1>Anisotropic and asymmetric materials: reference, symmetric path, §5.5 path"
             f"</h1>\n<p>Device {html.escape(shown_path(settings.device))}; teapot under the environment map, "
