@@ -18,11 +18,14 @@ bounded, :data:`reflecto.brdf.MAX_PROJECTED_BRDF`) on Rusinkiewicz nodes: θ_h a
 ``u²·90°`` for :data:`N_THETA_H` even steps of ``u`` (dense at the specular peak), θ_d in
 :data:`N_THETA_D` even steps to 90°, φ_d in :data:`N_PHI_D` even steps over [0°, 180°]
 (``f(φ_d) = f(φ_d + 180°)`` for a reciprocal isotropic BRDF), at φ_h = 0: an anisotropic
-BRDF is shown by that slice, as a MERL table holds it. The page interpolates trilinearly.
+BRDF is shown by that slice, as a MERL table holds it. The page interpolates trilinearly:
+the spheres the projected value, the slice, its read-out and the polar plots ``f`` itself
+(each node's projected value over its own cosines, over the nodes above the horizon).
 
 With ``#test=RES`` in its address the page writes, into ``<pre id="test-output">``, the
 linear radiance of each sphere at ``RES²`` pixels (the renders' box filter, 4 × 4
-samples per pixel) as JSON, for the tests; ``#light=AZ,EL`` (degrees) places the key light;
+samples per pixel) as JSON, for the tests, and with ``&at=TH,TD,PD;…`` (degrees) the first
+BRDF's slice read-out there; ``#light=AZ,EL`` (degrees) places the key light;
 ``#drag=X,Y`` presses the pointer on the first sphere at ``(X, Y)`` (fractions of its size),
 as a user moving the light does.
 """
@@ -168,11 +171,11 @@ const HALF_PI = Math.PI / 2;
 const norm = v => { const l = Math.hypot(v[0], v[1], v[2]); return [v[0] / l, v[1] / l, v[2] / l]; };
 const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
-// projected BRDF f·cosθi·cosθo at local directions (trilinear in the table)
-function proj(T, i, o, out) {
+// Rusinkiewicz angles [θ_h, θ_d, φ_d mod π] of local directions (φ_h dropped: the table is at φ_h = 0)
+function rusinkiewicz(i, o) {
   let h = [i[0] + o[0], i[1] + o[1], i[2] + o[2]];
   const hl = Math.hypot(h[0], h[1], h[2]);
-  if (hl < 1e-12) { out[0] = out[1] = out[2] = 0; return out; }
+  if (hl < 1e-12) return null;
   h = [h[0] / hl, h[1] / hl, h[2] / hl];
   const th = Math.acos(Math.min(1, Math.max(-1, h[2]))), ph = Math.atan2(h[1], h[0]);
   const cz = Math.cos(-ph), sz = Math.sin(-ph);
@@ -181,16 +184,46 @@ function proj(T, i, o, out) {
   const dx = cy * x1 + sy * z1, dy = y1, dz = -sy * x1 + cy * z1;
   const td = Math.acos(Math.min(1, Math.max(-1, dz)));
   let pd = Math.atan2(dy, dx); if (pd < 0) pd += Math.PI; if (pd > Math.PI) pd -= Math.PI;
-  let a = Math.sqrt(Math.min(th / HALF_PI, 1)) * (NH - 1), b = Math.min(td / HALF_PI, 1) * (ND - 1), c = pd / Math.PI * (NP - 1);
-  let a0 = Math.min(Math.floor(a), NH - 2), b0 = Math.min(Math.floor(b), ND - 2), c0 = Math.min(Math.floor(c), NP - 2);
-  const fa = a - a0, fb = b - b0, fc = c - c0;
+  return [th, td, pd];
+}
+// the table's trilinear cell of Rusinkiewicz angles: first node indices and fractions
+function cell(th, td, pd) {
+  const a = Math.sqrt(Math.min(th / HALF_PI, 1)) * (NH - 1), b = Math.min(td / HALF_PI, 1) * (ND - 1), c = pd / Math.PI * (NP - 1);
+  const a0 = Math.min(Math.floor(a), NH - 2), b0 = Math.min(Math.floor(b), ND - 2), c0 = Math.min(Math.floor(c), NP - 2);
+  return [a0, b0, c0, a - a0, b - b0, c - c0];
+}
+// projected BRDF f·cosθi·cosθo at local directions (trilinear in the table): what the spheres integrate
+function proj(T, i, o, out) {
+  const r = rusinkiewicz(i, o);
   out[0] = out[1] = out[2] = 0;
+  if (!r) return out;
+  const [a0, b0, c0, fa, fb, fc] = cell(r[0], r[1], r[2]);
   for (let da = 0; da < 2; da++) for (let db = 0; db < 2; db++) for (let dc = 0; dc < 2; dc++) {
     const w = (da ? fa : 1 - fa) * (db ? fb : 1 - fb) * (dc ? fc : 1 - fc);
     if (w === 0) continue;
     const k = (((a0 + da) * ND + (b0 + db)) * NP + (c0 + dc)) * 3;
     out[0] += w * T[k]; out[1] += w * T[k + 1]; out[2] += w * T[k + 2];
   }
+  return out;
+}
+// f itself at Rusinkiewicz angles (φ_h = 0): each node's f (its projected value over its own
+// cosines), interpolated over the nodes above the horizon. Dividing the interpolated projected
+// value by the point's cosines instead mixes in the zeros of nodes below it: near grazing that
+// read f several times too low.
+function fRus(T, th, td, pd, out) {
+  const [a0, b0, c0, fa, fb, fc] = cell(th, td, pd);
+  let wsum = 0;
+  out[0] = out[1] = out[2] = 0;
+  for (let da = 0; da < 2; da++) for (let db = 0; db < 2; db++) for (let dc = 0; dc < 2; dc++) {
+    const w = (da ? fa : 1 - fa) * (db ? fb : 1 - fb) * (dc ? fc : 1 - fc);
+    if (w === 0) continue;
+    const u = (a0 + da) / (NH - 1), nh = u * u * HALF_PI, nd = (b0 + db) / (ND - 1) * HALF_PI, np = (c0 + dc) / (NP - 1) * Math.PI;
+    const p = Math.cos(nh) * Math.cos(nd), q = Math.sin(nh) * Math.sin(nd) * Math.cos(np), c = (p - q) * (p + q);
+    if (!(p - q > 1e-6 && p + q > 1e-6)) continue;  // the node's i or o at or below the horizon
+    const k = (((a0 + da) * ND + (b0 + db)) * NP + (c0 + dc)) * 3;
+    out[0] += w * T[k] / c; out[1] += w * T[k + 1] / c; out[2] += w * T[k + 2] / c; wsum += w;
+  }
+  if (wsum > 0) { out[0] /= wsum; out[1] /= wsum; out[2] /= wsum; } else out[0] = out[1] = out[2] = NaN;  // no node above
   return out;
 }
 // camera rays as reflecto.render.sphere.camera_rays (horizontal fov, camera +x to the left)
@@ -272,8 +305,7 @@ function fAt(T, th, td, pd, out) {  // f at Rusinkiewicz angles (radians), φ_h 
   const i = [Math.cos(th) * d[0] + Math.sin(th) * d[2], d[1], -Math.sin(th) * d[0] + Math.cos(th) * d[2]];
   const h = [Math.sin(th), 0, Math.cos(th)], k = 2 * dot(i, h), o = [k * h[0] - i[0], k * h[1] - i[1], k * h[2] - i[2]];
   if (i[2] <= 1e-6 || o[2] <= 1e-6) { out[0] = out[1] = out[2] = NaN; return out; }
-  proj(T, i, o, out); const c = i[2] * o[2];
-  out[0] /= c; out[1] /= c; out[2] /= c; return out;
+  return fRus(T, th, td, pd, out);
 }
 function drawSlice(ctx, T, size, readout) {
   const id = ctx.createImageData(size, size), v = [0, 0, 0], pd = state.phid * Math.PI / 180;
@@ -288,7 +320,7 @@ function drawSlice(ctx, T, size, readout) {
     const r = ctx.canvas.getBoundingClientRect(), x = (e.clientX - r.left) / r.width, y = (e.clientY - r.top) / r.height;
     fAt(T, x * HALF_PI, (1 - y) * HALF_PI, pd, v);
     readout.textContent = `θ_h ${(x * 90).toFixed(1)}°  θ_d ${((1 - y) * 90).toFixed(1)}°  φ_d ${state.phid}°  f = ` +
-      (isNaN(v[0]) ? "below the horizon" : `${v[0].toPrecision(4)} ${v[1].toPrecision(4)} ${v[2].toPrecision(4)} sr⁻¹`);
+      (isNaN(v[0]) ? "at or below the horizon (not in the table)" : `${v[0].toPrecision(4)} ${v[1].toPrecision(4)} ${v[2].toPrecision(4)} sr⁻¹`);
   };
 }
 function drawPolar(ctx, T, size) {
@@ -298,9 +330,9 @@ function drawPolar(ctx, T, size) {
   const i = [Math.sin(ti), 0, Math.cos(ti)], v = [0, 0, 0], curves = [[], [], []];
   let vmax = 1e-12;
   for (let k = -89; k <= 89; k++) {
-    const to = k * Math.PI / 180, o = [Math.sin(to), 0, Math.cos(to)];
-    proj(T, i, o, v);
-    for (let ch = 0; ch < 3; ch++) { const val = v[ch] / Math.max(i[2], 1e-6); curves[ch].push([to, val]); vmax = Math.max(vmax, val); }
+    const to = k * Math.PI / 180, o = [Math.sin(to), 0, Math.cos(to)], r = rusinkiewicz(i, o);
+    if (r) fRus(T, r[0], r[1], r[2], v); else v[0] = v[1] = v[2] = 0;
+    for (let ch = 0; ch < 3; ch++) { const val = isNaN(v[ch]) ? 0 : v[ch] * o[2]; curves[ch].push([to, val]); vmax = Math.max(vmax, val); }
   }
   ctx.strokeStyle = "#bbb"; ctx.beginPath(); ctx.arc(cx, cy, R, Math.PI, 2 * Math.PI); ctx.stroke();
   ctx.fillStyle = "#444"; ctx.font = "11px sans-serif";
@@ -364,11 +396,14 @@ if (params.has("drag")) {  // a pointer press on the first sphere at (x, y), fra
   const r = cv.getBoundingClientRect();
   cv.dispatchEvent(new PointerEvent("pointerdown", { clientX: r.left + fx * r.width, clientY: r.top + fy * r.height, bubbles: true }));
 }
-window.reflectoViewer = { state, renderSphere, tables: TABLES, update };
+window.reflectoViewer = { state, renderSphere, tables: TABLES, update, fAt };
 if (params.has("test")) {
   const res = +params.get("test");
   const out = TABLES.map(T => { const img = renderSphere(T, res, 4); return { radiance: Array.from(img.rad, x => +x.toPrecision(6)), coverage: Array.from(img.cov) }; });
-  document.getElementById("test-output").textContent = JSON.stringify({ res, key_light: state.keyLight, spheres: out });
+  // the slice's read-out at "θ_h,θ_d,φ_d;…" (degrees) of the first BRDF
+  const at = params.has("at") ? params.get("at").split(";").map(t => t.split(",").map(x => +x * Math.PI / 180)) : [];
+  const slice = at.map(([th, td, pd]) => Array.from(fAt(TABLES[0], th, td, pd, [0, 0, 0])));
+  document.getElementById("test-output").textContent = JSON.stringify({ res, key_light: state.keyLight, spheres: out, slice });
 }
 </script></body></html>
 """  # noqa: E501 (the page's JavaScript: wrapping it would change the string)
