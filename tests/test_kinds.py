@@ -215,14 +215,24 @@ def test_wide_capture_reconstructs_without_nominal(tmp_path, capsys):
 def test_teapot_is_welded_and_smooth(shared, tmp_path, monkeypatch):
     """The welded copy's vertex normals are its triangles' mean normals: unit, on the side
     the triangles face, and agreeing with every triangle around them to within its
-    curvature (made afresh: the copy is cached in the temporary folder)."""
+    curvature. The copy lies in the process's own private folder: a file planted or damaged
+    under the name a shared temporary folder's cache used is not served (it was, and a damaged
+    one broke every teapot render with a traceback)."""
+    import hashlib
+    import os
+    import stat
     import tempfile
 
-    from reflecto.render.mitsuba import smooth_mesh
+    import reflecto.render.mitsuba as rm
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
-    path = smooth_mesh(shared / "meshes" / "teapot.obj")
-    assert path.parent == tmp_path
+    monkeypatch.setattr(rm, "_MESH_FOLDER", [])
+    raw = (shared / "meshes" / "teapot.obj").read_bytes()
+    planted = tmp_path / f"reflecto-smooth-{hashlib.sha256(raw).hexdigest()[:16]}.obj"
+    planted.write_text("garbage\n")
+    path = rm.smooth_mesh(shared / "meshes" / "teapot.obj")
+    assert path.parent.parent == tmp_path and path.parent.name.startswith("reflecto-mesh-")
+    assert stat.S_IMODE(os.stat(path.parent).st_mode) == 0o700
     text = path.read_text().splitlines()
     v = np.array([[float(x) for x in l.split()[1:]] for l in text if l.startswith("v ")])
     vn = np.array([[float(x) for x in l.split()[1:]] for l in text if l.startswith("vn ")])
@@ -265,3 +275,16 @@ def test_model_names_its_calibration_and_the_report_reads_the_slices_with_it(tmp
     page = (tmp_path / "rep3" / "index.html").read_text()
     assert "not shown: the capture cannot be read" in page and "led2_t8ms.png" in page and "truncated" in page
     capsys.readouterr()
+
+
+def test_a_mesh_that_is_not_an_obj_is_one_line(tmp_path):
+    """A damaged teapot mesh (the shared data's, or one under REFLECTO_SHARED) is named with
+    its problem; it raised numpy's ValueError."""
+    from reflecto.errors import FileFormatError
+    from reflecto.render.mitsuba import smooth_mesh
+
+    for k, text in enumerate(("garbage\n", "v 0 0 0\nv 1 0 0\nf 1 2 9\n", "v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")):
+        bad = tmp_path / f"bad{k}.obj"
+        bad.write_text(text)
+        with pytest.raises(FileFormatError, match=f"bad{k}.obj: not an OBJ mesh"):
+            smooth_mesh(bad)

@@ -32,11 +32,13 @@ The variant is ``llvm_ad_rgb`` where LLVM ≥ 16 is found, else ``scalar_rgb``
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import dataclasses
 import hashlib
 import math
 import os
+import shutil
 import tempfile
 import textwrap
 import time
@@ -51,7 +53,7 @@ from scipy import ndimage
 
 from ..brdf import BRDFSource
 from ..colour import LUM
-from ..errors import FileFormatError, ParameterError
+from ..errors import FileFormatError, ParameterError, one_line
 from ..export.rgl import export_rgl
 from ..io import atomic_path
 from ..mitsuba_support import import_mitsuba
@@ -227,14 +229,28 @@ def _teapot_transform(mi, mesh: Path):
     return mi.ScalarTransform4f().scale(s) @ mi.ScalarTransform4f().translate((-centre).tolist())
 
 
+_MESH_FOLDER: list[Path] = []  # this process's private folder of smoothed meshes, made on first use
+
+
+def _mesh_folder() -> Path:
+    """This process's private folder for :func:`smooth_mesh`'s copies (removed at exit)."""
+    if not _MESH_FOLDER:
+        folder = Path(tempfile.mkdtemp(prefix="reflecto-mesh-"))
+        atexit.register(shutil.rmtree, folder, True)
+        _MESH_FOLDER.append(folder)
+    return _MESH_FOLDER[0]
+
+
 def smooth_mesh(mesh: Path) -> Path:
     """A welded, smooth-shaded copy of an OBJ triangle mesh (the shared data is never edited).
 
     The shared ``teapot.obj`` has no normals and repeats the vertices of its patch
     seams, so a renderer shades it faceted with a seam. Vertices at the same position
     (to 10⁻⁵ of the mesh size) are merged, triangles that collapse are dropped, and
-    each vertex gets the angle-weighted mean of its triangles' normals. The copy is
-    cached in the temporary folder under the hash of the source mesh and of this code.
+    each vertex gets the angle-weighted mean of its triangles' normals (≈ 0.1 s for the
+    teapot). The copy is made once per process, in a folder of its own (created private by
+    :func:`tempfile.mkdtemp`, removed at exit): a copy in a shared temporary folder under a
+    name anyone can predict could be damaged or planted by another program or user.
 
     Parameters
     ----------
@@ -244,23 +260,28 @@ def smooth_mesh(mesh: Path) -> Path:
     Returns
     -------
     pathlib.Path
-        The cached copy, ``<tmp>/reflecto-smooth-<hash>.obj``, with ``vn`` normals.
+        The copy, ``<private tmp>/smooth-<hash of the mesh>.obj``, with ``vn`` normals.
     """
     raw = mesh.read_bytes()
-    # keyed by the mesh and by this function's code: a copy an earlier version made is not served
-    key = hashlib.sha256(raw + smooth_mesh.__code__.co_code).hexdigest()[:16]
-    cached = Path(tempfile.gettempdir()) / f"reflecto-smooth-{key}.obj"
+    key = hashlib.sha256(raw).hexdigest()[:16]
+    cached = _mesh_folder() / f"smooth-{key}.obj"
     if cached.is_file():
         return cached
     v, faces = [], []
-    for line in raw.decode().splitlines():
-        if line.startswith("v "):
-            v.append([float(x) for x in line.split()[1:4]])
-        elif line.startswith("f "):
-            idx = [int(w.split("/")[0]) for w in line.split()[1:]]
-            faces += [(idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1)]
-    pos = np.array(v)
-    f = np.array(faces) - 1
+    try:
+        for line in raw.decode().splitlines():
+            if line.startswith("v "):
+                v.append([float(x) for x in line.split()[1:4]])
+            elif line.startswith("f "):
+                idx = [int(w.split("/")[0]) for w in line.split()[1:]]
+                faces += [(idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1)]
+        pos = np.array(v, dtype=np.float64)
+        f = np.array(faces, dtype=np.int64) - 1
+        if pos.ndim != 2 or pos.shape[1] != 3 or len(f) == 0 or not np.all(np.isfinite(pos)) or f.min() < 0 \
+                or f.max() >= len(pos):
+            raise ValueError("no triangles over its vertices")
+    except (ValueError, UnicodeDecodeError) as e:
+        raise FileFormatError(mesh, f"not an OBJ mesh of 'v x y z' and 'f i j k' lines ({one_line(e)})") from None
     scale = float(np.max(pos.max(0) - pos.min(0)))
     _, weld, inverse = np.unique(np.round(pos / (1e-5 * scale)).astype(np.int64), axis=0, return_index=True,
                                  return_inverse=True)
