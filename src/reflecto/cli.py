@@ -362,7 +362,8 @@ def cmd_layout(args: argparse.Namespace) -> int:
             "coverage": cov.to_dict()}
     if args.plot:
 
-        plot_coverage(dev.optics, leds, args.plot, resolution=max(args.resolution, 128), theta_max_deg=args.theta_max)
+        plot_coverage(dev.optics, leds, args.plot, resolution=max(args.resolution, 128), theta_max_deg=args.theta_max,
+                      occluder_deg=dev.occluder_deg)
         info["plot"] = str(args.plot)
     if args.json:
         print(json.dumps(_finite_json(info), indent=1, allow_nan=False))

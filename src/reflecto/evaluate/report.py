@@ -460,7 +460,7 @@ def _write_report_into(out: Path, model_path: Path, model: Any, ref: BRDFSource 
                                      f"{cap_dir or model.metadata['capture_not_found']}, "
                                      "which is not a capture folder inside the model's folder")
     if dev is not None:
-        cov = plot_coverage(dev.optics, dev.leds, out / "coverage.png")
+        cov = plot_coverage(dev.optics, dev.leds, out / "coverage.png", occluder_deg=dev.occluder_deg)
         items.insert(0, (cov.name, f"Half-vector coverage per LED of device {html.escape(dev.name)} "
                                    "(paper Fig. 2(c)(d))."))
     else:

@@ -16,7 +16,7 @@ from .optics import Optics
 
 
 def plot_coverage(optics: Optics, leds: ArrayLike, path: str | Path, resolution: int = 128,
-                  theta_max_deg: float = 80.0) -> Path:
+                  theta_max_deg: float = 80.0, occluder_deg: float = 0.0) -> Path:
     """Half-vector coverage per LED (left) and after completion by eq. 3 (right).
 
     Half vectors are drawn in the orthographic projection ``(h_x, h_y)`` of the NDF
@@ -34,6 +34,9 @@ def plot_coverage(optics: Optics, leds: ArrayLike, path: str | Path, resolution:
         Hemicube resolution of the masks.
     theta_max_deg
         θ_max of the coverage cap, degrees.
+    occluder_deg
+        Half angle of the device's central occluder about the view axis (degrees; 0: none),
+        whose views see nothing (:func:`~reflecto.instrument.layout.coverage_masks`).
 
     Returns
     -------
@@ -43,7 +46,7 @@ def plot_coverage(optics: Optics, leds: ArrayLike, path: str | Path, resolution:
     plt = pyplot()
     cube = hemicube(resolution)
     leds = geometry.normalize(np.atleast_2d(leds))
-    masks = coverage_masks(optics, leds, cube)
+    masks = coverage_masks(optics, leds, cube, occluder_deg)
     tau = cube.permutation(geometry.TAU)
     h = cube.directions
     cap = h[:, 2] >= math.cos(math.radians(theta_max_deg))
