@@ -708,3 +708,22 @@ def test_simulate_does_not_write_into_a_calibration_folder(tmp_path, calib, caps
     _, line = _run(["simulate", str(PLASTIC), "-o", str(calib_dir / "white")], capsys)
     assert "lies in the calibration folder" in line
     assert (calib_dir / "white" / "manifest.json").read_bytes() == before
+
+
+def test_an_output_name_near_the_file_systems_limit_is_written(tmp_path):
+    """A 250-byte output name fits the file system's 255, but its temporary name (a dot, 8
+    random characters and the suffix added) did not: "File name too long". Multi-byte names
+    are cut on a character's boundary, so that writers taking text accept the temporary name."""
+    import os
+
+    from reflecto.io import atomic_path, atomic_write
+
+    for name in ("x" * 250 + ".png", "é" * 124 + ".png"):
+        with atomic_write(tmp_path / name) as fh:
+            fh.write(b"data")
+        assert (tmp_path / name).read_bytes() == b"data"
+    with atomic_path(tmp_path / ("é" * 124 + ".exr"), suffix=".exr") as tmp:
+        os.fsencode(tmp.name).decode("utf-8")  # a name of whole characters
+        assert len(os.fsencode(tmp.name)) <= 255
+        tmp.write_bytes(b"x")
+    assert sorted(len(os.fsencode(p.name)) for p in tmp_path.iterdir()) == [252, 252, 254]

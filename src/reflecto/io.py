@@ -837,11 +837,25 @@ def check_output(path: str | Path, folder: bool = False, marker: str | None = No
         raise OutputError(p, "cannot create the folder: a file of that name is in the way")
 
 
+#: Longest temporary file name made next to an output (bytes): the usual file systems' limit.
+TEMP_NAME_MAX = 255
+
+
 def _temp_file(path: Path, suffix: str) -> tuple[int, str, list[Path]]:
     _replaceable(path)
     created = make_parents(path.parent)
+    # the temporary name adds a dot, 8 random characters and the suffix to the final one: a
+    # final name near the file system's limit (255 bytes) keeps only the head of its own
+    name = os.fsencode(path.name)
+    room = TEMP_NAME_MAX - len(os.fsencode(suffix)) - 10
+    head = path.name
+    if len(name) > room:  # cut on a character's boundary where the name is UTF-8 (writers that take text)
+        try:
+            head = name.decode("utf-8") and name[:room].decode("utf-8", "ignore")
+        except UnicodeDecodeError:
+            head = os.fsdecode(name[:room])
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{head}.", suffix=suffix, dir=path.parent)
     except OSError as e:
         remove_empty(created)
         raise OutputError(path, f"cannot write: {e.strerror or e}") from None
