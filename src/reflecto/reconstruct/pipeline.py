@@ -65,6 +65,7 @@ from .normal import (
     refine_normal,
     slice_peaks,
 )
+from .symmetry import PLANE_FLOOR_DEG
 from .tuning import PIPELINE
 
 Array = NDArray[np.float64]
@@ -545,7 +546,9 @@ def _decision_uncertainty(est: NormalEstimate) -> float:
     axis has up to 27× the true normal's eq. 10 error."""
     sd, width, pitch = est.fit_uncertainty_deg, est.lobe_half_width_deg, est.half_vector_pitch_deg
     if math.isfinite(sd) and (width <= SHARP_LOBE_PITCHES * pitch or est.misfit <= EXACT_MODEL_MISFIT):
-        return max(sd, SUBPIXEL_BIAS * pitch)
+        # where the symmetry planes moved the normal, the texel grid they are all located on
+        # biases them alike (symmetry.PLANE_FLOOR_DEG), which their combination cannot average away
+        return max(sd, SUBPIXEL_BIAS * pitch, PLANE_FLOOR_DEG if est.planes else 0.0)
     return est.uncertainty_deg
 
 
