@@ -214,3 +214,16 @@ def test_a_merl_table_that_is_no_brdf_is_refused_for_what_it_is(tmp_path, capsys
         err = _err(capsys)
         assert f"{src}: negative on the MERL grid" in err and "anisotropic" not in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_options_that_would_be_ignored_are_refused(tmp_path, capsys):
+    """`layout --seed` without `--optimize`, and `render --envmap` with the point-lit scene,
+    were accepted and ignored; each is one line, before any work."""
+    assert main(["layout", "--seed", "3"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--seed is the layout optimizer's" in err[0]
+    ex = str(Path(__file__).resolve().parents[1] / "examples" / "ggx-plastic.json")
+    assert main(["render", ex, "--scene", "sphere-point", "--envmap", str(tmp_path / "none.hdr"),
+                 "-o", str(tmp_path / "x.png")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--envmap lights the *-env scenes" in err[0] and not (tmp_path / "x.png").exists()

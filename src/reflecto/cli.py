@@ -75,6 +75,7 @@ from .reconstruct.preview import UNPLACED
 from .render.mitsuba import (
     DEFAULT_SPP,
     SCENES,
+    check_envmap,
     compare,
     comparison_image,
     render,
@@ -354,8 +355,11 @@ def cmd_layout(args: argparse.Namespace) -> int:
 
     dev = load_device(args.device)
     leds = dev.leds
+    if args.seed is not None and not args.optimize:
+        raise ReflectoError("--seed is the layout optimizer's: give it with --optimize")
     if args.optimize:
-        leds = layout.optimize_layout(dev.optics, n_leds=dev.n_leds, theta_max_deg=args.theta_max, seed=args.seed)
+        leds = layout.optimize_layout(dev.optics, n_leds=dev.n_leds, theta_max_deg=args.theta_max,
+                                      seed=args.seed or 0)
     cov = layout.coverage(dev.optics, leds, resolution=args.resolution, theta_max_deg=args.theta_max,
                           occluder_deg=dev.occluder_deg)
     info = {"device": dev.name, "leds_elevation_azimuth_deg": np.round(layout.led_angles(leds), 2).tolist(),
@@ -763,6 +767,11 @@ def cmd_render(args: argparse.Namespace) -> int:
     """
 
     out = Path(args.output)
+    if args.envmap and not args.scene.endswith("-env"):
+        raise ReflectoError(f"--envmap lights the *-env scenes; {args.scene} is lit by its point lights: drop "
+                            "--envmap or choose sphere-env or teapot-env")
+    if args.envmap:  # before the BRDF's export, which can take seconds
+        check_envmap(args.envmap)
     if args.envmap and _same_file(out, args.envmap):
         raise ReflectoError(f"{shown_path(out)}: is the environment map being rendered with; write the render "
                             "elsewhere")
@@ -1013,7 +1022,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--device", default="ideal", help=_DEVICE_HELP)
     q.add_argument("--optimize", action="store_true",
                    help="run the layout optimizer instead of using the device's LEDs")
-    q.add_argument("--seed", type=_LAYOUT_SEED, default=0, help="random seed of the layout optimizer")
+    q.add_argument("--seed", type=_LAYOUT_SEED, default=None, help="random seed of the layout optimizer (default 0)")
     q.add_argument("--resolution", type=_LAYOUT_RESOLUTION, default=64, help="hemicube resolution of the analysis: "
                    "cells along each edge of a hemicube face, even, 8 to 256 (the NDF's texels; the plot uses at "
                    "least 128)")

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .brdf import BRDFSource
+from .sources.rgl import read_tensor_file
 
 _LLVM_GLOBS = (
     "/usr/lib/*/libLLVM-[0-9]*.so*",
@@ -80,12 +81,14 @@ class MitsubaMeasured(BRDFSource):
     """
 
     kind = "mitsuba-measured"
-    isotropic = True
     reciprocal = False
 
     def __init__(self, path: str | Path, prefer: str = "llvm_ad_rgb") -> None:
         self.mi, self.variant = import_mitsuba(prefer)
         self.path = Path(path)
+        # isotropic as the file says (one or two φ_i): an anisotropic file's error is taken over
+        # every half-vector azimuth (metrics.comparison_error), not at φ_h = 0 alone
+        self.isotropic = len(read_tensor_file(self.path)["phi_i"]) <= 2
         self.bsdf = self.mi.load_dict({"type": "measured", "filename": str(self.path)})
 
     def eval_cosine(self, i: ArrayLike, o: ArrayLike) -> NDArray[np.float64]:
