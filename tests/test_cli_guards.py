@@ -227,3 +227,18 @@ def test_options_that_would_be_ignored_are_refused(tmp_path, capsys):
                  "-o", str(tmp_path / "x.png")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--envmap lights the *-env scenes" in err[0] and not (tmp_path / "x.png").exists()
+
+
+def test_the_eq3_advice_puts_a_tilt_held_at_its_bound_first():
+    """A capture whose estimated tilt stopped at --max-tilt breaks eq. 3 in that frame as well:
+    the advice was to capture rotations for §5.5; it names the bound. The ratio is shown to two
+    decimals (2.04× read "2.0×" against "broken from 2×")."""
+    from reflecto.cli import _symmetry_hint
+    from reflecto.reconstruct.eq3 import SymmetryTest
+
+    test = SymmetryTest(0.5, 1.0, 0.49, 40, 40)
+    assert test.ratio > 2.0 and f"{test.ratio:.2f}×" in test.describe()
+    held = {"normal_source": "estimated", "normal_tilt_deg": 8.0}
+    assert "stopped at --max-tilt 8°" in _symmetry_hint(test, held, 8.0)
+    free = {"normal_source": "estimated", "normal_tilt_deg": 5.2}
+    assert _symmetry_hint(test, free, 8.0) == test.hint() and "rotations" in test.hint()

@@ -578,3 +578,15 @@ def _with_array(path, name, array, out):
         for n, data in members.items():
             z.writestr(n, data)
     return out
+
+
+def test_a_diffuse_ceiling_of_zero_gives_k_d_zero_exactly():
+    """Where the data put k_d's ceiling at 0, the channel's k_d is 0, not the 1e-300 the bounded
+    solver's open box needed: the note "k_d = 0 in channels …" and the summary's k_d agree."""
+    from reflecto.reconstruct.isotropic import _bounded_scalars
+
+    rng = np.random.default_rng(0)
+    a = np.column_stack([np.full(50, 1 / np.pi), rng.uniform(0.1, 1.0, 50)])
+    f = np.column_stack([a @ [0.3, 0.5], a @ [0.2, 0.4], a @ [0.0, 0.6]])
+    x = _bounded_scalars(a, np.ones(50), f, np.array([0.4, 0.0, 0.0]), np.array([1.0]))
+    assert x[0, 1] == 0.0 and x[0, 2] == 0.0 and abs(x[0, 0] - 0.3) < 1e-9

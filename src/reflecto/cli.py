@@ -71,6 +71,7 @@ from .load import load_source
 from .reconstruct import Options
 from .reconstruct.asymmetric import MIN_CAPTURES
 from .reconstruct.eq3 import SymmetryTest
+from .reconstruct.pipeline import BOUND_NOTE, PEAK_BEYOND_NOTE
 from .reconstruct.preview import UNPLACED
 from .render.mitsuba import (
     DEFAULT_SPP,
@@ -443,6 +444,16 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                                                 for e in r["led_offset_from_nominal_deg"]) + "]° from nominal"])
 
 
+def _symmetry_hint(test: SymmetryTest, summary: dict[str, Any], max_tilt: float) -> str | None:
+    """The eq. 3 test's advice, or, where the search's bound held the normal (the summary's notes
+    say so), that the frame comes first: a normal held short of the sample's breaks eq. 3 as well."""
+    notes = summary.get("notes") or []
+    if any(isinstance(n, str) and n.startswith((BOUND_NOTE, PEAK_BEYOND_NOTE)) for n in notes):
+        return (f"the search's bound --max-tilt {max_tilt:g}° held the normal, and a normal short of the sample's "
+                "breaks eq. 3 too: raise --max-tilt (or give the normal) before capturing rotations")
+    return test.hint()
+
+
 def _normal_arg(text: str) -> str | tuple[float, ...]:
     """``--normal``: ``auto``, ``device`` or ``X,Y,Z`` (a unit vector, checked by
     :class:`~reflecto.reconstruct.Options`).
@@ -618,7 +629,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         sym = r.get("symmetry_test", {})
         if sym.get("decided") and not sym.get("symmetric"):
             test = SymmetryTest(*(sym[k] for k in ("asymmetry", "tau_rms", "direct_rms", "tau_pairs", "direct_pairs")))
-            lines += [f"  {test.describe()}", f"  hint: {test.hint()}"]
+            lines += [f"  {test.describe()}", f"  hint: {_symmetry_hint(test, r, args.max_tilt)}"]
     if args.json:
         print(json.dumps(info, indent=1))
     elif lines:
@@ -1076,7 +1087,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "search (seconds per set), which search always runs")
     q.add_argument("--eta", type=float, help="use this η instead of fitting it (default: fitted, eqs. 5–6)")
     q.add_argument("--max-tilt", type=_MAX_TILT, default=16.0, metavar="DEG",
-                   help="largest tilt of the sample normal the estimate searches, degrees (0 to 60)")
+                   help="largest tilt of the sample normal the estimate searches, degrees (above 0, below 60)")
     q.add_argument("--isotropic", choices=("auto", "yes", "no"), default="auto",
                    help="reconstruct a 1-D isotropic NDF (yes), a hemicube NDF for an anisotropic material (no), "
                         "or decide from the capture (auto)")

@@ -133,7 +133,7 @@ class SymmetryTest:
             return f"symmetry of eq. 3 not tested ({self.tau_pairs} τ-paired texels in the lobe, {MIN_PAIRS} needed)"
         verdict = "kept" if self.symmetric else "BROKEN"
         return (f"symmetry of eq. 3 {verdict}: partial NDFs at h and τh differ by {self.tau_rms:.3f} (log RMS, "
-                f"{self.tau_pairs} pairs), {self.ratio:.1f}× what two LEDs at one texel differ by "
+                f"{self.tau_pairs} pairs), {self.ratio:.2f}× what two LEDs at one texel differ by "
                 f"({self.spread:.3f}{'' if self.direct_pairs >= MIN_PAIRS else ', assumed: too few direct pairs'}; "
                 f"broken from {THRESHOLD:g}×): an excess of {self.asymmetry:.3f}")
 

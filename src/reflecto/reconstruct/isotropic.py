@@ -1003,6 +1003,8 @@ def _bounded_scalars(a: Array, w: Array, f: Array, kd_max: Array, g_max: Array) 
         x[:, c] = optimize.lsq_linear(chol.T, np.linalg.solve(chol, v),
                                       bounds=(np.zeros(len(m)), np.r_[max(kd_max[c], 1e-300), g_max]),
                                       method="bvls").x
+        if not kd_max[c] > 0:  # the solver needs an open box: a ceiling of 0 is k_d = 0, not 1e-300
+            x[0, c] = 0.0
     return x
 
 

@@ -371,6 +371,10 @@ class NormalEstimate:
         ``ε`` of the last light fit (:attr:`.isotropic.LuminanceFit.eps`: the RMS relative
         residual beyond the camera noise) in the frame the tilt was refined from; NaN when
         nothing was estimated.
+    peak_tilt_deg
+        The tilt of the first estimate, the steepest peaked slice's half vector
+        (:func:`peak_normal`), degrees; NaN where no slice peaks. Beyond the search's bound it
+        is not used.
     """
 
     normal: Array
@@ -384,6 +388,7 @@ class NormalEstimate:
     fit_uncertainty_deg: float = math.nan
     lobe_half_width_deg: float = math.nan
     misfit: float = math.nan
+    peak_tilt_deg: float = math.nan
 
     @property
     def tilt_deg(self) -> float:
@@ -964,13 +969,17 @@ def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0
     """
     z = np.array([0.0, 0.0, 1.0])
     n0 = peak_normal(slices, valid, peaks)
-    normal = z if n0 is None or _angle_deg(n0, z) > max_tilt_deg else n0
+    peak_tilt = math.nan if n0 is None else _angle_deg(n0, z)
+    # a peak beyond the searched cone is not a start: a felt's or a paint's grazing sheen passes
+    # for a peak 50–56° off (docs/design/normal.md); a start on the cone's edge lost such a
+    # felt's normal (acrylic felt tilted 7.8°: 7.8° off)
+    normal = z if n0 is None or peak_tilt > max_tilt_deg else n0
+    limit = math.tan(math.radians(max_tilt_deg))
     problem = TiltProblem(slices, valid)
     sd = math.inf
     refits = 0
     moving = 0.0  # the last refit's move while the estimate has not converged (degrees)
     history: list[Array] = []  # tangent offsets of the normal before each refit
-    limit = math.tan(math.radians(max_tilt_deg))
     subset = light_subset(slices, valid)
     for _ in range(MAX_REFITS):
         frame = geometry.frame_from_normal(normal, np.array([1.0, 0.0, 0.0]))
@@ -1015,7 +1024,7 @@ def estimate_normal(slices, valid: NDArray[np.bool_], max_tilt_deg: float = 16.0
     return NormalEstimate(normal, max(sd, pitch), "estimated", refits, _angle_deg(normal, z),
                           half_vector_pitch_deg=pitch, planes=planes, alternative=fitted if planes else None,
                           fit_uncertainty_deg=sd, lobe_half_width_deg=width,
-                          misfit=lum.eps if refits else math.nan)
+                          misfit=lum.eps if refits else math.nan, peak_tilt_deg=peak_tilt)
 
 
 def with_symmetry_planes(slices: Slices, valid: NDArray[np.bool_], normal: Array, sd_deg: float,

@@ -524,6 +524,8 @@ def resolve_normal(slices: Slices, valid: NDArray[np.bool_], opt: Options,
 SHARP_LOBE_PITCHES = PIPELINE.sharp_lobe_pitches
 #: … but never less than this many pitches: the bias of a peak placed between pixels.
 SUBPIXEL_BIAS = PIPELINE.subpixel_bias
+#: A sharp lobe's tilt beyond this many of its own uncertainties is not checked against the device frame.
+SHARP_TILT_SIGMAS = PIPELINE.sharp_tilt_sigmas
 #: … as has a lobe of any width whose light fit's misfit ``ε`` is at most this.
 EXACT_MODEL_MISFIT = PIPELINE.exact_model_misfit
 
@@ -616,6 +618,18 @@ def _peaks_place_tilt(est: NormalEstimate, peaks: list[SlicePeak]) -> bool:
     compact = agreeing_normals(peaks, peak_agreement(peaks))
     limit = math.cos(math.radians(PEAK_AGREEMENT_DEG))
     return bool(compact) and all(float(n @ est.normal) >= limit and float(n[2]) < limit for n in compact)
+
+
+def _sharp_tilt_beyond_doubt(est: NormalEstimate) -> bool:
+    """Whether a sharp lobe's tilt lies beyond :data:`SHARP_TILT_SIGMAS` of its own
+    uncertainty (:func:`_decision_uncertainty`, the peak's pixels placing it to hundredths of a
+    degree): no misfit of the 1-D model puts it there (untilted sharp lobes read 0.010–0.022°),
+    and the device frame's ε is no judge of it where the tilt hides a peak the device frame
+    sees (hematite tilted 0.7° toward the rim: found 0.001° off, ±0.02°, but the device
+    frame's ε was lower, and its model had 2.1× the true normal's eq. 10 error)."""
+    width, pitch = est.lobe_half_width_deg, est.half_vector_pitch_deg
+    return (math.isfinite(est.fit_uncertainty_deg) and width <= SHARP_LOBE_PITCHES * pitch
+            and est.tilt_deg > SHARP_TILT_SIGMAS * _decision_uncertainty(est))
 
 
 def _needs_device_check(opt: Options) -> bool:
@@ -855,7 +869,7 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
         iso = device_fit = _device_frame_fit(slices, valid, opt)
     else:
         iso = fit_isotropic(sl, ok, opt.fixed_eta, opt.kd_bound_max_deg)
-        if (_needs_device_check(opt) and not _within_sampling(est)
+        if (_needs_device_check(opt) and not _within_sampling(est) and not _sharp_tilt_beyond_doubt(est)
                 and not (peaks is not None and _peaks_place_tilt(est, peaks))):
             device_fit = device_frame_check(slices, valid, opt, iso)
         if (device_fit is not None and _tilt_explains_nothing(device_fit, iso)
@@ -866,7 +880,8 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
             spread = max(est.tilt_deg, 0.0 if est.alternative is None
                          else geometry.tilt_deg(est.alternative))
             est = NormalEstimate(np.array([0.0, 0.0, 1.0]), max(est.uncertainty_deg, spread), "device",
-                                 est.refits, est.tilt_estimate_deg, alternative=est.normal, planes=est.planes)
+                                 est.refits, est.tilt_estimate_deg, alternative=est.normal, planes=est.planes,
+                                 peak_tilt_deg=est.peak_tilt_deg)
             frame, sl = est.frame, slices
             ok = valid & sl.valid
             iso = device_fit
@@ -944,6 +959,23 @@ def _hidden_peak_notes(hidden: list[HiddenPeak]) -> list[str]:
             for p in hidden]
 
 
+#: The notes that say the search's bound held the normal (:func:`_normal_notes`): the frame may be
+#: off, which breaks eq. 3 and the mirror planes as well.
+BOUND_NOTE = "the tilt reached the search's bound"
+PEAK_BEYOND_NOTE = "a specular peak places the normal"
+
+
+def _peak_beyond_notes(est: NormalEstimate, opt: Options) -> list[str]:
+    """A note where the slices' specular peak placed the normal beyond a bound set below the
+    default search's (a felt's grazing sheen passes for a peak 50° off: beyond that search, no note)."""
+    peak, default = est.peak_tilt_deg, Options().max_tilt_deg
+    if not (math.isfinite(peak) and opt.max_tilt_deg < peak <= default):
+        return []
+    return [f"{PEAK_BEYOND_NOTE} {peak:.2f}° from the device axis, beyond the search's bound max_tilt_deg "
+            f"{opt.max_tilt_deg:g}°, which held the normal short of it: raise the bound (--max-tilt, "
+            "Options.max_tilt_deg) or give the normal"]
+
+
 def _normal_notes(est: NormalEstimate, opt: Options, isotropic: bool) -> list[str]:
     """A plain statement of the normal used (§5.4) when the options left it to the data."""
     if not (isinstance(opt.normal, str) and opt.normal == "auto"):
@@ -953,10 +985,10 @@ def _normal_notes(est: NormalEstimate, opt: Options, isotropic: bool) -> list[st
         notes = [f"sample normal tilted {est.tilt_deg:.2f}° from the device axis (±{est.uncertainty_deg:.2f}°, "
                  f"{how}, §5.4)"]
         if est.tilt_deg >= opt.max_tilt_deg - MAX_TILT_MARGIN_DEG:  # held by the search's bound: beyond it, maybe
-            notes.append(f"the tilt reached the search's bound max_tilt_deg {opt.max_tilt_deg:g}°: the normal may "
+            notes.append(f"{BOUND_NOTE} max_tilt_deg {opt.max_tilt_deg:g}°: the normal may "
                          "lie beyond it (raise it: --max-tilt, Options.max_tilt_deg; or give the normal)")
-        return notes
+        return notes + _peak_beyond_notes(est, opt)
     if not isotropic or opt.isotropic == "no":
         return ["sample normal: the device axis (the tilt estimate assumes an isotropic lobe; give a known "
-                "normal for a tilted capture of an anisotropic material)"]
-    return []  # the device axis holds (summary: normal_source "device")
+                "normal for a tilted capture of an anisotropic material)"] + _peak_beyond_notes(est, opt)
+    return _peak_beyond_notes(est, opt)  # the device axis holds (summary: normal_source "device")

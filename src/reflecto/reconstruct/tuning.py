@@ -1078,6 +1078,11 @@ class PipelineTuning:
                "hand-held study, ideal and as-built, untilted): the sharp lobes' estimates lie 0.010–0.022° from "
                "the device axis with fit uncertainties under half of that (steel ±0.005°), and kept, "
                "pink-jasper's 0.013° would raise its eq. 10 error by 8 %")
+    sharp_tilt_sigmas: float = tuned(
+        10.0, name="SHARP_TILT_SIGMAS", units="the tilt's standard uncertainties",
+        what="a sharp lobe's estimated tilt beyond this many of its own uncertainties is kept without the device "
+             "frame's check (whose ε comparison a peak the tilt hides biases)",
+        source="measurement: pending")
     exact_model_misfit: float = tuned(
         0.01, name="EXACT_MODEL_MISFIT", units="ε (relative RMS residual beyond the noise)",
         what="a lobe of any width whose last light fit misfits the capture by at most this has its tilt tested "
