@@ -1082,7 +1082,11 @@ class PipelineTuning:
         10.0, name="SHARP_TILT_SIGMAS", units="the tilt's standard uncertainties",
         what="a sharp lobe's estimated tilt beyond this many of its own uncertainties is kept without the device "
              "frame's check (whose ε comparison a peak the tilt hides biases)",
-        source="measurement: pending")
+        source="measurement: untilted sharp lobes' estimates lie 0.010–0.022° off the axis, at most 1.1 of the "
+               "0.02° floor of their uncertainty (sweeps and hand-held study, ideal and as-built); hematite tilted "
+               "0.7° toward the rim (as-built, calibrated) is found 0.002° off at 35 uncertainties, where the "
+               "device frame's ε, lowered by the grazing peak the tilt hides, kept the device axis (eq. 10 2.1× "
+               "the true normal's); the hand-held study's 50 materials reproduce their records exactly")
     exact_model_misfit: float = tuned(
         0.01, name="EXACT_MODEL_MISFIT", units="ε (relative RMS residual beyond the noise)",
         what="a lobe of any width whose last light fit misfits the capture by at most this has its tilt tested "
