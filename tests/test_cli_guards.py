@@ -238,7 +238,10 @@ def test_the_eq3_advice_puts_a_tilt_held_at_its_bound_first():
 
     test = SymmetryTest(0.5, 1.0, 0.49, 40, 40)
     assert test.ratio > 2.0 and f"{test.ratio:.2f}×" in test.describe()
-    held = {"normal_source": "estimated", "normal_tilt_deg": 8.0}
-    assert "stopped at --max-tilt 8°" in _symmetry_hint(test, held, 8.0)
-    free = {"normal_source": "estimated", "normal_tilt_deg": 5.2}
+    from reflecto.reconstruct.pipeline import BOUND_NOTE, PEAK_BEYOND_NOTE
+
+    for note in (BOUND_NOTE, PEAK_BEYOND_NOTE):
+        held = {"normal_source": "estimated", "normal_tilt_deg": 8.0, "notes": [f"{note} …"]}
+        assert "bound --max-tilt 8° held the normal" in _symmetry_hint(test, held, 8.0)
+    free = {"normal_source": "estimated", "normal_tilt_deg": 5.2, "notes": ["sample normal tilted 5.20°"]}
     assert _symmetry_hint(test, free, 8.0) == test.hint() and "rotations" in test.hint()
