@@ -12,6 +12,11 @@ reference by the error of eq. 10 (:mod:`.metrics`):
 * **same-data Cook–Torrance**: fitted to exactly the samples our capture holds
   (:func:`.cooktorrance.fit_cook_torrance_capture`), the parametric sparse fit.
 
+Each is scored as ``reflecto compare`` scores it (:func:`.metrics.comparison_error`): on the
+MERL bins at ``φ_h = 0`` where the material and the model are isotropic, over every
+half-vector azimuth where either is not (the Cook–Torrance fits are isotropic, fitted on
+the MERL bins).
+
 Each material also records its half of the generalization protocol (:mod:`.split`).
 
 Each material's result (errors, parameters, timings per stage, sphere renders for the
@@ -56,7 +61,7 @@ from ..io import atomic_write, make_parents, read_description, read_json, remove
 from ..load import load_source
 from ..render.sphere import render_sphere
 from .cooktorrance import fit_cook_torrance, fit_cook_torrance_capture
-from .metrics import brdf_error, evaluate_on_grid, max_albedo, metric_grid
+from .metrics import brdf_error, comparison_error, evaluate_on_grid, max_albedo, metric_grid
 from .plots import plot_errors, plot_spheres
 from .split import half
 
@@ -185,7 +190,7 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
     dict
         The record: ``name``, ``file``, ``device``, ``seed``, ``half``, ``albedo_ref``;
         ``ours``, ``earlier`` (normalized ``error`` of eq. 10, ``log_rmse``, ``rmse``
-        per channel in sr⁻¹, and the model's η, ``kd``, ``ks``, notes and checks),
+        per channel in sr⁻¹, ``error_form``, and the model's η, ``kd``, ``ks``, notes and checks),
         ``cook_torrance`` and ``same_data_ct`` (errors and fitted parameters);
         ``renders`` (``SPHERE_RES × SPHERE_RES × 3`` linear RGB lists of the reference and
         the models); ``timings`` (seconds per stage, and ``total_s``).
@@ -203,6 +208,12 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
     ref_vals = evaluate_on_grid(src, grid)
     alb = max_albedo(src)
     tm["reference_s"] = time.perf_counter() - t0
+
+    def score(model):  # as `reflecto compare`: every half-vector azimuth where either side is anisotropic
+        if getattr(src, "isotropic", True) and getattr(model, "isotropic", True):
+            return brdf_error(src, model, stride=METRIC_STRIDE, albedo_ref=alb, reference_values=ref_vals)
+        return comparison_error(src, model)
+
     renders = {}
     t0 = time.perf_counter()
     renders["reference"] = render_sphere(src, SPHERE_RES, supersample=2)
@@ -215,14 +226,14 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
         for k, v in t.items():
             tm[f"{label}_{k}"] = v
         t0 = time.perf_counter()
-        err = brdf_error(src, res.model, stride=METRIC_STRIDE, albedo_ref=alb, reference_values=ref_vals)
+        err = score(res.model)
         tm[f"{label}_metric_s"] = time.perf_counter() - t0
         m = res.model
         rec[label] = {"error": err.normalized, "log_rmse": err.log_rmse, "rmse": err.rmse.tolist(),
                       **eta_to_json(m.eta), "kd": m.kd.tolist(), "ks": m.ks.tolist(), "isotropic": res.isotropic,
                       "model_error": res.model_error, "shake_detected": res.shake_detected,
                       "albedo_max": res.albedo_max, "energy_scale": res.energy_scale, "notes": res.notes,
-                      "finite": bool(np.isfinite(err.normalized)),
+                      "finite": bool(np.isfinite(err.normalized)), "error_form": err.describe(),
                       "tint_nodes_deg": [] if getattr(m, "tint", None) is None else
                       np.degrees(m.tint.theta).round(2).tolist(),
                       "shadowing": None if res.shadowing is None else res.shadowing.form}
@@ -230,14 +241,14 @@ def run_material(path: str, out_dir: str, device: str = "ideal", calibration: st
     t0 = time.perf_counter()
     ct = fit_cook_torrance(src)
     tm["cook_torrance_fit_s"] = time.perf_counter() - t0
-    err = brdf_error(src, ct, stride=METRIC_STRIDE, albedo_ref=alb, reference_values=ref_vals)
+    err = score(ct)
     rec["cook_torrance"] = {"error": err.normalized, "log_rmse": err.log_rmse, "rmse": err.rmse.tolist(),
                             **ct.parameters()}
     renders["cook_torrance"] = render_sphere(ct, SPHERE_RES, supersample=2)
     t0 = time.perf_counter()
     sdct = fit_cook_torrance_capture(ours_slices)
     tm["same_data_ct_fit_s"] = time.perf_counter() - t0
-    err = brdf_error(src, sdct, stride=METRIC_STRIDE, albedo_ref=alb, reference_values=ref_vals)
+    err = score(sdct)
     rec["same_data_ct"] = {"error": err.normalized, "log_rmse": err.log_rmse, "rmse": err.rmse.tolist(),
                            **sdct.parameters()}
     rec["albedo_ref"] = alb
