@@ -221,6 +221,33 @@ def test_run_batch_on_a_local_dask_cluster_equals_the_local_run(cluster):
     assert np.allclose(remote[2][1], [37.8, 67.1])
 
 
+def test_two_batches_on_one_cluster_get_their_own_results(cluster):
+    """Two batches with the same positions and labels (one material swept on two devices) at
+    once on one cluster: each gets its own results (their task keys were equal, and Dask gave
+    the second batch the first's)."""
+    import threading
+
+    from reflecto.batch import run_batch
+
+    got: dict[str, list] = {"ideal": [], "wide": []}
+
+    def batch(name):
+        leds = Device.builtin(name).leds
+        run_batch(layout.peak_theta_d, [(Device.builtin(name).optics, leds)], ["same-material"], 1,
+                  lambda k, ok, v, s: got[name].append((ok, np.asarray(v).tolist())),
+                  scheduler=cluster.scheduler_address)
+
+    threads = [threading.Thread(target=batch, args=(n,)) for n in got]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    want = {n: np.asarray(layout.peak_theta_d(Device.builtin(n).optics, Device.builtin(n).leds)).tolist()
+            for n in got}
+    assert got["ideal"] == [(True, want["ideal"])] and got["wide"] == [(True, want["wide"])]
+    assert want["ideal"] != want["wide"]
+
+
 def test_an_unreachable_scheduler_is_one_error(monkeypatch):
     import importlib
 

@@ -16,6 +16,7 @@ import signal
 import sys
 import threading
 import time
+import uuid
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -252,8 +253,12 @@ def run_on_dask(fn: Callable[..., Any], items: Sequence[tuple[Any, ...]], labels
         client = distributed.Client(scheduler, timeout=DASK_CONNECT_TIMEOUT_S, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as e:
         raise ReflectoError(f"{scheduler}: cannot reach the Dask scheduler ({one_line(e)})") from None
+    # keys named for the dashboard and unique to this call: two batches on one cluster with the same
+    # positions and labels (sweeps of one material on two devices) shared a key, and Dask gave one
+    # batch the other's result
+    call = uuid.uuid4().hex[:12]
     try:
-        futs = {client.submit(_guarded, fn, args, labels[k], pure=False, key=f"reflecto-{k}-{labels[k]}"): k
+        futs = {client.submit(_guarded, fn, args, labels[k], pure=False, key=f"reflecto-{call}-{k}-{labels[k]}"): k
                 for k, args in enumerate(items)}
         for f in distributed.as_completed(list(futs), loop=client.loop):
             k = futs[f]

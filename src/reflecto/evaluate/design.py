@@ -558,7 +558,9 @@ def design_study(folders: Sequence[str | Path], out_dir: str | Path, cones: Sequ
         bar.update(todo[k].key, ok, seconds)
 
     try:
-        run_batch(_layout_task, [(d.cone_half_angle_deg, d.axis_tilt_deg, d.n_leds, str(out)) for d in todo],
+        # absolute paths: a Dask worker resolves a relative one against its own working folder
+        run_batch(_layout_task, [(d.cone_half_angle_deg, d.axis_tilt_deg, d.n_leds, os.path.abspath(out))
+                                 for d in todo],
                   [d.key for d in todo], jobs, laid, scheduler=scheduler)
     finally:
         bar.close()
@@ -584,7 +586,8 @@ def design_study(folders: Sequence[str | Path], out_dir: str | Path, cones: Sequ
             mbar.update(mats[k].stem, ok, seconds)
 
         try:
-            run_batch(_material_task, [(str(p), str(out), laid_out) for p in mats], [str(p) for p in mats], jobs,
+            run_batch(_material_task, [(os.path.abspath(p), os.path.abspath(out), laid_out) for p in mats],
+                      [str(p) for p in mats], jobs,
                       evaluated, scheduler=scheduler)
         finally:
             mbar.close()

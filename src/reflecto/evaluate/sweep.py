@@ -396,9 +396,12 @@ def sweep(folders: Sequence[str | Path], out_dir: str | Path, device: str = "ide
             failures.append((str(todo[k]), value))
         bar.update(todo[k].stem, ok, seconds)
 
+    # absolute paths: a Dask worker resolves a relative one against its own working folder (the
+    # device as given: the records and the table name it so)
     try:
-        run_batch(run_material, [(str(p), str(out), device, cal) for p in todo], [str(p) for p in todo],
-                  jobs or os.cpu_count() or 1, finished, scheduler=scheduler)
+        run_batch(run_material, [(os.path.abspath(p), os.path.abspath(out), device,
+                                  None if cal is None else os.path.abspath(cal)) for p in todo],
+                  [str(p) for p in todo], jobs or os.cpu_count() or 1, finished, scheduler=scheduler)
     finally:
         bar.close()
     recs = [records[k] for k in sorted(records)]
