@@ -307,12 +307,13 @@ function fAt(T, th, td, pd, out) {  // f at Rusinkiewicz angles (radians), φ_h 
   if (i[2] <= 1e-6 || o[2] <= 1e-6) { out[0] = out[1] = out[2] = NaN; return out; }
   return fRus(T, th, td, pd, out);
 }
+const NOT_IN_TABLE = [150, 190, 235];  // the slice's colour where no table node lies above the horizon
 function drawSlice(ctx, T, size, readout) {
   const id = ctx.createImageData(size, size), v = [0, 0, 0], pd = state.phid * Math.PI / 180;
   for (let y = 0; y < size; y++) for (let x = 0; x < size; x++) {
     fAt(T, (x + 0.5) / size * HALF_PI, (1 - (y + 0.5) / size) * HALF_PI, pd, v);
     const k = 4 * (y * size + x);
-    for (let ch = 0; ch < 3; ch++) id.data[k + ch] = isNaN(v[ch]) ? 255 : 255 * Math.min(1, Math.max(0, (Math.log10(Math.max(v[ch], 1e-4)) + 3) / 6));
+    for (let ch = 0; ch < 3; ch++) id.data[k + ch] = isNaN(v[ch]) ? NOT_IN_TABLE[ch] : 255 * Math.min(1, Math.max(0, (Math.log10(Math.max(v[ch], 1e-4)) + 3) / 6));
     id.data[k + 3] = 255;
   }
   ctx.putImageData(id, 0, 0);
@@ -351,7 +352,7 @@ const RES = 192, cols = [];
 D.brdfs.forEach((b, idx) => {
   const col = document.createElement("div"); col.className = "col";
   col.innerHTML = `<h2></h2><canvas class="sphere" width="${RES}" height="${RES}"></canvas>` +
-    `<div>θ_h–θ_d slice: θ_h 0–90° left to right, θ_d 0–90° bottom to top; log f, black 10⁻³, white 10³ sr⁻¹</div><canvas class="slice" width="180" height="180"></canvas>` +
+    `<div>θ_h–θ_d slice: θ_h 0–90° left to right, θ_d 0–90° bottom to top; log f, black 10⁻³, white 10³ sr⁻¹; pale blue: at the horizon, between the table's nodes</div><canvas class="slice" width="180" height="180"></canvas>` +
     `<div class="readout"></div><div>incidence plane at the θ_i above (dashed: the light; R, G, B: f·cos θ_o, linear)</div><canvas class="polar" width="220" height="140"></canvas>`;
   col.querySelector("h2").textContent = b.label;  // a name is text, whatever characters it holds
   document.getElementById("cols").appendChild(col);
