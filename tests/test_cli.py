@@ -17,6 +17,22 @@ def test_info_json(capsys, shared):
     assert 0 < lo <= hi < 1.05
 
 
+def test_info_gives_an_anisotropic_albedo_range_over_the_incidence_azimuths(capsys):
+    """An anisotropic source's albedo changes with φ_i: the range is over 12 azimuths, the
+    largest what `compare` normalizes by (it read φ_i = 0 alone: 0.2228 against 0.3174)."""
+    from pathlib import Path
+
+    from reflecto.evaluate.metrics import ALBEDO_AZIMUTHS, max_albedo
+    from reflecto.load import load_source
+
+    brushed = Path(__file__).resolve().parents[1] / "examples" / "asymmetric" / "ggx-brushed-30.toml"
+    assert main(["info", str(brushed), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert not info["isotropic"] and info["albedo_range_azimuths"] == ALBEDO_AZIMUTHS
+    hi = max_albedo(load_source(brushed), azimuths=ALBEDO_AZIMUTHS)
+    assert abs(info["albedo_range"][1] - hi) < 1e-3 and info["albedo_range"][1] > 1.2 * max(info["albedo"]["80deg"])
+
+
 def test_tabulate_analytic(tmp_path, capsys):
     src = tmp_path / "g.json"
     src.write_text('{"type": "analytic", "distribution": "ggx", "alpha": 0.3, "kd": 0.2, "ks": 0.5}')

@@ -53,7 +53,7 @@ from .evaluate.design import (
     design_value,
 )
 from .evaluate.gallery import GALLERY_MARKER, GallerySettings, gallery
-from .evaluate.metrics import comparison_error
+from .evaluate.metrics import ALBEDO_AZIMUTHS, comparison_error
 from .evaluate.report import write_report
 from .evaluate.sweep import find_materials, summarize, sweep
 from .export.merl import export_merl, holds_isotropic
@@ -299,6 +299,11 @@ def cmd_info(args: argparse.Namespace) -> int:
     src = load_source(args.source)
     theta = np.array([0.0, 20.0, 40.0, 60.0, 80.0])
     alb = src.albedo(theta)
+    # an anisotropic BRDF's albedo changes with the incidence azimuth: its range is over 12 of them
+    # (as compare normalizes by), the table at φ_i = 0
+    azimuths = 1 if src.isotropic else ALBEDO_AZIMUTHS
+    span = alb if azimuths == 1 else np.stack([alb] + [src.albedo(theta, 360.0 * k / azimuths)
+                                                       for k in range(1, azimuths)])
     info: dict[str, Any] = {
         "file": str(src.path),
         "kind": src.kind,
@@ -306,7 +311,8 @@ def cmd_info(args: argparse.Namespace) -> int:
         "reciprocal": bool(src.reciprocal),
         "parameters": src.parameters(),
         "albedo": {f"{t:g}deg": [round(float(v), 5) for v in a] for t, a in zip(theta, alb)},
-        "albedo_range": [round(float(alb.min()), 5), round(float(alb.max()), 5)],
+        "albedo_range": [round(float(span.min()), 5), round(float(span.max()), 5)],
+        "albedo_range_azimuths": azimuths,
     }
     lines = [shown_path(info["file"]),
              f"  kind        {info['kind']}  (isotropic: {info['isotropic']}, reciprocal: {info['reciprocal']})"]
@@ -324,9 +330,10 @@ def cmd_info(args: argparse.Namespace) -> int:
                          f"({detail}{shown_path(str(meta.get('normal_source')))})")
         if meta.get("preview") is True:
             lines.append("  preview     a first model (reflecto watch); reflecto reconstruct makes the full one")
-    lines.append("  directional albedo (RGB) at θ_i:")
+    lines.append("  directional albedo (RGB) at θ_i" + ("" if azimuths == 1 else ", φ_i = 0") + ":")
     lines += [f"    {k:>6}  {v[0]:.4f} {v[1]:.4f} {v[2]:.4f}" for k, v in info["albedo"].items()]
-    lines.append(f"  albedo range [{info['albedo_range'][0]:.4f}, {info['albedo_range'][1]:.4f}]")
+    lines.append(f"  albedo range [{info['albedo_range'][0]:.4f}, {info['albedo_range'][1]:.4f}]"
+                 + ("" if azimuths == 1 else f" over θ_i 0–80° and {azimuths} incidence azimuths"))
     return _emit(args, info, lines)
 
 

@@ -924,6 +924,9 @@ def reconstruct(slices: Slices, options: Options | None = None) -> Reconstructio
     cpu.motion = lap()
     model, scale, albedo = limit_energy_of_the_trend(built, opt.energy_clamp)
     notes = _normal_notes(est, opt, isotropic) + ([anisotropic_frame_note] if anisotropic_frame_note else [])
+    if motion.shake_detected and est.source == "estimated":  # the tilt reads as confidently as a steady one's
+        notes.append(f"the sample moved during the capture: the normal found ({est.tilt_deg:.2f}°) and the model "
+                     "mix its positions, whatever their uncertainty says; capture again holding the device still")
     notes += _hidden_peak_notes(hidden)
     notes += _notes(fit, model, isotropic, test, scale) + held_tint_notes(built, model)
     shadowing_note = None if shadowing is None else shadowing.note()
