@@ -16,8 +16,8 @@ forgotten. A modelled capture that leaves ``ROOT`` leaves the page with one line
 files stay in ``MODELS``); one replaced or rewritten after its model (another folder
 renamed into place, its manifest written again; looked at once a second,
 :data:`IDENTITY_CHECK_S`) is modelled again. A folder whose name the models cannot carry
-(not valid UTF-8, or too long for the file names made from it) is reported and skipped the same way. A folder rewritten
-while its model was made is made again from what it holds then.
+(not valid UTF-8, or too long for the file names made from it) is reported and skipped the
+same way. A folder rewritten while its model was made is made again from what it holds then.
 
 Each good capture is reconstructed by the function given as ``reconstruct_one``
 (capture folder, model path → summary dict; default :func:`default_reconstructor`,
@@ -537,12 +537,14 @@ class Watcher:
         if now - self._identity_checked < IDENTITY_CHECK_S:
             return
         self._identity_checked = now
-        for name, made in self._made_from.items():
-            if name not in self._stale and name in self.entries and _identity(self.root / name) != made:
-                self._stale.add(name)
-                self.previews.pop(name, None)  # its full model is of the new data, made afresh
-                self.entries[name].warnings.append("the capture folder changed since: being modelled again")
-                self._write_index()
+        changed = [name for name, made in self._made_from.items()
+                   if name not in self._stale and name in self.entries and _identity(self.root / name) != made]
+        for name in changed:
+            self._stale.add(name)
+            self.previews.pop(name, None)  # its full model is of the new data, made afresh
+            self.entries[name].warnings.append("the capture folder changed since: being modelled again")
+        if changed:
+            self._write_index()
 
     def _forget_gone(self, present: set[str]) -> None:
         """Forget the folders waited for or refused that have left ``root`` (removed, or

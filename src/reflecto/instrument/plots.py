@@ -80,8 +80,8 @@ def plot_coverage(optics: Optics, leds: ArrayLike, path: str | Path, resolution:
         ax.set_aspect("equal")
         ax.set_xlim(-1.05, 1.05)
         ax.set_ylim(-1.05, 1.05)
-        ax.set_xlabel("$h_x$ (tangent)")
-        ax.set_ylabel("$h_y$")
+        ax.set_xlabel("h_x (tangent)")
+        ax.set_ylabel("h_y (bitangent)")
         ax.set_title("(d) completed by symmetry" if completed else "(c) partial NDF per LED")
         ax.legend(loc="lower left", fontsize=7, markerscale=4, ncol=2, frameon=False)
     fig.suptitle(f"Half-vector coverage, θ_h ≤ {theta_max_deg:g}° "

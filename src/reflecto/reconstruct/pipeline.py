@@ -530,6 +530,12 @@ SHARP_TILT_SIGMAS = PIPELINE.sharp_tilt_sigmas
 EXACT_MODEL_MISFIT = PIPELINE.exact_model_misfit
 
 
+def _sharp(est: NormalEstimate) -> bool:
+    """Whether the estimate's lobe is at most :data:`SHARP_LOBE_PITCHES` half-vector pitches wide
+    (half width at half maximum): its peak lies in a few pixels."""
+    return est.lobe_half_width_deg <= SHARP_LOBE_PITCHES * est.half_vector_pitch_deg
+
+
 def _decision_uncertainty(est: NormalEstimate) -> float:
     """The uncertainty the device-axis test of :func:`resolve_normal` uses.
 
@@ -546,8 +552,8 @@ def _decision_uncertainty(est: NormalEstimate) -> float:
     capture by no more than its own discretization (``misfit`` ≤ :data:`EXACT_MODEL_MISFIT`):
     there no misfit biases the tilt, and a glossy lobe tilted 0.1–0.4° left on the device
     axis has up to 27× the true normal's eq. 10 error."""
-    sd, width, pitch = est.fit_uncertainty_deg, est.lobe_half_width_deg, est.half_vector_pitch_deg
-    if math.isfinite(sd) and (width <= SHARP_LOBE_PITCHES * pitch or est.misfit <= EXACT_MODEL_MISFIT):
+    sd, pitch = est.fit_uncertainty_deg, est.half_vector_pitch_deg
+    if math.isfinite(sd) and (_sharp(est) or est.misfit <= EXACT_MODEL_MISFIT):
         # where the symmetry planes moved the normal, the texel grid they are all located on
         # biases them alike (symmetry.PLANE_FLOOR_DEG), which their combination cannot average away
         return max(sd, SUBPIXEL_BIAS * pitch, PLANE_FLOOR_DEG if est.planes else 0.0)
@@ -627,8 +633,7 @@ def _sharp_tilt_beyond_doubt(est: NormalEstimate) -> bool:
     and the device frame's ε is no judge of it where the tilt hides a peak the device frame
     sees (hematite tilted 0.7° toward the rim: found 0.001° off, ±0.02°, but the device
     frame's ε was lower, and its model had 2.1× the true normal's eq. 10 error)."""
-    width, pitch = est.lobe_half_width_deg, est.half_vector_pitch_deg
-    return (math.isfinite(est.fit_uncertainty_deg) and width <= SHARP_LOBE_PITCHES * pitch
+    return (math.isfinite(est.fit_uncertainty_deg) and _sharp(est)
             and est.tilt_deg > SHARP_TILT_SIGMAS * _decision_uncertainty(est))
 
 
