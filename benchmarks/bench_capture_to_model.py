@@ -30,7 +30,10 @@ first-call time of ``reflecto reconstruct`` in a fresh process (wall, median of
 ``--first`` runs). The device captures 8.6 BRDFs per second (117 ms each); the
 target is ≤ 100 ms median, ≤ 150 ms p90 marginal per capture (``total``).
 
-Run: ``.venv/bin/python benchmarks/bench_capture_to_model.py [--work DIR] [--repeats N]``.
+With ``--normal true`` (or ``device``) the normal is given instead (the capture's simulated
+normal, or the device axis): the same path without the altered normal's estimate.
+
+Run: ``.venv/bin/python benchmarks/bench_capture_to_model.py [--work DIR] [--repeats N] [--normal auto|true|device]``.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ import _bench  # noqa: F401  (pins to one core before NumPy loads)
 
 # isort: split
 import argparse  # noqa: E402
+import json  # noqa: E402
 import os  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -54,6 +58,7 @@ from reflecto.instrument.calibrate import calibrate  # noqa: E402
 from reflecto.instrument.capture import write_capture  # noqa: E402
 from reflecto.instrument.device import Device  # noqa: E402
 from reflecto.instrument.simulate import simulate_calibration, simulate_capture  # noqa: E402
+from reflecto.reconstruct import Options  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The source tree of the reflecto this process runs (the fresh process runs the same one).
@@ -97,12 +102,22 @@ def prepare(work: Path) -> tuple[list[Path], Path]:
     return caps, cal_path
 
 
-def stages_once(cap_dir: Path, cal_path: Path, out: Path, preview: bool = False) -> dict[str, tuple[float, float]]:
+def true_normal(cap_dir: Path) -> tuple[float, float, float]:
+    """The sample normal the capture was simulated with (device coordinates)."""
+    x, y, z = json.loads((cap_dir / "manifest.json").read_text())["simulation"]["normal"]
+    return float(x), float(y), float(z)
+
+
+def stages_once(cap_dir: Path, cal_path: Path, out: Path, preview: bool = False,
+                normal: str = "auto") -> dict[str, tuple[float, float]]:
     """(CPU s, wall s) of each stage for one capture, as :func:`reflecto.workflow.reconstruct_folder`
     (the path of ``reflecto reconstruct`` and ``reflecto watch``) measures them; ``preview``:
-    the preview's path."""
+    the preview's path; ``normal``: ``auto`` or ``device`` (:attr:`reflecto.reconstruct.Options.normal`),
+    or ``true``: the simulated capture's own normal (its manifest's ``simulation`` record), given."""
+    given = true_normal(cap_dir) if normal == "true" else normal
     c0, t0 = time.process_time(), time.perf_counter()
-    summary = workflow.reconstruct_folder(cap_dir, out, str(cal_path), preview=preview)
+    summary = workflow.reconstruct_folder(cap_dir, out, str(cal_path), options=Options(normal=given),
+                                          preview=preview)
     total = (time.process_time() - c0, time.perf_counter() - t0)
     cpu, wall = summary["stage_cpu_seconds"], summary["stage_seconds"]
     res = {name: (cpu[key], wall[key]) for name, key in STAGE_KEYS.items()}
@@ -131,23 +146,26 @@ def main() -> None:
                     help="folder of the captures and calibration (made once, reused)")
     ap.add_argument("--repeats", type=int, default=REPEATS, help="rounds over all captures")
     ap.add_argument("--first", type=int, default=3, help="fresh-process runs of the first call (0: skip)")
+    ap.add_argument("--normal", choices=("auto", "device", "true"), default="auto",
+                    help="auto: the default path (the altered normal estimated); device or true: the normal "
+                         "given (the device axis, or the capture's simulated normal), the path without the estimate")
     args = ap.parse_args()
     caps, cal_path = prepare(args.work)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "m.reflecto"
         for c in caps:  # warm-up: compiled kernels, caches, page cache
-            stages_once(c, cal_path, out)
+            stages_once(c, cal_path, out, normal=args.normal)
             stages_once(c, cal_path, out, preview=True)
         rows: dict[str, list[tuple[float, float]]] = {}
         previews: dict[str, list[tuple[float, float]]] = {}
         for _ in range(args.repeats):
             for c in caps:
-                for k, v in stages_once(c, cal_path, out).items():
+                for k, v in stages_once(c, cal_path, out, normal=args.normal).items():
                     rows.setdefault(k, []).append(v)
                 for k, v in stages_once(c, cal_path, out, preview=True).items():
                     previews.setdefault(k, []).append(v)
     print(f"capture → model, {len(caps)} measured materials × {args.repeats}, as-built device, calibrated, "
-          f"tilted 3–8°, one core (ms per capture, marginal)")
+          f"tilted 3–8°, normal {args.normal}, one core (ms per capture, marginal)")
     print(f"  {'stage':12s} {'cpu median':>10s} {'cpu p90':>8s} {'wall median':>11s} {'wall p90':>8s}")
     parts = [k for k in rows if k.startswith("  ")]
     for s in STAGES:

@@ -902,3 +902,42 @@ def test_a_luminance_fit_at_the_ks_bound_is_noted_as_such_where_the_channels_sta
     assert np.all(rec.model.ks < 0.9), rec.model.ks
     assert not any(n.startswith("k_s at its physical bound 1") for n in rec.notes), rec.notes
     assert any(n.startswith("the luminance fit held k_s at its physical bound 1") for n in rec.notes), rec.notes
+
+
+def test_kd_at_its_ceiling_is_noted(shared):
+    """``k_d``'s ceiling (π times the samples' median, :func:`.samples.kd_median_bound`) is a
+    bound of the channels' least squares: where it binds the summary says so. violet-acrylic
+    on the ideal device (the sweep's seed): the least squares without the ceiling wants more
+    ``k_d`` in every channel, the model holds it at the ceiling."""
+    from reflecto import workflow
+    from reflecto.evaluate.sweep import material_seed
+    from reflecto.instrument.device import load_device
+    from reflecto.load import load_source
+    from reflecto.reconstruct.isotropic import fit_isotropic
+
+    src = load_source(shared / "merl-nbrdf" / "violet-acrylic.h5")
+    cap = simulate_capture(src, load_device("ideal"), seed=material_seed("violet-acrylic"))
+    result = workflow.capture_to_model(cap)
+    rec, sl = result.reconstruction, result.slices
+    fit = fit_isotropic(sl, sl.valid)
+    assert np.allclose(fit.model.kd, fit.kd_ceiling, rtol=1e-9) and np.all(fit.kd_ceiling > 0), fit.model.kd
+    assert np.all(fit.least_squares.kd > fit.kd_ceiling * 1.05), (fit.least_squares.kd, fit.kd_ceiling)
+    assert np.allclose(rec.model.kd, fit.model.kd * rec.energy_scale)
+    assert any(n.startswith("k_d at its ceiling in channels [0, 1, 2]") for n in rec.notes), rec.notes
+    # a model whose k_d stays under its ceiling gets no such note
+    from reflecto.reconstruct.pipeline import bound_notes
+
+    assert not any("ceiling" in n for n in bound_notes(False, 1.5, rec.model, rec.energy_scale, fit.kd_ceiling * 1.01))
+
+
+def test_eta_at_either_bound_is_noted():
+    """η held at the fit's lower bound is noted as its upper bound is (:func:`bound_notes`)."""
+    from reflecto.reconstruct.isotropic import ETA_MAX, ETA_MIN
+    from reflecto.reconstruct.pipeline import bound_notes
+
+    dev = Device.builtin("ideal")
+    cap = simulate_capture(AnalyticBRDF("ggx", 0.2, kd=0.1, ks=0.5, eta=1.5), dev, seed=3)
+    model = reconstruct(extract_slices(cap, nominal_calibration(dev))).model
+    assert any(n.startswith(f"η at its bound {ETA_MIN:g}") for n in bound_notes(False, ETA_MIN, model, 1.0))
+    assert any(n.startswith(f"η at its bound {ETA_MAX:g}") for n in bound_notes(False, ETA_MAX, model, 1.0))
+    assert not any(n.startswith("η at") for n in bound_notes(False, 1.5, model, 1.0))

@@ -464,7 +464,7 @@ def _cap_fraction(cube: Hemicube, mask: NDArray[np.bool_] | None) -> float:
 
 
 def _notes(model, isotropic: bool, ks_at_bound: bool, eta: float, symmetry: SymmetryTest, energy_scale: float,
-           synthesized: float, holes: float) -> list[str]:
+           synthesized: float, holes: float, kd_ceiling: Array | None = None) -> list[str]:
     notes = []
     if isotropic:
         notes.append("isotropic: no capture shows a second azimuthal harmonic and the merged data keep eq. 3; "
@@ -474,7 +474,7 @@ def _notes(model, isotropic: bool, ks_at_bound: bool, eta: float, symmetry: Symm
                      f"seen by no capture, {100 * synthesized:.1f} % synthesized, the rest lobe-filled")
     if symmetry.decided and symmetry.symmetric:
         notes.append("the merged data keep the symmetry of eq. 3: a single capture would have done")
-    return notes + bound_notes(ks_at_bound, eta, model, energy_scale)
+    return notes + bound_notes(ks_at_bound, eta, model, energy_scale, kd_ceiling)
 
 
 def _set_normal(captures: Sequence[RotatedCapture], valids: list[NDArray[np.bool_]], max_tilt_deg: float) -> Array:
@@ -642,12 +642,14 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
         stacked, ok_st = stack_isotropic([c.slices.reframe(frames[0]) for c in captures], valids)
         iso = fit_isotropic(stacked, ok_st & stacked.valid, opt.fixed_eta, opt.kd_bound_max_deg)
         model, eta, ks_bound, fresnel_error = iso.model, iso.eta, iso.ks_at_bound, math.nan
+        kd_ceiling: Array | None = iso.kd_ceiling
     else:
         loop, mg, fill = _fit_hemicube_set(sb, sls, oks, opt, syn_opt, pairs.select(~pairs.symmetric))
         st = loop.state
         model = hf.output_model(mg, st, opt.resolution)
         eta, ks_bound, fresnel_error = float(st.eta[0]), bool(np.any(st.ks >= 1.0)), loop.fresnel_error
         excluded = [(k // sb.n_leds, k % sb.n_leds) for k in loop.excluded_leds]
+        kd_ceiling = None  # the set's loop bounds k_d by the lowest capture's ceiling, not kept
         # reported against the reconstruction's own S and F, which fit the anisotropic lobe
         symmetry = symmetry_from_ratios(within_captures(pair_ratios(sb.bins, len(sb.light), model, pairs), sb),
                                         captures=len(captures))
@@ -660,6 +662,7 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
     return AsymmetricReconstruction(
         model, eta, [float(c.rotation_deg) for c in captures], normal, tests, symmetry, consistency, motion,
         synthesized, holes, fresnel_error, scale, albedo,
-        _notes(model, isotropic, ks_bound, eta, symmetry, scale, synthesized, holes) + held_tint_notes(built, model),
+        _notes(model, isotropic, ks_bound, eta, symmetry, scale, synthesized, holes, kd_ceiling)
+        + held_tint_notes(built, model),
         time.perf_counter() - t0,
         fill, excluded)

@@ -95,6 +95,8 @@ class HemicubeFit:
     lost_leds: list[int]
     ks_at_bound: bool
     iterations: int
+    #: ``k_d``'s ceiling per channel (:func:`.samples.kd_bound`), the box of the scalars' fit.
+    kd_ceiling: Array | None = None
 
 
 #: A hole fill: ``(cube, Σw, Σw·D, last, inner_holes) → (D, log lobe or None)``, where
@@ -317,7 +319,7 @@ def fit_hemicube(sl: Slices, ok: NDArray[np.bool_], *, fixed_eta: float | None =
                  inner_iterations=inner_iterations)
     st = r.state
     return HemicubeFit(output_model(mg, st, resolution), float(st.eta[0]), r.fresnel_error, r.fresnel_error_at_check,
-                       r.excluded_leds, mg.lost_leds, bool(np.any(st.ks >= 1.0)), r.iterations)
+                       r.excluded_leds, mg.lost_leds, bool(np.any(st.ks >= 1.0)), r.iterations, kd_max)
 
 
 def output_model(mg: Merge, st: LoopState, resolution: int) -> MicrofacetBRDF:

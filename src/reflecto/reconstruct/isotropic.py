@@ -1123,10 +1123,15 @@ class IsotropicFit:
     ceiling: Callable[[], Array]
 
     @functools.cached_property
+    def kd_ceiling(self) -> Array:
+        """``k_d``'s ceiling per channel (3,): ``π`` times the samples' median (:func:`.samples.kd_median_bound`)."""
+        return np.asarray(self.ceiling(), dtype=np.float64)
+
+    @functools.cached_property
     def model(self) -> IsotropicMicrofacetBRDF:
         """The reconstructed BRDF (see the class docstring)."""
         lum = self.luminance
-        kd, ks, tint, lobes = tinted_scalars(lum, self.ceiling())
+        kd, ks, tint, lobes = tinted_scalars(lum, self.kd_ceiling)
         d = np.exp(lum.state.z - lum.state.z.max())
         return IsotropicMicrofacetBRDF((lum.problem.nodes, d), kd, ks, lum.state.eta, tint=tint,
                                        correlated=lum.problem.correlated,

@@ -773,13 +773,15 @@ def _notes(fit: IsotropicFit | HemicubeFit, model, isotropic: bool, test: Isotro
         notes.append(f"anisotropic: a second azimuthal harmonic explains {100 * test.anisotropy:.0f} % of the "
                      f"partial NDF's ring-wise variance ({100 * test.conditional:.0f} % of what θ_d and φ_d "
                      "leave); hemicube NDF")
-    return notes + bound_notes(fit.ks_at_bound, fit.eta, model, energy_scale)
+    return notes + bound_notes(fit.ks_at_bound, fit.eta, model, energy_scale, fit.kd_ceiling)
 
 
-def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> list[str]:
+def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float,
+                kd_ceiling: Array | None = None) -> list[str]:
     """Plain notes on every parameter the data held at a physical or search bound (``k_s = 1``,
-    η at :data:`~.isotropic.ETA_MAX`, ``k_d = 0``), on the constant Fresnel lobe that
-    replaces an η beyond that bound, and on the energy limit, for a summary.
+    η at :data:`~.isotropic.ETA_MIN` or :data:`~.isotropic.ETA_MAX`, ``k_d = 0``, ``k_d`` at
+    its ceiling), on the constant Fresnel lobe that replaces an η beyond that bound, and on
+    the energy limit, for a summary.
 
     Parameters
     ----------
@@ -792,6 +794,9 @@ def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> li
         The final model (its ``kd`` is checked for zero channels).
     energy_scale
         The scale of :func:`limit_energy` (< 1: the albedo was limited).
+    kd_ceiling
+        ``k_d``'s upper bound per channel in the fit (:func:`.samples.kd_median_bound`:
+        ``k_d/π`` at most the samples' median), or ``None`` where the fit had none.
 
     Returns
     -------
@@ -814,9 +819,19 @@ def bound_notes(ks_at_bound: bool, eta: float, model, energy_scale: float) -> li
                      "carry its level and colour")
     elif eta >= ETA_MAX * (1 - 1e-6):
         notes.append(f"η at its bound {ETA_MAX:g}: a metal-like flat Fresnel curve; the channels' k_s carry its colour")
+    elif eta <= ETA_MIN * (1 + 1e-9):
+        notes.append(f"η at its bound {ETA_MIN:g}: the steepest Fresnel rise toward grazing the fit allows")
     if np.any(model.kd <= 0):
         notes.append("k_d = 0 in channels " + str(np.flatnonzero(model.kd <= 0).tolist())
                      + ": no diffuse floor measured")
+    if kd_ceiling is not None:
+        # the energy limit scales k_d after the fit: compare the fitted value with its bound
+        ceiling = np.asarray(kd_ceiling, dtype=np.float64)
+        at = np.flatnonzero((ceiling > 0) & (np.asarray(model.kd) >= (1.0 - 1e-7) * energy_scale * ceiling))
+        if at.size:
+            notes.append(f"k_d at its ceiling in channels {at.tolist()} (k_d/π at most the samples' median, "
+                         "which a diffuse floor cannot exceed): the least squares wanted more, the specular "
+                         "terms carry the rest")
     if energy_scale < 1:
         notes.append(f"k_d and k_s scaled by {energy_scale:.3f} so that the albedo stays ≤ 1")
     return notes

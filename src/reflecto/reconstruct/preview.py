@@ -144,11 +144,12 @@ def preview(slices: Slices, options: Options | None = None) -> Reconstruction:
     lum = light_fit(slices, valid, frame, opt.fixed_eta)
     sl = slices.reframe(frame)
     ok = valid & sl.valid
-    kd, ks = channel_scalars(lum, kd_median_bound(sl.light, sl.view, sl.values, ok, opt.kd_bound_max_deg))
+    ceiling = kd_median_bound(sl.light, sl.view, sl.values, ok, opt.kd_bound_max_deg)
+    kd, ks = channel_scalars(lum, ceiling)
     fitted = IsotropicMicrofacetBRDF((lum.problem.nodes, np.exp(lum.state.z - lum.state.z.max())), kd, ks,
                                      lum.state.eta)
     model, scale, albedo = limit_energy(fitted, opt.energy_clamp)
-    notes += bound_notes(bool(np.any(ks >= 1.0)), float(lum.state.eta), model, scale)
+    notes += bound_notes(bool(np.any(ks >= 1.0)), float(lum.state.eta), model, scale, ceiling)
     c2 = time.process_time()
     motion = MotionReport()
     if opt.detect_shake:
