@@ -488,15 +488,17 @@ def _set_normal(captures: Sequence[RotatedCapture], valids: list[NDArray[np.bool
 
 
 def _fit_hemicube_set(sb: _SetBins, sls: Sequence[Slices], oks: Sequence[NDArray[np.bool_]], opt: Options,
-                      synthesis: SynthesisOptions, pairs: Pairs) -> tuple[hf.LoopResult, hf.Merge, SynthesisFill]:
-    """The hemicube loop on all captures' bins without τ (``pairs``: their direct overlaps), completed by synthesis."""
+                      synthesis: SynthesisOptions, pairs: Pairs
+                      ) -> tuple[hf.LoopResult, hf.Merge, SynthesisFill, Array]:
+    """The hemicube loop on all captures' bins without τ (``pairs``: their direct overlaps), completed by
+    synthesis; with ``k_d``'s ceiling per channel (the lowest of the captures')."""
     mg = hf.merge_bins(sb.cube, sb.bins, len(sb.light), sb.per_led, sb.censored_fraction, symmetric=False,
                        pairs=pairs)
     kd_max = np.min([kd_bound(s.light, s.view, s.values, ok, s.pixels, opt.kd_bound_max_deg, s.noise)
                      for s, ok in zip(sls, oks)], axis=0)
     fill = SynthesisFill(synthesis)
     result = hf.run_loop(mg, kd_max, sb.light, fixed_eta=opt.fixed_eta, fill=fill)
-    return result, mg, fill
+    return result, mg, fill, kd_max
 
 
 @dataclasses.dataclass
@@ -644,12 +646,11 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
         model, eta, ks_bound, fresnel_error = iso.model, iso.eta, iso.ks_at_bound, math.nan
         kd_ceiling: Array | None = iso.kd_ceiling
     else:
-        loop, mg, fill = _fit_hemicube_set(sb, sls, oks, opt, syn_opt, pairs.select(~pairs.symmetric))
+        loop, mg, fill, kd_ceiling = _fit_hemicube_set(sb, sls, oks, opt, syn_opt, pairs.select(~pairs.symmetric))
         st = loop.state
         model = hf.output_model(mg, st, opt.resolution)
         eta, ks_bound, fresnel_error = float(st.eta[0]), bool(np.any(st.ks >= 1.0)), loop.fresnel_error
         excluded = [(k // sb.n_leds, k % sb.n_leds) for k in loop.excluded_leds]
-        kd_ceiling = None  # the set's loop bounds k_d by the lowest capture's ceiling, not kept
         # reported against the reconstruction's own S and F, which fit the anisotropic lobe
         symmetry = symmetry_from_ratios(within_captures(pair_ratios(sb.bins, len(sb.light), model, pairs), sb),
                                         captures=len(captures))

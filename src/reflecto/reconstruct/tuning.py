@@ -1113,6 +1113,13 @@ class PipelineTuning:
         source="measurement: on a tabulated NDF with structure toward grazing the 48 × 48 quadrature misses up "
                "to 2e-3 at 89° (aurora_white: 1.0000 against 1.0015–1.0022 at 96–256 rings) (dfaafac); "
                "no reason for 0.99 itself is recorded")
+    albedo_azimuths: int = tuned(
+        12, name="ALBEDO_AZIMUTHS", units="azimuths",
+        what="an anisotropic model's albedo is checked at this many incidence azimuths (30° apart), then "
+             "refined by two bisections about the largest",
+        source="convention: the incidence azimuths compare's normalization takes (evaluate.metrics."
+               "ALBEDO_AZIMUTHS); measurement: on a hemicube model of GGX α 0.5 × 0.05 the largest albedo "
+               "lies at φ_i = 90°, 1.16 against 0.91 at φ_i = 0 alone")
     albedo_quad_fine: int = tuned(
         128, name="ALBEDO_QUAD_FINE", units="rings = azimuths",
         what="the fine quadrature of the albedo check (128 × 128)",
