@@ -62,6 +62,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import geometry
+from ..colour import LUM
 from ..errors import ParameterError, ReflectoError
 from ..fresnel import eta_to_json
 from ..hemicube import Hemicube, hemicube
@@ -74,7 +75,15 @@ from .isotropic import fit_isotropic
 from .isotropy import CONDITIONAL_EXPLAINED, IsotropyTest, azimuthal_test
 from .motion import MotionReport, detect_motion
 from .normal import MIN_PAIRS, estimate_normal_consistency, tilt_frame
-from .pipeline import Options, bound_notes, checked_options, held_tint_notes, limit_energy_of_the_trend, usable_samples
+from .pipeline import (
+    Options,
+    bound_notes,
+    checked_options,
+    held_tint_notes,
+    limit_energy_of_the_trend,
+    resolve_normal,
+    usable_samples,
+)
 from .samples import Bins, bin_samples, kd_bound
 from .synthesis import SynthesisFill, SynthesisOptions
 from .tuning import ASYMMETRIC
@@ -552,6 +561,65 @@ def _refuse_mixed(captures: Sequence[RotatedCapture], consistency: CaptureConsis
                         "samples or points, or a wrong rotation_deg" + why)
 
 
+def _set_symmetry(view: _SetView) -> SymmetryTest:
+    """Eq. 3's test of the set's merged data (within each capture's pairs) in the view's frames."""
+    return symmetry_from_ratios(within_captures(view.ratios, view.bins), captures=len(view.frames))
+
+
+def _tilt_that_keeps_eq3(captures: Sequence[RotatedCapture], valids: list[NDArray[np.bool_]], opt: Options,
+                         normal: Array, view: _SetView) -> tuple[Array, _SetView]:
+    """Where a set consistent about the device axis reads eq. 3 broken there: the first
+    capture's own altered normal (:func:`.pipeline.resolve_normal`, §5.4), if the set keeps
+    eq. 3 and stays consistent about it; else ``normal`` and ``view`` unchanged.
+
+    A set whose captures share one tilt in the device frame (the sample turned about its
+    own normal on a tilted stage) agrees with itself about the device axis, but a tilt
+    breaks eq. 3's mirror symmetry there as an asymmetric BRDF would: aurora_white tilted
+    3° read 2.8× broken and got a hemicube model. One capture's estimate costs a fraction
+    of a second against the set search's seconds, and is tried only where the captures
+    are alike in the device frame (:func:`_alike_in_the_device_frame`): a BRDF that does
+    not change when the sample turns about its normal is isotropic, and keeps eq. 3 in
+    its own frame. An asymmetric material changes with the turn and keeps the device axis.
+    """
+    if opt.isotropic == "no" or not _alike_in_the_device_frame(captures, valids):
+        return normal, view
+    est = resolve_normal(captures[0].slices, valids[0], opt)
+    if est.source != "estimated":
+        return normal, view
+    other = _set_view(captures, valids, est.normal, opt)
+    if other.consistency.consistent and _set_symmetry(other).symmetric:
+        return est.normal, other
+    return normal, view
+
+
+#: Captures whose device-frame values differ by at most this RMS of their noise are alike.
+ALIKE_NOISE_RMS = ASYMMETRIC.alike_noise_rms
+
+
+def _alike_in_the_device_frame(captures: Sequence[RotatedCapture], valids: list[NDArray[np.bool_]]) -> bool:
+    """Whether every capture's luminance equals the first's within the camera's noise, pixel
+    by pixel in the device frame: the RMS of ``(y_k − y_0) / √(σ_k² + σ_0²)`` over the
+    samples usable in both is at most :data:`ALIKE_NOISE_RMS` (1 for noise alone). Turning
+    an isotropic sample about its tilted normal changes nothing the device sees; turning an
+    asymmetric one does. Captures without a noise model (``Slices.noise``) are not judged alike."""
+    first = captures[0].slices
+    if first.noise is None:
+        return False
+    y0 = first.values @ LUM
+    for c, ok in zip(captures[1:], valids[1:]):
+        sl = c.slices
+        if sl.noise is None or sl.values.shape != first.values.shape:
+            return False
+        var = sl.noise ** 2 + first.noise ** 2
+        use = ok & valids[0] & (var > 0)
+        if np.count_nonzero(use) < MIN_PAIRS:
+            return False
+        z = ((sl.values @ LUM) - y0)[use] / np.sqrt(var[use])
+        if not float(np.sqrt(np.mean(z * z))) <= ALIKE_NOISE_RMS:
+            return False
+    return True
+
+
 def _isotropic_for_set(t: IsotropyTest) -> bool:
     """Is one capture of the set isotropic? The conditional fraction alone decides
     (below :data:`.isotropy.CONDITIONAL_EXPLAINED`, or too few rings): the plain fraction
@@ -632,10 +700,12 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
         # a tilted set's captures disagree in the device frame as different samples would: search its normal
         normal, searched = _set_normal(captures, valids, opt.max_tilt_deg), True
         view = _set_view(captures, valids, normal, opt)
+    elif opt.normal == "auto" and not _set_symmetry(view).symmetric:
+        normal, view = _tilt_that_keeps_eq3(captures, valids, opt, normal, view)
     _refuse_mixed(captures, view.consistency, normal, searched)
-    frames, sls, oks, sb, reference, pairs, ratios, consistency = (
+    frames, sls, oks, sb, reference, pairs, _, consistency = (
         view.frames, view.slices, view.valid, view.bins, view.reference, view.pairs, view.ratios, view.consistency)
-    symmetry = symmetry_from_ratios(within_captures(ratios, sb), captures=len(captures))
+    symmetry = _set_symmetry(view)
     isotropic, tests = _choose_isotropic(opt.isotropic, sls, oks, reference, symmetry)
     fill: SynthesisFill | None = None
     excluded: list[tuple[int, int]] = []

@@ -794,6 +794,14 @@ class AsymmetricTuning:
         what="two captures whose rotations differ by less than this are duplicates (refused)",
         source="mechanism: two captures that close add no new coverage and usually mean a copied manifest "
                "(docs/design/asymmetric.md)")
+    alike_noise_rms: float = tuned(
+        1.2, name="ALIKE_NOISE_RMS", units="noise standard deviations (RMS)",
+        what="a set's captures whose device-frame luminance differs from the first's by at most this RMS of "
+             "their noise are alike: the sample did not change as it turned (an isotropic one on a tilt)",
+        source="measurement: as-built, aurora_white, pink-felt and delrin turned at 0/90/180/270° about tilts of "
+               "0°, 3° and 8° read 0.74–0.75 (noise alone; one channel's σ overstates the luminance's), the 8 "
+               "asymmetric examples' largest per set 1.66 (ggx-leaning) to 15.1; ideal device 0 against 43 and "
+               "more. Between the two groups, chosen on these sets only (docs/design/asymmetric.md, One normal)")
     min_captures: int = tuned(
         2, name="MIN_CAPTURES", units="captures",
         what="captures needed for §5.5",
