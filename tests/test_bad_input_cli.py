@@ -295,13 +295,16 @@ def test_a_damaged_interlaced_frame_is_reflectos_one_line_only(tmp_path, cap, ca
 
 
 # ------------------------------------------------------------ D9: calibration scale
-def test_a_calibration_scale_of_3e38_is_refused_naming_the_file(tmp_path, calib, capsys):
+@pytest.mark.parametrize("factor, words", [(None, "scale field reaches 3e"), (1e-30, "reaches only")])
+def test_a_calibration_scale_of_3e38_is_refused_naming_the_file(tmp_path, calib, capsys, factor, words):
+    """A scale 10³⁶ times too large (every BRDF black) or 10³⁰ times too small (every BRDF
+    a hundred-fold-plus white: k_d 0.999 and tilts of ±43° on a plastic) is refused."""
     _, cal, capab = calib
     with zipfile.ZipFile(cal) as z:
         members = {n: z.read(n) for n in z.namelist()}
     meta = json.loads(rio.npy_array(members["meta.npy"], cal, "meta.npy").tobytes())
     scale = rio.npy_array(members["scale.npy"], cal, "scale.npy")
-    members["scale.npy"] = rio.npy_bytes(np.full_like(scale, 3e38))
+    members["scale.npy"] = rio.npy_bytes(np.full_like(scale, 3e38) if factor is None else scale * np.float32(factor))
     meta["arrays"]["scale"]["sha256"] = rio.sha256(members["scale.npy"])
     meta["sha256"] = rio.content_digest(meta)  # checksums right: only the values are wrong
     members["meta.npy"] = rio.npy_bytes(np.frombuffer(json.dumps(meta).encode(), np.uint8))
@@ -309,12 +312,41 @@ def test_a_calibration_scale_of_3e38_is_refused_naming_the_file(tmp_path, calib,
     with zipfile.ZipFile(bright, "w", compression=zipfile.ZIP_DEFLATED) as z:
         for n, d in members.items():
             z.writestr(n, d)
-    with pytest.raises(FileFormatError, match="scale field reaches 3e"):
+    with pytest.raises(FileFormatError, match=words):
         Calibration.load(bright)
     out = tmp_path / "m.reflecto"
     _, line = _run(["reconstruct", str(capab), "--calibration", str(bright), "-o", str(out)], capsys)
     assert line.startswith(f"reflecto: error: {bright}: LED 0: the scale field") and not out.exists()
     Calibration.load(cal)  # the genuine one is far inside the bound
+
+
+def test_a_damaged_version_1_calibration_gets_its_error_alone(tmp_path, calib, capsys):
+    """A version-1 calibration (no checksum) is read with a warning; one that fails a check
+    gets the error alone, one line on the CLI, not the warning first."""
+    _, cal, capab = calib
+    with zipfile.ZipFile(cal) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    meta = json.loads(rio.npy_array(members["meta.npy"], cal, "meta.npy").tobytes())
+    v1 = {k: v for k, v in meta.items() if k not in ("arrays", "sha256")}
+    v1["version"] = 1
+
+    def written(name: str, scale_factor: float) -> Path:
+        m = dict(members, **{"meta.npy": rio.npy_bytes(np.frombuffer(json.dumps(v1).encode(), np.uint8))})
+        scale = rio.npy_array(members["scale.npy"], cal, "scale.npy")
+        m["scale.npy"] = rio.npy_bytes(scale * np.float32(scale_factor))
+        path = tmp_path / name
+        with zipfile.ZipFile(path, "w") as z:
+            for n, d in m.items():
+                z.writestr(n, d)
+        return path
+
+    with pytest.warns(UserWarning, match="version 1 has no checksum"):
+        Calibration.load(written("v1.npz", 1.0))
+    bad = written("v1-nan.npz", float("nan"))
+    out = tmp_path / "m.reflecto"
+    assert main(["reconstruct", str(capab), "--calibration", str(bad), "-o", str(out)]) == 1
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and err[0].startswith(f"reflecto: error: {bad}: ") and not out.exists(), err
 
 
 # ------------------------------------------------------------ D10–D12: outputs and inputs
@@ -438,7 +470,8 @@ def test_an_output_that_names_a_folder_or_nothing_is_refused_before_anything_is_
                         (["render", str(model), "-o", "."], ". is a folder; render writes"),
                         (["export", str(model), "-o", " "], "export -o: the argument is empty"),
                         (["reconstruct", str(cap), "-o", ""], "reconstruct -o: the argument is empty"),
-                        (["watch", str(cap.parent), "-o", "", "--once"], "watch -o: the argument is empty")):
+                        (["watch", str(cap.parent), "-o", "", "--once"], "watch -o: the argument is empty"),
+                        (["layout", "--plot", ""], "layout --plot: the argument is empty")):
         _, line = _run(argv, capsys)
         assert line.startswith(f"reflecto: error: {words}"), line
     assert list(tmp_path.iterdir()) == []
@@ -727,3 +760,32 @@ def test_an_output_name_near_the_file_systems_limit_is_written(tmp_path):
         assert len(os.fsencode(tmp.name)) <= 255
         tmp.write_bytes(b"x")
     assert sorted(len(os.fsencode(p.name)) for p in tmp_path.iterdir()) == [252, 252, 254]
+
+
+def test_a_full_disk_names_the_output_it_could_not_write(tmp_path):
+    """A full disk (ENOSPC) while an output is written said only "No space left on device":
+    the error names the output, and nothing is left behind. An OSError of another kind raised
+    by the writer's own code goes on as it is."""
+    import errno
+
+    from reflecto.io import atomic_folder, atomic_path, atomic_write
+
+    out = tmp_path / "sub" / "m.bin"
+    with pytest.raises(OutputError, match=r"m\.bin: cannot write: No space left on device"):
+        with atomic_write(out) as fh:
+            fh.write(b"data")
+            raise OSError(errno.ENOSPC, "No space left on device")
+    with pytest.raises(OutputError, match=r"m\.bin: cannot write: Disk quota exceeded"):
+        with atomic_path(out):
+            raise OSError(errno.EDQUOT, "Disk quota exceeded")
+    with pytest.raises(FileNotFoundError):
+        with atomic_write(out):
+            raise FileNotFoundError(errno.ENOENT, "an input the writer reads")
+    folder = tmp_path / "rep"
+    with pytest.raises(OutputError, match=r"rep/a\.png: cannot write: No space left"):  # the final name, not the temporary
+        with atomic_folder(folder, "index.html") as d, atomic_write(d / "a.png"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+    with pytest.raises(OutputError, match=r"rep: cannot write: No space left"):  # a writer of its own
+        with atomic_folder(folder, "index.html"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+    assert list(tmp_path.iterdir()) == []

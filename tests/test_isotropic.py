@@ -590,3 +590,28 @@ def test_a_diffuse_ceiling_of_zero_gives_k_d_zero_exactly():
     f = np.column_stack([a @ [0.3, 0.5], a @ [0.2, 0.4], a @ [0.0, 0.6]])
     x = _bounded_scalars(a, np.ones(50), f, np.array([0.4, 0.0, 0.0]), np.array([1.0]))
     assert x[0, 1] == 0.0 and x[0, 2] == 0.0 and abs(x[0, 0] - 0.3) < 1e-9
+
+
+def test_a_model_file_with_more_lobes_than_a_device_can_make_is_refused(tmp_path, monkeypatch):
+    """Each θ_d node's lobe is a table with its own shadowing: a file of 1,024 of them (12.7 KB)
+    took 20 s and 1.4 GB to read. At most MAX_LOBE_NODES (64) are saved and loaded; a file of
+    65 (written past the check) is refused, one line."""
+    import reflecto.model as model_module
+    from reflecto.model import MAX_LOBE_NODES
+
+    th = polar_nodes()
+    lobe = IsotropicNDF(th, _ggx_lobe(0.1)).values
+
+    def with_lobes(n):
+        return IsotropicMicrofacetBRDF((th, lobe), kd=0.05, ks=0.8, eta=1.5,
+                                       lobes=(np.radians(np.linspace(10.0, 80.0, n)), [lobe] * n))
+
+    path = with_lobes(MAX_LOBE_NODES).save(tmp_path / "m64.reflecto")
+    assert len(load_model(path).lobes.ndfs) == MAX_LOBE_NODES
+    with pytest.raises(ParameterError, match="65 lobes_theta_d nodes, more than 64"):
+        with_lobes(MAX_LOBE_NODES + 1).save(tmp_path / "m65.reflecto")
+    monkeypatch.setattr(model_module, "MAX_LOBE_NODES", 10_000)
+    path = with_lobes(MAX_LOBE_NODES + 1).save(tmp_path / "m65.reflecto")
+    monkeypatch.undo()
+    with pytest.raises(FileFormatError, match="65 lobes_theta_d nodes, more than 64|needs 2 to 64 float64 nodes"):
+        load_model(path)

@@ -220,6 +220,10 @@ def test_a_title_is_drawn_on_comparisons_and_refused_for_linear_images(mitsuba, 
     assert main(["render", ex, "--title", "x", "-o", str(tmp_path / "c.exr")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--title is drawn on a .png image" in err[0] and not (tmp_path / "c.exr").exists()
+    # a control character (ESC) made Matplotlib warn on stderr, two more lines
+    assert main(["render", ex, "--title", "a\x1bb", "-o", str(tmp_path / "d.png")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "holds control characters" in err[0] and not (tmp_path / "d.png").exists()
 
 
 def test_a_render_of_days_is_refused_before_it_starts(tmp_path, capsys):
@@ -278,6 +282,24 @@ def test_a_negative_envmap_and_a_black_reference_are_refused(mitsuba, tmp_path, 
     assert len(err) == 1 and "renders black" in err[0] and not out.exists()
 
 
+def test_an_envmap_without_pixels_is_refused_before_mitsuba_sees_it(mitsuba, tmp_path, capsys):
+    """A Radiance header of ``-Y 0 +X 0`` decodes to an empty image, on which Mitsuba's
+    ``envmap`` crashed the process (segfault, temporary files left): one line, no output."""
+    from reflecto.errors import FileFormatError
+    from reflecto.render.mitsuba import check_envmap
+
+    empty = tmp_path / "empty.hdr"
+    empty.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 0 +X 0\n")
+    with pytest.raises(FileFormatError, match=r"0 × 0 pixels: at least 2 × 2"):
+        check_envmap(empty)
+    ex = str(__import__("pathlib").Path(__file__).resolve().parents[1] / "examples" / "ggx-plastic.json")
+    out = tmp_path / "e.png"
+    assert main(["render", ex, "--scene", "sphere-env", "--envmap", str(empty), "--resolution", "16", "--spp", "1",
+                 "-o", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "0 × 0 pixels" in err[0] and not out.exists()
+
+
 def test_the_note_on_spp_compares_the_floor_with_the_corrected_difference():
     """docs/mitsuba.md: the note appears when the floor is above a third of the corrected
     difference (difference 3.0 %, floor 0.95 %: corrected 2.85 %, a third 0.949 %)."""
@@ -307,3 +329,25 @@ def test_render_without_mitsuba_is_one_line(tmp_path):
     err = p.stderr.strip().splitlines()
     assert p.returncode == 1 and len(err) == 1 and "needs Mitsuba 3" in err[0], p.stderr
     assert not (tmp_path / "x.png").exists()
+
+
+def test_an_exr_the_disk_cannot_take_is_one_line_naming_it(tmp_path, monkeypatch):
+    """Mitsuba's writer reports a full disk as a RuntimeError naming the temporary file (a
+    traceback on the CLI): it becomes the output's error, and nothing is left."""
+    from types import SimpleNamespace
+
+    from reflecto.errors import OutputError
+    from reflecto.render import mitsuba as rm
+
+    class FullDisk:
+        def __init__(self, img):
+            pass
+
+        def write(self, name):
+            raise RuntimeError(f'[FileStream] "{name}": I/O error while attempting to write 226671 bytes: '
+                               "No space left on device")
+
+    monkeypatch.setattr(rm, "import_mitsuba", lambda variant: (SimpleNamespace(Bitmap=FullDisk), variant))
+    with pytest.raises(OutputError, match=r"r\.exr: cannot write: No space left on device$"):
+        rm.save_image(np.zeros((4, 4, 4)), tmp_path / "r.exr")
+    assert list(tmp_path.iterdir()) == []

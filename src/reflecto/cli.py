@@ -20,6 +20,7 @@ import os
 import shutil
 import sys
 import time
+import unicodedata
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -796,6 +797,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     if out.suffix.lower() in (".exr", ".hdr") and not utf8_name(out):
         raise ReflectoError(f"{shown_path(out)}: the name is not valid UTF-8, which the {out.suffix.lower()} writer "
                             "cannot take: rename it (or write a .png)")
+    if args.title and any(unicodedata.category(ch) == "Cc" for ch in args.title):  # Matplotlib warns on them
+        raise ReflectoError(f"render --title: {args.title!r} holds control characters; a title is drawn as text")
     if args.title and out.suffix.lower() != ".png":  # before the render: a title is drawn on 8-bit pixels
         raise ReflectoError(f"{shown_path(out)}: --title is drawn on a .png image; a .exr or .hdr keeps its "
                             "linear values untouched: drop --title or write a .png")
@@ -1045,7 +1048,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "cells along each edge of a hemicube face, even, 8 to 256 (the NDF's texels; the plot uses at "
                    "least 128)")
     q.add_argument("--theta-max", type=_CAP_ANGLE, default=80.0, help="NDF cap θ_h ≤ this (degrees)")
-    q.add_argument("--plot", type=Path, help="write the Fig. 2(c)(d) analogue to this PNG (default: no plot)")
+    q.add_argument("--plot", help="write the Fig. 2(c)(d) analogue to this PNG (default: no plot)")
     q.add_argument("--json", action="store_true", help=_JSON_HELP)
     q.set_defaults(func=cmd_layout)
 

@@ -22,6 +22,7 @@ failed are removed again.
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import io
 import json
@@ -863,6 +864,21 @@ def _temp_file(path: Path, suffix: str) -> tuple[int, str, list[Path]]:
     return fd, tmp, created
 
 
+#: Errors of writing that are the output's, whatever code raised them: a full disk, a quota, a file too large.
+_WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+def _name_the_output(e: BaseException, path: Path, tmp: str) -> None:
+    """Raise an :class:`OutputError` naming ``path`` for a write error of the disk's
+    (:data:`_WRITE_ERRNOS`), which names no file ("No space left on device"), or for one
+    that names the temporary file ``tmp`` (a writer that writes it atomically in turn);
+    other exceptions go on as they are."""
+    if isinstance(e, OSError) and e.errno in _WRITE_ERRNOS:
+        raise OutputError(path, f"cannot write: {e.strerror or e}") from None
+    if isinstance(e, OutputError) and e.path == Path(tmp):
+        raise OutputError(path, e.problem) from None
+
+
 def _rename(tmp: str, path: Path) -> None:
     try:
         os.replace(tmp, path)
@@ -904,10 +920,11 @@ def atomic_write(path: str | Path, mode: str = "wb") -> Iterator[IO[Any]]:
             fh.flush()
             os.fsync(fh.fileno())
         _rename(tmp, path)
-    except BaseException:
+    except BaseException as e:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         remove_empty(created)
+        _name_the_output(e, path, tmp)
         raise
 
 
@@ -944,10 +961,11 @@ def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
         with contextlib.suppress(OSError):
             os.chmod(tmp, file_mode())  # a library may have replaced the file
         _rename(tmp, path)
-    except BaseException:
+    except BaseException as e:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         remove_empty(created)
+        _name_the_output(e, path, tmp)
         raise
 
 
@@ -1013,7 +1031,11 @@ def atomic_folder(path: str | Path, marker: str) -> Iterator[Path]:
             shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         shutil.rmtree(tmp, ignore_errors=True)
         remove_empty(created)
+        if isinstance(e, OSError) and e.errno in _WRITE_ERRNOS:
+            raise OutputError(path, f"cannot write: {e.strerror or e}") from None
+        if isinstance(e, OutputError) and e.path.is_relative_to(tmp):  # a file inside: named in the output
+            raise OutputError(path / e.path.relative_to(tmp), e.problem) from None
         raise

@@ -505,7 +505,9 @@ class MicrofacetBRDF(BRDFSource):
         metadata = _local_metadata(path, metadata)
         kind = meta.get("ndf_kind", "hemicube")
         if kind == "isotropic":
-            return IsotropicMicrofacetBRDF._from_file(path, meta, arrays, (kd, ks, eta, correlated, metadata))
+            iso = IsotropicMicrofacetBRDF._from_file(path, meta, arrays, (kd, ks, eta, correlated, metadata))
+            _warn_if_legacy(path, meta)
+            return iso
         if kind != "hemicube":
             raise FileFormatError(path, f"unknown NDF kind {short_repr(kind)} (expected 'hemicube' or 'isotropic')")
         n = meta.get("resolution")
@@ -522,6 +524,7 @@ class MicrofacetBRDF(BRDFSource):
         except ParameterError as e:
             raise FileFormatError(path, f"invalid model parameters ({e})") from None
         _check_model(path, model)
+        _warn_if_legacy(path, meta)
         return model
 
 
@@ -529,6 +532,11 @@ class MicrofacetBRDF(BRDFSource):
 MAX_MODEL_RESOLUTION = 2048
 MAX_POLAR_NODES = 1 << 16
 MAX_TINT_NODES = 1024
+#: An NDF per θ_d node is one tabulated lobe (and its shadowing table) each: the reconstruction
+#: makes one per cluster of LEDs that see the mirror direction (two on the paper's layout), and
+#: a device has at most 32 LEDs (:data:`reflecto.instrument.device.MAX_LEDS`); 64 leave room for a
+#: set's stacked captures while a file of 1,024 took 20 s and 1.4 GB to read.
+MAX_LOBE_NODES = 64
 MAX_MODEL_META_BYTES = 16 << 20
 ETA_RANGE = (1.0, 100.0)
 #: Largest directional albedo of a model file: the reconstruction clamps it to 1
@@ -583,8 +591,8 @@ def _lobes_from_arrays(path: Path, arrays: dict[str, NDArray[Any]], ndf: Isotrop
     if values is None and theta is None:
         return None
     if values is None or theta is None or values.dtype != np.dtype("<f4") or theta.dtype != np.dtype("<f8") \
-            or theta.ndim != 1 or not 2 <= len(theta) <= MAX_TINT_NODES or values.shape != (len(theta), len(ndf.nodes)):
-        raise FileFormatError(path, f"an NDF per θ_d node needs 2 to {MAX_TINT_NODES} float64 nodes "
+            or theta.ndim != 1 or not 2 <= len(theta) <= MAX_LOBE_NODES or values.shape != (len(theta), len(ndf.nodes)):
+        raise FileFormatError(path, f"an NDF per θ_d node needs 2 to {MAX_LOBE_NODES} float64 nodes "
                                     "(lobes_theta_d.npy) and as many float32 rows on the NDF's polar nodes (lobes.npy)")
     try:
         lobes = NodeNDFs(theta, [IsotropicNDF(ndf.nodes, r.astype(np.float64), normalize=False) for r in values])
@@ -649,7 +657,7 @@ def _check_writable(path: Path, meta: dict[str, Any], arrays: dict[str, NDArray[
         _check_normal_metadata(path, metadata if isinstance(metadata, dict) else {})
     except FileFormatError as e:
         refuse(e.problem)
-    for name, limit in (("tint_theta", MAX_TINT_NODES), ("lobes_theta_d", MAX_TINT_NODES),
+    for name, limit in (("tint_theta", MAX_TINT_NODES), ("lobes_theta_d", MAX_LOBE_NODES),
                         ("ndf_theta", MAX_POLAR_NODES)):
         if name in arrays and len(arrays[name]) > limit:
             refuse(f"{len(arrays[name])} {name} nodes, more than {limit}")
@@ -727,9 +735,15 @@ def _legacy_arrays(path: Path, meta: dict[str, Any], members: dict[str, bytes]) 
         covered += arrays["ndf_theta"].tobytes()
     if hashlib.sha256(covered).hexdigest() != meta.get("ndf_sha256"):
         raise FileFormatError(path, "NDF checksum mismatch: the file is damaged")
-    warnings.warn(f"{path}: model format version {meta['version']} checksums only the NDF; its parameters are "
-                  "range-checked but not verified (save it again to get version 3)", ReflectoWarning, stacklevel=3)
     return arrays
+
+
+def _warn_if_legacy(path: Path, meta: dict[str, Any]) -> None:
+    """The warning on a version-1 or -2 file, once it has passed every check (a file that
+    fails one gets its error alone, one line)."""
+    if meta["version"] < 3:
+        warnings.warn(f"{path}: model format version {meta['version']} checksums only the NDF; its parameters are "
+                      "range-checked but not verified (save it again to get version 3)", ReflectoWarning, stacklevel=4)
 
 
 def _model_parameters(path: Path, meta: dict[str, Any]) -> tuple[Array, Array, Array, bool, dict[str, Any]]:

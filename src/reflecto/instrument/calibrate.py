@@ -223,10 +223,6 @@ class Calibration:
                                   f"(1 to {CALIBRATION_VERSION})")
         if version >= 2:
             _verify_checksums(path, meta, members)
-        else:
-
-            warnings.warn(f"{path}: calibration format version 1 has no checksum; its contents are range-checked "
-                          "only (calibrate again to get version 2)", ReflectoWarning, stacklevel=2)
         try:
             device = Device.from_dict(meta["device"], where="device")
             optics = validate_optics_dict(meta["optics"], "optics")
@@ -261,6 +257,9 @@ class Calibration:
         report = meta.get("report", {})
         if not isinstance(report, dict):
             raise FileFormatError(path, "'report' must be an object")
+        if version < 2:  # once every check has passed: a damaged file gets its error alone, one line
+            warnings.warn(f"{path}: calibration format version 1 has no checksum; its contents are range-checked "
+                          "only (calibrate again to get version 2)", ReflectoWarning, stacklevel=2)
         return cls(device, optics, leds, scale, response, report)
 
 
@@ -270,12 +269,13 @@ class Calibration:
 MAX_LED_OFFSET_DEG = 5.0
 
 
-#: Largest ratio of a calibrated radiometric scale to its reference value (below). The
+#: Largest ratio of a calibrated radiometric scale to its reference value (below), either way. The
 #: scale is the nominal one times the LED's intensity factor and the optics' transmission
 #: (≤ 1): the as-built devices read at most 1.12× nominal (LEDs within ±15 %). Two orders
 #: of magnitude leave room for a device file whose camera sensitivity is only roughly
 #: known, and still refuse a scale that would make every measured BRDF a hundred times
-#: (or, for a damaged file's 3e38, 10³⁶ times) too dark: an all-black model.
+#: (or, for a damaged file's 3e38, 10³⁶ times) too dark: an all-black model; or, a hundred
+#: times too small, a hundred times too bright (a diffuse white read as k_d ≈ 1 whatever the sample).
 MAX_SCALE_RATIO = 100.0
 
 
@@ -296,15 +296,24 @@ def _reference_scale(device: Device, response: Array | None) -> Array:
 
 
 def _implausible_scale(device: Device, scale: NDArray[np.float32], response: Array | None) -> str | None:
-    """Why the scale field is too large to be a calibration of ``device`` (None if it is not)."""
+    """Why the scale field is too large or too small to be a calibration of ``device``
+    (None if it is neither): beyond :data:`MAX_SCALE_RATIO` times its reference either way.
+    An LED whose scale is 0 everywhere is :func:`_dark_led`'s to name."""
     ref = _reference_scale(device, response)
     peak = scale.reshape(len(scale), -1).max(axis=1)
-    bad = np.flatnonzero(peak > MAX_SCALE_RATIO * ref)
-    if not len(bad):
-        return None
-    k = int(bad[0])
-    return (f"LED {k}: the scale field reaches {float(peak[k]):.3g} DN/ms per sr⁻¹, more than {MAX_SCALE_RATIO:g}× "
-            f"the device's reference {float(ref[k]):.3g}; every BRDF read with it would be far too dark")
+    high = np.flatnonzero(peak > MAX_SCALE_RATIO * ref)
+    if len(high):
+        k = int(high[0])
+        return (f"LED {k}: the scale field reaches {float(peak[k]):.3g} DN/ms per sr⁻¹, more than "
+                f"{MAX_SCALE_RATIO:g}× the device's reference {float(ref[k]):.3g}; every BRDF read with it would be "
+                "far too dark")
+    low = np.flatnonzero((peak > 0) & (peak < ref / MAX_SCALE_RATIO))
+    if len(low):
+        k = int(low[0])
+        return (f"LED {k}: the scale field reaches only {float(peak[k]):.3g} DN/ms per sr⁻¹, less than 1/"
+                f"{MAX_SCALE_RATIO:g} of the device's reference {float(ref[k]):.3g}; every BRDF read with it would "
+                "be far too bright")
+    return None
 
 
 def _dark_led(device: Device, optics: Optics, scale: NDArray[np.float32]) -> tuple[int, float] | None:

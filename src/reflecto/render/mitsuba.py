@@ -53,7 +53,7 @@ from scipy import ndimage
 
 from ..brdf import BRDFSource
 from ..colour import LUM
-from ..errors import FileFormatError, ParameterError, one_line
+from ..errors import FileFormatError, OutputError, ParameterError, one_line
 from ..export.rgl import export_rgl
 from ..io import atomic_path
 from ..mitsuba_support import import_mitsuba
@@ -114,6 +114,10 @@ def utf8_name(path: Path) -> bool:
     return True
 
 
+#: The fewest pixels along either side of an environment map (Mitsuba's ``envmap`` interpolates between pixels).
+MIN_ENVMAP_PIXELS = 2
+
+
 def read_envmap(path: str | Path) -> NDArray[np.float64]:
     """An environment map as Mitsuba's ``envmap`` emitter reads it: linear RGB, ``(H, W, 3)``.
 
@@ -165,6 +169,9 @@ def read_envmap(path: str | Path) -> NDArray[np.float64]:
         raise FileFormatError(path, unreadable) from None
     if img.ndim != 3 or img.shape[2] < 3 or not np.all(np.isfinite(img)):
         raise FileFormatError(path, f"environment map must be a finite RGB image, got shape {img.shape}")
+    if min(img.shape[:2]) < MIN_ENVMAP_PIXELS:  # a header of 0 × 0 decodes to an empty image that crashes Mitsuba
+        raise FileFormatError(path, f"environment map of {img.shape[1]} × {img.shape[0]} pixels: at least "
+                              f"{MIN_ENVMAP_PIXELS} × {MIN_ENVMAP_PIXELS} needed")
     if np.any(img[..., :3] < 0):  # radiance is not negative: such a map would light with negative light
         raise FileFormatError(path, f"environment map has negative values (down to {float(img[..., :3].min()):.3g}); "
                               "radiance is at least 0")
@@ -868,7 +875,10 @@ def save_image(img: Array, path: str | Path) -> Path:
         elif suffix == ".exr":
 
             mi, _ = import_mitsuba("llvm_ad_rgb")
-            mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32)).write(str(tmp))
+            try:
+                mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32)).write(str(tmp))
+            except RuntimeError as e:  # Mitsuba's FileStream: "…: I/O error while attempting to write N bytes: why"
+                raise OutputError(path, f"cannot write: {str(e).rsplit(': ', 1)[-1]}") from None
         else:
             iio.imwrite(tmp, np.ascontiguousarray(img, dtype=np.float32), extension=".hdr")
     return path
