@@ -782,7 +782,8 @@ def test_a_full_disk_names_the_output_it_could_not_write(tmp_path):
         with atomic_write(out):
             raise FileNotFoundError(errno.ENOENT, "an input the writer reads")
     folder = tmp_path / "rep"
-    with pytest.raises(OutputError, match=r"rep/a\.png: cannot write: No space left"):  # the final name, not the temporary
+    # the final name, not the temporary folder's
+    with pytest.raises(OutputError, match=r"rep/a\.png: cannot write: No space left"):
         with atomic_folder(folder, "index.html") as d, atomic_write(d / "a.png"):
             raise OSError(errno.ENOSPC, "No space left on device")
     with pytest.raises(OutputError, match=r"rep: cannot write: No space left"):  # a writer of its own
