@@ -587,6 +587,19 @@ def test_calibration_mirror_normal_that_moves_an_led_far_is_refused(calib_copy):
         calibrate(calib_copy)
 
 
+def test_calibration_mirror_image_of_noise_is_refused(calib_copy):
+    """A mirror image of uniform noise made one spot of the whole frame, whose centroid moved
+    LED 0 by 1.66° without a word: a pinhole's image covers a few pixels."""
+    import cv2
+
+    path = calib_copy / "mirror_led0.png"
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    noise = np.random.default_rng(0).integers(0, np.iinfo(img.dtype).max, img.shape, dtype=img.dtype)
+    cv2.imwrite(str(path), noise)
+    with pytest.raises(CaptureError, match=r"mirror_led0.png: not a mirror spot: 9\d\.\d % of the frame"):
+        calibrate(calib_copy)
+
+
 @pytest.mark.parametrize("leds, message", [
     ([[float("nan")] * 3] * 6, "NaN or infinity"),
     ([[0.0, 0.0, 0.0]] * 6, "unit vectors"),

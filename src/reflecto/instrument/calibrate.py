@@ -543,6 +543,18 @@ def smooth_field(values: Array, ok: NDArray[np.bool_], sigma: float) -> Array:
 
 
 # ------------------------------------------------------------------ geometry
+def _spot_pixels(img: NDArray[np.integer], black: float, min_peak: float) -> tuple[Array, NDArray[np.bool_]]:
+    """The image's luminance above black and its spot pixels: brighter than 20 % of the
+    peak (at least ``min_peak``), as :func:`detect_spots` takes them."""
+    lum = img.astype(np.float64).mean(axis=-1) - black
+    return lum, lum > 0.2 * max(float(lum.max()), min_peak)
+
+
+#: A mirror image's one spot covers at most this share of the frame: a pinhole's image is a
+#: few pixels (4–7 of 76,800 on the as-built device); a frame of noise or light covers most of it.
+MAX_MIRROR_SPOT_FRACTION = 0.01
+
+
 def detect_spots(img: NDArray[np.integer], black: float, min_peak: float) -> Array:
     """Intensity-weighted centroids of bright spots in a raw image.
 
@@ -563,8 +575,7 @@ def detect_spots(img: NDArray[np.integer], black: float, min_peak: float) -> Arr
     ndarray, shape (K, 2)
         ``(u, v)`` pixel coordinates (column, row) of the ``K`` spots.
     """
-    lum = img.astype(np.float64).mean(axis=-1) - black
-    mask = lum > 0.2 * max(float(lum.max()), min_peak)
+    lum, mask = _spot_pixels(img, black, min_peak)
     n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
     if n <= 1:
         return np.zeros((0, 2))
@@ -830,6 +841,10 @@ def calibrate(calib_dir: str | Path, progress: bool = False) -> Calibration:
     leds = device.leds.copy()
     for m in mirror:
         img = read_image(m["_path"], shape, dtype)
+        lit = float(_spot_pixels(img, black, min_peak)[1].mean())
+        if lit > MAX_MIRROR_SPOT_FRACTION:  # its centroid would be the frame's: an LED moved by degrees
+            raise CaptureError(m["_path"], f"not a mirror spot: {100 * lit:.1f} % of the frame is above a fifth of "
+                               "its peak, where a pinhole's image covers a few pixels (noise, or a frame of light)")
         s = detect_spots(img, black, min_peak)
         if len(s) != 1:
             raise CaptureError(m["_path"], f"expected one mirror spot, found {len(s)}")
