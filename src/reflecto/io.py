@@ -868,15 +868,16 @@ def _temp_file(path: Path, suffix: str) -> tuple[int, str, list[Path]]:
 _WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
 
-def _name_the_output(e: BaseException, path: Path, tmp: str) -> None:
+def _name_the_output(e: BaseException, path: Path, tmp: str | Path) -> None:
     """Raise an :class:`OutputError` naming ``path`` for a write error of the disk's
     (:data:`_WRITE_ERRNOS`), which names no file ("No space left on device"), or for one
-    that names the temporary file ``tmp`` (a writer that writes it atomically in turn);
-    other exceptions go on as they are."""
+    that names the temporary file or folder ``tmp`` or a file inside it (a writer that
+    writes atomically in turn): named by its place in ``path``. Other exceptions go on as
+    they are."""
     if isinstance(e, OSError) and e.errno in _WRITE_ERRNOS:
         raise OutputError(path, f"cannot write: {e.strerror or e}") from None
-    if isinstance(e, OutputError) and e.path == Path(tmp):
-        raise OutputError(path, e.problem) from None
+    if isinstance(e, OutputError) and e.path.is_relative_to(tmp):
+        raise OutputError(path / e.path.relative_to(tmp), e.problem) from None
 
 
 def _rename(tmp: str, path: Path) -> None:
@@ -1034,8 +1035,5 @@ def atomic_folder(path: str | Path, marker: str) -> Iterator[Path]:
     except BaseException as e:
         shutil.rmtree(tmp, ignore_errors=True)
         remove_empty(created)
-        if isinstance(e, OSError) and e.errno in _WRITE_ERRNOS:
-            raise OutputError(path, f"cannot write: {e.strerror or e}") from None
-        if isinstance(e, OutputError) and e.path.is_relative_to(tmp):  # a file inside: named in the output
-            raise OutputError(path / e.path.relative_to(tmp), e.problem) from None
+        _name_the_output(e, path, tmp)
         raise

@@ -567,10 +567,12 @@ def _set_symmetry(view: _SetView) -> SymmetryTest:
 
 
 def _tilt_that_keeps_eq3(captures: Sequence[RotatedCapture], valids: list[NDArray[np.bool_]], opt: Options,
-                         normal: Array, view: _SetView) -> tuple[Array, _SetView]:
+                         normal: Array, view: _SetView, symmetry: SymmetryTest
+                         ) -> tuple[Array, _SetView, SymmetryTest]:
     """Where a set consistent about the device axis reads eq. 3 broken there: the first
-    capture's own altered normal (:func:`.pipeline.resolve_normal`, §5.4), if the set keeps
-    eq. 3 and stays consistent about it; else ``normal`` and ``view`` unchanged.
+    capture's own altered normal (:func:`.pipeline.resolve_normal`, §5.4), with the set's
+    view and eq. 3 test about it, if the set keeps eq. 3 and stays consistent about it;
+    else ``normal``, ``view`` and ``symmetry`` unchanged.
 
     A set whose captures share one tilt in the device frame (the sample turned about its
     own normal on a tilted stage) agrees with itself about the device axis, but a tilt
@@ -582,14 +584,15 @@ def _tilt_that_keeps_eq3(captures: Sequence[RotatedCapture], valids: list[NDArra
     its own frame. An asymmetric material changes with the turn and keeps the device axis.
     """
     if opt.isotropic == "no" or not _alike_in_the_device_frame(captures, valids):
-        return normal, view
+        return normal, view, symmetry
     est = resolve_normal(captures[0].slices, valids[0], opt)
     if est.source != "estimated":
-        return normal, view
+        return normal, view, symmetry
     other = _set_view(captures, valids, est.normal, opt)
-    if other.consistency.consistent and _set_symmetry(other).symmetric:
-        return est.normal, other
-    return normal, view
+    kept = _set_symmetry(other)
+    if other.consistency.consistent and kept.symmetric:
+        return est.normal, other, kept
+    return normal, view, symmetry
 
 
 #: Captures whose device-frame values differ by at most this RMS of their noise are alike.
@@ -696,16 +699,17 @@ def reconstruct_rotations(captures: Sequence[RotatedCapture], options: Options |
     else:
         normal = np.asarray(opt.normal, dtype=np.float64)
     view = _set_view(captures, valids, normal, opt)
+    symmetry = _set_symmetry(view)
     if not view.consistency.consistent and opt.normal == "auto":
         # a tilted set's captures disagree in the device frame as different samples would: search its normal
         normal, searched = _set_normal(captures, valids, opt.max_tilt_deg), True
         view = _set_view(captures, valids, normal, opt)
-    elif opt.normal == "auto" and not _set_symmetry(view).symmetric:
-        normal, view = _tilt_that_keeps_eq3(captures, valids, opt, normal, view)
+        symmetry = _set_symmetry(view)
+    elif opt.normal == "auto" and not symmetry.symmetric:
+        normal, view, symmetry = _tilt_that_keeps_eq3(captures, valids, opt, normal, view, symmetry)
     _refuse_mixed(captures, view.consistency, normal, searched)
     frames, sls, oks, sb, reference, pairs, _, consistency = (
         view.frames, view.slices, view.valid, view.bins, view.reference, view.pairs, view.ratios, view.consistency)
-    symmetry = _set_symmetry(view)
     isotropic, tests = _choose_isotropic(opt.isotropic, sls, oks, reference, symmetry)
     fill: SynthesisFill | None = None
     excluded: list[tuple[int, int]] = []

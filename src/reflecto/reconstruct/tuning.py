@@ -801,7 +801,9 @@ class AsymmetricTuning:
         source="measurement: as-built, aurora_white, pink-felt and delrin turned at 0/90/180/270° about tilts of "
                "0°, 3° and 8° read 0.74–0.75 (noise alone; one channel's σ overstates the luminance's), the 8 "
                "asymmetric examples' largest per set 1.66 (ggx-leaning) to 15.1; ideal device 0 against 43 and "
-               "more. Between the two groups, chosen on these sets only (docs/design/asymmetric.md, One normal)")
+               "more. Between the two groups; checked on sets it was not chosen on (as-built, tilt azimuth 130°): six "
+               "other shared materials at 2° and 6° all alike (12/12), the 12 random asymmetric materials of "
+               "validate_asymmetric's fill part none (0/12) (docs/design/asymmetric.md, One normal)")
     min_captures: int = tuned(
         2, name="MIN_CAPTURES", units="captures",
         what="captures needed for §5.5",
